@@ -1,0 +1,273 @@
+"""The documented, seeded recipe for a bank of K adaptive Kalman experts, with validation.
+
+This is the boundary of the batched core: every argument is checked here, so that
+:mod:`kalmix.core` can stay free of checks.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+
+from .core.dynamics import polynomial_prior
+from .core.gating import GATING_INPUTS
+from .core.mixture import DYNAMICS, GATINGS, MixtureParams
+
+__all__ = ["make_params", "noise_grid"]
+
+#: Process-noise levels of the grid span this range (measurement units squared per frame).
+PROCESS_NOISE_RANGE = (1e-2, 1e2)
+#: Measurement-noise levels of the grid span this range (measurement units squared).
+MEASUREMENT_NOISE_RANGE = (5e-2, 5.0)
+#: Forgetting factors assigned to experts (cycled through a seeded permutation).
+FORGETTING_LEVELS = (0.9, 0.95, 0.98, 0.99)
+#: Ridge weights toward the prior (normalised units).
+RIDGE_LEVELS = (1e-3, 1e-2, 1e-1)
+
+
+def _check_positive(name, value, *, allow_zero=False, upper=None):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name}: expected a real number, got {type(value).__name__} {value!r}")
+    value = float(value)
+    bad = not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero)
+    if upper is not None and value > upper:
+        bad = True
+    if bad:
+        rng = f"in [0, {upper}]" if allow_zero and upper is not None else (
+            ">= 0" if allow_zero else "> 0") if upper is None else f"in (0, {upper}]"
+        raise ValueError(f"{name}: expected a finite number {rng}, got {value!r}")
+    return value
+
+
+def _check_int(name, value, minimum):
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name}: expected an integer >= {minimum}, got {type(value).__name__} {value!r}")
+    if value < minimum:
+        raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def _check_choice(name, value, choices):
+    if value not in choices:
+        raise ValueError(f"{name}: expected one of {', '.join(map(repr, choices))}, got {value!r}")
+    return value
+
+
+def _levels(low: float, high: float, count: int) -> np.ndarray:
+    """``count`` log-spaced levels; one level is the geometric middle of the range."""
+    if count == 1:
+        return np.array([math.sqrt(low * high)])
+    return np.geomspace(low, high, count)
+
+
+def noise_grid(n_experts: int) -> tuple[int, int]:
+    """Grid shape (process levels, measurement levels) for K experts: 8 x 5 for K = 40.
+
+    The measurement axis has ``min(5, ceil(K / 8))`` levels... more precisely
+    :math:`n_R = \\max(1, \\mathrm{round}(\\sqrt{K \\cdot 5/8}))`,
+    :math:`n_Q = \\lceil K / n_R \\rceil`; the first K points (process level
+    varying fastest) are used.
+    """
+    n_r = max(1, round(math.sqrt(n_experts * 5 / 8)))
+    n_q = math.ceil(n_experts / n_r)
+    return n_q, n_r
+
+
+def make_params(
+    measurement_dim: int,
+    n_experts: int = 40,
+    *,
+    dynamics: str = "rls",
+    gating: str = "fixed_share",
+    gating_input: str = "velocity",
+    order: int = 2,
+    seed: int = 0,
+    length_unit: float = 1.0,
+    feature_scale: float | None = None,
+    velocity_scale: float = 0.1,
+    process_noise_range: tuple[float, float] = PROCESS_NOISE_RANGE,
+    measurement_noise_range: tuple[float, float] = MEASUREMENT_NOISE_RANGE,
+    forgetting_levels=FORGETTING_LEVELS,
+    ridge_levels=RIDGE_LEVELS,
+    prior_degree: int | None = None,
+    spectral_radius_bound: float = 1.02,
+    initial_variance_range: tuple[float, float] = (1.0, 100.0),
+    initial_velocity_spread: float = 2.0,
+    expert_scale: float = 2.0,
+    temperature: float = 1.0,
+    gate_share: float = 0.02,
+    eta_initial: float = 0.5,
+    eta_minimum: float = 0.02,
+    eta_decay_steps: float = 150.0,
+    eta_sensitivity: float = 0.02,
+    adapt_noise: bool = True,
+    process_noise_shrink: float = 0.05,
+    measurement_noise_shrink: float = 0.02,
+    noise_floor: float = 0.01,
+    noise_reinflation: float = 0.0,
+) -> MixtureParams:
+    """Build and validate the parameters of a bank of K experts and its gate.
+
+    The bank (a fixed function of ``seed``): expert *i* sits on a log-spaced grid of
+    process-noise levels :math:`Q_i = q_i I` and measurement-noise levels
+    :math:`R_i = r_i I` (8 x 5 for K = 40; K = 1 gives the grid's geometric middle);
+    its forgetting factor :math:`\\lambda_i` and ridge :math:`\\rho_i` are drawn from
+    ``forgetting_levels`` and ``ridge_levels``, its initial variance :math:`P_{0,i}`
+    log-uniformly from ``initial_variance_range`` and its initial velocity guess from
+    :math:`N(0, \\text{spread}^2)`. With K = 1 the expert is the grid's middle with
+    the middle forgetting and ridge, zero initial velocity and the geometric middle
+    initial variance.
+
+    Parameters
+    ----------
+    measurement_dim : int
+        p, the number of measured coordinates (3 for the paper's stereo features).
+    n_experts : int
+        K >= 1.
+    dynamics : {"rls", "literal", "fixed"}
+        How each expert's system matrix is estimated (:mod:`kalmix.core.dynamics`).
+        ``fixed`` keeps the prior (a plain constant-velocity/acceleration filter).
+    gating : {"fixed_share", "paper", "random"}
+        ``paper``: softmax gate of eq. (8) trained by eq. (9); ``fixed_share``: a
+        softmax over the experts' running log-likelihoods with a share
+        :math:`\\alpha_s` (tracking the best expert); ``random``: weights drawn at
+        random each frame, no learning (the paper's baseline).
+    gating_input : {"velocity", "position", "bias"}
+        Input :math:`x_k` of the paper gate (eq. 8).
+    order : int
+        o >= 1, number of past feature vectors in each expert's state (n = o p).
+    seed : int
+        Seed of the bank recipe and of the random gate.
+    length_unit : float
+        Typical size of a measurement unit's noise (1 for pixels): noise levels,
+        scales and velocities below are multiplied by it (squared for variances).
+    feature_scale : float, optional
+        :math:`\\kappa`, default ``100 * length_unit``.
+    velocity_scale : float
+        :math:`v_0` of the gating input, in normalised features per frame.
+    process_noise_range, measurement_noise_range : (float, float)
+        Ranges of the grid's :math:`q_i, r_i` (units squared).
+    forgetting_levels : sequence of float in (0, 1]
+        :math:`\\lambda` values of the RLS dynamics.
+    ridge_levels : sequence of float > 0
+        :math:`\\rho` values of the RLS dynamics.
+    prior_degree : {0, 1, 2}, optional
+        Polynomial degree of the prior :math:`\\Theta_0`, default ``min(order-1, 1)``.
+    spectral_radius_bound : float
+        Guard on the learned companion matrix.
+    initial_variance_range : (float, float)
+        Range of :math:`P_{0,i} / I` (units squared).
+    initial_velocity_spread : float
+        Standard deviation of the experts' initial velocity guess (units per frame).
+    expert_scale : float
+        :math:`\\sigma_i` of eq. (10) (units).
+    temperature : float
+        T of eq. (8) (and the likelihood tempering of the fixed-share gate).
+    gate_share : float
+        :math:`\\alpha_s \\in [0, 1]` of the fixed-share gate.
+    eta_initial, eta_minimum, eta_decay_steps : float
+        :math:`\\eta(t) = \\eta_{min} + (\\eta_0 - \\eta_{min}) e^{-t/\\tau}`.
+    eta_sensitivity : float
+        :math:`\\alpha` of :math:`\\eta_k = \\eta(t)(1 - e^{-\\alpha\\varepsilon})` (units^-2).
+    adapt_noise : bool
+        Apply eq. (11)/(12).
+    process_noise_shrink, measurement_noise_shrink : float
+        :math:`\\beta, \\beta'` of eq. (11)/(12).
+    noise_floor : float
+        :math:`\\phi`: Q and R never fall below :math:`\\phi` times their initial value
+        (0 = the paper's rule).
+    noise_reinflation : float
+        :math:`\\gamma`: per-frame pull back toward the initial value (0 = the paper's rule).
+    """
+    p = _check_int("measurement_dim", measurement_dim, 1)
+    k = _check_int("n_experts", n_experts, 1)
+    o = _check_int("order", order, 1)
+    _check_choice("dynamics", dynamics, DYNAMICS)
+    _check_choice("gating", gating, GATINGS)
+    _check_choice("gating_input", gating_input, GATING_INPUTS)
+    seed = _check_int("seed", seed, 0)
+    unit = _check_positive("length_unit", length_unit)
+    kappa = 100.0 * unit if feature_scale is None else _check_positive("feature_scale", feature_scale)
+    for name, pair in (("process_noise_range", process_noise_range),
+                       ("measurement_noise_range", measurement_noise_range),
+                       ("initial_variance_range", initial_variance_range)):
+        if len(pair) != 2:
+            raise ValueError(f"{name}: expected (low, high), got {pair!r}")
+        low, high = (_check_positive(f"{name}[{i}]", v) for i, v in enumerate(pair))
+        if low > high:
+            raise ValueError(f"{name}: expected low <= high, got {pair!r}")
+    forgetting_levels = [_check_positive("forgetting_levels", v, upper=1.0) for v in forgetting_levels]
+    ridge_levels = [_check_positive("ridge_levels", v) for v in ridge_levels]
+    if not forgetting_levels or not ridge_levels:
+        raise ValueError("forgetting_levels and ridge_levels: expected at least one value, got none")
+    if prior_degree is not None:
+        _check_choice("prior_degree", prior_degree, tuple(range(min(o, 3))))
+    values = dict(
+        velocity_scale=_check_positive("velocity_scale", velocity_scale),
+        spectral_radius_bound=_check_positive("spectral_radius_bound", spectral_radius_bound),
+        initial_velocity_spread=_check_positive("initial_velocity_spread", initial_velocity_spread, allow_zero=True),
+        expert_scale=_check_positive("expert_scale", expert_scale),
+        temperature=_check_positive("temperature", temperature),
+        gate_share=_check_positive("gate_share", gate_share, allow_zero=True, upper=1.0),
+        eta_initial=_check_positive("eta_initial", eta_initial, allow_zero=True),
+        eta_minimum=_check_positive("eta_minimum", eta_minimum, allow_zero=True),
+        eta_decay_steps=_check_positive("eta_decay_steps", eta_decay_steps),
+        eta_sensitivity=_check_positive("eta_sensitivity", eta_sensitivity, allow_zero=True),
+        process_noise_shrink=_check_positive("process_noise_shrink", process_noise_shrink, allow_zero=True),
+        measurement_noise_shrink=_check_positive("measurement_noise_shrink", measurement_noise_shrink, allow_zero=True),
+        noise_floor=_check_positive("noise_floor", noise_floor, allow_zero=True, upper=1.0),
+        noise_reinflation=_check_positive("noise_reinflation", noise_reinflation, allow_zero=True, upper=1.0),
+    )
+    if not isinstance(adapt_noise, (bool, np.bool_)):
+        raise TypeError(f"adapt_noise: expected a bool, got {type(adapt_noise).__name__} {adapt_noise!r}")
+
+    rng = np.random.default_rng(seed)
+    n_q, n_r = noise_grid(k)
+    q_levels = _levels(*process_noise_range, n_q) * unit**2
+    r_levels = _levels(*measurement_noise_range, n_r) * unit**2
+    grid_q, grid_r = np.meshgrid(q_levels, r_levels, indexing="xy")
+    process = grid_q.ravel()[:k]
+    measurement = grid_r.ravel()[:k]
+    if k == 1:
+        forgetting = np.array([forgetting_levels[len(forgetting_levels) // 2]])
+        ridge = np.array([ridge_levels[len(ridge_levels) // 2]])
+        initial_variance = np.array([math.sqrt(initial_variance_range[0] * initial_variance_range[1])]) * unit**2
+        initial_velocity = np.zeros((1, p))
+    else:
+        forgetting = np.resize(rng.permutation(np.asarray(forgetting_levels, float)), k)
+        rng.shuffle(forgetting)
+        ridge = rng.choice(np.asarray(ridge_levels, float), size=k)
+        initial_variance = np.exp(rng.uniform(*np.log(initial_variance_range), size=k)) * unit**2
+        initial_velocity = rng.normal(0.0, values["initial_velocity_spread"], size=(k, p)) * unit
+    return MixtureParams(
+        measurement_dim=p,
+        order=o,
+        dynamics=dynamics,
+        gating=gating,
+        gating_input=gating_input,
+        feature_scale=kappa,
+        velocity_scale=values["velocity_scale"],
+        forgetting=forgetting,
+        ridge=ridge,
+        prior_theta=polynomial_prior(p, o, prior_degree),
+        spectral_radius_bound=values["spectral_radius_bound"],
+        process_noise=np.repeat(process[:, None], p, axis=1),
+        measurement_noise=np.repeat(measurement[:, None], p, axis=1),
+        initial_variance=initial_variance,
+        initial_velocity=initial_velocity,
+        expert_scale=np.full(k, values["expert_scale"] * unit),
+        temperature=values["temperature"],
+        gate_share=values["gate_share"],
+        eta_initial=values["eta_initial"],
+        eta_minimum=values["eta_minimum"],
+        eta_decay_steps=values["eta_decay_steps"],
+        eta_sensitivity=values["eta_sensitivity"] / unit**2,
+        adapt_noise=bool(adapt_noise),
+        process_noise_shrink=values["process_noise_shrink"],
+        measurement_noise_shrink=values["measurement_noise_shrink"],
+        noise_floor=values["noise_floor"],
+        noise_reinflation=values["noise_reinflation"],
+        random_seed=seed,
+    )

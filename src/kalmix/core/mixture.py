@@ -1,0 +1,356 @@
+"""The mixture of state-model adaptive Kalman filters: parameters, state and one step.
+
+Functional and batched: ``state, out = step(params, state, z)`` advances ``N`` targets
+by one frame, each with the same bank of ``K`` experts, using array operations over
+the ``(N, K, ...)`` axes only (no Python loop over targets or experts).
+
+One frame, for every target whose measurement :math:`z_k` is present:
+
+1. score the predictions :math:`y_{i,k-1}` made at the previous frame (eq. 10) and form
+   the adaptive learning rate :math:`\\eta_k`;
+2. learn the gate (eq. 9, or the fixed-share rule), adapt :math:`Q_i, R_i` (eq. 11/12);
+3. re-estimate each expert's system matrix (eq. 6/7 or RLS, see :mod:`.dynamics`);
+4. Kalman update of :math:`\\hat x_{k|k-1}`; predict :math:`\\hat x_{k+1|k}`;
+5. gate the experts' predictions: :math:`y_k = \\sum_i g_{i,k} y_{i,k}` (eq. 8).
+
+A target whose measurement row holds a NaN only predicts (steps 1-3 are skipped).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from . import dynamics as dyn
+from . import gating as gate
+from .kalman import kalman_predict, kalman_update
+
+__all__ = ["MixtureParams", "MixtureState", "StepOutput", "init_state", "step", "predict", "observation_matrix"]
+
+DYNAMICS = ("rls", "literal", "fixed")
+GATINGS = ("fixed_share", "paper", "random")
+
+
+@dataclass(frozen=True, eq=False)
+class MixtureParams:
+    """Constant parameters of a bank of K adaptive Kalman experts and their gate.
+
+    Build it with :func:`kalmix.bank.make_params`, which validates every field; the
+    fields are documented there. Per-expert arrays have K on their first axis.
+    Noise levels, scales and velocities are in measurement units (pixels for the
+    paper's experiment); the filters themselves work in normalised features
+    :math:`s = (z - c)/\\kappa` with :math:`\\kappa` = ``feature_scale``.
+    """
+
+    measurement_dim: int
+    order: int
+    dynamics: str
+    gating: str
+    gating_input: str
+    feature_scale: float
+    velocity_scale: float
+    forgetting: np.ndarray
+    ridge: np.ndarray
+    prior_theta: np.ndarray
+    spectral_radius_bound: float
+    process_noise: np.ndarray
+    measurement_noise: np.ndarray
+    initial_variance: np.ndarray
+    initial_velocity: np.ndarray
+    expert_scale: np.ndarray
+    temperature: float
+    gate_share: float
+    eta_initial: float
+    eta_minimum: float
+    eta_decay_steps: float
+    eta_sensitivity: float
+    adapt_noise: bool
+    process_noise_shrink: float
+    measurement_noise_shrink: float
+    noise_floor: float
+    noise_reinflation: float
+    random_seed: int
+    state_jitter: float = 1e-10
+
+    @property
+    def n_experts(self) -> int:
+        return int(self.forgetting.shape[0])
+
+    @property
+    def state_dim(self) -> int:
+        return self.order * self.measurement_dim
+
+    @property
+    def regressor_dim(self) -> int:
+        return self.state_dim + 1
+
+    @property
+    def gate_dim(self) -> int:
+        return gate.gating_input_size(self.gating_input, self.measurement_dim)
+
+
+class MixtureState(NamedTuple):
+    """Everything that changes over time, batched over N targets and K experts.
+
+    Normalised-feature quantities are relative to each target's ``origin`` (its first
+    measurement) and divided by ``feature_scale``.
+    """
+
+    steps: np.ndarray               # (N,) frames seen, measurements present or not
+    valid_steps: np.ndarray         # (N,) measurements seen
+    initialised: np.ndarray         # (N,) bool, a measurement has arrived
+    stream_ids: np.ndarray          # (N,) int, keys the random-gating draw
+    origin: np.ndarray              # (N, p) feature centre c
+    history: np.ndarray             # (N, o, p) s_{k-1} ... s_{k-o}, NaN where unknown
+    mean: np.ndarray                # (N, K, n) x_{k+1|k}
+    cov: np.ndarray                 # (N, K, n, n) P_{k+1|k}
+    gram: np.ndarray                # (N, K, d, d) RLS S_k
+    cross: np.ndarray               # (N, K, p, d) RLS M_k
+    transition: np.ndarray          # (N, K, n, n) A_k
+    offset: np.ndarray              # (N, K, n) drift u_k
+    process_noise: np.ndarray       # (N, K, p) diag Q_i (measurement units^2)
+    measurement_noise: np.ndarray   # (N, K, p) diag R_i (measurement units^2)
+    gate_weights: np.ndarray        # (N, K, m) a_i (paper gate)
+    gate_input: np.ndarray          # (N, m) x that produced `weights`
+    weights: np.ndarray             # (N, K) g_{i,k} used for the current prediction
+    responsibilities: np.ndarray    # (N, K) h_{i,k} of the last scored step
+    expert_predictions: np.ndarray  # (N, K, p) y_{i,k}: each expert's prediction of the next frame
+    eta: np.ndarray                 # (N,) last adaptive learning rate eta_k
+
+
+class StepOutput(NamedTuple):
+    """What one step returns, all for the *next* frame unless stated."""
+
+    prediction: np.ndarray          # (N, p) mixture prediction y_k (NaN before the first measurement)
+    expert_predictions: np.ndarray  # (N, K, p)
+    weights: np.ndarray             # (N, K) g_k
+    responsibilities: np.ndarray    # (N, K) h_k (posterior of this frame's scoring)
+    eta: np.ndarray                 # (N,) eta_k
+
+
+def observation_matrix(params: MixtureParams) -> np.ndarray:
+    """:math:`C = [I_p\\ 0 \\cdots 0]`, shape ``(p, n)``."""
+    c = np.zeros((params.measurement_dim, params.state_dim))
+    c[:, : params.measurement_dim] = np.eye(params.measurement_dim)
+    return c
+
+
+def _diag_embed(diagonal: np.ndarray, size: int) -> np.ndarray:
+    """``(..., q)`` diagonal -> ``(..., size, size)`` with it in the top-left block."""
+    out = np.zeros(diagonal.shape[:-1] + (size, size))
+    q = diagonal.shape[-1]
+    idx = np.arange(q)
+    out[..., idx, idx] = diagonal
+    return out
+
+
+def _initial_mean(params: MixtureParams, features: np.ndarray) -> np.ndarray:
+    """:math:`\\hat x_0 = [s; s - v_i; s - 2 v_i; \\dots]` per expert, ``(N, K, n)``."""
+    velocity = params.initial_velocity / params.feature_scale  # (K, p)
+    lags = np.arange(params.order)[:, None, None]  # (o, 1, 1)
+    blocks = features[:, None, None, :] - lags[None] * velocity[None, None, :, :]  # (N, o, K, p)
+    return np.moveaxis(blocks, 1, 2).reshape(features.shape[0], params.n_experts, params.state_dim)
+
+
+def init_state(params: MixtureParams, n_targets: int, stream_ids=None) -> MixtureState:
+    """State of ``n_targets`` streams that have seen nothing yet."""
+    n, k, p, o = n_targets, params.n_experts, params.measurement_dim, params.order
+    dim, d, m = params.state_dim, params.regressor_dim, params.gate_dim
+    ids = np.arange(n) if stream_ids is None else np.asarray(stream_ids, dtype=np.int64)
+    transition, offset = dyn.companion_from_theta(params.prior_theta, o)
+    p0 = params.initial_variance[:, None, None] / params.feature_scale**2 * np.eye(dim)
+    return MixtureState(
+        steps=np.zeros(n, dtype=np.int64),
+        valid_steps=np.zeros(n, dtype=np.int64),
+        initialised=np.zeros(n, dtype=bool),
+        stream_ids=ids,
+        origin=np.zeros((n, p)),
+        history=np.full((n, o, p), np.nan),
+        mean=np.zeros((n, k, dim)),
+        cov=np.broadcast_to(p0, (n, k, dim, dim)).copy(),
+        gram=np.zeros((n, k, d, d)),
+        cross=np.zeros((n, k, p, d)),
+        transition=np.broadcast_to(transition, (n, k, dim, dim)).copy(),
+        offset=np.broadcast_to(offset, (n, k, dim)).copy(),
+        process_noise=np.broadcast_to(params.process_noise, (n, k, p)).copy(),
+        measurement_noise=np.broadcast_to(params.measurement_noise, (n, k, p)).copy(),
+        gate_weights=np.zeros((n, k, m)),
+        gate_input=np.zeros((n, m)),
+        weights=np.full((n, k), 1.0 / k),
+        responsibilities=np.full((n, k), 1.0 / k),
+        expert_predictions=np.zeros((n, k, p)),
+        eta=np.zeros(n),
+    )
+
+
+def _where(mask: np.ndarray, new: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """Select per target: ``mask`` is ``(N,)`` and broadcasts over trailing axes."""
+    return np.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
+
+
+def _update_dynamics(params, state, features, learn):
+    """Re-estimate every expert's system matrix where ``learn``; returns (gram, cross, A, u)."""
+    if params.dynamics == "fixed":
+        return state.gram, state.cross, state.transition, state.offset
+    if params.dynamics == "literal":
+        previous = state.history[:, 0]
+        ok = learn & np.isfinite(previous).all(axis=-1)
+        matrix = dyn.literal_transition(features, np.where(ok[:, None], previous, 1.0), observation_matrix(params))
+        matrix = np.broadcast_to(matrix[:, None], state.transition.shape)
+        return state.gram, state.cross, _where(ok, matrix, state.transition), state.offset
+    ok = learn & np.isfinite(state.history).all(axis=(-1, -2))
+    xi = dyn.regressor(np.where(ok[:, None, None], state.history, 0.0))  # (N, d)
+    gram, cross = dyn.rls_accumulate(state.gram, state.cross, xi[:, None, :], features[:, None, :], params.forgetting)
+    theta = dyn.rls_solve(gram, cross, params.ridge, params.prior_theta)
+    theta = dyn.guard_theta(theta, params.prior_theta, params.order, params.spectral_radius_bound)
+    transition, offset = dyn.companion_from_theta(theta, params.order)
+    return (
+        _where(ok, gram, state.gram),
+        _where(ok, cross, state.cross),
+        _where(ok, transition, state.transition),
+        _where(ok, offset, state.offset),
+    )
+
+
+def _expert_outputs(params, origin, mean):
+    """Experts' predicted measurements :math:`y_i = c + \\kappa C \\hat x_i`, ``(N, K, p)``."""
+    return origin[:, None, :] + params.feature_scale * mean[..., : params.measurement_dim]
+
+
+def step(params: MixtureParams, state: MixtureState, measurement: np.ndarray) -> tuple[MixtureState, StepOutput]:
+    """Advance every target by one frame.
+
+    Parameters
+    ----------
+    params : MixtureParams
+    state : MixtureState
+        State after frame :math:`k-1` (holds the predictions :math:`y_{i,k-1}`).
+    measurement : ndarray, shape (N, p)
+        :math:`z_k` in measurement units; a row with a NaN is a missing measurement.
+
+    Returns
+    -------
+    state : MixtureState
+        State after frame :math:`k`.
+    out : StepOutput
+        Predictions of frame :math:`k+1` and the gate's diagnostics.
+    """
+    kappa = params.feature_scale
+    valid = np.isfinite(measurement).all(axis=-1)
+    start = valid & ~state.initialised
+    learn = valid & state.initialised
+    z = np.where(valid[:, None], measurement, 0.0)
+    origin = _where(start, z, state.origin)
+    features = (z - origin) / kappa
+
+    # 1. score the previous predictions (eq. 10) and the adaptive learning rate
+    errors = z[:, None, :] - state.expert_predictions
+    log_lik = gate.log_expert_likelihood(errors, params.expert_scale)
+    responsibilities = gate.posterior(state.weights, log_lik)
+    dominant = np.argmax(state.weights, axis=-1)
+    dominant_error = np.take_along_axis(errors, dominant[:, None, None], axis=1)[:, 0]
+    eta = gate.learning_rate(
+        state.valid_steps, np.sum(dominant_error**2, axis=-1),
+        params.eta_initial, params.eta_minimum, params.eta_decay_steps, params.eta_sensitivity,
+    )
+    rate = np.where(learn, eta, 0.0)
+
+    # 2. gate learning (eq. 9 or fixed share) and noise adaptation (eq. 11/12)
+    gate_weights, weights = state.gate_weights, state.weights
+    if params.gating == "paper":
+        gate_weights = gate.paper_gate_update(gate_weights, rate, responsibilities, state.weights, state.gate_input)
+    elif params.gating == "fixed_share":
+        shared = gate.fixed_share_update(state.weights, log_lik, params.temperature, params.gate_share)
+        weights = _where(learn, shared, state.weights)
+    process_noise, measurement_noise = state.process_noise, state.measurement_noise
+    if params.adapt_noise:
+        process_noise = _where(learn, gate.adapt_noise(
+            process_noise, params.process_noise, rate, responsibilities,
+            params.process_noise_shrink, params.noise_floor, params.noise_reinflation), process_noise)
+        measurement_noise = _where(learn, gate.adapt_noise(
+            measurement_noise, params.measurement_noise, rate, responsibilities,
+            params.measurement_noise_shrink, params.noise_floor, params.noise_reinflation), measurement_noise)
+
+    # 3. system matrix of each expert
+    gram, cross, transition, offset = _update_dynamics(params, state, features, learn)
+
+    # 4. Kalman update of x_{k|k-1}, (re)start, predict x_{k+1|k}
+    observed = np.where(learn[:, None], features, np.nan)
+    mean, cov, _ = kalman_update(
+        state.mean, state.cov, np.broadcast_to(observed[:, None, :], errors.shape),
+        observation_matrix(params), _diag_embed(measurement_noise / kappa**2, params.measurement_dim),
+    )
+    p0 = params.initial_variance[:, None, None] / kappa**2 * np.eye(params.state_dim)
+    mean = _where(start, _initial_mean(params, features), mean)
+    cov = _where(start, np.broadcast_to(p0, cov.shape), cov)
+    process_cov = _diag_embed(process_noise / kappa**2, params.state_dim)
+    process_cov = process_cov + params.state_jitter * np.eye(params.state_dim)
+    mean, cov = kalman_predict(mean, cov, transition, process_cov, offset)
+    initialised = state.initialised | start
+    expert_predictions = _where(initialised, _expert_outputs(params, origin, mean), state.expert_predictions)
+
+    # 5. gate for the new prediction (eq. 8)
+    previous = state.history[:, 0]
+    velocity = np.where(np.isfinite(previous), features - np.nan_to_num(previous), 0.0)
+    gate_input = _where(valid, gate.gating_features(params.gating_input, features, velocity, params.velocity_scale),
+                        state.gate_input)
+    if params.gating == "paper":
+        weights = _where(valid, gate.softmax_gate(gate_weights, gate_input, params.temperature), state.weights)
+    elif params.gating == "random":
+        weights = gate.random_weights(params.random_seed, state.stream_ids, state.steps, params.n_experts)
+
+    pushed = np.where(valid[:, None], features, np.nan)
+    history = np.concatenate([pushed[:, None, :], state.history[:, :-1]], axis=1)
+    new_state = MixtureState(
+        steps=state.steps + 1,
+        valid_steps=state.valid_steps + valid,
+        initialised=initialised,
+        stream_ids=state.stream_ids,
+        origin=origin,
+        history=history,
+        mean=mean,
+        cov=cov,
+        gram=gram,
+        cross=cross,
+        transition=transition,
+        offset=offset,
+        process_noise=process_noise,
+        measurement_noise=measurement_noise,
+        gate_weights=gate_weights,
+        gate_input=gate_input,
+        weights=weights,
+        responsibilities=_where(learn, responsibilities, state.responsibilities),
+        expert_predictions=expert_predictions,
+        eta=_where(learn, eta, state.eta),
+    )
+    return new_state, _output(new_state)
+
+
+def _output(state: MixtureState) -> StepOutput:
+    prediction = np.einsum("nk,nkp->np", state.weights, state.expert_predictions)
+    prediction = np.where(state.initialised[:, None], prediction, np.nan)
+    return StepOutput(prediction, state.expert_predictions, state.weights, state.responsibilities, state.eta)
+
+
+def predict(params: MixtureParams, state: MixtureState, horizon: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """H-step-ahead prediction :math:`C A_k^{H-1} \\hat x_{k+1|k}` (plus drift), gated.
+
+    Parameters
+    ----------
+    horizon : int
+        :math:`H \\ge 1` frames ahead of the last measurement.
+
+    Returns
+    -------
+    prediction : ndarray, shape (N, p)
+    expert_predictions : ndarray, shape (N, K, p)
+    """
+    mean = state.mean
+    for _ in range(horizon - 1):
+        mean = np.einsum("nkij,nkj->nki", state.transition, mean) + state.offset
+    experts = _expert_outputs(params, state.origin, mean)
+    prediction = np.einsum("nk,nkp->np", state.weights, experts)
+    prediction = np.where(state.initialised[:, None], prediction, np.nan)
+    return prediction, experts

@@ -1,0 +1,84 @@
+"""Run the batched core over a whole measurement array (the loop over time)."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .mixture import MixtureParams, MixtureState, init_state, predict, step
+
+__all__ = ["RunResult", "run_core"]
+
+
+class RunResult(NamedTuple):
+    """Outputs of :func:`run_core`; row ``t`` is what was known after measurement ``t``.
+
+    ``predictions[t]`` is the prediction of frame ``t + horizon`` (for ``horizon = 1``
+    the next frame), so ``predictions[t]`` is scored against ``measurements[t + horizon]``.
+    Diagnostics are ``None`` unless requested.
+    """
+
+    predictions: np.ndarray                 # (T, N, p)
+    state: MixtureState                     # final state (resume from it)
+    weights: np.ndarray | None = None       # (T, N, K) g_k
+    eta: np.ndarray | None = None           # (T, N)
+    process_noise: np.ndarray | None = None  # (T, N, K, p) diag Q
+    measurement_noise: np.ndarray | None = None  # (T, N, K, p) diag R
+    expert_predictions: np.ndarray | None = None  # (T, N, K, p), same horizon as predictions
+
+
+def run_core(
+    params: MixtureParams,
+    measurements: np.ndarray,
+    state: MixtureState | None = None,
+    *,
+    horizon: int = 1,
+    diagnostics: bool = False,
+    expert_predictions: bool = False,
+    progress=None,
+) -> RunResult:
+    """Step through ``measurements`` of shape ``(T, N, p)``.
+
+    Parameters
+    ----------
+    params : MixtureParams
+    measurements : ndarray, shape (T, N, p)
+        NaN rows are missing measurements.
+    state : MixtureState, optional
+        State to resume from; a fresh one by default.
+    horizon : int
+        Frames ahead to predict, :math:`H \\ge 1`.
+    diagnostics : bool
+        Record weights, eta and the Q/R diagonals at every step.
+    expert_predictions : bool
+        Record every expert's prediction (memory ``T N K p``).
+    progress : callable, optional
+        Called with the number of steps done after each step.
+    """
+    t_count, n = measurements.shape[:2]
+    if state is None:
+        state = init_state(params, n)
+    k, p = params.n_experts, params.measurement_dim
+    predictions = np.empty((t_count, n, p))
+    record = {}
+    if diagnostics:
+        record = dict(weights=np.empty((t_count, n, k)), eta=np.empty((t_count, n)),
+                      process_noise=np.empty((t_count, n, k, p)), measurement_noise=np.empty((t_count, n, k, p)))
+    experts = np.empty((t_count, n, k, p)) if expert_predictions else None
+    for t in range(t_count):
+        state, out = step(params, state, measurements[t])
+        if horizon == 1:
+            predictions[t], expert_out = out.prediction, out.expert_predictions
+        else:
+            predictions[t], expert_out = predict(params, state, horizon)
+        if experts is not None:
+            experts[t] = expert_out
+        if diagnostics:
+            record["weights"][t] = out.weights
+            record["eta"][t] = out.eta
+            record["process_noise"][t] = state.process_noise
+            record["measurement_noise"][t] = state.measurement_noise
+        if progress is not None:
+            progress(t + 1)
+    return RunResult(predictions, state, expert_predictions=experts, **record)

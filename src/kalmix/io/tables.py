@@ -1,0 +1,548 @@
+"""Reading users' track files into one canonical long table.
+
+A *track table* is a :class:`pandas.DataFrame` with the columns
+``['track_id', 'time', *positions]``: one row per measurement, sorted by
+``(track_id, time)``, positions as ``float64`` with ``NaN`` for a missing
+measurement. :func:`read_tracks` and :func:`iter_track_chunks` produce it from
+CSV (optionally gzip-compressed) or Parquet files; :func:`to_arrays` and
+:func:`from_arrays` convert it to and from the dense ``(time_steps, tracks, p)``
+arrays the batched predictor consumes.
+
+Validation and handling, applied to every table read:
+
+- a requested column that is not in the file: ``ValueError`` listing the
+  available columns;
+- a value in a time or position column that is not a number: ``ValueError``
+  naming the column, the first offending row (counted from 0 after the header)
+  and the value. Empty cells and ``nan`` / ``NA`` / ``null`` are allowed and mean
+  a missing measurement (``NaN``); a row whose *time* is missing is dropped with
+  a ``RuntimeWarning``;
+- times that decrease within a track: the track's rows are sorted by time
+  (stable) and a ``RuntimeWarning`` gives the count;
+- repeated timestamps within a track: the last row (in file order) is kept and a
+  ``RuntimeWarning`` gives the count;
+- a file without data rows: ``ValueError`` ("no rows");
+- more than 3 position columns: ``ValueError``.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import warnings
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+import pandas as pd
+
+__all__ = [
+    "TrackColumns",
+    "TrackArrays",
+    "detect_columns",
+    "read_tracks",
+    "iter_track_chunks",
+    "to_arrays",
+    "from_arrays",
+    "split_on_gaps",
+]
+
+_TIME_NAMES = ("time", "t", "timestamp", "seconds", "time_s", "t_s", "sec", "secs", "ts",
+               "elapsed", "datetime", "date_time", "frame", "frame_id", "frame_idx",
+               "frame_index", "frame_number", "step")
+_ID_NAMES = ("track_id", "id", "track", "object_id", "target", "target_id", "trackid",
+             "obj_id", "object", "agent_id", "trajectory_id", "traj_id", "player_id",
+             "vehicle_id", "ped_id")
+# Axis name sets in order of preference; an optional third axis is taken when present.
+_AXES = (("x", "y", "z"), ("u_left", "u_right", "v"), ("u", "v", None), ("east", "north", "up"),
+         ("e", "n", "u"), ("lat", "lon", "alt"), ("latitude", "longitude", "altitude"),
+         ("lat", "lng", "alt"))
+_PREFIXES = ("", "position_", "pos_", "position.", "pos.", "p", "pos", "position")
+_MISSING_TEXT = frozenset({"", "nan", "na", "n/a", "nan.0", "null", "none", "<na>"})
+_FORMATS = ("csv", "parquet")
+
+
+@dataclass(frozen=True)
+class TrackColumns:
+    """Which columns of a file hold the time, the positions and the track id.
+
+    Parameters
+    ----------
+    time : str or None
+        Time column (seconds, or any numeric clock; datetime and timedelta
+        columns are converted to seconds). ``None`` means row order is time:
+        each track's k-th row gets time ``k``.
+    positions : tuple of str
+        One to three position column names, kept as names in the output.
+    track_id : str or None
+        Track identifier column. ``None`` means the file holds a single track
+        (``track_id`` 0).
+    """
+
+    time: str | None
+    positions: tuple[str, ...]
+    track_id: str | None
+
+    def __post_init__(self):
+        positions = (self.positions,) if isinstance(self.positions, str) else tuple(self.positions)
+        object.__setattr__(self, "positions", positions)
+        if not 1 <= len(positions) <= 3:
+            raise ValueError(f"Expected 1 to 3 position columns, got {len(positions)}: {list(positions)}")
+        named = [c for c in (self.time, self.track_id, *positions) if c is not None]
+        if len(set(named)) != len(named):
+            raise ValueError(f"Expected distinct time, position and track_id columns, got {named}")
+
+    @property
+    def names(self) -> list[str]:
+        """All file columns in use: track id, time, positions (``None`` skipped)."""
+        return [c for c in (self.track_id, self.time, *self.positions) if c is not None]
+
+
+class TrackArrays(NamedTuple):
+    """Dense form of a track table, each track aligned on its own sample index.
+
+    Attributes
+    ----------
+    values : ndarray, shape (T, N, p)
+        ``values[k, j]`` is the k-th sample of track j; NaN past its length.
+    track_ids : ndarray, shape (N,)
+        Track identifiers in table order.
+    times : ndarray, shape (T, N)
+        Sample times, NaN padding.
+    lengths : ndarray of int, shape (N,)
+        Number of samples of each track.
+    position_names : tuple of str
+        Names of the ``p`` position columns.
+    """
+
+    values: np.ndarray
+    track_ids: np.ndarray
+    times: np.ndarray
+    lengths: np.ndarray
+    position_names: tuple[str, ...] = ()
+
+
+# --------------------------------------------------------------------------- columns
+def _require(columns: Sequence[str], wanted: Sequence[str], what: str) -> None:
+    missing = [c for c in wanted if c not in columns]
+    if missing:
+        raise ValueError(f"{what}: column(s) {missing} not found; available columns: {list(columns)}")
+
+
+def detect_columns(columns: Sequence[str], *, time: str | None = None,
+                   positions: str | Sequence[str] | None = None,
+                   track_id: str | None = None) -> TrackColumns:
+    """Find the time, position and track id columns among a file's column names.
+
+    Matching is case-insensitive and ignores surrounding spaces. Explicit
+    arguments win over detection and must name existing columns.
+
+    - time: first of ``time, t, timestamp, seconds, time_s, ..., frame, step``;
+      none found means row order is time.
+    - positions: the first axis set found, in the order ``x/y[/z]``,
+      ``u_left/u_right/v``, ``u/v``, ``east/north[/up]``, ``e/n[/u]``,
+      ``lat/lon[/alt]``, ``latitude/longitude[/altitude]``, ``lat/lng``; each also
+      with a prefix ``position_``, ``pos_``, ``position.``, ``pos.``, ``p``
+      (``px/py/pz``), ``pos`` or ``position``. Latitude/longitude are kept in
+      degrees; no conversion is made.
+    - track id: first of ``track_id, id, track, object_id, target, ...``; none
+      found means a single track.
+
+    Parameters
+    ----------
+    columns : sequence of str
+        Column names of the file.
+    time, track_id : str, optional
+        Explicit column names.
+    positions : str or sequence of str, optional
+        Explicit position column names (1 to 3).
+
+    Returns
+    -------
+    TrackColumns
+
+    Raises
+    ------
+    ValueError
+        If an explicit name is not a column, or no position columns are found.
+    """
+    columns = [str(c) for c in columns]
+    lookup: dict[str, str] = {}
+    for c in columns:
+        lookup.setdefault(c.strip().lower(), c)
+    for name, value in (("time", time), ("track_id", track_id)):
+        if value is not None:
+            _require(columns, [value], f"{name}={value!r}")
+    if positions is not None:
+        positions = (positions,) if isinstance(positions, str) else tuple(positions)
+        _require(columns, positions, f"positions={list(positions)}")
+    else:
+        for prefix in _PREFIXES:
+            for a, b, c in _AXES:
+                if prefix + a in lookup and prefix + b in lookup:
+                    found = [lookup[prefix + a], lookup[prefix + b]]
+                    if c is not None and prefix + c in lookup:
+                        found.append(lookup[prefix + c])
+                    positions = tuple(found)
+                    break
+            if positions is not None:
+                break
+        if positions is None:
+            raise ValueError(
+                "Could not detect position columns (expected e.g. x/y[/z], u/v, lat/lon, "
+                f"position_x/..., px/py/pz); available columns: {columns}. "
+                "Pass positions=(...) or a TrackColumns.")
+    taken = set(positions)
+
+    def first(names, explicit):
+        if explicit is not None:
+            return explicit
+        return next((lookup[n] for n in names if n in lookup and lookup[n] not in taken), None)
+
+    time = first(_TIME_NAMES, time)
+    taken.add(time)
+    track_id = first(_ID_NAMES, track_id)
+    return TrackColumns(time=time, positions=positions, track_id=track_id)
+
+
+# --------------------------------------------------------------------------- validation
+def _to_float(s: pd.Series, name: str, offset: int) -> np.ndarray:
+    """Column to float64; ValueError at the first value that is not a number."""
+    if pd.api.types.is_datetime64_any_dtype(s):
+        epoch = pd.Timestamp(0, tz=getattr(s.dt, "tz", None))
+        return ((s - epoch) / pd.Timedelta(seconds=1)).to_numpy(np.float64, na_value=np.nan)
+    if pd.api.types.is_timedelta64_dtype(s):
+        return s.dt.total_seconds().to_numpy(np.float64, na_value=np.nan)
+    if pd.api.types.is_numeric_dtype(s) and not pd.api.types.is_bool_dtype(s):
+        out = s.to_numpy(np.float64, na_value=np.nan)
+        bad = np.isinf(out)
+    else:
+        out = pd.to_numeric(s.astype(object), errors="coerce").to_numpy(np.float64, na_value=np.nan)
+        text = s.astype(str).str.strip().str.lower()
+        bad = (np.isnan(out) & s.notna().to_numpy() & ~text.isin(_MISSING_TEXT).to_numpy()) | np.isinf(out)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ValueError(
+            f"Column {name!r} must hold finite numbers; row {offset + i} (counted from 0 after the "
+            f"header) holds {s.iloc[i]!r}. Empty cells and 'nan' are read as missing measurements.")
+    return out
+
+
+def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
+               counts: dict | None = None) -> pd.DataFrame:
+    """Validate one raw table (or chunk) into the canonical sorted long table."""
+    if len(raw) == 0:
+        raise ValueError("The track file has no rows (only a header or nothing at all)")
+    n = len(raw)
+    if cols.track_id is None:
+        ids = pd.Series(np.zeros(n, dtype=np.int64))
+    else:
+        ids = raw[cols.track_id].reset_index(drop=True)
+        if ids.isna().any():
+            i = int(np.argmax(ids.isna().to_numpy()))
+            raise ValueError(f"Column {cols.track_id!r} (track id) must not be empty; row {offset + i} is")
+    out = pd.DataFrame({"track_id": ids})
+    if cols.time is None:
+        k = out.groupby("track_id", sort=False).cumcount().to_numpy(np.float64)
+        if counts is not None:  # continue each track's row count across chunks
+            k += out["track_id"].map(counts).fillna(0).to_numpy(np.float64)
+            for tid, c in out["track_id"].value_counts().items():
+                counts[tid] = counts.get(tid, 0) + int(c)
+        out["time"] = k
+    else:
+        out["time"] = _to_float(raw[cols.time].reset_index(drop=True), cols.time, offset)
+    for p in cols.positions:
+        out[p] = _to_float(raw[p].reset_index(drop=True), p, offset)
+
+    no_time = np.isnan(out["time"].to_numpy())
+    if no_time.any():
+        warnings.warn(f"Dropped {int(no_time.sum())} row(s) with a missing time in column "
+                      f"{cols.time!r}", RuntimeWarning, stacklevel=3)
+        out = out[~no_time]
+    if out.empty:
+        raise ValueError("The track file has no rows with a time")
+    back = int((out.groupby("track_id", sort=False)["time"].diff() < 0).sum())
+    if back:
+        warnings.warn(f"Times decrease at {back} row(s) within tracks; sorted each track's rows "
+                      "by time (stable)", RuntimeWarning, stacklevel=3)
+    out = out.sort_values(["track_id", "time"], kind="stable")
+    dup = out.duplicated(["track_id", "time"], keep="last").to_numpy()
+    if dup.any():
+        warnings.warn(f"{int(dup.sum())} row(s) repeat a timestamp within their track; kept the "
+                      "last row of each repeated time", RuntimeWarning, stacklevel=3)
+        out = out[~dup]
+    return out.reset_index(drop=True)
+
+
+# --------------------------------------------------------------------------- reading
+def _format_of(source: Any, format: str | None) -> str:
+    if format is not None:
+        fmt = format.lower().lstrip(".")
+        if fmt not in _FORMATS:
+            raise ValueError(f"Expected format in {list(_FORMATS)}, got {format!r}")
+        return fmt
+    name = source if isinstance(source, (str, os.PathLike)) else getattr(source, "name", None)
+    if name is None:
+        return "csv"  # an unnamed buffer: CSV unless format='parquet'
+    name = os.fspath(name).lower()
+    if name.endswith((".parquet", ".pq")):
+        return "parquet"
+    if name.endswith((".csv", ".csv.gz", ".txt", ".txt.gz", ".gz")):
+        return "csv"
+    raise ValueError(f"Cannot tell the format of {name!r}: expected a .csv, .csv.gz or .parquet "
+                     "file, or pass format='csv' or 'parquet'")
+
+
+def _header(source: Any, fmt: str) -> list[str]:
+    if fmt == "parquet":
+        import pyarrow.parquet as pq
+        return list(pq.ParquetFile(source).schema_arrow.names)
+    try:
+        return [str(c) for c in pd.read_csv(source, nrows=0).columns]
+    except pd.errors.EmptyDataError:
+        raise ValueError(f"The track file {os.fspath(source)!r} has no rows (it is empty)") from None
+
+
+def _resolve(header: list[str], columns: TrackColumns | None) -> TrackColumns:
+    if columns is None:
+        return detect_columns(header)
+    if not isinstance(columns, TrackColumns):
+        raise ValueError(f"Expected columns to be a TrackColumns or None, got {type(columns).__name__}")
+    _require(header, columns.names, f"columns={columns}")
+    return columns
+
+
+def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: TrackColumns | None = None,
+                format: str | None = None) -> pd.DataFrame:
+    """Read a CSV (optionally ``.gz``) or Parquet track file into a track table.
+
+    Parameters
+    ----------
+    path_or_buffer : path or file-like
+        The file. The format comes from the extension (``.csv``, ``.csv.gz``,
+        ``.parquet``, ``.pq``) or from `format`; an unnamed buffer is CSV unless
+        ``format='parquet'``.
+    columns : TrackColumns, optional
+        Which columns to use; detected with :func:`detect_columns` if omitted.
+    format : {'csv', 'parquet'}, optional
+        Overrides the extension.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``['track_id', 'time', *columns.positions]``, sorted by
+        ``(track_id, time)`` (stable), time and positions as float64, NaN for a
+        missing measurement. See the module docstring for the validation rules.
+
+    Raises
+    ------
+    ValueError
+        Missing columns, non-numeric values, no rows, more than 3 positions.
+    """
+    fmt = _format_of(path_or_buffer, format)
+    is_path = isinstance(path_or_buffer, (str, os.PathLike))
+    if is_path:
+        cols = _resolve(_header(path_or_buffer, fmt), columns)
+        if fmt == "parquet":
+            import pyarrow.parquet as pq
+            raw = pq.read_table(path_or_buffer, columns=cols.names).to_pandas()
+        else:
+            raw = pd.read_csv(path_or_buffer, usecols=cols.names)
+    else:
+        if fmt == "parquet":
+            raw = pd.read_parquet(path_or_buffer)
+        else:
+            try:
+                raw = pd.read_csv(path_or_buffer)
+            except pd.errors.EmptyDataError:
+                raise ValueError("The track file has no rows (it is empty)") from None
+        cols = _resolve([str(c) for c in raw.columns], columns)
+    return _normalise(raw, cols)
+
+
+def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None = None,
+                      chunk_rows: int = 1_000_000, format: str | None = None
+                      ) -> Iterator[pd.DataFrame]:
+    """Read a huge CSV or Parquet track file in bounded memory, chunk by chunk.
+
+    Chunks of at most `chunk_rows` file rows come in file order (pandas
+    ``chunksize`` for CSV, ``pyarrow`` ``iter_batches`` for Parquet), each
+    validated and normalised like :func:`read_tracks` (sorted by
+    ``(track_id, time)`` *within* the chunk).
+
+    Within a track, rows must come in increasing time order across chunks: a
+    chunk cannot reorder rows already yielded, so a track whose time goes back
+    (or repeats) across a chunk boundary raises ``ValueError``; sort the file
+    first or use :func:`read_tracks`. Disorder inside one chunk is sorted with a
+    warning as in :func:`read_tracks`. With ``time=None`` each track's row count
+    continues across chunks.
+
+    Parameters
+    ----------
+    path : path
+        CSV (optionally ``.gz``) or Parquet file.
+    columns : TrackColumns, optional
+        Detected from the header if omitted.
+    chunk_rows : int, default 1_000_000
+        Maximum file rows per chunk.
+    format : {'csv', 'parquet'}, optional
+        Overrides the extension.
+
+    Yields
+    ------
+    pandas.DataFrame
+        Track table chunks (``track_id``, ``time``, positions).
+    """
+    if int(chunk_rows) < 1:
+        raise ValueError(f"Expected chunk_rows >= 1, got {chunk_rows}")
+    fmt = _format_of(path, format)
+    cols = _resolve(_header(path, fmt), columns)
+    if fmt == "parquet":
+        import pyarrow.parquet as pq
+        batches = (b.to_pandas() for b in
+                   pq.ParquetFile(path).iter_batches(batch_size=int(chunk_rows), columns=cols.names))
+    else:
+        batches = pd.read_csv(path, usecols=cols.names, chunksize=int(chunk_rows))
+    last: dict = {}
+    counts: dict | None = {} if cols.time is None else None
+    offset = 0
+    for raw in batches:
+        if len(raw) == 0:
+            continue
+        chunk = _normalise(raw, cols, offset, counts)
+        firsts = chunk.groupby("track_id", sort=False)["time"].first()
+        prev = firsts.index.map(last).to_numpy(np.float64, na_value=np.nan)
+        back = prev >= firsts.to_numpy()
+        if back.any():
+            i = int(np.argmax(back))
+            raise ValueError(
+                f"Track {firsts.index[i]!r}: time {firsts.iloc[i]} in the chunk starting at row {offset} "
+                f"is not after the time {prev[i]} already read; in a chunked read each track's rows "
+                "must come in increasing time order (sort the file or use read_tracks)")
+        last.update(chunk.groupby("track_id", sort=False)["time"].last().to_dict())
+        offset += len(raw)
+        yield chunk
+    if offset == 0:
+        raise ValueError(f"The track file {os.fspath(path)!r} has no rows (only a header)")
+
+
+# --------------------------------------------------------------------------- arrays
+def to_arrays(df: pd.DataFrame, position_names: Sequence[str] | None = None) -> TrackArrays:
+    """Pivot a track table into dense ``(time_steps, n_tracks, p)`` arrays.
+
+    Each track is aligned on its own sample index: row ``k`` of track ``j`` is
+    its k-th sample, whatever its time; shorter tracks are padded with NaN.
+    Tracks keep their table order (sorted by id after :func:`read_tracks`).
+
+    Parameters
+    ----------
+    df : pandas.DataFrame
+        Track table with ``track_id``, ``time`` and position columns, each
+        track's rows in time order.
+    position_names : sequence of str, optional
+        Position columns; default all columns but ``track_id`` and ``time``.
+
+    Returns
+    -------
+    TrackArrays
+        ``values`` (T, N, p) float64, ``track_ids`` (N,), ``times`` (T, N) with
+        NaN padding, ``lengths`` (N,), ``position_names``.
+    """
+    if position_names is None:
+        position_names = [c for c in df.columns if c not in ("track_id", "time")]
+    position_names = tuple([position_names] if isinstance(position_names, str) else position_names)
+    _require(list(df.columns), ["track_id", "time", *position_names], "to_arrays")
+    if len(df) == 0:
+        raise ValueError("Expected a track table with at least one row, got 0 rows")
+    codes, ids = pd.factorize(df["track_id"], sort=False)
+    k = df.groupby(codes, sort=False).cumcount().to_numpy()
+    lengths = np.bincount(codes, minlength=len(ids))
+    T, N, p = int(lengths.max()), len(ids), len(position_names)
+    values = np.full((T, N, p), np.nan)
+    times = np.full((T, N), np.nan)
+    values[k, codes] = df[list(position_names)].to_numpy(np.float64)
+    times[k, codes] = df["time"].to_numpy(np.float64)
+    return TrackArrays(values, np.asarray(ids), times, lengths, position_names)
+
+
+def from_arrays(arrays: TrackArrays, predictions: np.ndarray, prefix: str = "pred_") -> pd.DataFrame:
+    """Turn ``(T, N, p)`` predictions back into a long table, dropping padding.
+
+    Parameters
+    ----------
+    arrays : TrackArrays
+        The arrays the predictions were made from (gives ids, times, lengths).
+    predictions : array_like, shape (T, N, q)
+        ``predictions[k, j]`` is attached to the k-th sample (and its time) of
+        track j.
+    prefix : str, default "pred_"
+        Column name prefix; columns are ``prefix + position name`` when
+        ``q == p``, else ``prefix + '0'``, ``prefix + '1'``, ...
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``['track_id', 'time', *prediction columns]`` ordered by track,
+        then sample.
+    """
+    predictions = np.asarray(predictions, dtype=np.float64)
+    T, N = arrays.times.shape
+    if predictions.ndim != 3 or predictions.shape[:2] != (T, N):
+        raise ValueError(f"Expected predictions of shape ({T}, {N}, q), got {predictions.shape}")
+    q = predictions.shape[2]
+    names = arrays.position_names if len(arrays.position_names) == q else [str(i) for i in range(q)]
+    keep = (np.arange(T)[:, None] < np.asarray(arrays.lengths)[None, :]).T  # (N, T), track-major
+    out = pd.DataFrame({"track_id": np.repeat(arrays.track_ids, arrays.lengths),
+                        "time": arrays.times.T[keep]})
+    flat = predictions.transpose(1, 0, 2)[keep]
+    for i, name in enumerate(names):
+        out[prefix + name] = flat[:, i]
+    return out
+
+
+def split_on_gaps(times: Sequence[float], max_gap_factor: float = 3.0, *,
+                  track_ids: Sequence | None = None) -> np.ndarray:
+    """Segment ids that start a new segment after an unusually long time gap.
+
+    A new segment begins at sample ``i`` when ``times[i] - times[i-1]`` exceeds
+    ``max_gap_factor`` times the track's median sampling interval (median of
+    its positive steps). The prediction CLI restarts the filter state at each
+    segment rather than predicting across a gap where the motion model's
+    one-step dynamics no longer hold (a halftime, a lost GPS fix, a camera cut);
+    within a segment NaN rows remain ordinary missing measurements.
+
+    Parameters
+    ----------
+    times : array_like, shape (n,)
+        Sample times, increasing within each track.
+    max_gap_factor : float, default 3.0
+        Gap threshold in units of the median interval; must be > 1.
+    track_ids : array_like, shape (n,), optional
+        When given, each track (consecutive rows with the same id) gets its own
+        median and segments numbered from 0.
+
+    Returns
+    -------
+    ndarray of int64, shape (n,)
+        Segment index of each sample, 0, 1, 2, ... within each track.
+    """
+    if not max_gap_factor > 1:
+        raise ValueError(f"Expected max_gap_factor > 1, got {max_gap_factor}")
+    t = np.asarray(times, dtype=np.float64)
+    if t.ndim != 1:
+        raise ValueError(f"Expected a 1-D array of times, got shape {t.shape}")
+    if track_ids is not None:
+        ids = pd.Series(np.asarray(track_ids))
+        if len(ids) != len(t):
+            raise ValueError(f"Expected {len(t)} track ids (one per time), got {len(ids)}")
+        out = np.zeros(len(t), dtype=np.int64)
+        for _, idx in ids.groupby(ids, sort=False).indices.items():
+            out[idx] = split_on_gaps(t[idx], max_gap_factor)
+        return out
+    dt = np.diff(t)
+    steps = dt[dt > 0]
+    if steps.size == 0:
+        return np.zeros(len(t), dtype=np.int64)
+    gap = dt > max_gap_factor * np.median(steps)
+    return np.concatenate([[0], np.cumsum(gap)]).astype(np.int64)
