@@ -1,0 +1,1 @@
+"""Sub-commands of the ``kalmix`` command line, one module each."""
