@@ -93,8 +93,10 @@ def rls_solve(gram, cross, ridge, prior):
 
     .. math:: \\Theta_k = (M_k + \\rho \\Theta_0)(S_k + \\rho I)^{-1}
 
-    With :math:`\\lambda = 0` and :math:`\\rho \\to 0` this is the minimum-norm
-    one-pair fit :math:`s_k \\xi^+`, i.e. the paper's eq. (6).
+    With :math:`\\lambda = 0` and :math:`\\rho \\to 0` this tends to
+    :math:`s_k \\xi^+ + \\Theta_0 (I - \\xi \\xi^+)`: the last pair is fitted exactly
+    and the prior acts only off :math:`\\xi`; with :math:`\\Theta_0 = 0` (and the
+    unstructured regressor :math:`\\xi = x_{k-1}`) it is the paper's eq. (6).
     """
     d = gram.shape[-1]
     rho = np.asarray(ridge)[..., None, None]

@@ -27,6 +27,7 @@ Validation and handling, applied to every table read:
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import warnings
@@ -59,6 +60,7 @@ _AXES = (("x", "y", "z"), ("u_left", "u_right", "v"), ("u", "v", None), ("east",
          ("e", "n", "u"), ("lat", "lon", "alt"), ("latitude", "longitude", "altitude"),
          ("lat", "lng", "alt"))
 _PREFIXES = ("", "position_", "pos_", "position.", "pos.", "p", "pos", "position")
+_SINGLE = ("x", "position", "pos", "value")
 _MISSING_TEXT = frozenset({"", "nan", "na", "n/a", "nan.0", "null", "none", "<na>"})
 _FORMATS = ("csv", "parquet")
 
@@ -144,8 +146,9 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
       ``u_left/u_right/v``, ``u/v``, ``east/north[/up]``, ``e/n[/u]``,
       ``lat/lon[/alt]``, ``latitude/longitude[/altitude]``, ``lat/lng``; each also
       with a prefix ``position_``, ``pos_``, ``position.``, ``pos.``, ``p``
-      (``px/py/pz``), ``pos`` or ``position``. Latitude/longitude are kept in
-      degrees; no conversion is made.
+      (``px/py/pz``), ``pos`` or ``position``; failing those a single ``x``,
+      ``position``, ``pos`` or ``value`` column (a 1-D track). Latitude/longitude
+      are kept in degrees; no conversion is made.
     - track id: first of ``track_id, id, track, object_id, target, ...``; none
       found means a single track.
 
@@ -188,6 +191,8 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
                     break
             if positions is not None:
                 break
+        if positions is None:  # a 1-D track
+            positions = next(((lookup[n],) for n in _SINGLE if n in lookup), None)
         if positions is None:
             raise ValueError(
                 "Could not detect position columns (expected e.g. x/y[/z], u/v, lat/lon, "
@@ -225,7 +230,8 @@ def _to_float(s: pd.Series, name: str, offset: int) -> np.ndarray:
         i = int(np.argmax(bad))
         raise ValueError(
             f"Column {name!r} must hold finite numbers; row {offset + i} (counted from 0 after the "
-            f"header) holds {s.iloc[i]!r}. Empty cells and 'nan' are read as missing measurements.")
+            f"header) holds {s.iloc[i:i + 1].tolist()[0]!r}. Empty cells and 'nan' are read as "
+            "missing measurements.")
     return out
 
 
@@ -297,7 +303,8 @@ def _format_of(source: Any, format: str | None) -> str:
 def _header(source: Any, fmt: str) -> list[str]:
     if fmt == "parquet":
         import pyarrow.parquet as pq
-        return list(pq.ParquetFile(source).schema_arrow.names)
+        with pq.ParquetFile(source) as parquet:
+            return list(parquet.schema_arrow.names)
     try:
         return [str(c) for c in pd.read_csv(source, nrows=0).columns]
     except pd.errors.EmptyDataError:
@@ -398,31 +405,34 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         raise ValueError(f"Expected chunk_rows >= 1, got {chunk_rows}")
     fmt = _format_of(path, format)
     cols = _resolve(_header(path, fmt), columns)
-    if fmt == "parquet":
-        import pyarrow.parquet as pq
-        batches = (b.to_pandas() for b in
-                   pq.ParquetFile(path).iter_batches(batch_size=int(chunk_rows), columns=cols.names))
-    else:
-        batches = pd.read_csv(path, usecols=cols.names, chunksize=int(chunk_rows))
     last: dict = {}
     counts: dict | None = {} if cols.time is None else None
     offset = 0
-    for raw in batches:
-        if len(raw) == 0:
-            continue
-        chunk = _normalise(raw, cols, offset, counts)
-        firsts = chunk.groupby("track_id", sort=False)["time"].first()
-        prev = firsts.index.map(last).to_numpy(np.float64, na_value=np.nan)
-        back = prev >= firsts.to_numpy()
-        if back.any():
-            i = int(np.argmax(back))
-            raise ValueError(
-                f"Track {firsts.index[i]!r}: time {firsts.iloc[i]} in the chunk starting at row {offset} "
-                f"is not after the time {prev[i]} already read; in a chunked read each track's rows "
-                "must come in increasing time order (sort the file or use read_tracks)")
-        last.update(chunk.groupby("track_id", sort=False)["time"].last().to_dict())
-        offset += len(raw)
-        yield chunk
+    with contextlib.ExitStack() as stack:
+        if fmt == "parquet":
+            import pyarrow.parquet as pq
+            parquet = stack.enter_context(pq.ParquetFile(path))
+            batches = (b.to_pandas() for b in
+                       parquet.iter_batches(batch_size=int(chunk_rows), columns=cols.names))
+        else:
+            batches = stack.enter_context(pd.read_csv(path, usecols=cols.names, chunksize=int(chunk_rows)))
+        for raw in batches:
+            if len(raw) == 0:
+                continue
+            chunk = _normalise(raw, cols, offset, counts)
+            firsts = chunk.groupby("track_id", sort=False)["time"].first()
+            prev = firsts.index.map(last).to_numpy(np.float64, na_value=np.nan)
+            back = prev >= firsts.to_numpy()
+            if back.any():
+                i = int(np.argmax(back))
+                raise ValueError(
+                    f"Track {firsts.index[i:i + 1].tolist()[0]!r}: time {firsts.iloc[i]} in the chunk "
+                    f"starting at row {offset} is not after the time {prev[i]} already read; in a "
+                    "chunked read each track's rows must come in increasing time order (sort the "
+                    "file or use read_tracks)")
+            last.update(chunk.groupby("track_id", sort=False)["time"].last().to_dict())
+            offset += len(raw)
+            yield chunk
     if offset == 0:
         raise ValueError(f"The track file {os.fspath(path)!r} has no rows (only a header)")
 

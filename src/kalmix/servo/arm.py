@@ -27,7 +27,9 @@ between 29° and 146°, distance to the yaw axis ≥ 0.35 m, Jacobian condition
 number ≤ 10), and the region the target actually visits (``± 0.3`` m in x and
 y, ``± 0.15`` m in depth, see :data:`TARGET_REGION_HALF_WIDTHS`) is far from
 any singularity (flexion 75°–125°, condition number ≤ 3.3). The test suite
-checks these figures numerically.
+checks these figures numerically. (The near corners of the cube, at
+``z = 0.85`` m and ``|x| = 0.35`` m, fall outside one camera's image: a limit of
+the cameras, not of the arm; the target region is fully in view.)
 
 Joint conventions
 -----------------

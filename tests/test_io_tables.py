@@ -1,0 +1,262 @@
+import gzip
+import io
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from kalmix.io import (
+    TrackArrays,
+    TrackColumns,
+    detect_columns,
+    from_arrays,
+    iter_track_chunks,
+    read_tracks,
+    split_on_gaps,
+    to_arrays,
+)
+
+
+def write(tmp_path, text, name="tracks.csv"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+# ----------------------------------------------------------------------------- detect_columns
+@pytest.mark.parametrize("columns, expected", [
+    (["t", "x", "y"], TrackColumns("t", ("x", "y"), None)),
+    (["Time", "X", "Y", "Z", "ID"], TrackColumns("Time", ("X", "Y", "Z"), "ID")),
+    (["timestamp", "track_id", "position_x", "position_y"],
+     TrackColumns("timestamp", ("position_x", "position_y"), "track_id")),
+    (["frame", "object_id", "px", "py", "pz"], TrackColumns("frame", ("px", "py", "pz"), "object_id")),
+    (["seconds", "target", "u", "v"], TrackColumns("seconds", ("u", "v"), "target")),
+    (["lat", "lon", "time"], TrackColumns("time", ("lat", "lon"), None)),
+    (["u_left", "u_right", "v", "t"], TrackColumns("t", ("u_left", "u_right", "v"), None)),
+    ([" x ", " y "], TrackColumns(None, (" x ", " y "), None)),
+])
+def test_detect_columns(columns, expected):
+    assert detect_columns(columns) == expected
+
+
+def test_detect_columns_explicit_wins():
+    cols = detect_columns(["t", "frame", "x", "y", "a", "id"], time="frame", positions=["a"],
+                          track_id="id")
+    assert cols == TrackColumns("frame", ("a",), "id")
+
+
+def test_detect_columns_nothing_matches_lists_columns():
+    with pytest.raises(ValueError, match=r"Could not detect position columns.*\['time', 'foo', 'bar'\]"):
+        detect_columns(["time", "foo", "bar"])
+
+
+def test_detect_columns_explicit_missing_lists_columns():
+    with pytest.raises(ValueError, match=r"positions=\['x', 'q'\].*\['q'\] not found.*\['t', 'x', 'y'\]"):
+        detect_columns(["t", "x", "y"], positions=["x", "q"])
+    with pytest.raises(ValueError, match=r"time='when'.*available columns: \['t', 'x', 'y'\]"):
+        detect_columns(["t", "x", "y"], time="when")
+
+
+def test_more_than_three_positions():
+    with pytest.raises(ValueError, match=r"Expected 1 to 3 position columns, got 4"):
+        detect_columns(["a", "b", "c", "d"], positions=["a", "b", "c", "d"])
+    with pytest.raises(ValueError, match=r"Expected 1 to 3 position columns, got 4"):
+        TrackColumns("t", ("a", "b", "c", "d"), None)
+
+
+# ----------------------------------------------------------------------------- read_tracks
+def test_read_csv_canonical(tmp_path):
+    path = write(tmp_path, "id,t,x,y\nb,0,1,2\na,0,3,4\nb,1,5,6\na,1,7,8\n")
+    df = read_tracks(path)
+    assert list(df.columns) == ["track_id", "time", "x", "y"]
+    assert df["track_id"].tolist() == ["a", "a", "b", "b"]
+    assert df["time"].tolist() == [0, 1, 0, 1]
+    assert df["x"].tolist() == [3, 7, 1, 5]
+    assert df["x"].dtype == np.float64 and df["time"].dtype == np.float64
+
+
+def test_read_gz_and_buffer(tmp_path):
+    text = "t,x\n0,1\n1,2\n"
+    path = tmp_path / "one.csv.gz"
+    with gzip.open(path, "wt") as fh:
+        fh.write(text)
+    expected = pd.DataFrame({"track_id": [0, 0], "time": [0.0, 1.0], "x": [1.0, 2.0]})
+    pd.testing.assert_frame_equal(read_tracks(path), expected)
+    pd.testing.assert_frame_equal(read_tracks(io.StringIO(text)), expected)
+
+
+def test_parquet_roundtrip(tmp_path):
+    df = pd.DataFrame({"track_id": ["a"] * 3 + ["b"] * 2, "time": [0.0, 0.5, 1.0, 0.0, 1.0],
+                       "x": [1.0, np.nan, 3.0, 4.0, 5.0], "y": [0.0, 1.0, 2.0, 3.0, 4.0]})
+    df.to_parquet(tmp_path / "t.parquet")
+    pd.testing.assert_frame_equal(read_tracks(tmp_path / "t.parquet"), df, check_dtype=False)
+    buffer = io.BytesIO()
+    df.to_parquet(buffer)
+    buffer.seek(0)
+    pd.testing.assert_frame_equal(read_tracks(buffer, format="parquet"), df, check_dtype=False)
+
+
+def test_no_time_column_means_row_order(tmp_path):
+    df = read_tracks(write(tmp_path, "id,x\na,1\nb,2\na,3\n"))
+    assert df["time"].tolist() == [0, 1, 0] and df["x"].tolist() == [1, 3, 2]
+
+
+def test_datetime_time_in_parquet(tmp_path):
+    raw = pd.DataFrame({"timestamp": pd.to_datetime(["2024-01-01 00:00:00", "2024-01-01 00:00:02"]),
+                        "x": [1.0, 2.0]})
+    raw.to_parquet(tmp_path / "d.parquet")
+    assert np.diff(read_tracks(tmp_path / "d.parquet")["time"]).tolist() == [2.0]
+
+
+def test_missing_column_lists_available(tmp_path):
+    path = write(tmp_path, "t,x,y\n0,1,2\n")
+    with pytest.raises(ValueError, match=r"\['z'\] not found; available columns: \['t', 'x', 'y'\]"):
+        read_tracks(path, columns=TrackColumns("t", ("x", "z"), None))
+
+
+def test_non_numeric_names_column_row_value(tmp_path):
+    path = write(tmp_path, "t,x,y\n0,1,2\n1,2,3\n2,oops,4\n")
+    with pytest.raises(ValueError, match=r"Column 'x' must hold finite numbers; row 2 .* holds 'oops'"):
+        read_tracks(path)
+    path = write(tmp_path, "t,x\n0,1\nnoon,2\n")
+    with pytest.raises(ValueError, match=r"Column 't' .* row 1 .* holds 'noon'"):
+        read_tracks(path)
+
+
+def test_empty_cells_and_nan_are_missing(tmp_path):
+    df = read_tracks(write(tmp_path, "t,x,y\n0,1,\n1,nan,2\n2,NaN,3\n3, ,4\n"))
+    assert np.isnan(df["y"].iloc[0]) and np.isnan(df["x"].iloc[1:]).all()
+    assert df["y"].iloc[1:].tolist() == [2, 3, 4]
+
+
+def test_missing_time_row_dropped_with_warning(tmp_path):
+    with pytest.warns(RuntimeWarning, match=r"Dropped 1 row\(s\) with a missing time"):
+        df = read_tracks(write(tmp_path, "t,x\n0,1\n,2\n2,3\n"))
+    assert df["time"].tolist() == [0, 2]
+
+
+def test_unsorted_times_sorted_with_warning(tmp_path):
+    path = write(tmp_path, "id,t,x\na,2,20\na,0,0\na,1,10\nb,5,1\nb,3,2\n")
+    with pytest.warns(RuntimeWarning, match=r"Times decrease at 2 row\(s\) within tracks"):
+        df = read_tracks(path)
+    assert df["time"].tolist() == [0, 1, 2, 3, 5] and df["x"].tolist() == [0, 10, 20, 2, 1]
+
+
+def test_duplicate_times_keep_last_with_warning(tmp_path):
+    path = write(tmp_path, "id,t,x\na,0,1\na,1,2\na,1,3\nb,1,4\na,1,5\n")
+    with pytest.warns(RuntimeWarning, match=r"2 row\(s\) repeat a timestamp .* kept the last"):
+        df = read_tracks(path)
+    assert df["x"].tolist() == [1, 5, 4]
+
+
+def test_clean_file_gives_no_warning(tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_tracks(write(tmp_path, "t,x\n0,1\n1,2\n"))
+
+
+def test_empty_file(tmp_path):
+    with pytest.raises(ValueError, match="no rows"):
+        read_tracks(write(tmp_path, ""))
+    with pytest.raises(ValueError, match="no rows"):
+        read_tracks(write(tmp_path, "t,x,y\n"))
+    with pytest.raises(ValueError, match="no rows"):
+        read_tracks(io.StringIO(""))
+
+
+def test_unknown_format(tmp_path):
+    with pytest.raises(ValueError, match=r"Cannot tell the format of .*tracks.json"):
+        read_tracks(write(tmp_path, "{}", "tracks.json"))
+    with pytest.raises(ValueError, match=r"Expected format in \['csv', 'parquet'\], got 'xls'"):
+        read_tracks(write(tmp_path, "t,x\n0,1\n"), format="xls")
+
+
+# ----------------------------------------------------------------------------- chunks
+def big_table(seed=0):
+    rng = np.random.default_rng(seed)
+    n = 257
+    df = pd.DataFrame({"id": np.tile([3, 1, 2], n), "t": np.repeat(np.arange(n) * 0.1, 3),
+                       "x": rng.normal(size=3 * n), "y": rng.normal(size=3 * n)})
+    df.loc[5, "x"] = np.nan
+    return df
+
+
+@pytest.mark.parametrize("ext", ["csv", "parquet"])
+def test_chunks_equal_whole_read(tmp_path, ext):
+    raw = big_table()
+    path = tmp_path / f"big.{ext}"
+    raw.to_csv(path, index=False) if ext == "csv" else raw.to_parquet(path)
+    chunks = list(iter_track_chunks(path, chunk_rows=100))
+    assert len(chunks) == 8 and all(len(c) <= 100 for c in chunks)
+    whole = pd.concat(chunks).sort_values(["track_id", "time"], kind="stable").reset_index(drop=True)
+    pd.testing.assert_frame_equal(whole, read_tracks(path))
+
+
+def test_chunks_row_order_time_continues(tmp_path):
+    path = write(tmp_path, "id,x\n" + "".join(f"{i % 2},{i}\n" for i in range(10)))
+    chunks = list(iter_track_chunks(path, chunk_rows=3))
+    whole = pd.concat(chunks).sort_values(["track_id", "time"], kind="stable")
+    assert whole.groupby("track_id")["time"].apply(list).to_dict() == {0: [0, 1, 2, 3, 4],
+                                                                      1: [0, 1, 2, 3, 4]}
+
+
+def test_chunks_time_back_across_chunks(tmp_path):
+    path = write(tmp_path, "t,x\n0,0\n1,1\n2,2\n1.5,3\n")
+    with pytest.raises(ValueError, match=r"Track 0: time 1.5 in the chunk starting at row 3 is not after"):
+        list(iter_track_chunks(path, chunk_rows=3))
+
+
+def test_chunks_bad_value_row_counts_from_file_start(tmp_path):
+    path = write(tmp_path, "t,x\n0,0\n1,1\n2,2\n3,bad\n")
+    with pytest.raises(ValueError, match=r"Column 'x' .* row 3 .* holds 'bad'"):
+        list(iter_track_chunks(path, chunk_rows=2))
+
+
+def test_chunks_empty(tmp_path):
+    with pytest.raises(ValueError, match="no rows"):
+        list(iter_track_chunks(write(tmp_path, "t,x\n")))
+
+
+# ----------------------------------------------------------------------------- arrays
+def test_to_arrays_and_back():
+    df = pd.DataFrame({"track_id": ["a", "a", "a", "b", "b"], "time": [0.0, 1.0, 3.0, 0.5, 1.5],
+                       "x": [1.0, 2.0, 3.0, 4.0, np.nan], "y": [5.0, 6.0, 7.0, 8.0, 9.0]})
+    arrays = to_arrays(df, ["x", "y"])
+    assert isinstance(arrays, TrackArrays)
+    assert arrays.values.shape == (3, 2, 2) and arrays.times.shape == (3, 2)
+    assert arrays.track_ids.tolist() == ["a", "b"] and arrays.lengths.tolist() == [3, 2]
+    np.testing.assert_array_equal(arrays.values[:, 0, 0], [1, 2, 3])
+    np.testing.assert_array_equal(arrays.values[:, 1, 1], [8, 9, np.nan])
+    np.testing.assert_array_equal(arrays.times[:, 1], [0.5, 1.5, np.nan])
+    back = from_arrays(arrays, arrays.values * 10)
+    assert list(back.columns) == ["track_id", "time", "pred_x", "pred_y"]
+    pd.testing.assert_frame_equal(back[["track_id", "time"]], df[["track_id", "time"]])
+    np.testing.assert_array_equal(back["pred_x"], df["x"] * 10)
+    other = from_arrays(arrays, np.zeros((3, 2, 1)), prefix="p")
+    assert list(other.columns) == ["track_id", "time", "p0"] and len(other) == 5
+    with pytest.raises(ValueError, match=r"Expected predictions of shape \(3, 2, q\), got \(2, 2, 2\)"):
+        from_arrays(arrays, np.zeros((2, 2, 2)))
+
+
+def test_to_arrays_default_positions():
+    arrays = to_arrays(pd.DataFrame({"track_id": [0], "time": [0.0], "u": [1.0]}))
+    assert arrays.position_names == ("u",) and arrays.values.shape == (1, 1, 1)
+
+
+# ----------------------------------------------------------------------------- gaps
+def test_split_on_gaps():
+    t = np.r_[np.arange(10) * 0.1, 5 + np.arange(5) * 0.1, 5.4 + 0.31, 5.71 + 0.29]
+    seg = split_on_gaps(t)
+    assert seg.tolist() == [0] * 10 + [1] * 5 + [2, 2]
+    assert split_on_gaps(t, max_gap_factor=4.0).tolist() == [0] * 10 + [1] * 7
+    assert split_on_gaps([0.0]).tolist() == [0]
+    assert split_on_gaps([]).tolist() == []
+    with pytest.raises(ValueError, match=r"Expected max_gap_factor > 1, got 0.5"):
+        split_on_gaps(t, 0.5)
+
+
+def test_split_on_gaps_per_track_uses_own_median():
+    times = [0, 1, 2, 10, 11, 0, 10, 20, 30]
+    ids = ["a"] * 5 + ["b"] * 4
+    assert split_on_gaps(times, track_ids=ids).tolist() == [0, 0, 0, 1, 1, 0, 0, 0, 0]
