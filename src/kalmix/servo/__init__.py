@@ -11,6 +11,15 @@ from kalmix.servo.arm import (
     WORKSPACE_HALF_WIDTHS,
     Arm,
 )
+from kalmix.servo.loop import (
+    MODES,
+    ModeResult,
+    ServoConfig,
+    ServoResult,
+    delay_stability_limit,
+    run_servo,
+    train_som,
+)
 from kalmix.servo.som import (
     InverseJacobianSOM,
     RelativeError,
@@ -20,6 +29,13 @@ from kalmix.servo.som import (
 )
 
 __all__ = [
+    "MODES",
+    "ModeResult",
+    "ServoConfig",
+    "ServoResult",
+    "delay_stability_limit",
+    "run_servo",
+    "train_som",
     "Arm",
     "InverseJacobianSOM",
     "RelativeError",
