@@ -1,0 +1,595 @@
+"""``kalmix predict`` and ``kalmix evaluate``: a user's own track files in, predictions and a comparison out.
+
+The logic lives in :mod:`kalmix.streaming` (the per-track predictors, gap rule, state
+file) and :mod:`kalmix.experiments.evaluate` (the comparison); this module only reads,
+writes and prints.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import math
+import os
+import sys
+import warnings
+
+import click
+import numpy as np
+
+_LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres). "
+                     "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
+                     "(files) or 1 (stdin, unless a --state file holds one).")
+_GAP_HELP = ("A time step larger than this (time units) starts a new segment: the track's predictor restarts. "
+             "Default: --max-gap-factor times the track's reference interval.")
+
+
+def _column_options(function):
+    for option in reversed((
+        click.option("--time", "time_column", default=None, help="Time column (default: detected: time, t, "
+                     "timestamp, frame, ...; none found = row order)."),
+        click.option("--position", "position_columns", default=None,
+                     help="Position columns, comma-separated, 1 to 3 (default: detected: x,y[,z], u,v, lat,lon, ...)."),
+        click.option("--id", "id_column", default=None, help="Track id column (default: detected: track_id, id, "
+                     "track, ...; none found = one track)."),
+    )):
+        function = option(function)
+    return function
+
+
+def _mixture_options(pairs):
+    """``--option key=value`` pairs to :func:`kalmix.bank.make_params` keyword arguments."""
+    options = {}
+    for pair in pairs or ():
+        key, sep, text = pair.partition("=")
+        if not sep or not key.strip():
+            raise click.BadParameter(f"expected KEY=VALUE, got {pair!r}", param_hint="--option")
+        try:
+            value = json.loads(text)
+        except json.JSONDecodeError:
+            value = text
+        options[key.strip().replace("-", "_")] = value
+    if "length_unit" in options:
+        raise click.BadParameter("use --length-unit for the length unit", param_hint="--option")
+    return options
+
+
+_OPTION_HELP = ("A kalmix.bank.make_params argument of the mixture, KEY=VALUE (JSON value), repeatable, "
+                "e.g. --option temperature=4 --option gating=paper.")
+
+
+def _positions(text):
+    if text is None:
+        return None
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    if not 1 <= len(names) <= 3:
+        raise click.BadParameter(f"expected 1 to 3 comma-separated column names, got {text!r}",
+                                 param_hint="--position")
+    return names
+
+
+def _length_unit(text):
+    if text is None or str(text).lower() == "auto":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise click.BadParameter(f"expected a number > 0 or 'auto', got {text!r}", param_hint="--length-unit")
+    if not (math.isfinite(value) and value > 0):
+        raise click.BadParameter(f"expected a number > 0 or 'auto', got {text!r}", param_hint="--length-unit")
+    return value
+
+
+def _max_gap(text):
+    if text is None or str(text).lower() == "auto":
+        return None, False
+    if str(text).lower() in ("none", "inf", "never"):
+        return None, True
+    try:
+        value = float(text)
+    except ValueError:
+        raise click.BadParameter(f"expected a time step > 0, 'auto' or 'none', got {text!r}", param_hint="--max-gap")
+    if not value > 0:
+        raise click.BadParameter(f"expected a time step > 0, 'auto' or 'none', got {text!r}", param_hint="--max-gap")
+    return value, False
+
+
+@contextlib.contextmanager
+def _user_errors():
+    """ValueError / FileNotFoundError / ImportError become one clear line; warnings go to stderr."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        click.echo(f"kalmix: warning: {message}", err=True)
+
+    previous = warnings.showwarning
+    warnings.showwarning = show
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", RuntimeWarning)
+            warnings.showwarning = show
+            yield
+    except (ValueError, TypeError, FileNotFoundError, ImportError) as error:
+        raise click.ClickException(str(error)) from error
+    finally:
+        warnings.showwarning = previous
+
+
+def _header(path, fmt):
+    import pandas as pd
+
+    if fmt == "parquet":
+        import pyarrow.parquet as pq
+        return list(pq.ParquetFile(path).schema_arrow.names)
+    try:
+        return [str(c) for c in pd.read_csv(path, nrows=0).columns]
+    except pd.errors.EmptyDataError:
+        raise ValueError(f"The track file {os.fspath(path)!r} is empty (no header, no rows)") from None
+
+
+def _file_format(path):
+    name = os.fspath(path).lower()
+    if name.endswith((".parquet", ".pq")):
+        return "parquet"
+    if name.endswith((".jsonl", ".ndjson", ".json")):
+        return "jsonl"
+    return "csv"
+
+
+def _columns(header, time_column, position_columns, id_column):
+    from ..io import detect_columns
+
+    return detect_columns(header, time=time_column, positions=_positions(position_columns), track_id=id_column)
+
+
+class _Writer:
+    """CSV, JSON lines or Parquet output, written incrementally."""
+
+    def __init__(self, output, fmt):
+        self.output, self.fmt = output, fmt
+        self.handle, self.parquet, self.header_written = None, None, False
+        if fmt == "parquet":
+            return
+        self.handle = sys.stdout if output is None else open(output, "w", newline="")
+
+    def write_table(self, frame):
+        if self.fmt == "parquet":
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+            table = pa.Table.from_pandas(frame, preserve_index=False)
+            if self.parquet is None:
+                self.parquet = pq.ParquetWriter(self.output, table.schema)
+            self.parquet.write_table(table)
+        elif self.fmt == "jsonl":
+            for record in frame.to_dict(orient="records"):
+                self.write_record(record)
+        else:
+            frame.to_csv(self.handle, index=False, header=not self.header_written, lineterminator="\n")
+            self.header_written = True
+        if self.handle is not None:
+            self.handle.flush()
+
+    def write_record(self, record):
+        if self.fmt == "jsonl":
+            self.handle.write(json.dumps({k: _json_value(v) for k, v in record.items()}) + "\n")
+        else:
+            if not self.header_written:
+                self.handle.write(",".join(record) + "\n")
+                self.header_written = True
+            self.handle.write(",".join(_csv_value(v) for v in record.values()) + "\n")
+        self.handle.flush()
+
+    def close(self):
+        if self.parquet is not None:
+            self.parquet.close()
+        if self.handle is not None and self.handle is not sys.stdout:
+            self.handle.close()
+
+
+def _json_value(value):
+    if isinstance(value, (np.floating, float)):
+        return None if not math.isfinite(value) else float(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def _csv_value(value):
+    if isinstance(value, (float, np.floating)):
+        return "" if math.isnan(value) else repr(float(value))
+    text = str(value)
+    if any(c in text for c in ',"\n'):
+        text = '"' + text.replace('"', '""') + '"'
+    return text
+
+
+def _output_columns(frame, columns, names):
+    """Rename the engine's columns back to the input's names; drop the id if the input had none."""
+    renames = {"time": columns.time or "row"}
+    if columns.track_id is not None:
+        renames["track_id"] = columns.track_id
+    else:
+        frame = frame.drop(columns="track_id")
+    return frame.rename(columns=renames)
+
+
+# --------------------------------------------------------------------------------------- predict
+@click.command()
+@click.argument("input_path", metavar="INPUT")
+@_column_options
+@click.option("--horizon", "-H", default=1, show_default=True, type=click.IntRange(min=1),
+              help="Also predict H samples ahead (columns pred<H>_<pos>).")
+@click.option("--output", "-o", default=None, type=click.Path(dir_okay=False),
+              help="Output file: .csv, .parquet or .jsonl (default: CSV on stdout).")
+@click.option("--experts", "n_experts", default=None, type=click.IntRange(min=1), help="Experts K [default: 40].")
+@click.option("--seed", default=None, type=click.IntRange(min=0), help="Seed of the bank [default: 0].")
+@click.option("--length-unit", default="auto", show_default=True, help=_LENGTH_UNIT_HELP)
+@click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP + " 'none' never splits.")
+@click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True),
+              help="Gap threshold as a multiple of the reference interval (median of a track's first 16 steps).")
+@click.option("--state", "state_path", default=None, type=click.Path(dir_okay=False),
+              help="State file: resumed from if it exists, written on exit and every --save-every rows.")
+@click.option("--save-every", default=10_000, show_default=True, type=click.IntRange(min=1),
+              help="Rows between state saves.")
+@click.option("--chunk-rows", default=200_000, show_default=True, type=click.IntRange(min=1),
+              help="Rows read at a time from a file (bounded memory).")
+@click.option("--progress/--no-progress", default=None, help="Progress bar on stderr [default: when a terminal].")
+@click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
+def predict(input_path, time_column, position_columns, id_column, horizon, output, n_experts, seed, length_unit,
+            max_gap, max_gap_factor, state_path, save_every, chunk_rows, progress, mixture_options):
+    """Predict the next position of every track in INPUT (CSV, Parquet, or - for stdin).
+
+    Output: the input's id and time columns, 'segment', and pred_<position> (the next sample
+    of the track); with --horizon H also pred<H>_<position>. A file is processed in chunks,
+    all tracks at once through the batched core; '-' reads CSV rows (header first) or JSON
+    lines from stdin and writes each prediction as soon as its measurement arrives.
+    """
+    from ..streaming import StreamConfig, TrackPredictor
+
+    unit = _length_unit(length_unit)
+    gap, never = _max_gap(max_gap)
+    options = _mixture_options(mixture_options)
+    out_fmt = _file_format(output) if output else "csv"
+    with _user_errors():
+        engine = None
+        if state_path and os.path.exists(state_path):
+            engine = TrackPredictor.load(state_path)
+            stored = engine.config
+            for name, given, have in (("--experts", n_experts, stored.n_experts), ("--seed", seed, stored.seed),
+                                      ("--length-unit", unit, stored.length_unit),
+                                      ("--horizon", horizon if horizon != 1 else None, stored.horizon),
+                                      ("--option", options or None, stored.options)):
+                if given is not None and given != have:
+                    raise ValueError(f"{name}: the state file {state_path} was made with {have}, got {given}; "
+                                     "use a new --state file to change it")
+        settings = dict(n_experts=40 if n_experts is None else n_experts, seed=0 if seed is None else seed,
+                        horizon=horizon, max_gap=gap, max_gap_factor=math.inf if never else max_gap_factor,
+                        options=options)
+        if engine is None and options:
+            from ..bank import make_params
+            make_params(1, settings["n_experts"], **options)  # a bad option fails before any output
+        if input_path == "-":
+            if out_fmt == "parquet":
+                raise ValueError("--output: streaming from stdin writes CSV or JSON lines, got a .parquet name")
+            _predict_stream(sys.stdin, engine, settings, unit, state_path, save_every, output, out_fmt,
+                            time_column, position_columns, id_column)
+        else:
+            _predict_file(input_path, engine, settings, unit, state_path, save_every, output, out_fmt,
+                          time_column, position_columns, id_column, chunk_rows, progress)
+
+
+def _predict_file(path, engine, settings, unit, state_path, save_every, output, out_fmt,
+                  time_column, position_columns, id_column, chunk_rows, progress):
+    from tqdm import tqdm
+
+    from ..io import iter_track_chunks, to_arrays
+    from ..streaming import StreamConfig, TrackPredictor, auto_length_unit
+
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"INPUT: no such file {path!r}")
+    in_fmt = "parquet" if _file_format(path) == "parquet" else "csv"
+    columns = _columns(_header(path, in_fmt), time_column, position_columns, id_column)
+    total = None
+    if in_fmt == "parquet":
+        import pyarrow.parquet as pq
+        total = pq.ParquetFile(path).metadata.num_rows
+    show = sys.stderr.isatty() if progress is None else progress
+    writer = _Writer(output, out_fmt)
+    since_save = 0
+    try:
+        with tqdm(total=total, unit="rows", file=sys.stderr, disable=not show, desc="kalmix predict") as bar:
+            for chunk in iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt):
+                if engine is None:
+                    chosen = unit if unit is not None else auto_length_unit(to_arrays(chunk).values)
+                    if unit is None:
+                        click.echo(f"kalmix: length unit {chosen:.6g} (auto; pass --length-unit to override)",
+                                   err=True)
+                    engine = TrackPredictor(StreamConfig(length_unit=chosen, **settings), columns.positions)
+                frame = engine.process_table(chunk, list(columns.positions))
+                writer.write_table(_output_columns(frame, columns, columns.positions))
+                bar.update(len(chunk))
+                since_save += len(chunk)
+                if state_path and since_save >= save_every:
+                    engine.save(state_path)
+                    since_save = 0
+    finally:
+        writer.close()
+        if state_path and engine is not None:
+            engine.save(state_path)
+    if engine is not None and engine.skipped:
+        click.echo(f"kalmix: warning: skipped {engine.skipped} row(s) at or before their track's last time "
+                   "(already processed or out of order)", err=True)
+
+
+def _parse_number(text, column, line_number):
+    if text is None:
+        return math.nan
+    if isinstance(text, (int, float)) and not isinstance(text, bool):
+        value = float(text)
+    else:
+        stripped = str(text).strip()
+        if stripped.lower() in ("", "nan", "na", "n/a", "null", "none"):
+            return math.nan
+        try:
+            value = float(stripped)
+        except ValueError:
+            raise ValueError(f"line {line_number}: column {column!r} must hold a number, got {text!r}") from None
+    if math.isinf(value):
+        raise ValueError(f"line {line_number}: column {column!r} must be finite, got {text!r}")
+    return value
+
+
+def _parse_id(value):
+    if isinstance(value, str):
+        text = value.strip()
+        try:
+            if text and text.lstrip("-").isdigit():
+                return int(text)
+        except ValueError:
+            pass
+        return text
+    return value
+
+
+def _predict_stream(stdin, engine, settings, unit, state_path, save_every, output, out_fmt,
+                    time_column, position_columns, id_column):
+    from ..streaming import StreamConfig, TrackPredictor
+
+    lines = iter(stdin.readline, "")
+    line_number = 0
+    first = None
+    for raw in lines:
+        line_number += 1
+        if raw.strip():
+            first = raw
+            break
+    if first is None:
+        raise ValueError("stdin: no input (expected a CSV header line or JSON lines)")
+    is_json = first.lstrip().startswith("{")
+    if is_json:
+        try:
+            record = json.loads(first)
+        except json.JSONDecodeError as error:
+            raise ValueError(f"line {line_number}: not valid JSON: {error}") from None
+        header = list(record)
+        pending = [(line_number, record)]
+    else:
+        header = next(csv.reader([first]))
+        pending = []
+    columns = _columns(header, time_column, position_columns, id_column)
+    if engine is None:
+        if unit is None:
+            click.echo("kalmix: length unit 1 (stdin has no sample to estimate it from; pass --length-unit)",
+                       err=True)
+        engine = TrackPredictor(StreamConfig(length_unit=1.0 if unit is None else unit, **settings),
+                                columns.positions)
+    if engine.position_names is not None and len(engine.position_names) != len(columns.positions):
+        raise ValueError(f"the state file tracks {len(engine.position_names)} coordinates "
+                         f"{list(engine.position_names)}, the input has {list(columns.positions)}")
+    index = {name: i for i, name in enumerate(header)}
+    out_fmt = out_fmt if output else ("jsonl" if is_json else "csv")
+    writer = _Writer(output, out_fmt)
+    counts: dict = {}
+    since_save = 0
+
+    def records():
+        yield from pending
+        nonlocal line_number
+        for raw in lines:
+            line_number += 1
+            if not raw.strip():
+                continue
+            if is_json:
+                try:
+                    yield line_number, json.loads(raw)
+                except json.JSONDecodeError as error:
+                    raise ValueError(f"line {line_number}: not valid JSON: {error}") from None
+            else:
+                row = next(csv.reader([raw]))
+                if len(row) != len(header):
+                    raise ValueError(f"line {line_number}: expected {len(header)} fields like the header, "
+                                     f"got {len(row)}")
+                yield line_number, row
+
+    def get(record, name, number):
+        if is_json:
+            if name not in record:
+                raise ValueError(f"line {number}: key {name!r} missing (keys: {list(record)})")
+            return record[name]
+        return record[index[name]]
+
+    try:
+        for number, record in records():
+            track = _parse_id(get(record, columns.track_id, number)) if columns.track_id else 0
+            if columns.time is None:
+                time = float(counts.get(track, engine.gaps[track].last_time + 1 if track in engine.gaps else 0))
+                counts[track] = time + 1
+            else:
+                time = _parse_number(get(record, columns.time, number), columns.time, number)
+                if math.isnan(time):
+                    click.echo(f"kalmix: warning: line {number}: no time, row skipped", err=True)
+                    continue
+            z = [_parse_number(get(record, name, number), name, number) for name in columns.positions]
+            result = engine.step_row(track, time, z)
+            if result is None:
+                click.echo(f"kalmix: warning: line {number}: time {time!r} is not after track {track!r}'s "
+                           "previous time; row skipped", err=True)
+                continue
+            out = {}
+            if columns.track_id is not None:
+                out[columns.track_id] = track
+            out[columns.time or "row"] = time
+            out["segment"] = result.segment
+            for j, name in enumerate(columns.positions):
+                out[f"pred_{name}"] = float(result.next[j])
+            if result.ahead is not None:
+                for j, name in enumerate(columns.positions):
+                    out[f"pred{engine.config.horizon}_{name}"] = float(result.ahead[j])
+            writer.write_record(out)
+            since_save += 1
+            if state_path and since_save >= save_every:
+                engine.save(state_path)
+                since_save = 0
+    finally:
+        writer.close()
+        if state_path and engine.params is not None:
+            engine.save(state_path)
+
+
+# -------------------------------------------------------------------------------------- evaluate
+@click.command()
+@click.argument("input_path", metavar="INPUT", required=False)
+@click.option("--dataset", default=None, help="A shipped recording instead of INPUT: hawkeye_ball, skillcorner, "
+              "cycling (needs the 'data' extra).")
+@_column_options
+@click.option("--horizon", "-H", default=1, show_default=True, type=click.IntRange(min=1),
+              help="Also report the H-step errors.")
+@click.option("--experts", "n_experts", default=40, show_default=True, type=click.IntRange(min=1))
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0))
+@click.option("--length-unit", default="auto", show_default=True,
+              help="Mixture's length unit; 'auto': the second-difference rule on the tuning part.")
+@click.option("--tuning-fraction", default=0.2, show_default=True, type=click.FloatRange(0.0, 1.0, max_open=True),
+              help="Leading share of each track used to tune the peers (and the length unit), not scored.")
+@click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP)
+@click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True))
+@click.option("--max-samples", default=None, type=click.IntRange(min=3),
+              help="Use only the first N samples of each track (quicker).")
+@click.option("--tracks", default=None, help="Comma-separated track ids to keep.")
+@click.option("--peers/--no-peers", default=True, show_default=True, help="Include filterpy's IMM.")
+@click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False), help="Write the results as JSON.")
+@click.option("--plot", "plot_path", default=None, type=click.Path(dir_okay=False),
+              help="PNG of the one-step error over time for --track.")
+@click.option("--track", "plot_track", default=None, help="Track id to plot (default: the first).")
+@click.option("--per-track/--no-per-track", default=True, show_default=True, help="Print the per-track tables.")
+@click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
+def evaluate(input_path, dataset, time_column, position_columns, id_column, horizon, n_experts, seed, length_unit,
+             tuning_fraction, max_gap, max_gap_factor, max_samples, tracks, peers, json_path, plot_path,
+             plot_track, per_track, mixture_options):
+    """Compare the mixture's prediction errors with the predictors you would use instead.
+
+    Every predictor runs online over each track segment; the first --tuning-fraction of each
+    track tunes the CV/CA Kalman filters and the IMM (grid search, one-step RMS) and the
+    length unit, and is not scored. Errors are per coordinate, in data units.
+    """
+    from ..experiments.evaluate import evaluate_table
+
+    unit = _length_unit(length_unit)
+    gap, never = _max_gap(max_gap)
+    with _user_errors():
+        if (input_path is None) == (dataset is None):
+            raise ValueError("give either INPUT or --dataset NAME")
+        if dataset is not None:
+            from ..io import load_dataset
+            table = load_dataset(dataset)
+            label = dataset
+        else:
+            from ..io import read_tracks
+            if not os.path.exists(input_path):
+                raise FileNotFoundError(f"INPUT: no such file {input_path!r}")
+            fmt = "parquet" if _file_format(input_path) == "parquet" else "csv"
+            columns = _columns(_header(input_path, fmt), time_column, position_columns, id_column)
+            table = read_tracks(input_path, columns=columns, format=fmt)
+            label = os.path.basename(input_path)
+        wanted = [t.strip() for t in tracks.split(",")] if tracks else None
+        result = evaluate_table(table, horizon=horizon, n_experts=n_experts, seed=seed, length_unit=unit,
+                                tuning_fraction=tuning_fraction, max_gap=gap,
+                                max_gap_factor=math.inf if never else max_gap_factor, max_samples=max_samples,
+                                tracks=wanted, peers=peers, options=_mixture_options(mixture_options),
+                                log=lambda message: click.echo(f"kalmix: {message}", err=True))
+        result.dataset = label
+        click.echo(format_result(result, per_track=per_track))
+        if json_path:
+            with open(json_path, "w") as handle:
+                json.dump(result.to_json(), handle, indent=2)
+        if plot_path:
+            plot_errors(result, plot_path, plot_track)
+            click.echo(f"wrote {plot_path}")
+
+
+def _table(title, summaries, horizon):
+    lines = [title]
+    head = f"{'predictor':<26}{'mean|e|':>10}{'RMS':>10}{'max':>10}"
+    if horizon > 1:
+        head += f"  |{f'mean|e| H={horizon}':>14}{'RMS':>10}{'max':>10}"
+    lines.append(head)
+    for name, entry in summaries.items():
+        one = entry["one_step"]
+        line = f"{name:<26}{one['mean_abs']:>10.4g}{one['rms']:>10.4g}{one['max']:>10.4g}"
+        if horizon > 1:
+            later = entry.get("horizon")
+            line += "  |" + (f"{later['mean_abs']:>14.4g}{later['rms']:>10.4g}{later['max']:>10.4g}" if later
+                             else f"{'-':>14}{'-':>10}{'-':>10}")
+        lines.append(line)
+    return lines
+
+
+def format_result(result, per_track=True) -> str:
+    """The text tables printed by ``kalmix evaluate``."""
+    streams = result.streams
+    n_rows = int(streams.lengths.sum())
+    lines = [f"{result.dataset}: {len(streams.track_ids)} track(s), {n_rows} samples in {len(streams.lengths)} "
+             f"segment(s); length unit {result.length_unit:.4g}; first {result.tuning_fraction:.0%} of each "
+             "track tunes the peers and is not scored; errors per coordinate, data units", ""]
+    lines += _table("overall", result.overall, result.horizon)
+    if per_track:
+        for track, summaries in result.per_track.items():
+            lines += [""] + _table(f"track {track}", summaries, result.horizon)
+    return "\n".join(lines)
+
+
+def plot_errors(result, path, track=None):
+    """PNG of each predictor's one-step error norm over time (rolling median) for one track."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    streams = result.streams
+    names = [str(t) for t in streams.track_ids]
+    if track is None:
+        track = names[0]
+    if str(track) not in names:
+        raise ValueError(f"--track: expected one of {names[:20]}{' ...' if len(names) > 20 else ''}, got {track!r}")
+    columns = np.flatnonzero(streams.track_of == names.index(str(track)))
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    for name, errors in result.errors.items():
+        times, norms = [], []
+        for j in columns:
+            n = streams.lengths[j]
+            times.append(streams.times[:n, j])
+            norms.append(np.sqrt(np.sum(errors[:n, j] ** 2, axis=-1)))
+        t, e = np.concatenate(times), np.concatenate(norms)
+        window = max(1, len(e) // 100)
+        if window > 1:
+            import pandas as pd
+            e = pd.Series(e).rolling(window, min_periods=1, center=True).median().to_numpy()
+        style = dict(lw=2.0, color="black") if name == "mixture" else dict(lw=1.0, alpha=0.8)
+        ax.plot(t, e, label=name, **style)
+    ax.set_yscale("log")
+    ax.set_xlabel("time")
+    ax.set_ylabel("one-step error |e| (data units)" + (f", rolling median of {window}" if window > 1 else ""))
+    ax.set_title(f"{result.dataset}: track {track}")
+    ax.legend(fontsize=8, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

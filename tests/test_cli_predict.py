@@ -1,0 +1,262 @@
+"""``kalmix predict``: formats, stdin streaming == batch, --state resume, bad inputs, a big file in chunks."""
+
+import io
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from kalmix.cli import build
+
+FAST = ["--experts", "4", "--seed", "1", "--length-unit", "0.01", "--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def cli():
+    return build()
+
+
+def _run(cli, args, input=None):
+    return CliRunner().invoke(cli, args, input=input, catch_exceptions=False)
+
+
+def _tracks(n_tracks=3, n=50, seed=0, gap=True):
+    rng = np.random.default_rng(seed)
+    rows = []
+    for track in range(n_tracks):
+        t = np.round(np.arange(n) * 0.04, 6)
+        if gap and track == 1:
+            t[n // 2:] += 3.0
+        xy = np.cumsum(np.cumsum(rng.normal(size=(n, 2)), 0), 0) * 0.01 + rng.normal(0, 0.01, (n, 2))
+        xy[5] = np.nan
+        rows += [(100 + track, t[i], *xy[i]) for i in range(n)]
+    return pd.DataFrame(rows, columns=["object_id", "t", "px", "py"])
+
+
+def _write_csv(frame, path):
+    frame.to_csv(path, index=False, na_rep="")
+    return str(path)
+
+
+def _read(text):
+    return pd.read_csv(io.StringIO(text))
+
+
+def _sorted(frame):
+    return frame.sort_values(["object_id", "t"], kind="stable").reset_index(drop=True)
+
+
+def test_csv_round_trip_keeps_ids_and_times(cli, tmp_path):
+    data = _tracks()
+    result = _run(cli, ["predict", _write_csv(data, tmp_path / "in.csv"), *FAST, "-H", "5"])
+    assert result.exit_code == 0, result.output
+    out = _read(result.stdout)
+    assert list(out.columns) == ["object_id", "t", "segment", "pred_px", "pred_py", "pred5_px", "pred5_py"]
+    pd.testing.assert_frame_equal(out[["object_id", "t"]], _sorted(data)[["object_id", "t"]])
+    assert out.groupby("object_id")["segment"].max().to_dict() == {100: 0, 101: 1, 102: 0}
+    assert np.isfinite(out[["pred_px", "pred_py"]].to_numpy()).all()
+
+
+def test_parquet_in_and_out_and_jsonl_out(cli, tmp_path):
+    data = _tracks()
+    data.to_parquet(tmp_path / "in.parquet", index=False)
+    csv_out = _read(_run(cli, ["predict", _write_csv(data, tmp_path / "in.csv"), *FAST]).stdout)
+    result = _run(cli, ["predict", str(tmp_path / "in.parquet"), *FAST, "-o", str(tmp_path / "out.parquet")])
+    assert result.exit_code == 0, result.output
+    parquet_out = pd.read_parquet(tmp_path / "out.parquet")
+    np.testing.assert_allclose(parquet_out[["pred_px", "pred_py"]], csv_out[["pred_px", "pred_py"]], rtol=0, atol=1e-12)
+    result = _run(cli, ["predict", str(tmp_path / "in.csv"), *FAST, "-o", str(tmp_path / "out.jsonl")])
+    records = [json.loads(line) for line in (tmp_path / "out.jsonl").read_text().splitlines()]
+    assert len(records) == len(data) and set(records[0]) == {"object_id", "t", "segment", "pred_px", "pred_py"}
+
+
+def test_csv_gz_input(cli, tmp_path):
+    data = _tracks(n_tracks=1, gap=False)
+    data.to_csv(tmp_path / "in.csv.gz", index=False)
+    result = _run(cli, ["predict", str(tmp_path / "in.csv.gz"), *FAST])
+    assert result.exit_code == 0 and len(_read(result.stdout)) == len(data)
+
+
+def test_stdin_csv_streaming_equals_batch(cli, tmp_path):
+    data = _tracks()
+    path = _write_csv(data, tmp_path / "in.csv")
+    batch = _read(_run(cli, ["predict", path, *FAST, "-H", "3"]).stdout)
+    interleaved = data.sort_values(["t", "object_id"], kind="stable")  # a live feed: rows of all tracks mixed
+    stream = _run(cli, ["predict", "-", *FAST, "-H", "3"], input=interleaved.to_csv(index=False, na_rep=""))
+    assert stream.exit_code == 0, stream.output
+    stream = _sorted(_read(stream.stdout))
+    assert list(stream.columns) == list(batch.columns)
+    np.testing.assert_array_equal(stream[["object_id", "segment"]], batch[["object_id", "segment"]])
+    np.testing.assert_allclose(stream.drop(columns="object_id"), batch.drop(columns="object_id"), rtol=0, atol=1e-9)
+
+
+def test_stdin_json_lines_equal_batch(cli, tmp_path):
+    data = _tracks(n_tracks=2)
+    batch = _read(_run(cli, ["predict", _write_csv(data, tmp_path / "in.csv"), *FAST]).stdout)
+    lines = "\n".join(json.dumps({"object_id": int(r.object_id), "t": r.t,
+                                  "px": None if np.isnan(r.px) else r.px, "py": None if np.isnan(r.py) else r.py})
+                      for r in data.itertuples())
+    result = _run(cli, ["predict", "-", *FAST], input=lines + "\n")
+    assert result.exit_code == 0, result.output
+    out = _sorted(pd.DataFrame([json.loads(line) for line in result.stdout.splitlines()]))
+    np.testing.assert_allclose(out[["pred_px", "pred_py"]], batch[["pred_px", "pred_py"]], rtol=0, atol=1e-9)
+
+
+def test_stdin_prediction_is_written_as_each_line_arrives(tmp_path):
+    """Feed a real pipe line by line and read each prediction before sending the next line."""
+    import subprocess
+    import sys
+
+    process = subprocess.Popen([sys.executable, "-m", "kalmix.cli", "predict", "-", *FAST],
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        process.stdin.write("t,x,y\n")
+        lines = []
+        for k in range(3):
+            process.stdin.write(f"{k},{0.1 * k},{0.2 * k}\n")
+            process.stdin.flush()
+            if k == 0:
+                assert process.stdout.readline().startswith("t,segment,pred_x")
+            lines.append(process.stdout.readline())
+        assert [line.split(",")[0] for line in lines] == ["0.0", "1.0", "2.0"]
+    finally:
+        process.stdin.close()
+        process.wait(timeout=60)
+
+
+def test_state_resume_is_bit_for_bit_on_stdin(cli, tmp_path):
+    data = _tracks().sort_values(["t", "object_id"], kind="stable")
+    whole = _run(cli, ["predict", "-", *FAST, "-H", "2"], input=data.to_csv(index=False, na_rep="")).stdout
+    state = str(tmp_path / "state.npz")
+    first = _run(cli, ["predict", "-", *FAST, "-H", "2", "--state", state, "--save-every", "7"],
+                 input=data.iloc[:77].to_csv(index=False, na_rep=""))
+    second = _run(cli, ["predict", "-", "--state", state, "--no-progress"],
+                  input=data.iloc[77:].to_csv(index=False, na_rep=""))
+    assert first.exit_code == 0 and second.exit_code == 0, second.output
+    body = second.stdout.split("\n", 1)[1]  # each run writes its own header
+    assert first.stdout + body == whole
+
+
+def test_state_resume_is_bit_for_bit_on_files(cli, tmp_path):
+    data = _tracks()
+    whole = _run(cli, ["predict", _write_csv(data, tmp_path / "all.csv"), *FAST]).stdout
+    ordered = data.sort_values(["t", "object_id"], kind="stable")
+    state = str(tmp_path / "state.npz")
+    first = _run(cli, ["predict", _write_csv(ordered.iloc[:90], tmp_path / "a.csv"), *FAST, "--state", state])
+    # the second file repeats 10 rows already processed: they are skipped, not predicted twice
+    second = _run(cli, ["predict", _write_csv(ordered.iloc[80:], tmp_path / "b.csv"), "--state", state,
+                        "--no-progress"])
+    assert "skipped 10 row(s)" in second.stderr
+    combined = _sorted(pd.concat([_read(first.stdout), _read(second.stdout)]))
+    assert combined.to_csv(index=False) == _read(whole).to_csv(index=False)
+
+
+def test_state_refuses_conflicting_settings(cli, tmp_path):
+    data = _tracks(n_tracks=1)
+    path = _write_csv(data, tmp_path / "in.csv")
+    state = str(tmp_path / "s.npz")
+    _run(cli, ["predict", path, *FAST, "--state", state])
+    result = _run(cli, ["predict", path, "--state", state, "--experts", "9"])
+    assert result.exit_code == 1 and "--experts" in result.stderr and "made with 4" in result.stderr
+
+
+def test_explicit_column_names(cli, tmp_path):
+    data = _tracks(n_tracks=2).rename(columns={"object_id": "boat", "t": "clock", "px": "east", "py": "north"})
+    data["speed"] = 1.0
+    path = _write_csv(data, tmp_path / "in.csv")
+    result = _run(cli, ["predict", path, *FAST, "--time", "clock", "--id", "boat", "--position", "east,north"])
+    assert result.exit_code == 0, result.output
+    assert list(_read(result.stdout).columns) == ["boat", "clock", "segment", "pred_east", "pred_north"]
+
+
+@pytest.mark.parametrize("content, args, message", [
+    ("t,px,py\n0,1,2\n", ["--position", "px,pz"], "not found; available columns"),
+    ("t,a,b\n0,1,2\n", [], "Could not detect position columns"),
+    ("t,x,y\n0,1,2\n1,abc,3\n", [], "Column 'x' must hold finite numbers; row 1"),
+    ("", [], "empty"),
+    ("t,x,y\n", [], "no rows"),
+])
+def test_bad_files_give_clear_messages(cli, tmp_path, content, args, message):
+    path = tmp_path / "bad.csv"
+    path.write_text(content)
+    result = _run(cli, ["predict", str(path), *FAST, *args])
+    assert result.exit_code == 1
+    assert message in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("content, message", [
+    ("", "no input"),
+    ("t,x,y\n0,1,2\n1,abc,3\n", "line 3: column 'x' must hold a number, got 'abc'"),
+    ("t,x,y\n0,1\n", "line 2: expected 3 fields"),
+    ('{"t": 0, "x": 1}\n{"t": 1}\n', "line 2: key 'x' missing"),
+    ('{"t": 0, "x": 1}\nnot json\n', "line 2: not valid JSON"),
+])
+def test_bad_stdin_gives_clear_messages(cli, content, message):
+    result = _run(cli, ["predict", "-", *FAST], input=content)
+    assert result.exit_code == 1
+    assert message in result.stderr
+
+
+def test_missing_file(cli):
+    result = _run(cli, ["predict", "/nonexistent/tracks.csv"])
+    assert result.exit_code == 1 and "no such file" in result.stderr
+
+
+def test_unsorted_and_duplicate_times_are_handled_with_a_warning(cli, tmp_path):
+    data = _tracks(n_tracks=1, gap=False)
+    clean = _read(_run(cli, ["predict", _write_csv(data, tmp_path / "clean.csv"), *FAST]).stdout)
+    messy = pd.concat([data.iloc[:10].iloc[::-1], data.iloc[10:], data.iloc[[20]]])  # reversed head + a repeat
+    result = _run(cli, ["predict", _write_csv(messy, tmp_path / "messy.csv"), *FAST])
+    assert result.exit_code == 0
+    assert "Times decrease" in result.stderr and "repeat a timestamp" in result.stderr
+    pd.testing.assert_frame_equal(_read(result.stdout), clean)
+    # on stdin rows cannot be reordered: an out-of-order or repeated time is skipped with a warning
+    result = _run(cli, ["predict", "-", *FAST], input="t,x,y\n0,0,0\n1,1,1\n1,1,1\n0.5,2,2\n2,2,2\n")
+    assert result.exit_code == 0 and len(_read(result.stdout)) == 3
+    assert result.stderr.count("row skipped") == 2
+
+
+def test_streaming_refuses_parquet_output(cli, tmp_path):
+    result = _run(cli, ["predict", "-", "-o", str(tmp_path / "x.parquet")], input="t,x\n0,1\n")
+    assert result.exit_code == 1 and "CSV or JSON lines" in result.stderr
+
+
+def test_big_file_in_chunks_with_bounded_memory(cli, tmp_path):
+    """10^5 rows, 200 interleaved tracks, read 20 000 rows at a time == read at once."""
+    rng = np.random.default_rng(5)
+    n_tracks, n = 200, 500
+    t = np.repeat(np.arange(n) * 0.1, n_tracks)
+    ids = np.tile(np.arange(n_tracks), n)
+    xy = np.cumsum(rng.normal(size=(n, n_tracks, 2)), axis=0).reshape(-1, 2)
+    big = pd.DataFrame({"id": ids, "time": t, "x": xy[:, 0], "y": xy[:, 1]})
+    path = _write_csv(big, tmp_path / "big.csv")
+    args = ["--experts", "2", "--length-unit", "1", "--no-progress", "-o"]
+    chunked = _run(cli, ["predict", path, "--chunk-rows", "20000", *args, str(tmp_path / "a.csv")])
+    assert chunked.exit_code == 0, chunked.output
+    a = pd.read_csv(tmp_path / "a.csv").sort_values(["id", "time"]).reset_index(drop=True)
+    assert len(a) == len(big)
+    small = big[big["id"] < 5]
+    whole = _read(_run(cli, ["predict", _write_csv(small, tmp_path / "s.csv"), *args[:-1]]).stdout)
+    np.testing.assert_allclose(a[a["id"] < 5][["pred_x", "pred_y"]], whole[["pred_x", "pred_y"]], rtol=0, atol=1e-9)
+
+
+def test_progress_bar_goes_to_stderr(cli, tmp_path):
+    path = _write_csv(_tracks(n_tracks=1), tmp_path / "in.csv")
+    result = _run(cli, ["predict", path, "--experts", "2", "--progress"])
+    assert "rows" in result.stderr and "length unit" in result.stderr
+    assert "rows" not in result.stdout.splitlines()[0]
+
+
+def test_mixture_options_pass_through_and_are_validated(cli, tmp_path):
+    path = _write_csv(_tracks(n_tracks=1), tmp_path / "in.csv")
+    plain = _read(_run(cli, ["predict", path, *FAST]).stdout)
+    warm = _run(cli, ["predict", path, *FAST, "--option", "temperature=4", "--option", "gate_share=0.1"])
+    assert warm.exit_code == 0, warm.output
+    assert not np.allclose(_read(warm.stdout)["pred_px"], plain["pred_px"], equal_nan=True)
+    bad = _run(cli, ["predict", path, *FAST, "--option", "temperature=-1"])
+    assert bad.exit_code == 1 and "temperature" in bad.stderr
+    bad = _run(cli, ["predict", path, *FAST, "--option", "nonsense"])
+    assert bad.exit_code == 2 and "KEY=VALUE" in bad.output

@@ -1,0 +1,115 @@
+"""``kalmix evaluate`` and :func:`kalmix.experiments.evaluate.evaluate_table`."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from kalmix.cli import build
+from kalmix.experiments.evaluate import PREDICTORS, evaluate_table, split_streams
+
+
+def _turning_tracks(seed=0, n=160):
+    """Two targets on smooth curves with small white noise (metres-like units), one with a time gap."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for track, (radius, speed) in enumerate(((5.0, 0.05), (3.0, 0.08))):
+        k = np.arange(n)
+        t = k * 0.1 + (track == 1) * (k >= n // 2) * 30.0
+        xy = np.stack([radius * np.cos(speed * k), radius * np.sin(speed * k)], axis=1)
+        xy += rng.normal(0, 0.01, xy.shape)
+        xy[10] = np.nan
+        rows += [(f"t{track}", t[i], *xy[i]) for i in range(n)]
+    return pd.DataFrame(rows, columns=["track_id", "time", "x", "y"])
+
+
+@pytest.fixture(scope="module")
+def result():
+    return evaluate_table(_turning_tracks(), n_experts=8, horizon=3)
+
+
+def test_rows_and_counts(result):
+    assert result.predictors == list(PREDICTORS)
+    assert set(result.per_track) == {"t0", "t1"}
+    one = result.overall["mixture"]["one_step"]
+    assert set(one) == {"mean_abs", "std", "max", "rms", "count"}
+    # 20 % of each track tunes and is not scored; segment starts and the NaN row have no error
+    assert one["count"] < 2 * 2 * 160 * 0.8
+    assert result.overall["IMM (filterpy)"]["horizon"] is None  # the IMM peer is one-step only
+    assert result.tuned["CV Kalman"]["process_noise"] > 0
+
+
+def test_the_streams_follow_the_gap_rule(result):
+    assert len(result.streams.lengths) == 3  # t1 has a 30 s hole
+    assert sorted(result.streams.lengths.tolist()) == [80, 80, 160]
+
+
+def test_predictors_beat_carrying_the_last_position_forward(result):
+    rms = {name: entry["one_step"]["rms"] for name, entry in result.overall.items()}
+    for name in ("mixture", "CV Kalman", "CA Kalman", "IMM (filterpy)", "best expert (hindsight)"):
+        assert rms[name] < rms["no prediction"], name
+    assert rms["mixture"] < 0.05
+    later = {name: entry["horizon"]["rms"] for name, entry in result.overall.items() if entry["horizon"]}
+    assert later["mixture"] > rms["mixture"]  # three frames ahead is harder than one
+
+
+def test_length_unit_follows_the_rule_and_can_be_given():
+    table = _turning_tracks()
+    auto = evaluate_table(table, n_experts=2, peers=False)
+    assert 0.005 < auto.length_unit < 0.05  # noise 0.01 plus curvature
+    fixed = evaluate_table(table, n_experts=2, peers=False, length_unit=0.5, tracks=["t0"], max_samples=50)
+    assert fixed.length_unit == 0.5 and set(fixed.per_track) == {"t0"}
+    assert "IMM (filterpy)" not in fixed.predictors
+
+
+def test_validation():
+    with pytest.raises(ValueError, match="horizon"):
+        evaluate_table(_turning_tracks(), horizon=0)
+    with pytest.raises(ValueError, match="tracks"):
+        evaluate_table(_turning_tracks(), tracks=["nope"])
+    table = _turning_tracks().iloc[::-1]
+    with pytest.raises(ValueError, match="times must increase"):
+        split_streams(table)
+
+
+def test_json_is_valid(result, tmp_path):
+    data = json.loads(json.dumps(result.to_json()))
+    assert data["overall"]["mixture"]["one_step"]["rms"] == pytest.approx(result.overall["mixture"]["one_step"]["rms"])
+    assert data["tracks"] == {"t0": 160, "t1": 160}
+
+
+def test_cli_evaluate_file_json_and_plot(tmp_path):
+    path = tmp_path / "tracks.csv"
+    _turning_tracks().to_csv(path, index=False)
+    runner = CliRunner()
+    result = runner.invoke(build(), ["evaluate", str(path), "--experts", "4", "--json", str(tmp_path / "r.json"),
+                                     "--plot", str(tmp_path / "e.png"), "--track", "t1", "-H", "2"])
+    assert result.exit_code == 0, result.output
+    assert "overall" in result.stdout and "track t1" in result.stdout and "mean|e| H=2" in result.stdout
+    for name in PREDICTORS:
+        assert name in result.stdout
+    assert json.loads((tmp_path / "r.json").read_text())["horizon"] == 2
+    assert (tmp_path / "e.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_cli_evaluate_errors(tmp_path):
+    runner = CliRunner()
+    result = runner.invoke(build(), ["evaluate"])
+    assert result.exit_code == 1 and "either INPUT or --dataset" in result.stderr
+    result = runner.invoke(build(), ["evaluate", "--dataset", "nope"])
+    assert result.exit_code == 1 and "Unknown data set" in result.stderr
+    path = tmp_path / "t.csv"
+    _turning_tracks().to_csv(path, index=False)
+    result = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--no-peers", "--plot",
+                                     str(tmp_path / "x.png"), "--track", "zzz"])
+    assert result.exit_code == 1 and "--track" in result.stderr
+
+
+def test_cli_evaluate_on_a_shipped_dataset():
+    pytest.importorskip("bokeh_sampledata")
+    result = CliRunner().invoke(build(), ["evaluate", "--dataset", "cycling", "--max-samples", "150",
+                                          "--experts", "4", "--no-peers", "--no-per-track"])
+    assert result.exit_code == 0, result.output
+    assert result.stdout.startswith("cycling: 1 track(s), 150 samples")

@@ -1,0 +1,131 @@
+"""The per-track engine: row-by-row == batched table, gap rule, state save/resume, length-unit rule."""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from kalmix import MixturePredictor
+from kalmix.streaming import GapTracker, StreamConfig, TrackPredictor, auto_length_unit
+
+
+def _table(seed=0, scale=0.01):
+    rng = np.random.default_rng(seed)
+    rows = []
+    for track, n in (("a", 40), ("b", 60), ("c", 12)):
+        t = np.arange(n) * 0.1
+        if track == "b":
+            t[30:] += 5.0  # a 5 s hole: new segment
+        xy = np.cumsum(np.cumsum(rng.normal(size=(n, 2)), 0), 0) * scale
+        xy[4] = np.nan  # a missing measurement
+        rows += [(track, t[i], *xy[i]) for i in range(n)]
+    return pd.DataFrame(rows, columns=["track_id", "time", "x", "y"])
+
+
+def _rows(engine, table):
+    out = [engine.step_row(r.track_id, r.time, [r.x, r.y]) for r in table.itertuples()]
+    return out
+
+
+CONFIG = dict(n_experts=6, seed=3, length_unit=0.01, horizon=3)
+
+
+def test_rows_equal_batched_table():
+    table = _table()
+    batch = TrackPredictor(StreamConfig(**CONFIG)).process_table(table)
+    rows = _rows(TrackPredictor(StreamConfig(**CONFIG)), table)
+    nxt = np.array([r.next for r in rows])
+    ahead = np.array([r.ahead for r in rows])
+    np.testing.assert_allclose(nxt, batch[["pred_x", "pred_y"]].to_numpy(), atol=1e-9, rtol=0)
+    np.testing.assert_allclose(ahead, batch[["pred3_x", "pred3_y"]].to_numpy(), atol=1e-9, rtol=0)
+    assert list(batch["segment"]) == [r.segment for r in rows]
+    assert batch.groupby("track_id")["segment"].max().to_dict() == {"a": 0, "b": 1, "c": 0}
+
+
+def test_track_equals_a_plain_mixture_predictor():
+    table = _table()
+    batch = TrackPredictor(StreamConfig(**{**CONFIG, "horizon": 1})).process_table(table)
+    z = table.loc[table.track_id == "a", ["x", "y"]].to_numpy()
+    expected = MixturePredictor(6, seed=3, length_unit=0.01).run(z).predictions
+    np.testing.assert_allclose(batch.loc[batch.track_id == "a", ["pred_x", "pred_y"]].to_numpy(), expected,
+                               atol=1e-9, rtol=0)
+
+
+def test_chunks_equal_one_table_and_interleaved_order():
+    table = _table()
+    whole = TrackPredictor(StreamConfig(**CONFIG)).process_table(table)
+    engine = TrackPredictor(StreamConfig(**CONFIG))
+    interleaved = table.sort_values(["time", "track_id"], kind="stable")
+    parts = [engine.process_table(interleaved.iloc[i:i + 23]) for i in range(0, len(interleaved), 23)]
+    chunked = pd.concat(parts).sort_values(["track_id", "time"]).reset_index(drop=True)
+    pd.testing.assert_frame_equal(chunked, whole.sort_values(["track_id", "time"]).reset_index(drop=True),
+                                  check_exact=False, atol=1e-9, rtol=0)
+
+
+def test_save_and_resume_is_bit_for_bit(tmp_path):
+    table = _table()
+    whole = [r.next for r in _rows(TrackPredictor(StreamConfig(**CONFIG)), table)]
+    first = TrackPredictor(StreamConfig(**CONFIG))
+    part = [r.next for r in _rows(first, table.iloc[:70])]
+    first.save(tmp_path / "s.npz")
+    second = TrackPredictor.load(tmp_path / "s.npz")
+    part += [r.next for r in _rows(second, table.iloc[70:])]
+    assert np.array_equal(np.array(part), np.array(whole), equal_nan=True)
+    assert second.config == StreamConfig(**CONFIG)
+
+
+def test_load_rejects_other_files(tmp_path):
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="not a kalmix state file"):
+        TrackPredictor.load(bad)
+    MixturePredictor(2).run(np.zeros((3, 2)))
+    other = MixturePredictor(2)
+    other.step([0.0, 0.0])
+    other.save(tmp_path / "p.npz")
+    with pytest.raises(ValueError, match="magic"):
+        TrackPredictor.load(tmp_path / "p.npz")
+
+
+def test_out_of_order_rows_are_skipped():
+    engine = TrackPredictor(StreamConfig(n_experts=2))
+    assert engine.step_row(1, 0.0, [0.0]) is not None
+    assert engine.step_row(1, 1.0, [1.0]) is not None
+    assert engine.step_row(1, 1.0, [1.0]) is None  # repeated timestamp
+    assert engine.step_row(1, 0.5, [1.0]) is None  # back in time
+    assert engine.skipped == 2
+
+
+def test_gap_rule():
+    config = StreamConfig()
+    gaps = GapTracker()
+    flags = [gaps.advance(t, config) for t in (0.0, 1.0, 2.0, 3.0, 3.5, 20.0, 21.0)]
+    # the first row starts segment 0; 3.5 is a short step (kept); 20 is > 3 x median(1, 1, 1, 0.5)
+    assert flags == [True, False, False, False, False, True, False]
+    assert gaps.segment == 1
+    absolute = StreamConfig(max_gap=0.75)
+    gaps = GapTracker()
+    assert [gaps.advance(t, absolute) for t in (0.0, 0.5, 1.5)] == [True, False, True]
+    never = StreamConfig(max_gap_factor=math.inf)
+    gaps = GapTracker()
+    assert not any([gaps.advance(t, never) for t in (0.0, 1.0, 1000.0)][1:])
+
+
+def test_config_validation():
+    with pytest.raises(ValueError, match="horizon"):
+        StreamConfig(horizon=0)
+    with pytest.raises(ValueError, match="max_gap"):
+        StreamConfig(max_gap=-1.0)
+    with pytest.raises(ValueError, match="length_unit"):
+        StreamConfig(length_unit=0.0)
+
+
+def test_auto_length_unit_recovers_white_noise():
+    rng = np.random.default_rng(1)
+    t = np.arange(5000)
+    path = np.stack([0.3 * t, 0.001 * t**2], axis=1)
+    assert auto_length_unit(path + rng.normal(0, 0.5, path.shape)) == pytest.approx(0.5, rel=0.08)
+    assert auto_length_unit(np.zeros((2, 2))) == 1.0          # too short
+    steps = np.repeat(np.arange(100.0), 3)[:, None]            # quantised: most second differences are 0
+    assert auto_length_unit(steps) > 0
