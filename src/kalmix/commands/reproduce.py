@@ -1,0 +1,225 @@
+"""``kalmix reproduce``: the paper's Table 1, Figure 2 and the ablations, from one command each.
+
+::
+
+    kalmix reproduce table1 --seeds 5 --json table1.json      # both AKF modes, ~1 min per seed
+    kalmix reproduce figure2 --out figure2.png
+    kalmix reproduce ablations --seeds 3 --json ablations.json
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+
+import click
+import numpy as np
+
+_ROW_LABELS = {
+    "single_akf": "single AKF",
+    "mixture_softmax": "mixture, softmax gate",
+    "mixture_random": "mixture, random gate",
+    "imm_filterpy": "IMM CV+CA (filterpy)",
+    "cv_kalman": "CV Kalman",
+    "ca_kalman": "CA Kalman",
+    "best_expert_hindsight": "best expert (hindsight)",
+    "no_prediction": "no prediction",
+}
+_STATS = ("mean_abs", "std", "max", "rms")
+
+
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def _write_json(path: str, data) -> None:
+    with open(path, "w", encoding="utf-8") as handle:
+        json.dump(data, handle, indent=1, default=_json_default)
+        handle.write("\n")
+
+
+@contextlib.contextmanager
+def _progress(total: int, description: str):
+    """A tqdm bar on stderr (silently absent if tqdm is missing); yields a tick callback."""
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover - tqdm is in the cli extra
+        yield lambda: None
+        return
+    with tqdm(total=total, desc=description, unit="run", leave=False, dynamic_ncols=True) as bar:
+        yield lambda: bar.update(1)
+
+
+def _cell(mean: float, spread: float | None, width: int = 14) -> str:
+    digits = 1 if abs(mean) >= 100 else 2 if abs(mean) >= 10 else 3
+    text = f"{mean:.{digits}f}"
+    if spread is not None:
+        text += f"±{spread:.{digits}f}"
+    return f"{text:>{width}}"
+
+
+def format_table(result: dict, mode: str = "rls") -> str:
+    """The paper's Table 1 layout (mean |e|, std, max per X and Y) plus RMS, paper numbers beside ours."""
+    from ..experiments.table1 import PAPER_TABLE1
+
+    key = "rows" if mode == "rls" else f"rows_{mode}"
+    rows, spread = result[key], result[f"{key}_spread"]
+    seeds = result["seeds"]
+    with_spread = len(seeds) > 1
+    width = 16 if with_spread else 10
+    name_width = 26
+    lines = []
+    seed_text = f"seeds {seeds[0]}..{seeds[-1]}" if len(seeds) > 1 else f"seed {seeds[0]}"
+    lines.append(f"Table 1, AKF mode '{mode}': absolute one-step prediction error (pixels), {result['frames']} frames, "
+                 f"{seed_text}" + (" (mean ± std over seeds)" if with_spread else ""))
+    header_1 = " " * name_width + f"{'X coordinate (u_left, u_right)':^{4 * width}}" + f"{'Y coordinate (v)':^{4 * width}}"
+    header_2 = f"{'':<{name_width}}" + "".join(f"{label:>{width}}" for label in ("mean", "std", "max", "RMS") * 2)
+    lines += [header_1, header_2, "-" * len(header_2)]
+    for row, values in rows.items():
+        cells = "".join(_cell(values[axis][stat], spread[row][axis][stat] if with_spread else None, width)
+                        for axis in ("X", "Y") for stat in _STATS)
+        lines.append(f"{_ROW_LABELS.get(row, row):<{name_width}}" + cells)
+        if row in PAPER_TABLE1:
+            paper = PAPER_TABLE1[row]
+            cells = "".join((_cell(paper[axis][stat], None, width) if stat != "rms"
+                             else f"{'(' + format(paper[axis][stat], '.3g') + ')':>{width}}")
+                            for axis in ("X", "Y") for stat in _STATS)
+            lines.append(f"{'  paper (2001)':<{name_width}}" + cells)
+    lines.append("paper RMS in parentheses is derived: sqrt(mean² + std²). Rows without a paper line are ours.")
+    return "\n".join(lines)
+
+
+def _format_numbers(numbers: dict) -> str:
+    return ", ".join(f"{key} {value:.3g}" for key, value in numbers.items())
+
+
+def format_claims(result: dict, mode: str = "rls") -> str:
+    suffix = "" if mode == "rls" else f"_{mode}"
+    per_seed = result["claims_per_seed"][mode]
+    lines = [f"Claims, AKF mode '{mode}' (on the mean over seeds; [passing seeds / seeds]):"]
+    for index, claim in enumerate(result[f"claims{suffix}"]):
+        passing = sum(seed_claims[index]["holds"] for seed_claims in per_seed)
+        verdict = "PASS" if claim["holds"] else "FAIL"
+        lines.append(f"  {verdict}  [{passing}/{len(per_seed)}]  ({claim['source']}) {claim['statement']}")
+        lines.append(f"          {_format_numbers(claim['numbers'])}")
+    fraction = result[f"max_weight_above_0.8_fraction{suffix}"]
+    lines.append(f"  fraction of frames whose largest gating weight > 0.8: {fraction:.3f}")
+    return "\n".join(lines)
+
+
+@click.group()
+def reproduce():
+    """Reproduce the paper's Table 1, Figure 2 and the ablations (Wira, Urban & Gresser 2001)."""
+
+
+@reproduce.command("table1")
+@click.option("--seeds", "n_seeds", default=5, show_default=True, type=click.IntRange(1),
+              help="Number of evaluation seeds (0 .. N-1); numbers are means over seeds.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False, writable=True), default=None,
+              help="Write every number to this JSON file.")
+@click.option("--mode", type=click.Choice(["rls", "literal", "both"]), default="both", show_default=True,
+              help="AKF dynamics of the single AKF and the mixtures: rls (ours), literal (eq. 6/7 as printed).")
+@click.option("--experts", "n_experts", default=40, show_default=True, type=click.IntRange(2),
+              help="Number of experts K of the mixtures.")
+@click.option("--gating", type=click.Choice(["fixed_share", "paper"]), default=None,
+              help="Gate of the softmax-mixture row (default: the default mixture's, fixed_share; "
+                   "paper = eq. 8-10).")
+@click.option("--quick", is_flag=True, help="A short scenario (312 frames instead of 1000) for a smoke run.")
+def table1_command(n_seeds: int, json_path: str | None, mode: str, n_experts: int, gating: str | None, quick: bool):
+    """Table 1: single AKF, softmax and random mixtures, beside our peers and the paper's numbers."""
+    from ..experiments.table1 import aggregate, quick_scenario, run_seed, runs_per_seed
+
+    modes = ("rls", "literal") if mode == "both" else (mode,)
+    seeds = list(range(n_seeds))
+    per_seed = []
+    with _progress(n_seeds * runs_per_seed(modes), "table1") as tick:
+        for seed in seeds:
+            per_seed.append(run_seed(seed, modes=modes, n_experts=n_experts, progress=tick,
+                                     scenario=quick_scenario() if quick else None,
+                                     mixture_options=None if gating is None else {"gating": gating}))
+    result = aggregate(per_seed, modes)
+    result["n_experts"] = n_experts
+    result["scenario"] = "quick" if quick else "paper"
+    result["gating"] = gating or "fixed_share"
+    if gating:
+        click.echo(f"softmax-mixture row uses gating={gating!r}")
+    for current in modes:
+        click.echo(format_table(result, current))
+        click.echo()
+        click.echo(format_claims(result, current))
+        click.echo()
+    if json_path:
+        _write_json(json_path, result)
+        click.echo(f"wrote {json_path}")
+
+
+@reproduce.command("figure2")
+@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False, writable=True),
+              help="PNG file to write.")
+@click.option("--seed", default=0, show_default=True, help="Seed of the scenario and of the bank.")
+@click.option("--experts", "n_experts", default=40, show_default=True, type=click.IntRange(1), help="K.")
+@click.option("--gating", type=click.Choice(["fixed_share", "paper", "random"]), default=None,
+              help="Gate (default: the default mixture's, fixed_share).")
+@click.option("--quick", is_flag=True, help="A short scenario (312 frames instead of 1000).")
+def figure2_command(out_path: str, seed: int, n_experts: int, gating: str | None, quick: bool):
+    """Figure 2: gating weights, learning rate, Q diagonals and absolute error of one run."""
+    from .. import plots
+    from ..experiments.figure2 import figure2
+    from ..experiments.table1 import quick_scenario
+
+    options = {} if gating is None else {"gating": gating}
+    data = figure2(seed, n_experts=n_experts, scenario=quick_scenario() if quick else None, **options)
+    plots.figure2(data, out_path)
+    one_hot = float(np.mean(data["weights"].max(axis=1) > 0.8))
+    click.echo(f"mixture RMS X {data['rms']['X']:.3f} px, Y {data['rms']['Y']:.3f} px; "
+               f"largest weight > 0.8 on {100 * one_hot:.1f}% of frames")
+    click.echo(f"wrote {out_path}")
+
+
+def format_ablations(result: dict) -> str:
+    lines = [f"Ablations on the paper's scenario, seeds {result['seeds']} (mean over seeds; ratio = mixture RMS / "
+             "best single expert of the same run in hindsight)"]
+    header = (f"{'variant':<58}{'K':>4}{'RMS X':>9}{'RMS Y':>9}{'RMS':>9}{'max':>8}{'best exp':>10}{'ratio':>8}"
+              f"{'g>0.8':>8}")
+    group = None
+    for row in result["rows"]:
+        if row["group"] != group:
+            group = row["group"]
+            lines += ["", f"[{group}]", header]
+        m = row["mean"]
+        lines.append(f"{row['name']:<58}{row['n_experts']:>4}{m['rms_X']:>9.3f}{m['rms_Y']:>9.3f}{m['rms']:>9.3f}"
+                     f"{m['max']:>8.2f}{m['best_expert_rms']:>10.3f}{m['ratio_to_best_expert']:>8.3f}"
+                     f"{m['max_weight_above_0.8_fraction']:>8.3f}")
+    return "\n".join(lines)
+
+
+@reproduce.command("ablations")
+@click.option("--seeds", "n_seeds", default=3, show_default=True, type=click.IntRange(1),
+              help="Number of seeds (0 .. N-1).")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False, writable=True), default=None,
+              help="Write every number to this JSON file.")
+@click.option("--group", "groups", multiple=True,
+              type=click.Choice(["akf_mode", "gate", "gating_input", "noise", "n_experts", "gate_settings"]),
+              help="Only these groups (repeatable; default all).")
+@click.option("--quick", is_flag=True, help="A short scenario (312 frames instead of 1000).")
+def ablations_command(n_seeds: int, json_path: str | None, groups: tuple[str, ...], quick: bool):
+    """Ablations: AKF literal vs rls, gate and gating input, Q/R adaptation and floor, K."""
+    from ..experiments.ablations import ablations, variants
+    from ..experiments.table1 import quick_scenario
+
+    selected = groups or None
+    total = len(variants(selected)) * n_seeds
+    with _progress(total, "ablations") as tick:
+        result = ablations(range(n_seeds), groups=selected, progress=tick,
+                           scenario=quick_scenario() if quick else None)
+    click.echo(format_ablations(result))
+    if json_path:
+        _write_json(json_path, result)
+        click.echo(f"wrote {json_path}")
+
+
+__all__ = ["reproduce", "format_table", "format_claims", "format_ablations"]

@@ -1,0 +1,317 @@
+"""The paper's Table 1 (Wira, Urban & Gresser 2001, section 5), with our peers beside it.
+
+Every row is computed on the same measurements (the paper's simulated stereo scenario,
+:class:`kalmix.scenarios.PaperScenario`), one seed at a time, and summarised as the
+paper does: mean of the absolute one-step prediction error, its standard deviation
+and its maximum, for X (pooling ``u_left`` and ``u_right``) and Y (``v``), in pixels,
+plus the RMS.
+
+Rows (``ROWS``):
+
+``single_akf``
+    One state-model AKF, defined before looking at results (NOTES.md): the middle
+    expert of the bank (K = 1), eq. (11)/(12) off (:func:`kalmix.baselines.single_akf`).
+``mixture_softmax``
+    The default mixture, K = 40 (:func:`kalmix.baselines.softmax_mixture`).
+``mixture_random``
+    The same bank, gating weights drawn at random each frame, no gate learning.
+``imm_filterpy``
+    filterpy's IMMEstimator over CV and CA models, tuned on a separate seed
+    (:mod:`kalmix.peers`).
+``cv_kalman``, ``ca_kalman``
+    Fixed constant-velocity / constant-acceleration Kalman filters, noise tuned on the
+    same separate seed (:data:`kalmix.peers.CV_DEFAULTS`, :data:`~kalmix.peers.CA_DEFAULTS`).
+``best_expert_hindsight``
+    An oracle: the single expert of the mixture's bank with the lowest RMS over the
+    whole run, chosen after the fact (among the experts as they ran inside the mixture,
+    and the same bank run without Q/R adaptation; the better of the two).
+``no_prediction``
+    Repeat the last measurement.
+
+The AKF rows (single, mixtures, best expert) are computed for each expert ``dynamics``
+mode (``rls``, the default, and ``literal``, eq. 6/7 as printed); the peer rows do not
+depend on the mode and are repeated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+__all__ = [
+    "ROWS",
+    "AKF_ROWS",
+    "PEER_ROWS",
+    "PAPER_TABLE1",
+    "ONE_HOT_THRESHOLD",
+    "quick_scenario",
+    "scenario_measurements",
+    "run_seed",
+    "table1",
+    "aggregate",
+    "check_claims",
+]
+
+ROWS = ("single_akf", "mixture_softmax", "mixture_random", "imm_filterpy", "cv_kalman", "ca_kalman",
+        "best_expert_hindsight", "no_prediction")
+AKF_ROWS = ("single_akf", "mixture_softmax", "mixture_random", "best_expert_hindsight")
+PEER_ROWS = ("imm_filterpy", "cv_kalman", "ca_kalman", "no_prediction")
+STATS = ("mean_abs", "std", "max", "rms")
+ONE_HOT_THRESHOLD = 0.8
+
+
+def _paper_axis(mean: float, std: float, maximum: float) -> dict[str, float]:
+    # The paper prints mean, std and max of |e|; RMS = sqrt(mean^2 + std^2) is derived.
+    return {"mean_abs": mean, "std": std, "max": maximum, "rms": float(np.hypot(mean, std))}
+
+
+#: Table 1 of the paper (pixels). ``rms`` is derived: :math:`\sqrt{\text{mean}^2 + \text{std}^2}`.
+PAPER_TABLE1: dict[str, dict[str, dict[str, float]]] = {
+    "single_akf": {"X": _paper_axis(0.5162, 9.431, 178.481), "Y": _paper_axis(0.432, 7.532, 161.599)},
+    "mixture_softmax": {"X": _paper_axis(0.375, 2.716, 22.110), "Y": _paper_axis(0.2938, 2.632, 13.057)},
+    "mixture_random": {"X": _paper_axis(31.270, 70.296, 148.361), "Y": _paper_axis(23.35, 52.269, 195.607)},
+}
+
+
+def quick_scenario(seed: int = 0):
+    """A short version of the paper's scenario (8 s curve, 0.5 s deceleration, 4 s of random moves:
+    312 frames) for smoke runs and the claim tests; same speeds, path and cameras."""
+    from ..scenarios import PaperScenario
+
+    return PaperScenario(curve_duration_s=8.0, deceleration_duration_s=0.5, wander_duration_s=4.0, seed=seed)
+
+
+def scenario_measurements(seed: int, scenario=None, camera=None, noise_px: float = 0.5):
+    """Trajectory and measurements ``(T, 3)`` of the paper's scenario for ``seed``.
+
+    ``scenario`` is a template :class:`~kalmix.scenarios.PaperScenario` (default: the
+    documented defaults) whose ``seed`` is replaced.
+    """
+    from ..scenarios import PaperScenario, paper_measurements
+
+    template = PaperScenario() if scenario is None else scenario
+    trajectory, observation = paper_measurements(dataclasses.replace(template, seed=int(seed)), camera,
+                                                 noise_px=noise_px)
+    return trajectory, observation.measured
+
+
+def _summary(predictions: np.ndarray, measurements: np.ndarray) -> dict[str, dict[str, float]]:
+    from ..metrics import paper_axes_summary, prediction_errors
+
+    summary = paper_axes_summary(prediction_errors(predictions, measurements))
+    return {axis: {stat: summary[axis][stat] for stat in STATS} for axis in ("X", "Y")}
+
+
+def _total_rms(predictions: np.ndarray, measurements: np.ndarray) -> float:
+    errors = measurements[1:] - predictions[:-1]
+    errors = errors[np.isfinite(errors)]
+    return float(np.sqrt(np.mean(errors**2)))
+
+
+def run_seed(seed: int, *, modes: Iterable[str] = ("rls", "literal"), n_experts: int = 40, scenario=None,
+             mixture_options: dict[str, Any] | None = None, peers: bool = True,
+             progress: Callable[[], None] | None = None) -> dict[str, Any]:
+    """Every row of Table 1 on one seed.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the scenario (trajectory and pixel noise) and of the expert bank.
+    modes : iterable of {"rls", "literal"}
+        Expert dynamics modes for the AKF rows.
+    n_experts : int
+        K of the mixtures.
+    scenario : PaperScenario, optional
+        Template scenario (its seed is replaced); default the documented one.
+    mixture_options : dict, optional
+        Extra :func:`kalmix.bank.make_params` options for every AKF row.
+    peers : bool
+        Compute the IMM / CV / CA rows (filterpy needed for the IMM).
+    progress : callable, optional
+        Called once after each predictor run.
+
+    Returns
+    -------
+    dict
+        ``{"seed", "frames", "modes": {mode: {"rows": {row: {"X": stats, "Y": stats}},
+        "max_weight_above_0.8_fraction", "best_expert_index"}}, "peers": {row: ...}}``.
+    """
+    from .. import baselines, peers as peer_module
+
+    tick = progress or (lambda: None)
+    options = dict(mixture_options or {})
+    _, z = scenario_measurements(seed, scenario)
+    out: dict[str, Any] = {"seed": int(seed), "frames": int(len(z)), "modes": {}, "peers": {}}
+    for mode in modes:
+        rows: dict[str, Any] = {}
+        mode_options = {**options, "dynamics": mode}
+        single = baselines.single_akf(seed=seed, **mode_options).run(z, diagnostics=False)
+        rows["single_akf"] = _summary(single.predictions, z)
+        tick()
+        mixture = baselines.softmax_mixture(n_experts, seed=seed, **mode_options).run(
+            z, diagnostics=True, expert_predictions=True)
+        rows["mixture_softmax"] = _summary(mixture.predictions, z)
+        tick()
+        random_options = {key: value for key, value in mode_options.items() if key != "gating"}
+        random = baselines.random_mixture(n_experts, seed=seed, **random_options).run(z, diagnostics=False)
+        rows["mixture_random"] = _summary(random.predictions, z)
+        tick()
+        # the oracle: best expert as it ran inside the mixture, or in the bank without Q/R adaptation
+        bank = baselines.softmax_mixture(n_experts, seed=seed, **{**mode_options, "adapt_noise": False}).run(
+            z, diagnostics=False, expert_predictions=True)
+        tick()
+        candidates = []
+        for source, result in (("mixture", mixture), ("bank_without_adaptation", bank)):
+            index, predictions = baselines.best_expert_in_hindsight(result.expert_predictions, z)
+            candidates.append((_total_rms(predictions, z), index, source, predictions))
+        best_rms, best_index, best_source, best_predictions = min(candidates, key=lambda item: item[0])
+        rows["best_expert_hindsight"] = _summary(best_predictions, z)
+        weights = mixture.weights
+        out["modes"][mode] = {
+            "rows": rows,
+            "max_weight_above_0.8_fraction": float(np.mean(weights.max(axis=-1) > ONE_HOT_THRESHOLD)),
+            "best_expert_index": best_index,
+            "best_expert_source": best_source,
+        }
+    if peers:
+        out["peers"]["imm_filterpy"] = _summary(peer_module.imm_predictions(z), z)
+        tick()
+        out["peers"]["cv_kalman"] = _summary(
+            baselines.cv_kalman(**peer_module.CV_DEFAULTS).run(z, diagnostics=False).predictions, z)
+        tick()
+        out["peers"]["ca_kalman"] = _summary(
+            baselines.ca_kalman(**peer_module.CA_DEFAULTS).run(z, diagnostics=False).predictions, z)
+        tick()
+    out["peers"]["no_prediction"] = _summary(baselines.no_prediction(z), z)
+    return out
+
+
+def runs_per_seed(modes: Iterable[str] = ("rls", "literal"), peers: bool = True) -> int:
+    """Number of ``progress`` calls :func:`run_seed` makes (for a progress bar's total)."""
+    return 4 * len(tuple(modes)) + (3 if peers else 0)
+
+
+def _mean_rows(per_seed_rows: list[dict], reducer) -> dict:
+    rows = {}
+    for row in per_seed_rows[0]:
+        rows[row] = {axis: {stat: float(reducer([r[row][axis][stat] for r in per_seed_rows]))
+                            for stat in STATS} for axis in ("X", "Y")}
+    return rows
+
+
+def _key(mode: str) -> str:
+    """JSON key of a mode's rows: ``rows`` for ``rls`` (the default), ``rows_<mode>`` otherwise."""
+    return "rows" if mode == "rls" else f"rows_{mode}"
+
+
+def _suffix(mode: str) -> str:
+    return "" if mode == "rls" else f"_{mode}"
+
+
+def aggregate(per_seed: list[dict[str, Any]], modes: Iterable[str] = ("rls", "literal")) -> dict[str, Any]:
+    """Combine :func:`run_seed` outputs into the JSON shape of ``kalmix reproduce table1``.
+
+    Each number is the mean over seeds; ``rows_spread`` (``rows_literal_spread``) holds
+    the standard deviation over seeds (0 for one seed). ``rows`` is the ``rls`` mode,
+    ``rows_literal`` the ``literal`` mode. ``claims`` (``claims_literal``) evaluates
+    :func:`check_claims` on the mean rows, ``claims_per_seed`` on each seed.
+    """
+    modes = tuple(modes)
+    result: dict[str, Any] = {"paper": PAPER_TABLE1, "seeds": [item["seed"] for item in per_seed],
+                              "frames": per_seed[0]["frames"], "modes": list(modes)}
+    for mode in modes:
+        key, suffix = _key(mode), _suffix(mode)
+        merged = [{**item["modes"][mode]["rows"], **item["peers"]} for item in per_seed]
+        ordered = lambda rows: {row: rows[row] for row in ROWS if row in rows}  # noqa: E731
+        result[key] = ordered(_mean_rows(merged, np.mean))
+        result[f"{key}_spread"] = ordered(_mean_rows(merged, np.std))
+        fractions = [item["modes"][mode]["max_weight_above_0.8_fraction"] for item in per_seed]
+        result[f"max_weight_above_0.8_fraction{suffix}"] = float(np.mean(fractions))
+        result[f"best_expert{suffix}"] = [{"seed": item["seed"], "index": item["modes"][mode]["best_expert_index"],
+                                           "source": item["modes"][mode]["best_expert_source"]}
+                                          for item in per_seed]
+        result[f"claims{suffix}"] = check_claims(result[key], result[f"max_weight_above_0.8_fraction{suffix}"])
+    result["claims_per_seed"] = {
+        mode: [check_claims({**item["modes"][mode]["rows"], **item["peers"]},
+                            item["modes"][mode]["max_weight_above_0.8_fraction"]) for item in per_seed]
+        for mode in modes}
+    result["per_seed"] = per_seed
+    return result
+
+
+def table1(seeds: Iterable[int] = range(5), *, modes: Iterable[str] = ("rls", "literal"), n_experts: int = 40,
+           scenario=None, mixture_options: dict[str, Any] | None = None, peers: bool = True,
+           progress: Callable[[], None] | None = None) -> dict[str, Any]:
+    """Table 1 over several seeds, as data (see :func:`aggregate` for the shape).
+
+    Parameters are those of :func:`run_seed`; ``seeds`` are evaluation seeds (the peers
+    were tuned on :data:`kalmix.peers.TUNING_SEED`, which is not one of them by default).
+    """
+    modes = tuple(modes)
+    per_seed = [run_seed(seed, modes=modes, n_experts=n_experts, scenario=scenario,
+                         mixture_options=mixture_options, peers=peers, progress=progress) for seed in seeds]
+    return aggregate(per_seed, modes)
+
+
+def _claim(name: str, source: str, statement: str, holds: bool, numbers: dict[str, float]) -> dict[str, Any]:
+    return {"name": name, "source": source, "statement": statement, "holds": bool(holds),
+            "numbers": {key: float(value) for key, value in numbers.items()}}
+
+
+def check_claims(rows: dict[str, Any], one_hot_fraction: float | None = None,
+                 best_expert_tolerance: float = 0.05) -> list[dict[str, Any]]:
+    """The paper's claims and ours, evaluated on one table of rows.
+
+    Returns a list of ``{"name", "source": "paper" | "ours", "statement", "holds", "numbers"}``.
+    Claims whose rows are absent are skipped.
+    """
+    claims = []
+    single, softmax, random = (rows.get(name) for name in ("single_akf", "mixture_softmax", "mixture_random"))
+    if single and softmax and random:
+        numbers, ok = {}, True
+        for axis in ("X", "Y"):
+            for stat in ("std", "max"):
+                values = (softmax[axis][stat], single[axis][stat], random[axis][stat])
+                numbers.update({f"{axis}.{stat}.softmax": values[0], f"{axis}.{stat}.single": values[1],
+                                f"{axis}.{stat}.random": values[2]})
+                ok &= values[0] < values[1] < values[2]
+        claims.append(_claim("ordering", "paper", "softmax mixture < single AKF < random mixture, on std and on "
+                             "max, for X and Y", ok, numbers))
+    if single and softmax:
+        numbers, ok = {}, True
+        for axis in ("X", "Y"):
+            ratio = single[axis]["rms"] / softmax[axis]["rms"]
+            max_ratio = single[axis]["max"] / softmax[axis]["max"]
+            numbers.update({f"{axis}.rms_ratio": ratio, f"{axis}.max_ratio": max_ratio})
+            ok &= ratio >= 3.0 and max_ratio >= 3.0
+        claims.append(_claim("single_over_softmax_3x", "paper", "single-AKF RMS / softmax RMS >= 3 and softmax max "
+                             "error >= 3x below the single's, X and Y", ok, numbers))
+    if single and random:
+        numbers = {f"{axis}.rms_ratio": random[axis]["rms"] / single[axis]["rms"] for axis in ("X", "Y")}
+        claims.append(_claim("random_over_single_3x", "paper", "random-mixture RMS >= 3x the single AKF's, X and Y",
+                             all(v >= 3.0 for v in numbers.values()), numbers))
+    if one_hot_fraction is not None:
+        claims.append(_claim("one_hot", "paper", f"gating weights mostly near one-hot: largest weight > "
+                             f"{ONE_HOT_THRESHOLD} on more than half of the steps", one_hot_fraction > 0.5,
+                             {"fraction": one_hot_fraction}))
+    if softmax:
+        peers = [name for name in ("imm_filterpy", "cv_kalman", "ca_kalman", "single_akf", "no_prediction")
+                 if name in rows]
+        numbers, ok = {}, True
+        for axis in ("X", "Y"):
+            numbers[f"{axis}.softmax"] = softmax[axis]["rms"]
+            for name in peers:
+                numbers[f"{axis}.{name}"] = rows[name][axis]["rms"]
+                ok &= softmax[axis]["rms"] <= rows[name][axis]["rms"]
+        claims.append(_claim("mixture_beats_peers", "ours", "softmax-mixture RMS <= every peer row (" +
+                             ", ".join(peers) + "), X and Y", ok, numbers))
+        best = rows.get("best_expert_hindsight")
+        if best:
+            numbers = {f"{axis}.ratio": softmax[axis]["rms"] / best[axis]["rms"] for axis in ("X", "Y")}
+            claims.append(_claim("within_5pct_of_best_expert", "ours",
+                                 f"softmax-mixture RMS <= {1 + best_expert_tolerance:.2f} x best single expert in "
+                                 "hindsight, X and Y", all(v <= 1.0 + best_expert_tolerance
+                                                           for v in numbers.values()), numbers))
+    return claims

@@ -1,0 +1,122 @@
+"""Matplotlib figures from experiment data (the ``cli`` extra; imported lazily, Agg backend)."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+__all__ = ["figure2"]
+
+_PHASE_COLOURS = ("#dbe9f6", "#fde2c8", "#e3f1dc")
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _shade_phases(ax, spans, label: bool = False):
+    for index, (name, start, end) in enumerate(spans):
+        ax.axvspan(start, end, color=_PHASE_COLOURS[index % len(_PHASE_COLOURS)], alpha=0.6, lw=0, zorder=0)
+        if index:
+            ax.axvline(start, color="0.2", lw=0.9, ls=":", zorder=5)
+        if label:
+            ax.text((start + end) / 2, 1.02, name, transform=ax.get_xaxis_transform(), ha="center", va="bottom",
+                    fontsize=9, color="0.25")
+
+
+def figure2(data: dict[str, Any], out: str | os.PathLike, *, top: int = 5, dpi: int = 130) -> str:
+    """Write the paper's Figure 2 (four panels) from :func:`kalmix.experiments.figure2.figure2` data.
+
+    (a) gating weights of the experts (stacked, so the dominant expert is visible;
+    the ``top`` experts by mean weight are named in the legend), (b) the adaptive
+    learning rate :math:`\\eta_k` with the target speed, (c) the diagonal of every
+    expert's :math:`Q_{i,k}` (log scale), (d) the absolute one-step prediction error in
+    pixels. The trajectory's phases are shaded in every panel.
+
+    Returns the path written.
+    """
+    plt = _pyplot()
+    times = np.asarray(data["times"])
+    weights = np.asarray(data["weights"])
+    process_noise = np.asarray(data["process_noise"])
+    abs_error = np.asarray(data["abs_error"])
+    spans = data["phase_spans"]
+    k = weights.shape[1]
+    cmap = plt.get_cmap("hsv")
+    # golden-ratio hues, alternating lightness: neighbouring experts get distinct colours
+    colours = [tuple(0.55 * c + 0.45 * (i % 2) * 0.6 for c in cmap((i * 0.6180339887) % 1.0)[:3]) + (1.0,)
+               for i in range(k)]
+    order = np.argsort(-weights.mean(axis=0))
+    leaders = set(order[: min(top, k)].tolist())
+
+    fig, axes = plt.subplots(4, 1, figsize=(11, 11), sharex=True, constrained_layout=True)
+    gate_name = data.get("options", {}).get("gating", "fixed_share")
+    fig.suptitle(f"Figure 2 reproduced: mixture of {k} adaptive Kalman filters ({gate_name} gate), "
+                 f"paper scenario seed {data['seed']}  —  RMS X {data['rms']['X']:.2f} px, "
+                 f"Y {data['rms']['Y']:.2f} px", fontsize=11)
+
+    ax = axes[0]
+    _shade_phases(ax, spans, label=True)
+    stacks = ax.stackplot(times, weights.T, colors=colours, linewidth=0)
+    handles = [stacks[i] for i in order[: min(top, k)]]
+    ax.legend(handles, [f"expert {i}" for i in order[: min(top, k)]], loc="center left", bbox_to_anchor=(1.0, 0.5),
+              fontsize=8, title=f"top {len(handles)} by\nmean weight", title_fontsize=8)
+    ax.set_ylim(0, 1)
+    ax.set_ylabel("gating weight $g_{i,k}$\n(stacked)")
+    ax.set_title("(a) gating weights of the experts", loc="left", fontsize=10, pad=16)
+
+    ax = axes[1]
+    _shade_phases(ax, spans)
+    (eta_line,) = ax.plot(times, data["eta"], color="tab:blue", lw=0.9, label=r"$\eta_k$")
+    ax.set_ylabel(r"learning rate $\eta_k$")
+    ax.set_yscale("log")
+    twin = ax.twinx()
+    (speed_line,) = twin.plot(times, data["speed"], color="0.35", lw=1.0, ls="--", label="target speed")
+    twin.set_ylabel("target speed (m/s)", color="0.35")
+    lines = [eta_line, speed_line]
+    ax.legend(lines, [line.get_label() for line in lines], loc="upper left", fontsize=8, framealpha=0.9)
+    ax.set_title(r"(b) adaptive learning rate $\eta_k = \eta(t)(1 - e^{-\alpha\varepsilon})$", loc="left",
+                 fontsize=10)
+
+    ax = axes[2]
+    _shade_phases(ax, spans)
+    for i in range(k):
+        lead = i in leaders
+        ax.plot(times, process_noise[:, i], color=colours[i], lw=1.4 if lead else 0.6, alpha=1.0 if lead else 0.45,
+                label=f"expert {i}" if lead else None)
+    ax.set_yscale("log")
+    ax.set_ylabel(r"diag $Q_{i,k}$ (px$^2$)")
+    change = np.nanmax(1.0 - process_noise[-1] / process_noise[0])
+    levels = len(np.unique(np.round(process_noise[0], 12)))
+    ax.text(0.01, 0.04, f"{levels} initial levels shared by {k} experts; largest relative decrease of any "
+            f"$Q_i$ over the run: {100 * change:.2g} %",
+            transform=ax.transAxes, fontsize=8, color="0.2", bbox=dict(facecolor="white", alpha=0.8, lw=0))
+    ax.legend(loc="center left", bbox_to_anchor=(1.0, 0.5), fontsize=8, title="thick: top experts",
+              title_fontsize=8)
+    ax.set_title(r"(c) process-noise diagonal of every expert (eq. 11)", loc="left", fontsize=10)
+
+    ax = axes[3]
+    _shade_phases(ax, spans)
+    x_error = np.fmax(abs_error[:, 0], abs_error[:, 1])
+    ax.plot(times, x_error, color="tab:red", lw=0.7, alpha=0.85, label="X: max(|e| u_left, |e| u_right)")
+    ax.plot(times, abs_error[:, 2], color="tab:green", lw=0.7, alpha=0.85, label="Y: |e| v")
+    ax.set_ylabel("|prediction error| (px)")
+    ax.set_xlabel("time (s)")
+    ax.set_ylim(bottom=0)
+    ax.legend(loc="center left", bbox_to_anchor=(1.0, 0.5), fontsize=8)
+    ax.set_title("(d) absolute one-step prediction error of the mixture", loc="left", fontsize=10)
+    ax.set_xlim(times[0], times[-1])
+
+    for ax in axes:
+        ax.grid(True, which="major", alpha=0.3)
+    path = os.fspath(out)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
