@@ -153,3 +153,15 @@ def test_the_paper_gate_learns_toward_the_better_expert():
     errors = np.nanmean(np.sum((result.expert_predictions[:-1] - z[1:, None]) ** 2, -1)[100:], axis=0)
     weights = result.weights[-100:].mean(axis=0)
     assert np.corrcoef(weights, -errors)[0, 1] > 0  # more weight on experts with lower error
+
+
+def test_very_long_runs_of_missing_measurements_stay_finite():
+    z = smooth_tracks(8, 30)[:, 0]
+    params = make_params(3, 4, length_unit=50.0, seed=0)
+    state = run_core(params, z[:, None]).state
+    gap = np.full((20_000, 1, 3), np.nan)
+    result = run_core(params, gap, state, backend="numpy")
+    assert np.isfinite(result.state.cov).all() and np.isfinite(result.predictions).all()
+    assert (np.linalg.eigvalsh(result.state.cov) > 0).all()
+    after = run_core(params, z[:, None], result.state)  # measurements come back: learning resumes
+    assert np.isfinite(after.predictions).all()

@@ -130,7 +130,7 @@ class MixturePredictor:
         return self._unbatch(prediction)
 
     def run(self, measurements, *, horizon: int = 1, diagnostics: bool = True,
-            expert_predictions: bool = False, progress=None) -> RunResult:
+            expert_predictions: bool = False, progress=None, backend: str = "numpy") -> RunResult:
         """Step through ``(T, p)`` (or ``(T, N, p)`` for a batch) measurements.
 
         Returns a :class:`~kalmix.core.run.RunResult` whose arrays have the stream axis
@@ -144,7 +144,7 @@ class MixturePredictor:
         self._batch(array[0])  # builds on first use and checks the per-step shape
         batched = array[:, None, :] if self._single else array
         result = run_core(self._params, batched, self._state, horizon=int(horizon), diagnostics=diagnostics,
-                          expert_predictions=expert_predictions, progress=progress)
+                          expert_predictions=expert_predictions, progress=progress, backend=backend)
         self._state = result.state
         if not self._single:
             return result

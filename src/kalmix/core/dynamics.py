@@ -145,14 +145,20 @@ def guard_theta(theta, prior, order: int, bound: float):
     :math:`\\gamma \\in \\{1, 0.8, \\dots, 0\\}` are checked at once; the largest
     :math:`\\gamma` whose companion matrix has spectral radius :math:`\\le` ``bound``
     wins (:math:`\\gamma = 0`, the prior, is always accepted).
+
+    The unshrunk candidate is checked first; the eigenvalues of the shrunk ones are
+    computed only for the thetas that fail it (same result, far fewer eigenvalues).
     """
     gammas = _GUARD_SHRINK.reshape((-1,) + (1,) * theta.ndim)
     candidates = prior + gammas * (theta - prior)
-    transition, _ = companion_from_theta(candidates, order)
-    radius = spectral_radius(transition)
-    ok = radius <= bound
-    ok[-1] = True
-    first_ok = np.argmax(ok, axis=0)
+    first, _ = companion_from_theta(candidates[0], order)
+    failing = ~(spectral_radius(first) <= bound)
+    first_ok = np.zeros(failing.shape, dtype=np.intp)
+    if np.any(failing):
+        shrunk, _ = companion_from_theta(candidates[1:, failing], order)
+        ok = spectral_radius(shrunk) <= bound
+        ok[-1] = True
+        first_ok[failing] = 1 + np.argmax(ok, axis=0)
     return np.take_along_axis(candidates, first_ok[None, ..., None, None], axis=0)[0]
 
 

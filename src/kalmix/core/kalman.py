@@ -134,6 +134,8 @@ def kalman_update(
     residual = safe_z - predicted_z
     cov_ct = cov @ np.swapaxes(observation, -1, -2)
     innovation_cov = observation @ cov_ct + measurement_cov
+    # rows without a measurement are discarded below: factor the identity for them instead
+    innovation_cov = np.where(missing[..., None, None], np.eye(measurement.shape[-1]), innovation_cov)
     innovation_inv, log_det = cholesky_inverse(innovation_cov)
     gain = cov_ct @ innovation_inv
     new_mean = mean + np.einsum("...ij,...j->...i", gain, residual)

@@ -73,6 +73,7 @@ class MixtureParams:
     noise_reinflation: float
     random_seed: int
     state_jitter: float = 1e-10
+    max_variance: float = 1e8
 
     @property
     def n_experts(self) -> int:
@@ -190,6 +191,17 @@ def _where(mask: np.ndarray, new: np.ndarray, old: np.ndarray) -> np.ndarray:
     return np.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
 
 
+def _cap_variance(cov: np.ndarray, max_variance: float) -> np.ndarray:
+    """Scale :math:`P` down where its largest variance exceeds ``max_variance``.
+
+    Only reached after very long runs of missing measurements, where the prediction
+    is meaningless anyway; it keeps every number finite and :math:`P` positive definite.
+    """
+    largest = np.diagonal(cov, axis1=-2, axis2=-1).max(axis=-1)
+    factor = np.minimum(1.0, max_variance / largest)
+    return cov * factor[..., None, None]
+
+
 def _update_dynamics(params, state, features, learn):
     """Re-estimate every expert's system matrix where ``learn``; returns (gram, cross, A, u)."""
     if params.dynamics == "fixed":
@@ -288,6 +300,7 @@ def step(params: MixtureParams, state: MixtureState, measurement: np.ndarray) ->
     process_cov = _diag_embed(process_noise / kappa**2, params.state_dim)
     process_cov = process_cov + params.state_jitter * np.eye(params.state_dim)
     mean, cov = kalman_predict(mean, cov, transition, process_cov, offset)
+    cov = _cap_variance(cov, params.max_variance)
     initialised = state.initialised | start
     expert_predictions = _where(initialised, _expert_outputs(params, origin, mean), state.expert_predictions)
 

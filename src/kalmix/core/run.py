@@ -8,7 +8,10 @@ import numpy as np
 
 from .mixture import MixtureParams, MixtureState, init_state, predict, step
 
-__all__ = ["RunResult", "run_core"]
+__all__ = ["RunResult", "run_core", "BACKENDS"]
+
+#: Implementations of the time loop: the numpy reference and the compiled one.
+BACKENDS = ("auto", "numpy", "numba")
 
 
 class RunResult(NamedTuple):
@@ -37,6 +40,7 @@ def run_core(
     diagnostics: bool = False,
     expert_predictions: bool = False,
     progress=None,
+    backend: str = "auto",
 ) -> RunResult:
     """Step through ``measurements`` of shape ``(T, N, p)``.
 
@@ -54,8 +58,23 @@ def run_core(
     expert_predictions : bool
         Record every expert's prediction (memory ``T N K p``).
     progress : callable, optional
-        Called with the number of steps done after each step.
+        Called with the number of steps done after each step (after each chunk of
+        256 steps with the numba backend).
+    backend : {"auto", "numpy", "numba"}
+        ``numpy``: the reference loop over :func:`~kalmix.core.mixture.step`;
+        ``numba``: the compiled loop of :mod:`kalmix.core.fast` (same numbers to
+        rounding, needs the ``fast`` extra); ``auto``: numba when it can be imported.
     """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {', '.join(map(repr, BACKENDS))}, got {backend!r}")
+    if backend != "numpy":
+        from .fast import numba_available, run_fast
+
+        if numba_available():
+            return run_fast(params, measurements, state, horizon=horizon, diagnostics=diagnostics,
+                            expert_predictions=expert_predictions, progress=progress)
+        if backend == "numba":
+            raise ImportError("backend='numba' needs numba (the 'fast' extra): pip install 'kalmix[fast]'")
     t_count, n = measurements.shape[:2]
     if state is None:
         state = init_state(params, n)

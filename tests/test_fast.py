@@ -1,0 +1,180 @@
+"""The compiled time loop (numba) gives the numpy reference's numbers; numpy is the fallback."""
+
+import numpy as np
+import pytest
+
+from conftest import smooth_tracks
+from kalmix import make_params
+from kalmix.core import fast, init_state, run_core, step
+from kalmix.core import dynamics as dyn
+
+pytest.importorskip("numba")
+
+RTOL = 1e-9
+
+
+def _close(reference, compiled, name, rtol=RTOL):
+    """Relative to each array's scale: |a - b| <= rtol max|a|, NaN in the same places."""
+    reference, compiled = np.asarray(reference, dtype=float), np.asarray(compiled, dtype=float)
+    assert reference.shape == compiled.shape, name
+    np.testing.assert_array_equal(np.isnan(reference), np.isnan(compiled), err_msg=name)
+    if not np.isfinite(reference).any():
+        return
+    scale = np.nanmax(np.abs(reference)) or 1.0
+    np.testing.assert_allclose(compiled, reference, rtol=0, atol=rtol * scale, equal_nan=True, err_msg=name)
+
+
+def _compare(a, b, rtol=RTOL):
+    for name in ("predictions", "weights", "eta", "process_noise", "measurement_noise", "expert_predictions"):
+        if getattr(a, name) is None:
+            assert getattr(b, name) is None, name
+        else:
+            _close(getattr(a, name), getattr(b, name), name, rtol)
+    for name, value in a.state._asdict().items():
+        _close(value, getattr(b.state, name), f"state.{name}", rtol)
+
+
+def _data(seed, steps=90, targets=3):
+    z = smooth_tracks(seed, steps, targets=targets)
+    z[0, 1] = np.nan            # a target that starts late
+    z[10:14, -1] = np.nan       # a gap
+    z[steps // 2, 0, 1] = np.nan  # a partly missing row is missing
+    return z
+
+
+@pytest.mark.parametrize("gating", ["fixed_share", "paper", "random"])
+@pytest.mark.parametrize("dynamics", ["rls", "literal", "fixed"])
+def test_compiled_loop_equals_the_numpy_reference(dynamics, gating):
+    z = _data(7)
+    params = make_params(3, 6, dynamics=dynamics, gating=gating, seed=3)
+    options = dict(diagnostics=True, expert_predictions=True)
+    _compare(run_core(params, z, backend="numpy", **options), fast.run_fast(params, z, **options))
+
+
+@pytest.mark.parametrize("gating_input", ["bias", "position"])
+def test_other_gate_inputs_orders_and_dimensions(gating_input):
+    z = _data(8, targets=2)[..., :2]
+    params = make_params(2, 5, gating="paper", gating_input=gating_input, order=3, seed=1, noise_reinflation=0.01)
+    _compare(run_core(params, z, backend="numpy"), run_core(params, z, backend="numba"))
+
+
+def test_horizon_resume_and_serial_and_parallel_agree():
+    z = _data(9, steps=60, targets=4)
+    params = make_params(3, 8, seed=2)
+    reference = run_core(params, z, horizon=3, backend="numpy", expert_predictions=True)
+    _compare(reference, fast.run_fast(params, z, horizon=3, expert_predictions=True, parallel=True))
+    _compare(reference, fast.run_fast(params, z, horizon=3, expert_predictions=True, parallel=False))
+    first = fast.run_fast(params, z[:25])
+    resumed = fast.run_fast(params, z[25:], first.state, horizon=3, expert_predictions=True)
+    np.testing.assert_allclose(resumed.predictions, reference.predictions[25:], rtol=RTOL)
+    _compare(reference._replace(predictions=reference.predictions[25:],
+                                expert_predictions=reference.expert_predictions[25:]), resumed)
+
+
+def test_step_fast_equals_step_and_does_not_mutate_its_input():
+    z = _data(10, steps=30)
+    params = make_params(3, 4, seed=4)
+    state = init_state(params, 3, stream_ids=[5, 6, 7])
+    compiled = state
+    for t in range(len(z)):
+        state, out = step(params, state, z[t])
+        compiled, compiled_out = fast.step_fast(params, compiled, z[t])
+        _close(out.prediction, compiled_out.prediction, "prediction")
+        _close(out.weights, compiled_out.weights, "weights")
+    for name, value in state._asdict().items():
+        _close(value, getattr(compiled, name), name)
+    snapshot = [value.copy() for value in compiled]
+    fast.step_fast(params, compiled, z[0])
+    for original, value in zip(snapshot, compiled):
+        np.testing.assert_array_equal(original, value)
+
+
+def test_progress_is_reported_in_chunks():
+    z = smooth_tracks(3, 600)
+    params = make_params(3, 2, seed=0)
+    seen = []
+    fast.run_fast(params, z, progress=seen.append)
+    assert seen == [256, 512, 600]
+
+
+def test_guard_shrinks_like_the_eigenvalue_guard(monkeypatch):
+    """Rough, growing tracks make many fits unstable: the compiled guard must shrink them alike."""
+    rng = np.random.default_rng(0)
+    z = 300 + np.cumsum(np.cumsum(rng.normal(size=(120, 2, 3)), axis=0), axis=0)
+    params = make_params(3, 12, seed=6, forgetting_levels=(0.9,), ridge_levels=(1e-2,))
+    raw_radius = []
+    guard = dyn.guard_theta
+
+    def spy(theta, prior, order, bound):
+        raw_radius.append(dyn.spectral_radius(dyn.companion_from_theta(theta, order)[0]).ravel())
+        return guard(theta, prior, order, bound)
+
+    monkeypatch.setattr(dyn, "guard_theta", spy)
+    reference = run_core(params, z, backend="numpy")
+    raw_radius = np.concatenate(raw_radius)
+    assert (raw_radius > params.spectral_radius_bound).mean() > 0.2  # the guard is exercised
+    assert (dyn.spectral_radius(reference.state.transition) <= params.spectral_radius_bound + 1e-9).all()
+    compiled = run_core(params, z, backend="numba")
+    _close(reference.predictions, compiled.predictions, "predictions")
+    # these rough fits are ill-conditioned (cond(S + rho I) ~ 1e7): rounding differences of
+    # the two solvers grow to ~1e-9 in the gate, which exponentiates squared errors
+    _compare(reference, compiled, rtol=1e-7)
+
+
+def test_backend_choice_and_numpy_fallback(monkeypatch):
+    z = _data(11, steps=20)
+    params = make_params(3, 3, seed=0)
+    with pytest.raises(ValueError, match="backend"):
+        run_core(params, z, backend="cuda")
+    calls = []
+    monkeypatch.setattr(fast, "run_fast", lambda *args, **kwargs: calls.append(1) or None)
+    run_core(params, z, backend="numpy")
+    assert calls == []
+    run_core(params, z)  # auto, numba present
+    assert calls == [1]
+    monkeypatch.setattr(fast, "numba_available", lambda: False)
+    auto = run_core(params, z)  # falls back to the numpy loop
+    _compare(run_core(params, z, backend="numpy"), auto)
+    with pytest.raises(ImportError, match="fast"):
+        run_core(params, z, backend="numba")
+
+
+def test_numba_available_is_false_without_numba(monkeypatch):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_numba(name, *args, **kwargs):
+        if name == "numba" or name.startswith("numba."):
+            raise ImportError("no numba")
+        return real_import(name, *args, **kwargs)
+
+    fast.numba_available.cache_clear()
+    monkeypatch.setattr(builtins, "__import__", no_numba)
+    try:
+        assert fast.numba_available() is False
+    finally:
+        fast.numba_available.cache_clear()
+
+
+def test_variance_cap_after_a_long_gap_matches():
+    z = smooth_tracks(8, 30)
+    params = make_params(3, 4, length_unit=50.0, seed=0, dynamics="fixed")
+    if not hasattr(params, "max_variance"):
+        pytest.skip("this core has no variance cap")
+    gap = np.concatenate([z, np.full((4000, 1, 3), np.nan), z])
+    reference = run_core(params, gap, backend="numpy")
+    capped = run_core(params, gap[:4030], backend="numpy").state.cov
+    assert np.diagonal(capped, axis1=-2, axis2=-1).max() == pytest.approx(params.max_variance)  # cap reached
+    _compare(reference, run_core(params, gap, backend="numba"))
+
+
+@pytest.mark.parametrize("p, order, degree", [(4, 2, None), (3, 3, 2), (1, 3, 2), (5, 1, None)])
+def test_other_sizes_including_the_eigenvalue_guard(p, order, degree):
+    """Large clusters of roots at 1 (p (degree + 1) > 6) make the guard use eigenvalues."""
+    z = _data(12, steps=60, targets=2)
+    z = np.concatenate([z, z[..., :2] + 7.0], axis=-1)[..., :p]
+    params = make_params(p, 5, order=order, prior_degree=degree, seed=1)
+    degree = min(order - 1, 1) if degree is None else degree
+    assert fast._fast_guard(params) == (p * (degree + 1) <= 6)
+    _compare(run_core(params, z, backend="numpy"), run_core(params, z, backend="numba"))
