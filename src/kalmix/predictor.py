@@ -21,7 +21,8 @@ import numpy as np
 
 from .bank import make_params
 from .core.mixture import MixtureParams, MixtureState, init_state, predict, step
-from .core.run import RunResult, run_core
+from .core.fast import numba_available, step_fast
+from .core.run import BACKENDS, RunResult, run_core
 
 __all__ = ["MixturePredictor", "run", "FORMAT_VERSION"]
 
@@ -55,6 +56,11 @@ class MixturePredictor:
         K, the number of experts (40 in the paper).
     seed : int
         Seed of the bank recipe and of the random gate.
+    backend : {"auto", "numpy", "numba"}
+        Implementation of the step: the numpy reference or the compiled numba kernel
+        (the ``fast`` extra); ``auto`` takes numba when it can be imported. Both give
+        the same numbers to rounding; one predictor always uses the same one, so a
+        saved and resumed run is bit-for-bit identical.
     **options
         Any other argument of :func:`kalmix.bank.make_params`
         (``dynamics``, ``gating``, ``order``, ``length_unit``, ...).
@@ -75,10 +81,13 @@ class MixturePredictor:
     n_steps_ : int
     """
 
-    def __init__(self, n_experts: int = 40, *, seed: int = 0, **options: Any):
+    def __init__(self, n_experts: int = 40, *, seed: int = 0, backend: str = "auto", **options: Any):
         self.n_experts = n_experts
         self.seed = seed
+        self.backend = backend
         self.options = options
+        if backend not in BACKENDS:
+            raise ValueError(f"backend: expected one of {', '.join(map(repr, BACKENDS))}, got {backend!r}")
         make_params(1, n_experts, seed=seed, **options)  # validate now: errors name the argument
         self._params: MixtureParams | None = None
         self._state: MixtureState | None = None
@@ -105,6 +114,12 @@ class MixturePredictor:
     def _unbatch(self, array):
         return array[0] if self._single else array
 
+    def _backend(self) -> str:
+        """The backend in use: ``auto`` resolved to ``numba`` or ``numpy``."""
+        if self.backend == "auto":
+            return "numba" if numba_available() else "numpy"
+        return self.backend
+
     def _require_fitted(self):
         if self._state is None:
             raise RuntimeError("this predictor has seen no measurement yet: call step(z) first")
@@ -113,7 +128,7 @@ class MixturePredictor:
     def step(self, z) -> np.ndarray:
         """Learn from measurement ``z`` (NaN = missing) and return the prediction of the next frame."""
         batch = self._batch(z)
-        self._state, out = step(self._params, self._state, batch)
+        self._state, out = (step_fast if self._backend() == "numba" else step)(self._params, self._state, batch)
         return self._unbatch(out.prediction).copy()
 
     def update(self, z) -> "MixturePredictor":
@@ -130,7 +145,7 @@ class MixturePredictor:
         return self._unbatch(prediction)
 
     def run(self, measurements, *, horizon: int = 1, diagnostics: bool = True,
-            expert_predictions: bool = False, progress=None, backend: str = "numpy") -> RunResult:
+            expert_predictions: bool = False, progress=None) -> RunResult:
         """Step through ``(T, p)`` (or ``(T, N, p)`` for a batch) measurements.
 
         Returns a :class:`~kalmix.core.run.RunResult` whose arrays have the stream axis
@@ -144,7 +159,7 @@ class MixturePredictor:
         self._batch(array[0])  # builds on first use and checks the per-step shape
         batched = array[:, None, :] if self._single else array
         result = run_core(self._params, batched, self._state, horizon=int(horizon), diagnostics=diagnostics,
-                          expert_predictions=expert_predictions, progress=progress, backend=backend)
+                          expert_predictions=expert_predictions, progress=progress, backend=self._backend())
         self._state = result.state
         if not self._single:
             return result
@@ -183,7 +198,7 @@ class MixturePredictor:
     # -- persistence ----------------------------------------------------------------
     def get_config(self) -> dict:
         """Constructor arguments, JSON-serialisable."""
-        return {"n_experts": self.n_experts, "seed": self.seed, "options": self.options}
+        return {"n_experts": self.n_experts, "seed": self.seed, "backend": self.backend, "options": self.options}
 
     def save(self, path: str | os.PathLike) -> None:
         """Write the full state to ``path`` (a ``.npz`` archive); :meth:`load` resumes it exactly."""
@@ -216,7 +231,8 @@ class MixturePredictor:
         if meta.get("format_version") != FORMAT_VERSION:
             raise ValueError(f"{path}: expected format version {FORMAT_VERSION}, got {meta.get('format_version')!r}")
         config = meta["config"]
-        predictor = cls(config["n_experts"], seed=config["seed"], **config["options"])
+        predictor = cls(config["n_experts"], seed=config["seed"], backend=config.get("backend", "auto"),
+                        **config["options"])
         predictor._build(meta["measurement_dim"], meta["n_targets"], meta["single"])
         template = predictor._state
         fields = {}

@@ -66,7 +66,7 @@ def _pack_params(params: MixtureParams) -> tuple:
         float(params.eta_sensitivity), bool(params.adapt_noise), float(params.process_noise_shrink),
         float(params.measurement_noise_shrink), float(params.noise_floor), float(params.noise_reinflation),
         int(params.random_seed), float(params.state_jitter), dyn._GUARD_SHRINK.astype(np.float64),
-        float(getattr(params, "max_variance", np.inf)), _fast_guard(params),
+        float(params.max_variance), _fast_guard(params),
     )
 
 
