@@ -11,14 +11,12 @@
 
 from __future__ import annotations
 
-import io
-import json
 import os
-import zipfile
 from typing import Any
 
 import numpy as np
 
+from .archive import read_archive, write_archive
 from .bank import make_params
 from .core.mixture import MixtureParams, MixtureState, init_state, predict, step
 from .core.fast import numba_available, step_fast
@@ -206,30 +204,13 @@ class MixturePredictor:
         meta = {"magic": _MAGIC, "format_version": FORMAT_VERSION, "config": self.get_config(),
                 "measurement_dim": self._params.measurement_dim, "single": self._single,
                 "n_targets": int(self._state.steps.shape[0])}
-        arrays = {f"state/{name}": value for name, value in self._state._asdict().items()}
-        buffer = io.BytesIO()
-        np.savez(buffer, meta=np.array(json.dumps(meta)), **arrays)
-        tmp = f"{os.fspath(path)}.tmp"
-        with open(tmp, "wb") as handle:
-            handle.write(buffer.getvalue())
-        os.replace(tmp, path)
+        write_archive(path, meta, {f"state/{name}": value for name, value in self._state._asdict().items()})
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "MixturePredictor":
         """Read a predictor written by :meth:`save`; raises ``ValueError`` on a bad file."""
-        try:
-            with np.load(path, allow_pickle=False) as archive:
-                meta = json.loads(str(archive["meta"]))
-                arrays = {name: archive[name] for name in archive.files if name != "meta"}
-        except FileNotFoundError:
-            raise
-        except (zipfile.BadZipFile, OSError, KeyError, ValueError, EOFError) as error:
-            raise ValueError(f"{path}: not a kalmix predictor file (expected a .npz written by "
-                             f"MixturePredictor.save): {error}") from error
-        if meta.get("magic") != _MAGIC:
-            raise ValueError(f"{path}: not a kalmix predictor file (magic {meta.get('magic')!r})")
-        if meta.get("format_version") != FORMAT_VERSION:
-            raise ValueError(f"{path}: expected format version {FORMAT_VERSION}, got {meta.get('format_version')!r}")
+        meta, arrays = read_archive(path, magic=_MAGIC, version=FORMAT_VERSION, what="kalmix predictor file",
+                                    written_by="MixturePredictor.save")
         config = meta["config"]
         predictor = cls(config["n_experts"], seed=config["seed"], backend=config.get("backend", "auto"),
                         **config["options"])

@@ -31,16 +31,14 @@ see :mod:`kalmix.io.tables`.)
 
 from __future__ import annotations
 
-import io
-import json
 import math
 import os
-import zipfile
 from dataclasses import asdict, dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from .archive import read_archive, write_archive
 from .bank import make_params
 from .core.mixture import MixtureParams, MixtureState, init_state, predict, step
 
@@ -370,30 +368,13 @@ class TrackPredictor:
         if with_state:
             stacked = _stack([self.states[t] for t in with_state])
             arrays = {f"state/{name}": value for name, value in stacked._asdict().items()}
-        buffer = io.BytesIO()
-        np.savez(buffer, meta=np.array(json.dumps(meta)), **arrays)
-        tmp = f"{os.fspath(path)}.tmp"
-        with open(tmp, "wb") as handle:
-            handle.write(buffer.getvalue())
-        os.replace(tmp, path)
+        write_archive(path, meta, arrays)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "TrackPredictor":
         """Read a file written by :meth:`save`; ``ValueError`` with the reason on a bad file."""
-        try:
-            with np.load(path, allow_pickle=False) as archive:
-                meta = json.loads(str(archive["meta"]))
-                arrays = {name: archive[name] for name in archive.files if name != "meta"}
-        except FileNotFoundError:
-            raise
-        except (zipfile.BadZipFile, OSError, KeyError, ValueError, EOFError) as error:
-            raise ValueError(f"{path}: not a kalmix state file (expected a .npz written by "
-                             f"kalmix predict --state): {error}") from error
-        if meta.get("magic") != _MAGIC:
-            raise ValueError(f"{path}: not a kalmix predict state file (magic {meta.get('magic')!r})")
-        if meta.get("format_version") != STATE_FORMAT_VERSION:
-            raise ValueError(f"{path}: expected state format {STATE_FORMAT_VERSION}, "
-                             f"got {meta.get('format_version')!r}")
+        meta, arrays = read_archive(path, magic=_MAGIC, version=STATE_FORMAT_VERSION, what="kalmix state file",
+                                    written_by="kalmix predict --state")
         engine = cls(StreamConfig(**meta["config"]), meta.get("position_names"))
         engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
         if meta["measurement_dim"] is not None:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import io
 import json
 import math
 import os
@@ -244,7 +243,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, outpu
     all tracks at once through the batched core; '-' reads CSV rows (header first) or JSON
     lines from stdin and writes each prediction as soon as its measurement arrives.
     """
-    from ..streaming import StreamConfig, TrackPredictor
+    from ..streaming import TrackPredictor
 
     unit = _length_unit(length_unit)
     gap, never = _max_gap(max_gap)

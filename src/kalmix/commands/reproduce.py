@@ -9,11 +9,10 @@
 
 from __future__ import annotations
 
-import contextlib
-import json
-
 import click
 import numpy as np
+
+from ._common import progress_bar, write_json
 
 _ROW_LABELS = {
     "single_akf": "single AKF",
@@ -26,32 +25,6 @@ _ROW_LABELS = {
     "no_prediction": "no prediction",
 }
 _STATS = ("mean_abs", "std", "max", "rms")
-
-
-def _json_default(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
-
-
-def _write_json(path: str, data) -> None:
-    with open(path, "w", encoding="utf-8") as handle:
-        json.dump(data, handle, indent=1, default=_json_default)
-        handle.write("\n")
-
-
-@contextlib.contextmanager
-def _progress(total: int, description: str):
-    """A tqdm bar on stderr (silently absent if tqdm is missing); yields a tick callback."""
-    try:
-        from tqdm import tqdm
-    except ImportError:  # pragma: no cover - tqdm is in the cli extra
-        yield lambda: None
-        return
-    with tqdm(total=total, desc=description, unit="run", leave=False, dynamic_ncols=True) as bar:
-        yield lambda: bar.update(1)
 
 
 def _cell(mean: float, spread: float | None, width: int = 14) -> str:
@@ -136,7 +109,7 @@ def table1_command(n_seeds: int, json_path: str | None, mode: str, n_experts: in
     modes = ("rls", "literal") if mode == "both" else (mode,)
     seeds = list(range(n_seeds))
     per_seed = []
-    with _progress(n_seeds * runs_per_seed(modes), "table1") as tick:
+    with progress_bar(n_seeds * runs_per_seed(modes), "table1", "run") as tick:
         for seed in seeds:
             per_seed.append(run_seed(seed, modes=modes, n_experts=n_experts, progress=tick,
                                      scenario=quick_scenario() if quick else None,
@@ -153,7 +126,7 @@ def table1_command(n_seeds: int, json_path: str | None, mode: str, n_experts: in
         click.echo(format_claims(result, current))
         click.echo()
     if json_path:
-        _write_json(json_path, result)
+        write_json(json_path, result)
         click.echo(f"wrote {json_path}")
 
 
@@ -213,12 +186,12 @@ def ablations_command(n_seeds: int, json_path: str | None, groups: tuple[str, ..
 
     selected = groups or None
     total = len(variants(selected)) * n_seeds
-    with _progress(total, "ablations") as tick:
+    with progress_bar(total, "ablations", "run") as tick:
         result = ablations(range(n_seeds), groups=selected, progress=tick,
                            scenario=quick_scenario() if quick else None)
     click.echo(format_ablations(result))
     if json_path:
-        _write_json(json_path, result)
+        write_json(json_path, result)
         click.echo(f"wrote {json_path}")
 
 

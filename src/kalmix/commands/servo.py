@@ -9,13 +9,13 @@
 
 from __future__ import annotations
 
-import contextlib
-import json
 import os
 import warnings
 
 import click
 import numpy as np
+
+from ._common import progress_bar, write_json
 
 _LABELS = {
     "no_prediction": "no prediction (delayed e)",
@@ -25,30 +25,6 @@ _LABELS = {
 }
 _COLOURS = {"no_prediction": "tab:red", "single_akf": "tab:orange", "mixture_softmax": "tab:blue",
             "oracle": "tab:green"}
-
-
-def _json_default(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
-
-
-@contextlib.contextmanager
-def _bar(total: int, description: str, unit: str):
-    """A tqdm bar on stderr (absent if tqdm is missing); yields ``update(n)``."""
-    try:
-        from tqdm import tqdm
-    except ImportError:  # pragma: no cover - tqdm is in the cli extra
-        yield lambda n=1, **_: None
-        return
-    with tqdm(total=total, desc=description, unit=unit, leave=False, dynamic_ncols=True) as bar:
-        def update(n=1, postfix=None):
-            if postfix:
-                bar.set_postfix_str(postfix, refresh=False)
-            bar.update(n)
-        yield update
 
 
 def format_table(result) -> str:
@@ -190,7 +166,7 @@ def servo(scenario, delay_frames, noise_px, gain, prediction_gain, seed, json_pa
     arm, camera = Arm(), StereoCamera()
 
     som_config = SOMConfig(seed=seed)
-    with _bar(som_config.n_training_moves, "SOM babbling", "move") as update:
+    with progress_bar(som_config.n_training_moves, "SOM babbling", "move") as update:
         last = {"done": 0}
 
         def som_progress(done, total, median):
@@ -200,7 +176,7 @@ def servo(scenario, delay_frames, noise_px, gain, prediction_gain, seed, json_pa
         som, history = train_som(arm, camera, seed=seed, config=som_config, progress=som_progress)
 
     n_frames = len(trajectory.times)
-    with _bar(n_frames * len(config.modes), "servo loop", "frame") as update:
+    with progress_bar(n_frames * len(config.modes), "servo loop", "frame") as update:
         def progress(mode, frame, total):
             update(1, postfix=mode if frame == 1 else None)
 
@@ -246,7 +222,5 @@ def servo(scenario, delay_frames, noise_px, gain, prediction_gain, seed, json_pa
     data["figures"] = figures
     click.echo("figures: " + ", ".join(figures.values()))
     if json_path:
-        with open(json_path, "w", encoding="utf-8") as handle:
-            json.dump(data, handle, indent=1, default=_json_default)
-            handle.write("\n")
+        write_json(json_path, data)
         click.echo(f"wrote {json_path}")

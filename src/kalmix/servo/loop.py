@@ -95,6 +95,8 @@ distance :math:`\|\mathbf p_k - \mathbf p(\mathbf q_k)\|` in millimetres, over e
 
 from __future__ import annotations
 
+import functools
+
 import time
 from collections import deque
 from dataclasses import asdict, dataclass
@@ -527,9 +529,8 @@ def run_servo(trajectory, *, arm: Arm | None = None, camera=None, config: ServoC
         tick = None
         if progress is not None:
             counter = iter(range(1, len(positions) + 1))
-
-            def tick(mode=mode, counter=counter):
-                progress(mode, next(counter), len(positions))
+            tick = functools.partial(lambda mode, counter: progress(mode, next(counter), len(positions)),
+                                     mode, counter)
         results[mode] = _simulate(
             mode, arm=arm, camera=camera, config=config, dt=dt,
             target_positions=positions, target_features=target_features,
