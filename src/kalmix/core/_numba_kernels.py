@@ -18,6 +18,7 @@ import numpy as np
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 jit = nb.njit(**_JIT)
+jit_inline = nb.njit(inline="always", **_JIT)
 
 # Half-width of the band around the guard's bound in which the cheap stability test
 # defers to the eigenvalues (relative); see ``_radius_le``.
@@ -51,7 +52,7 @@ def _random_weights(seed, stream_id, step, out):
 
 
 # ---------------------------------------------------------------- small dense algebra
-@jit
+@jit_inline
 def _chol_inverse(spd, m, jitter, work, lower_inv, inverse):
     """``cholesky_inverse`` of the top-left m x m block of ``spd`` (the log-determinant is not needed)."""
     scale = 0.0
@@ -95,7 +96,7 @@ def _chol_inverse(spd, m, jitter, work, lower_inv, inverse):
             inverse[j, i] = acc
 
 
-@jit
+@jit_inline
 def _cholesky_solve_rows(spd, m, rhs, rows, work, out):
     """``out[r] = spd^{-1} rhs[r]`` for r < rows (``spd`` symmetric positive definite)."""
     for j in range(m):
@@ -124,7 +125,7 @@ def _cholesky_solve_rows(spd, m, rhs, rows, work, out):
             out[r, i] = acc / work[i, i]
 
 
-@jit
+@jit_inline
 def _poly_mul_add(a, b, degree, sign, out):
     """``out += sign * a * b`` for polynomials of ``degree + 1`` coefficients (low order first)."""
     for i in range(degree + 1):
@@ -133,7 +134,7 @@ def _poly_mul_add(a, b, degree, sign, out):
             out[i + k] += ai * b[k]
 
 
-@jit
+@jit_inline
 def _char_poly_small(theta, p, order, entries, minor, coef):
     """det(lambda I - A) of the block companion of ``theta`` for p <= 3, by cofactors.
 
@@ -171,7 +172,7 @@ def _char_poly_small(theta, p, order, entries, minor, coef):
                     coef[i + e] += value * minor[e]
 
 
-@jit
+@jit_inline
 def _companion(theta, p, n, transition, offset):
     """Block companion matrix and drift from ``theta`` (p, n + 1)."""
     for i in range(n):
@@ -219,7 +220,7 @@ def _char_poly(transition, p, n, power, product, coef):
                 power[i, j] = product[i, j]
 
 
-@jit
+@jit_inline
 def _schur_step_test(coef, n, radius, work, saved):
     """Schur-Cohn: every root of ``sum coef[k] x^k`` lies strictly inside ``|x| < radius``."""
     scale = 1.0
@@ -241,7 +242,7 @@ def _schur_step_test(coef, n, radius, work, saved):
     return True
 
 
-@jit
+@jit_inline
 def _radius_le(theta, transition, p, n, bound, power, product, coef, work, saved, entries, minor):
     """Spectral radius of the block companion ``transition`` <= ``bound``.
 
@@ -259,10 +260,8 @@ def _radius_le(theta, transition, p, n, bound, power, product, coef, work, saved
         return True
     if not _schur_step_test(coef, n, bound * (1.0 + GUARD_BAND), work, saved):
         return False
-    _companion(theta, p, n, transition, work)
-    # numba's real eigvals refuses complex eigenvalues: use the complex routine
-    values = np.linalg.eigvals(transition[:n, :n].astype(np.complex128))
-    return np.max(np.abs(values)) <= bound
+    # the eigenvalues (rarely reached) in a separate, not inlined, function
+    return _radius_eig(theta, transition, p, n, bound, work)
 
 
 @jit
@@ -321,6 +320,8 @@ def _advance_target(
     poly_work = np.empty(n + 1)
     poly_saved = np.empty(n + 1)
     gain = np.empty((n, p))
+    w_block = np.empty((n, p))
+    g_block = np.empty((p, n))
     s_inv = np.empty((p, p))
     s_lower = np.empty((p, p))
     s_work = np.empty((p, p))
@@ -471,13 +472,13 @@ def _advance_target(
                         for c in range(n):
                             transition[j, k, r, c] = cand_a[r, c]
 
-        # 4. Kalman update, (re)start, predict. Products are written as row updates
-        # (x[r, :] += a * y[l, :]) so that the inner loops carry no dependency; each
-        # entry is still summed over l in increasing order, as in a dot product.
+        # 4. Kalman update, (re)start, predict, using C = [I 0] and, for rls / fixed
+        # dynamics, the companion form of A (only its first p rows are free).
         for k in range(k_count):
             cv = cov[j, k]
             mu = mean[j, k]
             a = transition[j, k]
+            off = offset[j, k]
             if learn:
                 for i in range(p):
                     residual[i] = features[i] - mu[i]
@@ -487,45 +488,37 @@ def _advance_target(
                         s_work[r, c] = cv[r, c]
                     s_work[r, r] += r_diag[r]
                 _chol_inverse(s_work, p, 1e-12, s_lower, tmp, s_inv)
-                for r in range(n):  # K = P C^T S^-1, kept transposed: gain_t[c, r] = K[r, c]
+                # K = P C^T S^-1 (n, p); W = (I - K C) P C^T - K R (n, p)
+                for r in range(n):
                     for c in range(p):
-                        gain_row[c] = 0.0
-                    for l in range(p):
-                        value = cv[r, l]
-                        for c in range(p):
-                            gain_row[c] += value * s_inv[l, c]
-                    for c in range(p):
-                        gain_t[c, r] = gain_row[c]
+                        acc = 0.0
+                        for l in range(p):
+                            acc += cv[r, l] * s_inv[l, c]
+                        gain[r, c] = acc
                 for r in range(n):
                     acc = 0.0
                     for c in range(p):
-                        acc += gain_t[c, r] * residual[c]
+                        acc += gain[r, c] * residual[c]
                     new_mean[r] = mu[r] + acc
-                # Joseph form with C = [I 0]: tmp = (I - K C) P = P - K P[:p, :]
-                for r in range(n):
-                    for c in range(n):
-                        row[c] = 0.0
-                    for l in range(p):
-                        value = gain_t[l, r]
-                        for c in range(n):
-                            row[c] += value * cv[l, c]
-                    for c in range(n):
-                        tmp[r, c] = cv[r, c] - row[c]
-                # tmp (I - K C)^T + K R K^T = tmp - sum_l (tmp[:, l] - K[:, l] R_l) K[:, l]^T
-                for r in range(n):
-                    for c in range(n):
-                        row[c] = 0.0
-                    for l in range(p):
-                        value = tmp[r, l]
-                        weighted = gain_t[l, r] * r_diag[l]
-                        for c in range(n):
-                            row[c] += value * gain_t[l, c] - weighted * gain_t[l, c]
-                    for c in range(n):
-                        tmp2[r, c] = tmp[r, c] - row[c]
+                    for c in range(p):
+                        acc = 0.0
+                        for l in range(p):
+                            acc += gain[r, l] * cv[l, c]
+                        w_block[r, c] = (cv[r, c] - acc) - gain[r, c] * r_diag[c]
+                # Joseph form (I - K C) P (I - K C)^T + K R K^T = P - K P[:p, :] - W K^T,
+                # symmetric: the upper triangle is computed and mirrored
                 for r in range(n):
                     mu[r] = new_mean[r]
-                    for c in range(n):
-                        cv[r, c] = 0.5 * (tmp2[r, c] + tmp2[c, r])
+                for r in range(n):
+                    for c in range(r, n):
+                        acc = 0.0
+                        for l in range(p):
+                            acc += gain[r, l] * cv[l, c] + w_block[r, l] * gain[c, l]
+                        tmp[r, c] = cv[r, c] - acc
+                for r in range(n):
+                    for c in range(r, n):
+                        cv[r, c] = tmp[r, c]
+                        cv[c, r] = tmp[r, c]
             if start:
                 p0 = initial_variance[k] / kappa ** 2
                 for lag in range(order):
@@ -535,44 +528,71 @@ def _advance_target(
                     for c in range(n):
                         cv[r, c] = p0 if r == c else 0.0
             # predict: x <- A x + u, P <- A P A^T + Q
-            for r in range(n):
-                acc = 0.0
-                for c in range(n):
-                    acc += a[r, c] * mu[c]
-                new_mean[r] = acc + offset[j, k, r]
-            rows = p if companion else n  # below row p a companion A shifts the state down by p
-            for r in range(rows):  # tmp = A P
-                for c in range(n):
-                    row[c] = 0.0
-                for l in range(n):
-                    value = a[r, l]
+            if companion:
+                # A = [Theta; I 0]: x <- [Theta x + u_top; x[:n-p]],
+                # P <- [[G Theta^T, G[:, :n-p]], [G[:, :n-p]^T, P[:n-p, :n-p]]], G = Theta P
+                for r in range(p):
+                    acc = 0.0
                     for c in range(n):
-                        row[c] += value * cv[l, c]
-                for c in range(n):
-                    tmp[r, c] = row[c]
-            for r in range(rows, n):
-                for c in range(n):
-                    tmp[r, c] = cv[r - p, c]
-            # tmp2 = tmp A^T, computed as (A tmp^T)^T: tmp2[r, c] = sum_l a[c, l] tmp[r, l]
-            for c in range(rows):
+                        acc += a[r, c] * mu[c]
+                    new_mean[r] = acc + off[r]
+                    for c in range(n):
+                        acc = 0.0
+                        for l in range(n):
+                            acc += a[r, l] * cv[l, c]
+                        g_block[r, c] = acc
+                for r in range(p, n):
+                    new_mean[r] = mu[r - p] + off[r]
+                for r in range(n - 1, -1, -1):
+                    mu[r] = new_mean[r]
+                for r in range(n - 1, p - 1, -1):  # shift the lower-right block in place
+                    for c in range(n - 1, r - 1, -1):
+                        value = cv[r - p, c - p]
+                        cv[r, c] = value
+                        cv[c, r] = value
+                for r in range(p):
+                    for c in range(p, n):
+                        value = g_block[r, c - p]
+                        cv[r, c] = value
+                        cv[c, r] = value
+                    for c in range(r, p):
+                        acc = 0.0
+                        for l in range(n):
+                            acc += g_block[r, l] * a[c, l]
+                        cv[r, c] = acc
+                        cv[c, r] = acc
+            else:
                 for r in range(n):
-                    row[r] = 0.0
-                for l in range(n):
-                    value = a[c, l]
+                    acc = 0.0
+                    for c in range(n):
+                        acc += a[r, c] * mu[c]
+                    new_mean[r] = acc + off[r]
+                for r in range(n):  # tmp = A P
+                    for c in range(n):
+                        row[c] = 0.0
+                    for l in range(n):
+                        value = a[r, l]
+                        for c in range(n):
+                            row[c] += value * cv[l, c]
+                    for c in range(n):
+                        tmp[r, c] = row[c]
+                # tmp2 = tmp A^T, computed as (A tmp^T)^T: tmp2[r, c] = sum_l a[c, l] tmp[r, l]
+                for c in range(n):
                     for r in range(n):
-                        row[r] += value * tmp[r, l]
+                        row[r] = 0.0
+                    for l in range(n):
+                        value = a[c, l]
+                        for r in range(n):
+                            row[r] += value * tmp[r, l]
+                    for r in range(n):
+                        tmp2[r, c] = row[r]
                 for r in range(n):
-                    tmp2[r, c] = row[r]
-            for c in range(rows, n):
-                for r in range(n):
-                    tmp2[r, c] = tmp[r, c - p]
-            for r in range(n):
-                tmp2[r, r] += state_jitter + (process_noise[j, k, r] / kappa ** 2 if r < p else 0.0)
+                    mu[r] = new_mean[r]
+                    for c in range(n):
+                        cv[r, c] = 0.5 * (tmp2[r, c] + tmp2[c, r])
             largest = -np.inf
             for r in range(n):
-                mu[r] = new_mean[r]
-                for c in range(n):
-                    cv[r, c] = 0.5 * (tmp2[r, c] + tmp2[c, r])
+                cv[r, r] += state_jitter + (process_noise[j, k, r] / kappa ** 2 if r < p else 0.0)
                 largest = max(largest, cv[r, r])
             # cap the variance (only reached after very long runs of missing measurements)
             factor = min(1.0, max_variance / largest)
