@@ -77,6 +77,7 @@ class MixturePredictor:
         Diagonals of :math:`Q_{i,k}` and :math:`R_{i,k}` (eq. 11/12).
     expert_predictions_ : ndarray, shape (K, p) or (N, K, p)
     n_steps_ : int
+        Frames seen so far (measurements present or missing).
     """
 
     def __init__(self, n_experts: int = 40, *, seed: int = 0, backend: str = "auto", **options: Any):
@@ -190,8 +191,7 @@ class MixturePredictor:
     process_noise_ = property(lambda self: self._field("process_noise"))
     measurement_noise_ = property(lambda self: self._field("measurement_noise"))
     expert_predictions_ = property(lambda self: self._field("expert_predictions"))
-    n_steps_ = property(lambda self: int(self._field("steps").max()) if self._single is False
-                        else int(self._field("steps")))
+    n_steps_ = property(lambda self: int(self._state.steps.max()) if self._state is not None else 0)
 
     # -- persistence ----------------------------------------------------------------
     def get_config(self) -> dict:
