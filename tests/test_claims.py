@@ -7,7 +7,7 @@ range reached 3.5x faster) is used only to document where our own claim stops ho
 Our own claims (the default configuration must meet them) are asserted as stated. The
 paper's claims that do not hold with a faithful implementation are written so that the
 test documents the relation we actually measure (and fails if it changes), never a
-loosened version of the claim; ``docs/reproduction.md`` explains why they do not hold.
+loosened version of the claim; the README (section "The paper's claims") explains why they do not hold.
 """
 
 import pytest
