@@ -53,6 +53,25 @@ def _random_weights(seed, stream_id, step, out):
 
 # ---------------------------------------------------------------- small dense algebra
 @jit_inline
+def _cholesky_lower(source, m, work):
+    """Cholesky factor of the leading ``m x m`` block of ``source`` into the lower triangle of ``work``.
+
+    ``source`` may be ``work`` itself (each entry is read before it is overwritten).
+    """
+    for j in range(m):
+        acc = source[j, j]
+        for k in range(j):
+            acc -= work[j, k] * work[j, k]
+        diag = math.sqrt(acc)
+        work[j, j] = diag
+        for i in range(j + 1, m):
+            acc = source[i, j]
+            for k in range(j):
+                acc -= work[i, k] * work[j, k]
+            work[i, j] = acc / diag
+
+
+@jit_inline
 def _chol_inverse(spd, m, jitter, work, lower_inv, inverse):
     """``cholesky_inverse`` of the top-left m x m block of ``spd`` (the log-determinant is not needed)."""
     scale = 0.0
@@ -64,18 +83,7 @@ def _chol_inverse(spd, m, jitter, work, lower_inv, inverse):
         for j in range(m):
             work[i, j] = 0.5 * (spd[i, j] + spd[j, i])
         work[i, i] += boost
-    # Cholesky, lower triangle in place
-    for j in range(m):
-        acc = work[j, j]
-        for k in range(j):
-            acc -= work[j, k] * work[j, k]
-        diag = math.sqrt(acc)
-        work[j, j] = diag
-        for i in range(j + 1, m):
-            acc = work[i, j]
-            for k in range(j):
-                acc -= work[i, k] * work[j, k]
-            work[i, j] = acc / diag
+    _cholesky_lower(work, m, work)  # lower triangle in place
     # L^{-1} by forward substitution
     for c in range(m):
         for i in range(m):
@@ -99,17 +107,7 @@ def _chol_inverse(spd, m, jitter, work, lower_inv, inverse):
 @jit_inline
 def _cholesky_solve_rows(spd, m, rhs, rows, work, out):
     """``out[r] = spd^{-1} rhs[r]`` for r < rows (``spd`` symmetric positive definite)."""
-    for j in range(m):
-        acc = spd[j, j]
-        for k in range(j):
-            acc -= work[j, k] * work[j, k]
-        diag = math.sqrt(acc)
-        work[j, j] = diag
-        for i in range(j + 1, m):
-            acc = spd[i, j]
-            for k in range(j):
-                acc -= work[i, k] * work[j, k]
-            work[i, j] = acc / diag
+    _cholesky_lower(spd, m, work)
     # the right-hand sides are solved together so the inner loops are independent
     for i in range(m):  # L y = b
         for r in range(rows):
