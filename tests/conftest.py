@@ -14,3 +14,19 @@ def smooth_tracks(seed: int, steps: int, targets: int = 1, dim: int = 3, scale: 
 @pytest.fixture
 def tracks():
     return smooth_tracks
+
+
+@pytest.fixture(scope="module")
+def arm():
+    """The default 3-joint arm of the servo tests."""
+    from kalmix.servo import Arm
+
+    return Arm()
+
+
+@pytest.fixture(scope="module")
+def camera():
+    """The default stereo camera."""
+    from kalmix.vision import StereoCamera
+
+    return StereoCamera()

@@ -25,7 +25,7 @@ def test_literal_transition_equals_eq6_and_corrected_eq7():
 
 def test_literal_prediction_is_a_radial_rescaling_of_the_measurement():
     rng = np.random.default_rng(1)
-    p, n = 3, 6
+    p = 3
     c = np.hstack([np.eye(p), np.zeros((p, p))])
     z_now, z_prev = rng.normal(size=p), rng.normal(size=p)
     a = dyn.literal_transition(z_now, z_prev, c, epsilon=0.0)

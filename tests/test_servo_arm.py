@@ -8,17 +8,6 @@ import numpy as np
 import pytest
 
 from kalmix.servo import TARGET_REGION_HALF_WIDTHS, WORKSPACE_CENTRE, WORKSPACE_HALF_WIDTHS, Arm
-from kalmix.vision import StereoCamera
-
-
-@pytest.fixture(scope="module")
-def arm() -> Arm:
-    return Arm()
-
-
-@pytest.fixture(scope="module")
-def camera() -> StereoCamera:
-    return StereoCamera()
 
 
 def _box_grid(half_widths, n=9) -> np.ndarray:

@@ -8,24 +8,12 @@ import pytest
 from kalmix.servo import (
     TARGET_REGION_HALF_WIDTHS,
     WORKSPACE_CENTRE,
-    Arm,
     InverseJacobianSOM,
     SOMConfig,
     plot_learning_curve,
 )
-from kalmix.vision import StereoCamera
 
 SMALL = dict(lattice_shape=(3, 3, 3), n_training_moves=600, evaluation_every=200, n_validation=100)
-
-
-@pytest.fixture(scope="module")
-def arm() -> Arm:
-    return Arm()
-
-
-@pytest.fixture(scope="module")
-def camera() -> StereoCamera:
-    return StereoCamera()
 
 
 @pytest.fixture(scope="module")
