@@ -1,9 +1,15 @@
 """Numba kernels of :mod:`kalmix.core.fast` (imported only when numba is present).
 
-One compiled function advances one target through the whole time loop, expert by
-expert, with the same operations as the numpy reference (:func:`kalmix.core.mixture.step`)
-written as scalar loops on small matrices; :func:`run_targets` runs the targets in
-parallel (``prange``). Every target is independent, so the threads never synchronise.
+One compiled function advances one target through the whole time loop with the same
+operations as the numpy reference (:func:`kalmix.core.mixture.step`); :func:`run_targets`
+runs the targets in parallel (``prange``). Every target is independent, so the threads
+never synchronise.
+
+Within a target, all K experts advance together: their state is copied once per call
+into arrays with the expert index last (``cov[r, c, k]``), so that every inner loop of
+the filter, the RLS fit and the guard runs over the experts with unit stride and is
+vectorised by the compiler (:mod:`kalmix.core._numba_linalg`), and copied back at the
+end of the call.
 
 Mode codes: dynamics 0 = rls, 1 = literal, 2 = fixed; gating 0 = fixed_share,
 1 = paper, 2 = random; gating input 0 = bias, 1 = position, 2 = velocity.
@@ -16,16 +22,10 @@ import math
 import numba as nb
 import numpy as np
 
-_JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
-jit = nb.njit(**_JIT)
-jit_inline = nb.njit(inline="always", **_JIT)
+from . import _numba_linalg as la
 
-# Half-width of the band around the guard's bound in which the cheap stability test
-# defers to the eigenvalues (relative); see ``_radius_le``.
-GUARD_BAND = 1e-5
-# The Schur-Cohn recursion loses its accuracy for clusters of more than this many roots
-# near the bound (the prior puts p (degree + 1) roots at 1): beyond it, eigenvalues.
-MAX_CLUSTER = 6
+_JIT = la._JIT
+jit = la.jit
 
 
 # ---------------------------------------------------------------- random gate (splitmix64)
@@ -51,223 +51,410 @@ def _random_weights(seed, stream_id, step, out):
         out[k] = out[k] / total
 
 
-# ---------------------------------------------------------------- small dense algebra
-@jit_inline
-def _cholesky_lower(source, m, work):
-    """Cholesky factor of the leading ``m x m`` block of ``source`` into the lower triangle of ``work``.
-
-    ``source`` may be ``work`` itself (each entry is read before it is overwritten).
-    """
-    for j in range(m):
-        acc = source[j, j]
-        for k in range(j):
-            acc -= work[j, k] * work[j, k]
-        diag = math.sqrt(acc)
-        work[j, j] = diag
-        for i in range(j + 1, m):
-            acc = source[i, j]
-            for k in range(j):
-                acc -= work[i, k] * work[j, k]
-            work[i, j] = acc / diag
-
-
-@jit_inline
-def _chol_inverse(spd, m, jitter, work, lower_inv, inverse):
-    """``cholesky_inverse`` of the top-left m x m block of ``spd`` (the log-determinant is not needed)."""
-    scale = 0.0
-    for i in range(m):
-        scale += spd[i, i]
-    scale = scale / m
-    boost = jitter * scale
-    for i in range(m):
-        for j in range(m):
-            work[i, j] = 0.5 * (spd[i, j] + spd[j, i])
-        work[i, i] += boost
-    _cholesky_lower(work, m, work)  # lower triangle in place
-    # L^{-1} by forward substitution
-    for c in range(m):
-        for i in range(m):
-            if i < c:
-                lower_inv[i, c] = 0.0
-                continue
-            acc = 1.0 if i == c else 0.0
-            for k in range(c, i):
-                acc -= work[i, k] * lower_inv[k, c]
-            lower_inv[i, c] = acc / work[i, i]
-    # S^{-1} = L^{-T} L^{-1}
-    for i in range(m):
-        for j in range(i, m):
-            acc = 0.0
-            for k in range(j, m):
-                acc += lower_inv[k, i] * lower_inv[k, j]
-            inverse[i, j] = acc
-            inverse[j, i] = acc
-
-
-@jit_inline
-def _cholesky_solve_rows(spd, m, rhs, rows, work, out):
-    """``out[r] = spd^{-1} rhs[r]`` for r < rows (``spd`` symmetric positive definite)."""
-    _cholesky_lower(spd, m, work)
-    # the right-hand sides are solved together so the inner loops are independent
-    for i in range(m):  # L y = b
-        for r in range(rows):
-            acc = rhs[r, i]
-            for k in range(i):
-                acc -= work[i, k] * out[r, k]
-            out[r, i] = acc / work[i, i]
-    for i in range(m - 1, -1, -1):  # L^T x = y
-        for r in range(rows):
-            acc = out[r, i]
-            for k in range(i + 1, m):
-                acc -= work[k, i] * out[r, k]
-            out[r, i] = acc / work[i, i]
-
-
-@jit_inline
-def _poly_mul_add(a, b, degree, sign, out):
-    """``out += sign * a * b`` for polynomials of ``degree + 1`` coefficients (low order first)."""
-    for i in range(degree + 1):
-        ai = sign * a[i]
-        for k in range(degree + 1):
-            out[i + k] += ai * b[k]
-
-
-@jit_inline
-def _char_poly_small(theta, p, order, entries, minor, coef):
-    """det(lambda I - A) of the block companion of ``theta`` for p <= 3, by cofactors.
-
-    :math:`\\det(\\lambda I - A) = \\det(\\lambda^o I - \\sum_l \\Theta_l \\lambda^{o-l})`,
-    a p x p determinant of polynomials of degree o.
-    """
-    n = order * p
-    for i in range(p):
-        for c in range(p):
-            for e in range(order + 1):
-                entries[i, c, e] = 0.0
-            entries[i, c, order] = 1.0 if i == c else 0.0
-            for lag in range(1, order + 1):
-                entries[i, c, order - lag] -= theta[i, (lag - 1) * p + c]
-    for e in range(n + 1):
-        coef[e] = 0.0
-    if p == 1:
-        for e in range(order + 1):
-            coef[e] = entries[0, 0, e]
-    elif p == 2:
-        _poly_mul_add(entries[0, 0], entries[1, 1], order, 1.0, coef)
-        _poly_mul_add(entries[0, 1], entries[1, 0], order, -1.0, coef)
-    else:
-        for col in range(3):
-            c1 = 1 if col == 0 else 0
-            c2 = 1 if col == 2 else 2
-            for e in range(2 * order + 1):
-                minor[e] = 0.0
-            _poly_mul_add(entries[1, c1], entries[2, c2], order, 1.0, minor)
-            _poly_mul_add(entries[1, c2], entries[2, c1], order, -1.0, minor)
-            sign = -1.0 if col == 1 else 1.0
-            for i in range(order + 1):
-                value = sign * entries[0, col, i]
-                for e in range(2 * order + 1):
-                    coef[i + e] += value * minor[e]
-
-
-@jit_inline
-def _companion(theta, p, n, transition, offset):
-    """Block companion matrix and drift from ``theta`` (p, n + 1)."""
-    for i in range(n):
-        for j in range(n):
-            transition[i, j] = 0.0
-        offset[i] = 0.0
-    for i in range(p):
-        for j in range(n):
-            transition[i, j] = theta[i, j]
-        offset[i] = theta[i, n]
-    for i in range(n - p):
-        transition[p + i, i] = 1.0
-
-
+# ---------------------------------------------------------------- expert state, experts last
 @jit
-def _char_poly(transition, p, n, power, product, coef):
-    """Coefficients of det(lambda I - A) for a block companion A (Faddeev-LeVerrier).
-
-    ``coef[k]`` multiplies lambda^k. Products A M use the shift structure of the rows
-    below the first p (they cost p n^2 instead of n^3).
-    """
-    coef[n] = 1.0
-    for i in range(n):
-        for j in range(n):
-            power[i, j] = 0.0
-    for k in range(1, n + 1):
-        # power <- A power + c_{n-k+1} I  (M_k), product <- A M_k
-        for i in range(n):
-            power[i, i] += coef[n - k + 1]
-        trace = 0.0
+def _load_experts(j, mean, cov, gram, cross, transition, offset, process_noise, measurement_noise,
+                  expert_predictions, mu, cv, gm, cr, trans, off, q, r, ep, with_rls):
+    """Copy target j's expert state (N, K, ...) into the experts-last working arrays (..., K)."""
+    n, d, p = mu.shape[0], gm.shape[0], q.shape[0]
+    for k in range(mu.shape[1]):
+        for a in range(n):
+            mu[a, k] = mean[j, k, a]
+            off[a, k] = offset[j, k, a]
+            for c in range(n):
+                cv[a, c, k] = cov[j, k, a, c]
+                trans[a, c, k] = transition[j, k, a, c]
         for i in range(p):
-            for j in range(n):
-                acc = 0.0
-                for l in range(n):
-                    acc += transition[i, l] * power[l, j]
-                product[i, j] = acc
-        for i in range(n - p):
-            for j in range(n):
-                product[p + i, j] = power[i, j]
-        for i in range(n):
-            trace += product[i, i]
-        coef[n - k] = -trace / k
-        for i in range(n):
-            for j in range(n):
-                power[i, j] = product[i, j]
-
-
-@jit_inline
-def _schur_step_test(coef, n, radius, work, saved):
-    """Schur-Cohn: every root of ``sum coef[k] x^k`` lies strictly inside ``|x| < radius``."""
-    scale = 1.0
-    for k in range(n + 1):
-        work[k] = coef[k] * scale
-        scale *= radius
-    m = n
-    while m > 0:
-        a0 = work[0]
-        am = work[m]
-        if not abs(a0) < abs(am):
-            return False
-        for i in range(m + 1):
-            saved[i] = work[i]
-        norm = 1.0 / (abs(am) + abs(a0))
-        for i in range(m):
-            work[i] = (am * saved[i + 1] - a0 * saved[m - 1 - i]) * norm
-        m -= 1
-    return True
-
-
-@jit_inline
-def _radius_le(theta, transition, p, n, bound, power, product, coef, work, saved, entries, minor):
-    """Spectral radius of the block companion ``transition`` <= ``bound``.
-
-    Same answer as ``max |eigvals(A)| <= bound``: a Schur-Cohn test on the
-    characteristic polynomial accepts when every root is inside ``bound (1 - band)``
-    and rejects when one is outside ``bound (1 + band)``; only in between (or when
-    the test is not conclusive numerically) are the eigenvalues computed.
-    """
-    if p <= 3:
-        _char_poly_small(theta, p, n // p, entries, minor, coef)
-    else:
-        _companion(theta, p, n, transition, coef)  # coef is only scratch for the drift here
-        _char_poly(transition, p, n, power, product, coef)
-    if _schur_step_test(coef, n, bound * (1.0 - GUARD_BAND), work, saved):
-        return True
-    if not _schur_step_test(coef, n, bound * (1.0 + GUARD_BAND), work, saved):
-        return False
-    # the eigenvalues (rarely reached) in a separate, not inlined, function
-    return _radius_eig(theta, transition, p, n, bound, work)
+            q[i, k] = process_noise[j, k, i]
+            r[i, k] = measurement_noise[j, k, i]
+            ep[i, k] = expert_predictions[j, k, i]
+        if with_rls:
+            for a in range(d):
+                for c in range(d):
+                    gm[a, c, k] = gram[j, k, a, c]
+            for i in range(p):
+                for c in range(d):
+                    cr[i, c, k] = cross[j, k, i, c]
 
 
 @jit
-def _radius_eig(theta, transition, p, n, bound, scratch):
-    """Spectral radius of the companion of ``theta`` <= ``bound``, from its eigenvalues."""
-    _companion(theta, p, n, transition, scratch)
-    values = np.linalg.eigvals(transition[:n, :n].astype(np.complex128))
-    return np.max(np.abs(values)) <= bound
+def _store_experts(j, mean, cov, gram, cross, transition, offset, process_noise, measurement_noise,
+                   expert_predictions, mu, cv, gm, cr, trans, off, q, r, ep, with_rls):
+    """Inverse of :func:`_load_experts`."""
+    n, d, p = mu.shape[0], gm.shape[0], q.shape[0]
+    for k in range(mu.shape[1]):
+        for a in range(n):
+            mean[j, k, a] = mu[a, k]
+            offset[j, k, a] = off[a, k]
+            for c in range(n):
+                cov[j, k, a, c] = cv[a, c, k]
+                transition[j, k, a, c] = trans[a, c, k]
+        for i in range(p):
+            process_noise[j, k, i] = q[i, k]
+            measurement_noise[j, k, i] = r[i, k]
+            expert_predictions[j, k, i] = ep[i, k]
+        if with_rls:
+            for a in range(d):
+                for c in range(d):
+                    gram[j, k, a, c] = gm[a, c, k]
+            for i in range(p):
+                for c in range(d):
+                    cross[j, k, i, c] = cr[i, c, k]
+
+
+# ---------------------------------------------------------------- system matrices
+@jit
+def _rls_fit(xi, features, forgetting, ridge, prior, gram, cross, new_gram, shifted, work, theta, acc):
+    """Forgetting RLS statistics and the ridge solution toward the prior, every expert at once.
+
+    ``S <- lambda S + xi xi^T``, ``M <- lambda M + s xi^T``,
+    ``Theta = (M + rho Theta_0) (S + rho I)^{-1}`` (as :func:`kalmix.core.dynamics.rls_update`).
+    """
+    experts = acc.shape[0]
+    d, p = gram.shape[0], cross.shape[0]
+    for a in range(d):
+        for c in range(d):
+            x = xi[a] * xi[c]
+            for k in range(experts):
+                value = forgetting[k] * gram[a, c, k] + x
+                gram[a, c, k] = value
+                new_gram[a, c, k] = value
+        for k in range(experts):
+            new_gram[a, a, k] = gram[a, a, k] + ridge[k]
+    for a in range(p):
+        for c in range(d):
+            x = features[a] * xi[c]
+            prior_value = prior[a, c]
+            for k in range(experts):
+                value = forgetting[k] * cross[a, c, k] + x
+                cross[a, c, k] = value
+                shifted[a, c, k] = value + ridge[k] * prior_value
+    la.cholesky_solve_rows(new_gram, d, shifted, p, work, theta, acc)
+
+
+@jit
+def _guard(theta, prior, p, order, bound, gammas, fast_guard, trans, off, undecided, candidate,
+           entries, minor, coef, poly_work, poly_saved, norm, inside_low, inside_high,
+           one_theta, one_a, one_u, power, product, one_coef):
+    """Largest shrink toward the prior whose companion has spectral radius <= ``bound``, per expert.
+
+    Candidates ``prior + gamma (theta - prior)`` for gamma in ``gammas`` (the last, 0,
+    is always accepted) are tested for the still-undecided experts, packed into the
+    first columns of the work arrays: a Schur-Cohn test on the characteristic
+    polynomial accepts inside ``bound (1 - band)`` and rejects outside
+    ``bound (1 + band)``; in between, and when ``fast_guard`` is off, the eigenvalues
+    decide (the numpy reference's test). The chosen candidate becomes the first p rows
+    of ``trans`` and ``off``; the rows below are the companion's shift.
+    """
+    experts = trans.shape[2]
+    n = order * p
+    d = n + 1
+    last = gammas.shape[0] - 1
+    count = experts
+    for k in range(experts):
+        undecided[k] = k
+    for g in range(last + 1):
+        gamma = gammas[g]
+        for a in range(p):
+            for c in range(d):
+                prior_value = prior[a, c]
+                if count == experts:
+                    for i in range(count):
+                        candidate[a, c, i] = prior_value + gamma * (theta[a, c, i] - prior_value)
+                else:
+                    for i in range(count):
+                        candidate[a, c, i] = prior_value + gamma * (theta[a, c, undecided[i]] - prior_value)
+        if g < last and fast_guard:
+            if p <= 3:
+                la.char_poly_small(candidate, p, order, entries, minor, coef, count)
+            else:
+                for i in range(count):
+                    for a in range(p):
+                        for c in range(d):
+                            one_theta[a, c] = candidate[a, c, i]
+                    la.companion(one_theta, p, n, one_a, one_u)
+                    la.char_poly(one_a, p, n, power, product, one_coef)
+                    for e in range(n + 1):
+                        coef[e, i] = one_coef[e]
+            la.schur_cohn(coef, n, bound * (1.0 - la.GUARD_BAND), poly_work, poly_saved, norm, inside_low, count)
+            failed = False
+            for i in range(count):
+                failed = failed | (not inside_low[i])
+            if failed:
+                la.schur_cohn(coef, n, bound * (1.0 + la.GUARD_BAND), poly_work, poly_saved, norm, inside_high, count)
+        remaining = 0
+        for i in range(count):
+            if g == last or (fast_guard and inside_low[i]):
+                accept = True
+            elif fast_guard and not inside_high[i]:
+                accept = False
+            else:
+                for a in range(p):
+                    for c in range(d):
+                        one_theta[a, c] = candidate[a, c, i]
+                accept = la.radius_le_eig(one_theta, one_a, p, n, bound, one_u)
+            k = undecided[i]
+            if accept:
+                for a in range(p):
+                    for c in range(n):
+                        trans[a, c, k] = candidate[a, c, i]
+                    off[a, k] = candidate[a, n, i]
+            else:
+                undecided[remaining] = k
+                remaining += 1
+        count = remaining
+        if count == 0:
+            break
+    for a in range(p, n):  # the shift rows of the companion
+        for c in range(n):
+            one = 1.0 if c == a - p else 0.0
+            for k in range(experts):
+                trans[a, c, k] = one
+        for k in range(experts):
+            off[a, k] = 0.0
+
+
+# ---------------------------------------------------------------- Kalman filter, C = [I 0]
+@jit
+def _kalman_update(mu, cv, features, r, kappa, residual, r_diag, s_work, s_lower, s_lower_inv, s_inv, gain,
+                   new_mean, w_block, tmp, acc):
+    """Measurement update of every expert (Joseph form, as :func:`kalmix.core.kalman.update`).
+
+    ``K = P C^T S^{-1}``, ``S = C P C^T + R``; ``x <- x + K (z - C x)``;
+    ``P <- (I - K C) P (I - K C)^T + K R K^T = P - K P[:p, :] - W K^T`` with
+    ``W = (I - K C) P C^T - K R``; the upper triangle is computed and mirrored.
+    """
+    experts = acc.shape[0]
+    n, p = mu.shape[0], r.shape[0]
+    for i in range(p):
+        for k in range(experts):
+            residual[i, k] = features[i] - mu[i, k]
+            r_diag[i, k] = r[i, k] / kappa**2
+    for a in range(p):
+        for b in range(p):
+            for k in range(experts):
+                s_work[a, b, k] = cv[a, b, k]
+        for k in range(experts):
+            s_work[a, a, k] += r_diag[a, k]
+    la.cholesky_inverse(s_work, p, 1e-12, s_lower, s_lower_inv, s_inv, acc)
+    for a in range(n):
+        for c in range(p):
+            for k in range(experts):
+                acc[k] = 0.0
+            for l in range(p):
+                for k in range(experts):
+                    acc[k] += cv[a, l, k] * s_inv[l, c, k]
+            for k in range(experts):
+                gain[a, c, k] = acc[k]
+    for a in range(n):
+        for k in range(experts):
+            acc[k] = 0.0
+        for c in range(p):
+            for k in range(experts):
+                acc[k] += gain[a, c, k] * residual[c, k]
+        for k in range(experts):
+            new_mean[a, k] = mu[a, k] + acc[k]
+        for c in range(p):
+            for k in range(experts):
+                acc[k] = 0.0
+            for l in range(p):
+                for k in range(experts):
+                    acc[k] += gain[a, l, k] * cv[l, c, k]
+            for k in range(experts):
+                w_block[a, c, k] = (cv[a, c, k] - acc[k]) - gain[a, c, k] * r_diag[c, k]
+    for a in range(n):
+        for k in range(experts):
+            mu[a, k] = new_mean[a, k]
+    for a in range(n):
+        for c in range(a, n):
+            for k in range(experts):
+                acc[k] = 0.0
+            for l in range(p):
+                for k in range(experts):
+                    acc[k] += gain[a, l, k] * cv[l, c, k] + w_block[a, l, k] * gain[c, l, k]
+            for k in range(experts):
+                tmp[a, c, k] = cv[a, c, k] - acc[k]
+    for a in range(n):
+        for c in range(a, n):
+            for k in range(experts):
+                value = tmp[a, c, k]
+                cv[a, c, k] = value
+                cv[c, a, k] = value
+
+
+@jit
+def _kalman_start(mu, cv, features, order, kappa, initial_variance, initial_velocity):
+    """Start every expert at the first measurement: lags extrapolated back, P = P0 I."""
+    experts = initial_variance.shape[0]
+    n, p = mu.shape[0], features.shape[0]
+    for lag in range(order):
+        for i in range(p):
+            for k in range(experts):
+                mu[lag * p + i, k] = features[i] - lag * (initial_velocity[k, i] / kappa)
+    for a in range(n):
+        for c in range(n):
+            if a == c:
+                for k in range(experts):
+                    cv[a, c, k] = initial_variance[k] / kappa**2
+            else:
+                for k in range(experts):
+                    cv[a, c, k] = 0.0
+
+
+@jit
+def _predict_companion(mu, cv, trans, off, new_mean, g_block, acc):
+    """``x <- A x + u``, ``P <- A P A^T`` for a block companion A = [Theta; I 0].
+
+    ``x <- [Theta x + u_top; x[:n-p]]`` and
+    ``P <- [[G Theta^T, G[:, :n-p]], [G[:, :n-p]^T, P[:n-p, :n-p]]]`` with ``G = Theta P``.
+    """
+    experts = acc.shape[0]
+    n, p = mu.shape[0], g_block.shape[0]
+    for a in range(p):
+        for k in range(experts):
+            acc[k] = 0.0
+        for c in range(n):
+            for k in range(experts):
+                acc[k] += trans[a, c, k] * mu[c, k]
+        for k in range(experts):
+            new_mean[a, k] = acc[k] + off[a, k]
+        for c in range(n):
+            for k in range(experts):
+                acc[k] = 0.0
+            for l in range(n):
+                for k in range(experts):
+                    acc[k] += trans[a, l, k] * cv[l, c, k]
+            for k in range(experts):
+                g_block[a, c, k] = acc[k]
+    for a in range(p, n):
+        for k in range(experts):
+            new_mean[a, k] = mu[a - p, k] + off[a, k]
+    for a in range(n):
+        for k in range(experts):
+            mu[a, k] = new_mean[a, k]
+    for a in range(n - 1, p - 1, -1):  # shift the lower-right block in place
+        for c in range(n - 1, a - 1, -1):
+            for k in range(experts):
+                value = cv[a - p, c - p, k]
+                cv[a, c, k] = value
+                cv[c, a, k] = value
+    for a in range(p):
+        for c in range(p, n):
+            for k in range(experts):
+                value = g_block[a, c - p, k]
+                cv[a, c, k] = value
+                cv[c, a, k] = value
+        for c in range(a, p):
+            for k in range(experts):
+                acc[k] = 0.0
+            for l in range(n):
+                for k in range(experts):
+                    acc[k] += g_block[a, l, k] * trans[c, l, k]
+            for k in range(experts):
+                cv[a, c, k] = acc[k]
+                cv[c, a, k] = acc[k]
+
+
+@jit
+def _predict_full(mu, cv, trans, off, new_mean, tmp, tmp2, acc):
+    """``x <- A x + u``, ``P <- (A P A^T + (A P A^T)^T) / 2`` for a general A."""
+    experts = acc.shape[0]
+    n = mu.shape[0]
+    for a in range(n):
+        for k in range(experts):
+            acc[k] = 0.0
+        for c in range(n):
+            for k in range(experts):
+                acc[k] += trans[a, c, k] * mu[c, k]
+        for k in range(experts):
+            new_mean[a, k] = acc[k] + off[a, k]
+    for a in range(n):  # tmp = A P
+        for c in range(n):
+            for k in range(experts):
+                acc[k] = 0.0
+            for l in range(n):
+                for k in range(experts):
+                    acc[k] += trans[a, l, k] * cv[l, c, k]
+            for k in range(experts):
+                tmp[a, c, k] = acc[k]
+    for a in range(n):  # tmp2 = tmp A^T
+        for c in range(n):
+            for k in range(experts):
+                acc[k] = 0.0
+            for l in range(n):
+                for k in range(experts):
+                    acc[k] += trans[c, l, k] * tmp[a, l, k]
+            for k in range(experts):
+                tmp2[a, c, k] = acc[k]
+    for a in range(n):
+        for k in range(experts):
+            mu[a, k] = new_mean[a, k]
+        for c in range(n):
+            for k in range(experts):
+                cv[a, c, k] = 0.5 * (tmp2[a, c, k] + tmp2[c, a, k])
+
+
+@jit
+def _add_process_noise(cv, q, kappa, state_jitter, max_variance, acc):
+    """``P += Q + jitter I``, then scale P down where its largest variance exceeds the cap."""
+    experts = acc.shape[0]
+    n, p = cv.shape[0], q.shape[0]
+    for a in range(n):
+        if a < p:
+            for k in range(experts):
+                cv[a, a, k] += state_jitter + q[a, k] / kappa**2
+        else:
+            for k in range(experts):
+                cv[a, a, k] += state_jitter + 0.0
+    for k in range(experts):
+        acc[k] = -np.inf
+    for a in range(n):
+        for k in range(experts):
+            acc[k] = max(acc[k], cv[a, a, k])
+    capped = False
+    for k in range(experts):
+        acc[k] = min(1.0, max_variance / acc[k])
+        capped = capped or acc[k] != 1.0
+    if capped:  # only after very long runs of missing measurements
+        for a in range(n):
+            for c in range(n):
+                for k in range(experts):
+                    if acc[k] != 1.0:
+                        cv[a, c, k] = cv[a, c, k] * acc[k]
+
+
+# ---------------------------------------------------------------- gate
+@jit
+def _adapt_noise(noise, initial, rate, resp, floor, reinflation, factor):
+    """Eq. 11/12 with a floor and re-inflation: ``noise <- noise max(1 - rate h_i, 0)``, pulled back
+    toward ``initial`` by ``reinflation`` and kept above ``floor initial``."""
+    experts = factor.shape[0]
+    for k in range(experts):
+        factor[k] = max(1.0 - rate * resp[k], 0.0)
+    for i in range(noise.shape[0]):
+        for k in range(experts):
+            value = noise[i, k] * factor[k]
+            value = value + reinflation * (initial[i, k] - value)
+            noise[i, k] = max(value, floor * initial[i, k])
+
+
+@jit
+def _normalise_log(log_joint, out):
+    """``exp(a - logsumexp(a))``, the max split out as scipy does: ``e_k / (1 + sum_{k != top} e_k)``
+    with ``e_k = exp(a_k - max a)`` (one exponential per entry)."""
+    top = 0
+    for k in range(1, log_joint.shape[0]):
+        if log_joint[k] > log_joint[top]:
+            top = k
+    a_max = log_joint[top]
+    rest = 0.0
+    for k in range(log_joint.shape[0]):
+        out[k] = math.exp(log_joint[k] - a_max)
+        if k != top:
+            rest += out[k]
+    inverse = 1.0 / (1.0 + rest)
+    for k in range(log_joint.shape[0]):
+        out[k] = out[k] * inverse
 
 
 # ---------------------------------------------------------------- one target, all steps
@@ -292,55 +479,74 @@ def _advance_target(
     n = order * p
     d = n + 1
     m_gate = gate_input.shape[1]
+    rls = dynamics == 0
+    # this target's expert state, experts last
+    mu = np.empty((n, k_count))
+    cv = np.empty((n, n, k_count))
+    gm = np.empty((d, d, k_count))
+    cr = np.empty((p, d, k_count))
+    trans = np.empty((n, n, k_count))
+    off = np.empty((n, k_count))
+    q = np.empty((p, k_count))
+    r = np.empty((p, k_count))
+    ep = np.empty((p, k_count))
+    _load_experts(j, mean, cov, gram, cross, transition, offset, process_noise, measurement_noise,
+                  expert_predictions, mu, cv, gm, cr, trans, off, q, r, ep, rls)
+    # scratch
+    acc = np.empty(k_count)
     z = np.empty(p)
     features = np.empty(p)
-    errors = np.empty((k_count, p))
+    errors = np.empty((p, k_count))
     log_lik = np.empty(k_count)
     resp = np.empty(k_count)
     joint = np.empty(k_count)
     old_weights = np.empty(k_count)
-    xi = np.empty(d)
-    new_gram = np.empty((d, d))
-    new_cross = np.empty((p, d))
-    shifted = np.empty((p, d))
-    work = np.empty((d, d))
-    lower_inv = np.empty((d, d))
-    inverse = np.empty((d, d))
-    theta = np.empty((p, d))
-    candidate = np.empty((p, d))
-    cand_a = np.empty((n, n))
-    cand_u = np.empty(n)
-    power = np.empty((n, n))
-    product = np.empty((n, n))
-    coef = np.empty(n + 1)
-    entries = np.empty((p, p, order + 1))
-    minor = np.empty(2 * order + 1)
-    poly_work = np.empty(n + 1)
-    poly_saved = np.empty(n + 1)
-    gain = np.empty((n, p))
-    w_block = np.empty((n, p))
-    g_block = np.empty((p, n))
-    s_inv = np.empty((p, p))
-    s_lower = np.empty((p, p))
-    s_work = np.empty((p, p))
-    residual = np.empty(p)
-    r_diag = np.empty(p)
-    gain_t = np.empty((p, n))
-    gain_row = np.empty(p)
-    row = np.empty(n)
-    companion = dynamics != 1
-    i_kc = np.empty((n, n))
-    tmp = np.empty((n, n))
-    tmp2 = np.empty((n, n))
-    new_mean = np.empty(n)
-    ahead = np.empty(n)
-    ahead2 = np.empty(n)
-    velocity = np.empty(p)
     logits = np.empty(k_count)
     rw = np.empty(k_count)
+    xi = np.empty(d)
+    new_gram = np.empty((d, d, k_count))
+    shifted = np.empty((p, d, k_count))
+    work = np.empty((d, d, k_count))
+    theta = np.empty((p, d, k_count))
+    candidate = np.empty((p, d, k_count))
+    undecided = np.empty(k_count, dtype=np.int64)
+    norm = np.empty(k_count)
+    inside_low = np.empty(k_count, dtype=np.bool_)
+    inside_high = np.empty(k_count, dtype=np.bool_)
+    entries = np.empty((p, p, order + 1, k_count))
+    minor = np.empty((2 * order + 1, k_count))
+    coef = np.empty((n + 1, k_count))
+    poly_work = np.empty((n + 1, k_count))
+    poly_saved = np.empty((n + 1, k_count))
+    one_theta = np.empty((p, d))
+    one_a = np.empty((n, n))
+    one_u = np.empty(n)
+    power = np.empty((n, n))
+    product = np.empty((n, n))
+    one_coef = np.empty(n + 1)
+    residual = np.empty((p, k_count))
+    r_diag = np.empty((p, k_count))
+    s_work = np.empty((p, p, k_count))
+    s_lower = np.empty((p, p, k_count))
+    s_lower_inv = np.empty((p, p, k_count))
+    s_inv = np.empty((p, p, k_count))
+    gain = np.empty((n, p, k_count))
+    w_block = np.empty((n, p, k_count))
+    g_block = np.empty((p, n, k_count))
+    new_mean = np.empty((n, k_count))
+    tmp = np.empty((n, n, k_count))
+    tmp2 = np.empty((n, n, k_count))
+    ahead = np.empty((n, k_count))
+    velocity = np.empty(p)
     log_scale = np.empty(k_count)
+    log_weights = np.empty(k_count)
+    q_init = np.empty((p, k_count))
+    r_init = np.empty((p, k_count))
     for k in range(k_count):
         log_scale[k] = p * math.log(expert_scale[k])
+        for i in range(p):
+            q_init[i, k] = process_init[k, i]
+            r_init[i, k] = measurement_init[k, i]
 
     for t in range(t_count):
         valid = True
@@ -361,15 +567,17 @@ def _advance_target(
 
         # 1. scoring (eq. 10) and the adaptive rate
         for k in range(k_count):
-            squared = 0.0
-            for i in range(p):
-                e = z[i] - expert_predictions[j, k, i]
-                errors[k, i] = e
-                squared += e * e
-            log_lik[k] = -log_scale[k] - squared / (2.0 * expert_scale[k] ** 2)
-            old_weights[k] = weights[j, k]
+            acc[k] = 0.0
+        for i in range(p):
+            for k in range(k_count):
+                e = z[i] - ep[i, k]
+                errors[i, k] = e
+                acc[k] += e * e
         for k in range(k_count):
-            joint[k] = math.log(max(old_weights[k], 1e-300)) + log_lik[k]
+            log_lik[k] = -log_scale[k] - acc[k] / (2.0 * expert_scale[k] ** 2)
+            old_weights[k] = weights[j, k]
+            log_weights[k] = math.log(max(old_weights[k], 1e-300))
+            joint[k] = log_weights[k] + log_lik[k]
         _normalise_log(joint, resp)
         dominant = 0
         for k in range(1, k_count):
@@ -377,7 +585,7 @@ def _advance_target(
                 dominant = k
         dom_err = 0.0
         for i in range(p):
-            dom_err += errors[dominant, i] ** 2
+            dom_err += errors[i, dominant] ** 2
         base = eta_minimum + (eta_initial - eta_minimum) * math.exp(-float(valid_steps[j]) / eta_decay)
         eta_now = base * -math.expm1(-eta_sensitivity * dom_err)
         rate = eta_now if learn else 0.0
@@ -390,22 +598,13 @@ def _advance_target(
                     gate_weights[j, k, i] = gate_weights[j, k, i] + delta * gate_input[j, i]
         elif gating == 0 and learn:
             for k in range(k_count):
-                joint[k] = math.log(max(old_weights[k], 1e-300)) + log_lik[k] / temperature
+                joint[k] = log_weights[k] + log_lik[k] / temperature
             _normalise_log(joint, logits)
             for k in range(k_count):
                 weights[j, k] = (1.0 - share) * logits[k] + share / k_count
         if adapt and learn:
-            for k in range(k_count):
-                factor = max(1.0 - q_shrink * rate * resp[k], 0.0)
-                for i in range(p):
-                    value = process_noise[j, k, i] * factor
-                    value = value + reinflation * (process_init[k, i] - value)
-                    process_noise[j, k, i] = max(value, floor * process_init[k, i])
-                factor = max(1.0 - r_shrink * rate * resp[k], 0.0)
-                for i in range(p):
-                    value = measurement_noise[j, k, i] * factor
-                    value = value + reinflation * (measurement_init[k, i] - value)
-                    measurement_noise[j, k, i] = max(value, floor * measurement_init[k, i])
+            _adapt_noise(q, q_init, q_shrink * rate, resp, floor, reinflation, acc)
+            _adapt_noise(r, r_init, r_shrink * rate, resp, floor, reinflation, acc)
 
         # 3. system matrices
         if dynamics == 1:
@@ -418,14 +617,12 @@ def _advance_target(
                 for i in range(p):
                     denominator += history[j, 0, i] * history[j, 0, i]
                 denominator += 1e-12
-                for k in range(k_count):
-                    for r in range(n):
-                        for c in range(n):
-                            transition[j, k, r, c] = 0.0
-                    for r in range(p):
-                        for c in range(p):
-                            transition[j, k, r, c] = features[r] * history[j, 0, c] / denominator
-        elif dynamics == 0:
+                for a in range(n):
+                    for c in range(n):
+                        value = features[a] * history[j, 0, c] / denominator if a < p and c < p else 0.0
+                        for k in range(k_count):
+                            trans[a, c, k] = value
+        elif rls:
             ok = learn
             for lag in range(order):
                 for i in range(p):
@@ -436,174 +633,29 @@ def _advance_target(
                     for i in range(p):
                         xi[lag * p + i] = history[j, lag, i]
                 xi[n] = 1.0
-                for k in range(k_count):
-                    lam = forgetting[k]
-                    rho = ridge[k]
-                    for r in range(d):
-                        for c in range(d):
-                            value = lam * gram[j, k, r, c] + xi[r] * xi[c]
-                            gram[j, k, r, c] = value
-                            new_gram[r, c] = value + (rho if r == c else 0.0)
-                    for r in range(p):
-                        for c in range(d):
-                            value = lam * cross[j, k, r, c] + features[r] * xi[c]
-                            cross[j, k, r, c] = value
-                            shifted[r, c] = value + rho * prior[r, c]
-                    _cholesky_solve_rows(new_gram, d, shifted, p, work, theta)
-                    # guard: largest gamma whose companion has spectral radius <= bound
-                    for g in range(guard_gammas.shape[0]):
-                        gamma = guard_gammas[g]
-                        for r in range(p):
-                            for c in range(d):
-                                candidate[r, c] = prior[r, c] + gamma * (theta[r, c] - prior[r, c])
-                        if g == guard_gammas.shape[0] - 1:
-                            break
-                        if fast_guard:
-                            if _radius_le(candidate, cand_a, p, n, bound, power, product, coef, poly_work,
-                                          poly_saved, entries, minor):
-                                break
-                        elif _radius_eig(candidate, cand_a, p, n, bound, cand_u):
-                            break
-                    _companion(candidate, p, n, cand_a, cand_u)
-                    for r in range(n):
-                        offset[j, k, r] = cand_u[r]
-                        for c in range(n):
-                            transition[j, k, r, c] = cand_a[r, c]
+                _rls_fit(xi, features, forgetting, ridge, prior, gm, cr, new_gram, shifted, work, theta, acc)
+                _guard(theta, prior, p, order, bound, guard_gammas, fast_guard, trans, off, undecided, candidate,
+                       entries, minor, coef, poly_work, poly_saved, norm, inside_low, inside_high,
+                       one_theta, one_a, one_u, power, product, one_coef)
 
         # 4. Kalman update, (re)start, predict, using C = [I 0] and, for rls / fixed
         # dynamics, the companion form of A (only its first p rows are free).
-        for k in range(k_count):
-            cv = cov[j, k]
-            mu = mean[j, k]
-            a = transition[j, k]
-            off = offset[j, k]
-            if learn:
-                for i in range(p):
-                    residual[i] = features[i] - mu[i]
-                    r_diag[i] = measurement_noise[j, k, i] / kappa ** 2
-                for r in range(p):
-                    for c in range(p):
-                        s_work[r, c] = cv[r, c]
-                    s_work[r, r] += r_diag[r]
-                _chol_inverse(s_work, p, 1e-12, s_lower, tmp, s_inv)
-                # K = P C^T S^-1 (n, p); W = (I - K C) P C^T - K R (n, p)
-                for r in range(n):
-                    for c in range(p):
-                        acc = 0.0
-                        for l in range(p):
-                            acc += cv[r, l] * s_inv[l, c]
-                        gain[r, c] = acc
-                for r in range(n):
-                    acc = 0.0
-                    for c in range(p):
-                        acc += gain[r, c] * residual[c]
-                    new_mean[r] = mu[r] + acc
-                    for c in range(p):
-                        acc = 0.0
-                        for l in range(p):
-                            acc += gain[r, l] * cv[l, c]
-                        w_block[r, c] = (cv[r, c] - acc) - gain[r, c] * r_diag[c]
-                # Joseph form (I - K C) P (I - K C)^T + K R K^T = P - K P[:p, :] - W K^T,
-                # symmetric: the upper triangle is computed and mirrored
-                for r in range(n):
-                    mu[r] = new_mean[r]
-                for r in range(n):
-                    for c in range(r, n):
-                        acc = 0.0
-                        for l in range(p):
-                            acc += gain[r, l] * cv[l, c] + w_block[r, l] * gain[c, l]
-                        tmp[r, c] = cv[r, c] - acc
-                for r in range(n):
-                    for c in range(r, n):
-                        cv[r, c] = tmp[r, c]
-                        cv[c, r] = tmp[r, c]
-            if start:
-                p0 = initial_variance[k] / kappa ** 2
-                for lag in range(order):
-                    for i in range(p):
-                        mu[lag * p + i] = features[i] - lag * (initial_velocity[k, i] / kappa)
-                for r in range(n):
-                    for c in range(n):
-                        cv[r, c] = p0 if r == c else 0.0
-            # predict: x <- A x + u, P <- A P A^T + Q
-            if companion:
-                # A = [Theta; I 0]: x <- [Theta x + u_top; x[:n-p]],
-                # P <- [[G Theta^T, G[:, :n-p]], [G[:, :n-p]^T, P[:n-p, :n-p]]], G = Theta P
-                for r in range(p):
-                    acc = 0.0
-                    for c in range(n):
-                        acc += a[r, c] * mu[c]
-                    new_mean[r] = acc + off[r]
-                    for c in range(n):
-                        acc = 0.0
-                        for l in range(n):
-                            acc += a[r, l] * cv[l, c]
-                        g_block[r, c] = acc
-                for r in range(p, n):
-                    new_mean[r] = mu[r - p] + off[r]
-                for r in range(n - 1, -1, -1):
-                    mu[r] = new_mean[r]
-                for r in range(n - 1, p - 1, -1):  # shift the lower-right block in place
-                    for c in range(n - 1, r - 1, -1):
-                        value = cv[r - p, c - p]
-                        cv[r, c] = value
-                        cv[c, r] = value
-                for r in range(p):
-                    for c in range(p, n):
-                        value = g_block[r, c - p]
-                        cv[r, c] = value
-                        cv[c, r] = value
-                    for c in range(r, p):
-                        acc = 0.0
-                        for l in range(n):
-                            acc += g_block[r, l] * a[c, l]
-                        cv[r, c] = acc
-                        cv[c, r] = acc
-            else:
-                for r in range(n):
-                    acc = 0.0
-                    for c in range(n):
-                        acc += a[r, c] * mu[c]
-                    new_mean[r] = acc + off[r]
-                for r in range(n):  # tmp = A P
-                    for c in range(n):
-                        row[c] = 0.0
-                    for l in range(n):
-                        value = a[r, l]
-                        for c in range(n):
-                            row[c] += value * cv[l, c]
-                    for c in range(n):
-                        tmp[r, c] = row[c]
-                # tmp2 = tmp A^T, computed as (A tmp^T)^T: tmp2[r, c] = sum_l a[c, l] tmp[r, l]
-                for c in range(n):
-                    for r in range(n):
-                        row[r] = 0.0
-                    for l in range(n):
-                        value = a[c, l]
-                        for r in range(n):
-                            row[r] += value * tmp[r, l]
-                    for r in range(n):
-                        tmp2[r, c] = row[r]
-                for r in range(n):
-                    mu[r] = new_mean[r]
-                    for c in range(n):
-                        cv[r, c] = 0.5 * (tmp2[r, c] + tmp2[c, r])
-            largest = -np.inf
-            for r in range(n):
-                cv[r, r] += state_jitter + (process_noise[j, k, r] / kappa ** 2 if r < p else 0.0)
-                largest = max(largest, cv[r, r])
-            # cap the variance (only reached after very long runs of missing measurements)
-            factor = min(1.0, max_variance / largest)
-            if factor != 1.0:
-                for r in range(n):
-                    for c in range(n):
-                        cv[r, c] = cv[r, c] * factor
+        if learn:
+            _kalman_update(mu, cv, features, r, kappa, residual, r_diag, s_work, s_lower, s_lower_inv, s_inv,
+                           gain, new_mean, w_block, tmp, acc)
+        if start:
+            _kalman_start(mu, cv, features, order, kappa, initial_variance, initial_velocity)
+        if dynamics != 1:
+            _predict_companion(mu, cv, trans, off, new_mean, g_block, acc)
+        else:
+            _predict_full(mu, cv, trans, off, new_mean, tmp, tmp2, acc)
+        _add_process_noise(cv, q, kappa, state_jitter, max_variance, acc)
         if start:
             initialised[j] = True
         if initialised[j]:
-            for k in range(k_count):
-                for i in range(p):
-                    expert_predictions[j, k, i] = origin[j, i] + kappa * mean[j, k, i]
+            for i in range(p):
+                for k in range(k_count):
+                    ep[i, k] = origin[j, i] + kappa * mu[i, k]
 
         # 5. gate for the new prediction
         for i in range(p):
@@ -619,10 +671,10 @@ def _advance_target(
                     gate_input[j, 1 + p + i] = velocity[i] / velocity_scale
         if gating == 1 and valid:
             for k in range(k_count):
-                acc = 0.0
+                value = 0.0
                 for i in range(m_gate):
-                    acc += gate_weights[j, k, i] * gate_input[j, i]
-                logits[k] = acc / temperature
+                    value += gate_weights[j, k, i] * gate_input[j, i]
+                logits[k] = value / temperature
             top = logits[0]
             for k in range(1, k_count):
                 top = max(top, logits[k])
@@ -650,21 +702,13 @@ def _advance_target(
             eta[j] = eta_now
 
         # outputs
+        if horizon > 1:
+            _extrapolate(mu, trans, off, horizon - 1, ahead, new_mean, acc)
         for i in range(p):
             out_predictions[t, j, i] = 0.0
         for k in range(k_count):
-            for r in range(n):
-                ahead[r] = mean[j, k, r]
-            for h in range(horizon - 1):
-                for r in range(n):
-                    acc = 0.0
-                    for c in range(n):
-                        acc += transition[j, k, r, c] * ahead[c]
-                    ahead2[r] = acc + offset[j, k, r]
-                for r in range(n):
-                    ahead[r] = ahead2[r]
             for i in range(p):
-                value = expert_predictions[j, k, i] if horizon == 1 else origin[j, i] + kappa * ahead[i]
+                value = ep[i, k] if horizon == 1 else origin[j, i] + kappa * ahead[i, k]
                 out_predictions[t, j, i] += weights[j, k] * value
                 if record_experts:
                     out_experts[t, j, k, i] = value
@@ -676,25 +720,32 @@ def _advance_target(
             for k in range(k_count):
                 out_weights[t, j, k] = weights[j, k]
                 for i in range(p):
-                    out_q[t, j, k, i] = process_noise[j, k, i]
-                    out_r[t, j, k, i] = measurement_noise[j, k, i]
+                    out_q[t, j, k, i] = q[i, k]
+                    out_r[t, j, k, i] = r[i, k]
+    _store_experts(j, mean, cov, gram, cross, transition, offset, process_noise, measurement_noise,
+                   expert_predictions, mu, cv, gm, cr, trans, off, q, r, ep, rls)
 
 
 @jit
-def _normalise_log(log_joint, out):
-    """``exp(a - logsumexp(a))`` as scipy computes it (max split out, log1p of the rest)."""
-    top = 0
-    for k in range(1, log_joint.shape[0]):
-        if log_joint[k] > log_joint[top]:
-            top = k
-    a_max = log_joint[top]
-    rest = 0.0
-    for k in range(log_joint.shape[0]):
-        if k != top:
-            rest += math.exp(log_joint[k] - a_max)
-    lse = math.log1p(rest) + a_max
-    for k in range(log_joint.shape[0]):
-        out[k] = math.exp(log_joint[k] - lse)
+def _extrapolate(mu, trans, off, steps, ahead, scratch, acc):
+    """``ahead = (x -> A x + u)^steps (mu)`` for every expert."""
+    experts = acc.shape[0]
+    n = mu.shape[0]
+    for a in range(n):
+        for k in range(experts):
+            ahead[a, k] = mu[a, k]
+    for _ in range(steps):
+        for a in range(n):
+            for k in range(experts):
+                acc[k] = 0.0
+            for c in range(n):
+                for k in range(experts):
+                    acc[k] += trans[a, c, k] * ahead[c, k]
+            for k in range(experts):
+                scratch[a, k] = acc[k] + off[a, k]
+        for a in range(n):
+            for k in range(experts):
+                ahead[a, k] = scratch[a, k]
 
 
 @nb.njit(parallel=True, **_JIT)

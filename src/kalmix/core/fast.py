@@ -77,7 +77,7 @@ def _fast_guard(params: MixtureParams) -> bool:
     checked against the eigenvalues for clusters of up to 6 roots (all p <= 3 with
     order <= 4 and the default degree) and fails beyond, where the eigenvalues are used.
     """
-    from ._numba_kernels import MAX_CLUSTER
+    from ._numba_linalg import MAX_CLUSTER
 
     p, n = params.measurement_dim, params.state_dim
     blocks = params.prior_theta[:, :n].reshape(p, params.order, p)
