@@ -11,6 +11,8 @@ from kalmix.core import dynamics as dyn
 pytest.importorskip("numba")
 
 RTOL = 1e-9
+# banks small enough for the scalar kernel and large enough for the experts-last one
+SIZES = (fast.VECTOR_MIN_EXPERTS - 2, fast.VECTOR_MIN_EXPERTS + 1)
 
 
 def _close(reference, compiled, name, rtol=RTOL):
@@ -42,25 +44,28 @@ def _data(seed, steps=90, targets=3):
     return z
 
 
+@pytest.mark.parametrize("n_experts", SIZES)
 @pytest.mark.parametrize("gating", ["fixed_share", "paper", "random"])
 @pytest.mark.parametrize("dynamics", ["rls", "literal", "fixed"])
-def test_compiled_loop_equals_the_numpy_reference(dynamics, gating):
+def test_compiled_loop_equals_the_numpy_reference(dynamics, gating, n_experts):
     z = _data(7)
-    params = make_params(3, 6, dynamics=dynamics, gating=gating, seed=3)
+    params = make_params(3, n_experts, dynamics=dynamics, gating=gating, seed=3)
     options = dict(diagnostics=True, expert_predictions=True)
     _compare(run_core(params, z, backend="numpy", **options), fast.run_fast(params, z, **options))
 
 
+@pytest.mark.parametrize("n_experts", SIZES)
 @pytest.mark.parametrize("gating_input", ["bias", "position"])
-def test_other_gate_inputs_orders_and_dimensions(gating_input):
+def test_other_gate_inputs_orders_and_dimensions(gating_input, n_experts):
     z = _data(8, targets=2)[..., :2]
-    params = make_params(2, 5, gating="paper", gating_input=gating_input, order=3, seed=1, noise_reinflation=0.01)
+    params = make_params(2, n_experts, gating="paper", gating_input=gating_input, order=3, seed=1, noise_reinflation=0.01)
     _compare(run_core(params, z, backend="numpy"), run_core(params, z, backend="numba"))
 
 
-def test_horizon_resume_and_serial_and_parallel_agree():
+@pytest.mark.parametrize("n_experts", SIZES)
+def test_horizon_resume_and_serial_and_parallel_agree(n_experts):
     z = _data(9, steps=60, targets=4)
-    params = make_params(3, 8, seed=2)
+    params = make_params(3, n_experts, seed=2)
     reference = run_core(params, z, horizon=3, backend="numpy", expert_predictions=True)
     _compare(reference, fast.run_fast(params, z, horizon=3, expert_predictions=True, parallel=True))
     _compare(reference, fast.run_fast(params, z, horizon=3, expert_predictions=True, parallel=False))
@@ -97,11 +102,12 @@ def test_progress_is_reported_in_chunks():
     assert seen == [256, 512, 600]
 
 
-def test_guard_shrinks_like_the_eigenvalue_guard(monkeypatch):
+@pytest.mark.parametrize("n_experts", (4, 12))
+def test_guard_shrinks_like_the_eigenvalue_guard(monkeypatch, n_experts):
     """Rough, growing tracks make many fits unstable: the compiled guard must shrink them alike."""
     rng = np.random.default_rng(0)
     z = 300 + np.cumsum(np.cumsum(rng.normal(size=(120, 2, 3)), axis=0), axis=0)
-    params = make_params(3, 12, seed=6, forgetting_levels=(0.9,), ridge_levels=(1e-2,))
+    params = make_params(3, n_experts, seed=6, forgetting_levels=(0.9,), ridge_levels=(1e-2,))
     raw_radius = []
     guard = dyn.guard_theta
 
@@ -157,9 +163,10 @@ def test_numba_available_is_false_without_numba(monkeypatch):
         fast.numba_available.cache_clear()
 
 
-def test_variance_cap_after_a_long_gap_matches():
+@pytest.mark.parametrize("n_experts", SIZES)
+def test_variance_cap_after_a_long_gap_matches(n_experts):
     z = smooth_tracks(8, 30)
-    params = make_params(3, 4, length_unit=50.0, seed=0, dynamics="fixed")
+    params = make_params(3, n_experts, length_unit=50.0, seed=0, dynamics="fixed")
     if not hasattr(params, "max_variance"):
         pytest.skip("this core has no variance cap")
     gap = np.concatenate([z, np.full((4000, 1, 3), np.nan), z])
@@ -169,12 +176,22 @@ def test_variance_cap_after_a_long_gap_matches():
     _compare(reference, run_core(params, gap, backend="numba"))
 
 
+@pytest.mark.parametrize("n_experts", SIZES)
 @pytest.mark.parametrize("p, order, degree", [(4, 2, None), (3, 3, 2), (1, 3, 2), (5, 1, None)])
-def test_other_sizes_including_the_eigenvalue_guard(p, order, degree):
+def test_other_sizes_including_the_eigenvalue_guard(p, order, degree, n_experts):
     """Large clusters of roots at 1 (p (degree + 1) > 6) make the guard use eigenvalues."""
     z = _data(12, steps=60, targets=2)
     z = np.concatenate([z, z[..., :2] + 7.0], axis=-1)[..., :p]
-    params = make_params(p, 5, order=order, prior_degree=degree, seed=1)
+    params = make_params(p, n_experts, order=order, prior_degree=degree, seed=1)
     degree = min(order - 1, 1) if degree is None else degree
     assert fast._fast_guard(params) == (p * (degree + 1) <= 6)
     _compare(run_core(params, z, backend="numpy"), run_core(params, z, backend="numba"))
+
+
+def test_kernel_is_chosen_by_bank_size():
+    from kalmix.core import _numba_kernels, _numba_scalar
+
+    assert fast._kernels(1) is _numba_scalar
+    assert fast._kernels(fast.VECTOR_MIN_EXPERTS - 1) is _numba_scalar
+    assert fast._kernels(fast.VECTOR_MIN_EXPERTS) is _numba_kernels
+    assert fast._kernels(40) is _numba_kernels

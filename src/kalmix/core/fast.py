@@ -2,11 +2,17 @@
 
 :func:`run_fast` is :func:`kalmix.core.run.run_core` with the whole loop over time
 compiled: each target is advanced through all its steps by one numba function that
-does, expert by expert, exactly the operations of :func:`kalmix.core.mixture.step`
+does, for every expert, exactly the operations of :func:`kalmix.core.mixture.step`
 (same formulas, same order: Joseph-form update, Cholesky inverses with the same
 jitter, scipy's log-sum-exp, the splitmix64 random gate). Targets are independent, so
 they run in parallel (``prange``) without synchronisation. Results agree with the
 numpy reference to rounding (tested at 1e-9 relative).
+
+Two kernels, chosen by the bank size: from ``VECTOR_MIN_EXPERTS`` experts on, the
+experts-last kernel (:mod:`._numba_kernels`) keeps each target's expert state with the
+expert index last and vectorises every inner loop across the experts; smaller banks
+(plain filtering, K = 1) use the scalar kernel (:mod:`._numba_scalar`), one expert at
+a time. Both are tested against the numpy reference.
 
 numba is an optional extra (``pip install 'kalmix[fast]'``): it is imported on first
 use; :func:`numba_available` says whether it can be. Without it, ``run_core`` uses the
@@ -46,10 +52,21 @@ def numba_available() -> bool:
     return True
 
 
-def _kernels():
-    from . import _numba_kernels
+# Below this many experts the scalar kernel (one expert at a time) is faster than the
+# experts-last kernel, whose vector loops then carry mostly overhead (measured: K = 1-4
+# scalar 1.3-3.5x faster, K >= 8 experts-last 1.1-4x faster; README, performance).
+VECTOR_MIN_EXPERTS = 8
 
-    return _numba_kernels
+
+def _kernels(n_experts: int):
+    """The compiled kernel module for a bank of ``n_experts``: experts-last or scalar."""
+    if n_experts >= VECTOR_MIN_EXPERTS:
+        from . import _numba_kernels
+
+        return _numba_kernels
+    from . import _numba_scalar
+
+    return _numba_scalar
 
 
 def _pack_params(params: MixtureParams) -> tuple:
@@ -117,7 +134,7 @@ def run_fast(
     """
     import numba
 
-    kernels = _kernels()
+    kernels = _kernels(params.n_experts)
     measurements = np.ascontiguousarray(measurements, dtype=np.float64)
     t_count, n = measurements.shape[:2]
     if state is None:
