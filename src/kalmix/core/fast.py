@@ -54,7 +54,7 @@ def numba_available() -> bool:
 
 # Below this many experts the scalar kernel (one expert at a time) is faster than the
 # experts-last kernel, whose vector loops then carry mostly overhead (measured: K = 1-4
-# scalar 1.3-3.5x faster, K >= 8 experts-last 1.1-4x faster; README, performance).
+# scalar 1.3-3.3x faster, K >= 8 experts-last 1.6-3.9x faster; README, performance).
 VECTOR_MIN_EXPERTS = 8
 
 
