@@ -425,6 +425,102 @@ def _add_process_noise(cv, q, kappa, state_jitter, max_variance, acc):
 
 # ---------------------------------------------------------------- gate
 @jit
+def _posterior(j, log_lik, weights, old_weights, log_weights, joint, resp):
+    """Eq. 10: responsibilities ``h`` from the prior weights and the log-likelihoods.
+
+    Keeps the prior weights and their logs (the fixed-share gate reuses them) and
+    returns the index of the dominant expert (largest prior weight).
+    """
+    for k in range(log_lik.shape[0]):
+        old_weights[k] = weights[j, k]
+        log_weights[k] = math.log(max(old_weights[k], 1e-300))
+        joint[k] = log_weights[k] + log_lik[k]
+    _normalise_log(joint, resp)
+    dominant = 0
+    for k in range(1, log_lik.shape[0]):
+        if old_weights[k] > old_weights[dominant]:
+            dominant = k
+    return dominant
+
+
+@jit
+def _learning_rate(valid_steps, dominant_error, eta_initial, eta_minimum, eta_decay, eta_sensitivity):
+    """Adaptive rate ``eta_k = eta(t) (1 - exp(-alpha e^2))`` from the dominant expert's squared error."""
+    base = eta_minimum + (eta_initial - eta_minimum) * math.exp(-float(valid_steps) / eta_decay)
+    return base * -math.expm1(-eta_sensitivity * dominant_error)
+
+
+@jit
+def _learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik, temperature, share,
+                gate_weights, gate_input, weights, joint, logits):
+    """Eq. 9 (paper gate: gradient step on the gate weights) or the fixed-share update of the weights."""
+    k_count = log_lik.shape[0]
+    if gating == 1:
+        for k in range(k_count):
+            delta = rate * (resp[k] - old_weights[k])
+            for i in range(gate_input.shape[1]):
+                gate_weights[j, k, i] = gate_weights[j, k, i] + delta * gate_input[j, i]
+    elif gating == 0 and learn:
+        for k in range(k_count):
+            joint[k] = log_weights[k] + log_lik[k] / temperature
+        _normalise_log(joint, logits)
+        for k in range(k_count):
+            weights[j, k] = (1.0 - share) * logits[k] + share / k_count
+
+
+@jit
+def _next_gate(j, valid, learn, features, resp, eta_now, gating, gating_input, velocity_scale, temperature,
+               seed, history, gate_input, gate_weights, weights, stream_ids, steps, valid_steps,
+               responsibilities, eta, velocity, logits, rw):
+    """Gate weights for the next prediction (eq. 8 or the random gate), then the step's bookkeeping:
+    the measurement history shifts, the counters advance, and the scores are kept."""
+    p, order = features.shape[0], history.shape[1]
+    k_count = weights.shape[1]
+    for i in range(p):
+        previous = history[j, 0, i]
+        velocity[i] = features[i] - previous if math.isfinite(previous) else 0.0
+    if valid:
+        gate_input[j, 0] = 1.0
+        if gating_input >= 1:
+            for i in range(p):
+                gate_input[j, 1 + i] = features[i]
+        if gating_input == 2:
+            for i in range(p):
+                gate_input[j, 1 + p + i] = velocity[i] / velocity_scale
+    if gating == 1 and valid:
+        for k in range(k_count):
+            value = 0.0
+            for i in range(gate_input.shape[1]):
+                value += gate_weights[j, k, i] * gate_input[j, i]
+            logits[k] = value / temperature
+        top = logits[0]
+        for k in range(1, k_count):
+            top = max(top, logits[k])
+        for k in range(k_count):
+            rw[k] = math.exp(logits[k] - top)
+        total = np.sum(rw)
+        for k in range(k_count):
+            weights[j, k] = rw[k] / total
+    elif gating == 2:
+        _random_weights(seed, stream_ids[j], steps[j], rw)
+        for k in range(k_count):
+            weights[j, k] = rw[k]
+
+    for lag in range(order - 1, 0, -1):
+        for i in range(p):
+            history[j, lag, i] = history[j, lag - 1, i]
+    for i in range(p):
+        history[j, 0, i] = features[i] if valid else np.nan
+    steps[j] += 1
+    if valid:
+        valid_steps[j] += 1
+    if learn:
+        for k in range(k_count):
+            responsibilities[j, k] = resp[k]
+        eta[j] = eta_now
+
+
+@jit
 def _adapt_noise(noise, initial, rate, resp, floor, reinflation, factor):
     """Eq. 11/12 with a floor and re-inflation: ``noise <- noise max(1 - rate h_i, 0)``, pulled back
     toward ``initial`` by ``reinflation`` and kept above ``floor initial``."""
@@ -478,7 +574,6 @@ def _advance_target(
     k_count = weights.shape[1]
     n = order * p
     d = n + 1
-    m_gate = gate_input.shape[1]
     rls = dynamics == 0
     # this target's expert state, experts last
     mu = np.empty((n, k_count))
@@ -575,33 +670,16 @@ def _advance_target(
                 acc[k] += e * e
         for k in range(k_count):
             log_lik[k] = -log_scale[k] - acc[k] / (2.0 * expert_scale[k] ** 2)
-            old_weights[k] = weights[j, k]
-            log_weights[k] = math.log(max(old_weights[k], 1e-300))
-            joint[k] = log_weights[k] + log_lik[k]
-        _normalise_log(joint, resp)
-        dominant = 0
-        for k in range(1, k_count):
-            if old_weights[k] > old_weights[dominant]:
-                dominant = k
+        dominant = _posterior(j, log_lik, weights, old_weights, log_weights, joint, resp)
         dom_err = 0.0
         for i in range(p):
             dom_err += errors[i, dominant] ** 2
-        base = eta_minimum + (eta_initial - eta_minimum) * math.exp(-float(valid_steps[j]) / eta_decay)
-        eta_now = base * -math.expm1(-eta_sensitivity * dom_err)
+        eta_now = _learning_rate(valid_steps[j], dom_err, eta_initial, eta_minimum, eta_decay, eta_sensitivity)
         rate = eta_now if learn else 0.0
 
         # 2. gate learning and noise adaptation
-        if gating == 1:
-            for k in range(k_count):
-                delta = rate * (resp[k] - old_weights[k])
-                for i in range(m_gate):
-                    gate_weights[j, k, i] = gate_weights[j, k, i] + delta * gate_input[j, i]
-        elif gating == 0 and learn:
-            for k in range(k_count):
-                joint[k] = log_weights[k] + log_lik[k] / temperature
-            _normalise_log(joint, logits)
-            for k in range(k_count):
-                weights[j, k] = (1.0 - share) * logits[k] + share / k_count
+        _learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik, temperature, share,
+                    gate_weights, gate_input, weights, joint, logits)
         if adapt and learn:
             _adapt_noise(q, q_init, q_shrink * rate, resp, floor, reinflation, acc)
             _adapt_noise(r, r_init, r_shrink * rate, resp, floor, reinflation, acc)
@@ -657,49 +735,10 @@ def _advance_target(
                 for k in range(k_count):
                     ep[i, k] = origin[j, i] + kappa * mu[i, k]
 
-        # 5. gate for the new prediction
-        for i in range(p):
-            previous = history[j, 0, i]
-            velocity[i] = features[i] - previous if math.isfinite(previous) else 0.0
-        if valid:
-            gate_input[j, 0] = 1.0
-            if gating_input >= 1:
-                for i in range(p):
-                    gate_input[j, 1 + i] = features[i]
-            if gating_input == 2:
-                for i in range(p):
-                    gate_input[j, 1 + p + i] = velocity[i] / velocity_scale
-        if gating == 1 and valid:
-            for k in range(k_count):
-                value = 0.0
-                for i in range(m_gate):
-                    value += gate_weights[j, k, i] * gate_input[j, i]
-                logits[k] = value / temperature
-            top = logits[0]
-            for k in range(1, k_count):
-                top = max(top, logits[k])
-            for k in range(k_count):
-                rw[k] = math.exp(logits[k] - top)
-            total = np.sum(rw)
-            for k in range(k_count):
-                weights[j, k] = rw[k] / total
-        elif gating == 2:
-            _random_weights(seed, stream_ids[j], steps[j], rw)
-            for k in range(k_count):
-                weights[j, k] = rw[k]
-
-        for lag in range(order - 1, 0, -1):
-            for i in range(p):
-                history[j, lag, i] = history[j, lag - 1, i]
-        for i in range(p):
-            history[j, 0, i] = features[i] if valid else np.nan
-        steps[j] += 1
-        if valid:
-            valid_steps[j] += 1
-        if learn:
-            for k in range(k_count):
-                responsibilities[j, k] = resp[k]
-            eta[j] = eta_now
+        # 5. gate for the new prediction, bookkeeping
+        _next_gate(j, valid, learn, features, resp, eta_now, gating, gating_input, velocity_scale, temperature,
+                   seed, history, gate_input, gate_weights, weights, stream_ids, steps, valid_steps,
+                   responsibilities, eta, velocity, logits, rw)
 
         # outputs
         if horizon > 1:

@@ -17,7 +17,7 @@ import numba as nb
 import numpy as np
 
 from . import _numba_linalg as la
-from ._numba_kernels import _normalise_log, _random_weights
+from ._numba_kernels import _learn_gate, _learning_rate, _next_gate, _posterior
 
 _JIT = la._JIT
 jit = la.jit
@@ -208,7 +208,6 @@ def _advance_target(
     k_count = weights.shape[1]
     n = order * p
     d = n + 1
-    m_gate = gate_input.shape[1]
     z = np.empty(p)
     features = np.empty(p)
     errors = np.empty((k_count, p))
@@ -216,6 +215,7 @@ def _advance_target(
     resp = np.empty(k_count)
     joint = np.empty(k_count)
     old_weights = np.empty(k_count)
+    log_weights = np.empty(k_count)
     xi = np.empty(d)
     new_gram = np.empty((d, d))
     shifted = np.empty((p, d))
@@ -278,33 +278,16 @@ def _advance_target(
                 errors[k, i] = e
                 squared += e * e
             log_lik[k] = -log_scale[k] - squared / (2.0 * expert_scale[k] ** 2)
-            old_weights[k] = weights[j, k]
-        for k in range(k_count):
-            joint[k] = math.log(max(old_weights[k], 1e-300)) + log_lik[k]
-        _normalise_log(joint, resp)
-        dominant = 0
-        for k in range(1, k_count):
-            if old_weights[k] > old_weights[dominant]:
-                dominant = k
+        dominant = _posterior(j, log_lik, weights, old_weights, log_weights, joint, resp)
         dom_err = 0.0
         for i in range(p):
             dom_err += errors[dominant, i] ** 2
-        base = eta_minimum + (eta_initial - eta_minimum) * math.exp(-float(valid_steps[j]) / eta_decay)
-        eta_now = base * -math.expm1(-eta_sensitivity * dom_err)
+        eta_now = _learning_rate(valid_steps[j], dom_err, eta_initial, eta_minimum, eta_decay, eta_sensitivity)
         rate = eta_now if learn else 0.0
 
         # 2. gate learning and noise adaptation
-        if gating == 1:
-            for k in range(k_count):
-                delta = rate * (resp[k] - old_weights[k])
-                for i in range(m_gate):
-                    gate_weights[j, k, i] = gate_weights[j, k, i] + delta * gate_input[j, i]
-        elif gating == 0 and learn:
-            for k in range(k_count):
-                joint[k] = math.log(max(old_weights[k], 1e-300)) + log_lik[k] / temperature
-            _normalise_log(joint, logits)
-            for k in range(k_count):
-                weights[j, k] = (1.0 - share) * logits[k] + share / k_count
+        _learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik, temperature, share,
+                    gate_weights, gate_input, weights, joint, logits)
         if adapt and learn:
             for k in range(k_count):
                 factor = max(1.0 - q_shrink * rate * resp[k], 0.0)
@@ -516,49 +499,10 @@ def _advance_target(
                 for i in range(p):
                     expert_predictions[j, k, i] = origin[j, i] + kappa * mean[j, k, i]
 
-        # 5. gate for the new prediction
-        for i in range(p):
-            previous = history[j, 0, i]
-            velocity[i] = features[i] - previous if math.isfinite(previous) else 0.0
-        if valid:
-            gate_input[j, 0] = 1.0
-            if gating_input >= 1:
-                for i in range(p):
-                    gate_input[j, 1 + i] = features[i]
-            if gating_input == 2:
-                for i in range(p):
-                    gate_input[j, 1 + p + i] = velocity[i] / velocity_scale
-        if gating == 1 and valid:
-            for k in range(k_count):
-                acc = 0.0
-                for i in range(m_gate):
-                    acc += gate_weights[j, k, i] * gate_input[j, i]
-                logits[k] = acc / temperature
-            top = logits[0]
-            for k in range(1, k_count):
-                top = max(top, logits[k])
-            for k in range(k_count):
-                rw[k] = math.exp(logits[k] - top)
-            total = np.sum(rw)
-            for k in range(k_count):
-                weights[j, k] = rw[k] / total
-        elif gating == 2:
-            _random_weights(seed, stream_ids[j], steps[j], rw)
-            for k in range(k_count):
-                weights[j, k] = rw[k]
-
-        for lag in range(order - 1, 0, -1):
-            for i in range(p):
-                history[j, lag, i] = history[j, lag - 1, i]
-        for i in range(p):
-            history[j, 0, i] = features[i] if valid else np.nan
-        steps[j] += 1
-        if valid:
-            valid_steps[j] += 1
-        if learn:
-            for k in range(k_count):
-                responsibilities[j, k] = resp[k]
-            eta[j] = eta_now
+        # 5. gate for the new prediction, bookkeeping
+        _next_gate(j, valid, learn, features, resp, eta_now, gating, gating_input, velocity_scale, temperature,
+                   seed, history, gate_input, gate_weights, weights, stream_ids, steps, valid_steps,
+                   responsibilities, eta, velocity, logits, rw)
 
         # outputs
         for i in range(p):
