@@ -113,3 +113,46 @@ def test_cli_evaluate_on_a_shipped_dataset():
                                           "--experts", "4", "--no-peers", "--no-per-track"])
     assert result.exit_code == 0, result.output
     assert result.stdout.startswith("cycling: 1 track(s), 150 samples")
+
+
+def _many_tracks(seed=5, n_tracks=12):
+    """Tracks of very different lengths (20-130 samples): the case where evaluate restarted long tracks."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for track in range(n_tracks):
+        n = int(rng.integers(20, 131))
+        t = np.arange(n) * 0.5
+        xy = np.cumsum(np.cumsum(rng.normal(0, 0.2, (n, 2)), axis=0), axis=0) + rng.normal(0, 0.5, (n, 2))
+        rows += [(f"k{track:02d}", t[i], *xy[i]) for i in range(n)]
+    return pd.DataFrame(rows, columns=["track_id", "time", "x", "y"])
+
+
+def test_per_track_numbers_equal_direct_runs_on_each_track():
+    """Every per-track RMS equals the predictor run alone on that track (CV Kalman with the tuned noise, mixture)."""
+    from kalmix.baselines import cv_kalman
+    from kalmix.bank import DEFAULT_BANK, make_bank
+    from kalmix.core import engine
+    from kalmix.metrics import error_summary
+    from kalmix.streaming import auto_time_unit
+
+    table = _many_tracks()
+    result = evaluate_table(table, n_experts=8, peers=False, tune_units=False)
+    tuned = result.tuned["CV Kalman"]
+    unit, tunit = result.tuned["length_unit"]["rule"], result.tuned["mixture"]["bank"]["time_unit"]
+    bank = make_bank(2, **{**DEFAULT_BANK, "n_akf": 40}, length_unit=unit, time_unit=tunit)
+    for track, group in table.groupby("track_id"):
+        z, t = group[["x", "y"]].to_numpy(), group["time"].to_numpy()
+        cut = int(np.ceil(0.2 * len(z)))
+        cv = cv_kalman(tuned["process_noise"], tuned["measurement_noise"], length_unit=result.length_unit)
+        direct = cv.run(z).predictions
+        errors = np.full_like(z, np.nan)
+        errors[1:] = z[1:] - direct[:-1]
+        errors[:cut] = np.nan
+        expected = error_summary(errors)["rms"]
+        assert result.per_track[track]["CV Kalman"]["one_step"]["rms"] == pytest.approx(expected, rel=1e-9)
+        forecasts = engine.run(bank, z[:, None], t[:, None]).forecasts[:, 0]
+        errors = z - forecasts
+        errors[:cut] = np.nan
+        assert result.per_track[track]["mixture"]["one_step"]["rms"] == pytest.approx(
+            error_summary(errors)["rms"], rel=1e-9)
+    assert auto_time_unit(np.array([0.0, 0.5, 1.0])) == 0.5

@@ -43,11 +43,19 @@ def test_rows_equal_batched_table():
     assert batch.groupby("track_id")["segment"].max().to_dict() == {"a": 0, "b": 1, "c": 0}
 
 
-def test_track_equals_a_plain_mixture_predictor():
+@pytest.mark.parametrize("bank", ["kinematic", "mixed"])
+def test_track_equals_the_reference_engine_on_that_track(bank):
+    """A track's predictions equal the numpy reference engine run on that track alone (forecast one time unit on)."""
+    from kalmix.bank import make_bank
+    from kalmix.core import engine
+
     table = _table()
-    batch = TrackPredictor(StreamConfig(**{**CONFIG, "horizon": 1})).process_table(table)
-    z = table.loc[table.track_id == "a", ["x", "y"]].to_numpy()
-    expected = MixturePredictor(6, seed=3, length_unit=0.01).run(z).predictions
+    batch = TrackPredictor(StreamConfig(**{**CONFIG, "horizon": 1, "bank": bank})).process_table(table)
+    rows = table.track_id == "a"
+    z, t = table.loc[rows, ["x", "y"]].to_numpy(), table.loc[rows, "time"].to_numpy()
+    unit = float(np.median(np.diff(t)))
+    reference = make_bank(2, bank, length_unit=0.01, time_unit=unit, seed=3, n_akf=6)
+    expected = engine.run(reference, z[:, None], t[:, None], ahead_times=t[:, None] + unit).ahead[:, 0]
     np.testing.assert_allclose(batch.loc[batch.track_id == "a", ["pred_x", "pred_y"]].to_numpy(), expected,
                                atol=1e-9, rtol=0)
 
@@ -72,7 +80,7 @@ def test_save_and_resume_is_bit_for_bit(tmp_path):
     second = TrackPredictor.load(tmp_path / "s.npz")
     part += [r.next for r in _rows(second, table.iloc[70:])]
     assert np.array_equal(np.array(part), np.array(whole), equal_nan=True)
-    assert second.config == StreamConfig(**CONFIG)
+    assert second.config == StreamConfig(**CONFIG, time_unit=0.1)  # learned from the first time step, kept
 
 
 def test_load_rejects_other_files(tmp_path):

@@ -15,7 +15,8 @@ from .core.dynamics import polynomial_prior
 from .core.gating import GATING_INPUTS
 from .core.mixture import DYNAMICS, GATINGS, MixtureParams
 
-__all__ = ["make_params", "noise_grid"]
+__all__ = ["make_params", "noise_grid", "make_bank", "BANK_KINDS", "KINEMATIC_PROCESS_LEVELS",
+           "KINEMATIC_MEASUREMENT_LEVELS"]
 
 #: Process-noise levels of the grid span this range (measurement units squared per frame).
 PROCESS_NOISE_RANGE = (1e-2, 1e2)
@@ -271,3 +272,121 @@ def make_params(
         noise_reinflation=values["noise_reinflation"],
         random_seed=seed,
     )
+
+
+# --------------------------------------------------------------------------------------------
+# Banks of expert families under an aggregation rule (kalmix.core.engine)
+
+#: Bank recipes of :func:`make_bank`.
+BANK_KINDS = ("mixed", "kinematic", "akf")
+#: Process-noise levels q of the kinematic experts, in length_unit^2 per time_unit^3 (CV).
+KINEMATIC_PROCESS_LEVELS = tuple(10.0**e for e in range(-3, 4))
+#: Measurement-noise levels r of the kinematic experts, in length_unit^2.
+KINEMATIC_MEASUREMENT_LEVELS = (0.1, 1.0)
+#: Initial standard deviation of the velocity and acceleration of a kinematic expert
+#: (length units per time unit, per time unit squared): wide, so the first two
+#: measurements decide.
+KINEMATIC_INITIAL_SPREAD = 100.0
+
+
+def _kinematic(order, unit, time_unit, process_levels, measurement_levels):
+    from .core.families.kinematic import KinematicParams
+
+    q = np.repeat(np.asarray(process_levels, float), len(measurement_levels)) * unit**2
+    r = np.tile(np.asarray(measurement_levels, float), len(process_levels)) * unit**2
+    spread = (KINEMATIC_INITIAL_SPREAD * unit) ** 2
+    initial = np.column_stack([r] + [np.full(r.shape, spread)] * (order - 1))
+    return KinematicParams(order=order, process_noise=q, measurement_noise=r, initial_variance=initial,
+                           time_unit=float(time_unit))
+
+
+def make_bank(
+    measurement_dim: int,
+    kind: str = "mixed",
+    *,
+    rule: str = "boa",
+    length_unit: float = 1.0,
+    time_unit: float = 1.0,
+    seed: int = 0,
+    n_akf: int = 40,
+    process_levels=KINEMATIC_PROCESS_LEVELS,
+    measurement_levels=KINEMATIC_MEASUREMENT_LEVELS,
+    rule_options: dict | None = None,
+    akf_options: dict | None = None,
+):
+    """Build and validate a bank of expert families and its aggregation rule.
+
+    Recipes (``kind``):
+
+    - ``"kinematic"``: constant-velocity and constant-acceleration Kalman filters with
+      the real time step (:mod:`kalmix.core.families.kinematic`), one per pair
+      (process level q, measurement level r): 7 x 2 of each order, 28 experts;
+    - ``"akf"``: ``n_akf`` of the paper's adaptive Kalman filters (the grid and seeded
+      draws of :func:`make_params`, without the paper gate's Q/R feedback);
+    - ``"mixed"``: both (68 experts with the defaults).
+
+    Parameters
+    ----------
+    measurement_dim : int
+        p, coordinates per measurement.
+    rule : {"boa", "mlpoly", "fixed_share"}
+        The aggregation rule (:mod:`kalmix.core.aggregators`).
+    length_unit : float
+        Measurement-noise size in data units; every noise level is a multiple of its square.
+    time_unit : float
+        The typical sampling interval in the time column's units (kinematic experts).
+    seed : int
+        Seed of the AKF family's draws.
+    n_akf : int
+        Experts of the AKF family (``akf`` and ``mixed``).
+    process_levels, measurement_levels : sequence of float
+        The kinematic grid, in units of ``length_unit**2`` (per ``time_unit**3`` for q).
+    rule_options : dict, optional
+        The rule's parameters (e.g. ``{"forgetting": 0.999, "share": 0.01}``).
+    akf_options : dict, optional
+        Other :func:`make_params` arguments of the AKF family.
+    """
+    from .core import aggregators
+    from .core.engine import Bank, Family
+
+    p = _check_int("measurement_dim", measurement_dim, 1)
+    _check_choice("kind", kind, BANK_KINDS)
+    _check_choice("rule", rule, tuple(aggregators.RULES))
+    unit = _check_positive("length_unit", length_unit)
+    tunit = _check_positive("time_unit", time_unit)
+    for name, levels in (("process_levels", process_levels), ("measurement_levels", measurement_levels)):
+        if np.ndim(levels) != 1 or len(levels) == 0:
+            raise ValueError(f"{name}: expected a non-empty sequence of positive numbers, got {levels!r}")
+        for value in levels:
+            _check_positive(name, value)
+    module = aggregators.RULES[rule]
+    options = dict(rule_options or {})
+    unknown = set(options) - set(module.Params._fields)
+    if unknown:
+        raise ValueError(f"rule_options: {sorted(unknown)} not options of rule {rule!r} "
+                         f"(expected some of {list(module.Params._fields)})")
+    if "forgetting" in options:
+        _check_positive("rule_options['forgetting']", options["forgetting"], upper=1.0)
+    if "share" in options:
+        share = _check_positive("rule_options['share']", options["share"], allow_zero=True)
+        if share >= 1:
+            raise ValueError(f"rule_options['share']: expected a number in [0, 1), got {share!r}")
+    families = []
+    if kind in ("kinematic", "mixed"):
+        families.append(Family("cv", _kinematic(2, unit, tunit, process_levels, measurement_levels)))
+        families.append(Family("ca", _kinematic(3, unit, tunit, process_levels, measurement_levels)))
+    if kind in ("akf", "mixed"):
+        akf = make_params(p, _check_int("n_akf", n_akf, 1), seed=seed, length_unit=unit,
+                          **{**(akf_options or {}), "adapt_noise": False})
+        families.append(Family("akf", akf))
+    description = dict(kind=kind, rule=rule, length_unit=unit, time_unit=tunit, seed=seed, n_akf=n_akf,
+                       process_levels=[float(v) for v in process_levels],
+                       measurement_levels=[float(v) for v in measurement_levels],
+                       rule_options=options, akf_options=dict(akf_options or {}))
+    return Bank(measurement_dim=p, families=tuple(families), rule=rule, rule_params=module.Params(**options),
+                description=description)
+
+
+#: The default bank and rule of ``kalmix predict`` / ``evaluate`` / :class:`kalmix.BankPredictor`,
+#: chosen by the ablation on the shipped recordings (README, "Choosing the default").
+DEFAULT_BANK = {"kind": "mixed", "rule": "boa"}

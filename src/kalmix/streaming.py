@@ -39,13 +39,13 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .archive import read_archive, write_archive
-from .bank import make_params
-from .core.mixture import MixtureParams, MixtureState, init_state, predict, step
+from .bank import DEFAULT_BANK, make_bank
+from .core.engine import Bank, BankState, init_bank_state
 
-__all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "auto_length_unit",
+__all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "auto_length_unit", "auto_time_unit",
            "STATE_FORMAT_VERSION"]
 
-STATE_FORMAT_VERSION = 1
+STATE_FORMAT_VERSION = 2
 _MAGIC = "kalmix-track-predictor"
 #: Number of first non-gap time steps whose median is a track's reference interval.
 REFERENCE_INTERVALS = 16
@@ -93,6 +93,27 @@ def auto_length_unit(values, *, minimum_samples: int = 8) -> float:
     return unit
 
 
+def auto_time_unit(times) -> float:
+    """Typical sampling interval: the median of the positive time steps of every track.
+
+    Parameters
+    ----------
+    times : ndarray, shape (T,) or (T, N)
+        Time stamps of each track on its sample index (NaN for padding).
+
+    Returns
+    -------
+    float
+        The ``time_unit`` of :func:`kalmix.bank.make_bank` (1 when there is no positive step).
+    """
+    t = np.asarray(times, dtype=np.float64)
+    if t.ndim == 1:
+        t = t[:, None]
+    steps = np.diff(t, axis=0).ravel()
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    return float(np.median(steps)) if steps.size else 1.0
+
+
 @dataclass
 class StreamConfig:
     """Settings of a :class:`TrackPredictor`, saved with its state.
@@ -112,7 +133,17 @@ class StreamConfig:
     max_gap_factor : float
         Gap threshold relative to the reference interval; ``inf`` never splits.
     options : dict
-        Other arguments of :func:`kalmix.bank.make_params`.
+        Other arguments of :func:`kalmix.bank.make_params` (the AKF family).
+    bank : str
+        Bank recipe of :func:`kalmix.bank.make_bank` (``kinematic``, ``mixed``, ``akf``);
+        ``n_experts`` is the size of its AKF family.
+    rule : str
+        Aggregation rule (``boa``, ``mlpoly``, ``fixed_share``).
+    time_unit : float or None
+        The typical sampling interval (time-column units) that scales the kinematic
+        experts' noise; ``None``: learned from the data, the first positive time step
+        between two rows of one track (in row order, so a file and a stream of the same
+        rows learn the same unit).
     """
 
     n_experts: int = 40
@@ -122,6 +153,9 @@ class StreamConfig:
     max_gap: float | None = None
     max_gap_factor: float = 3.0
     options: dict = field(default_factory=dict)
+    bank: str = DEFAULT_BANK["kind"]
+    rule: str = DEFAULT_BANK["rule"]
+    time_unit: float | None = None
 
     def __post_init__(self):
         if isinstance(self.horizon, bool) or int(self.horizon) != self.horizon or self.horizon < 1:
@@ -132,6 +166,8 @@ class StreamConfig:
             raise ValueError(f"max_gap_factor: expected a number > 1, got {self.max_gap_factor!r}")
         if not (math.isfinite(self.length_unit) and self.length_unit > 0):
             raise ValueError(f"length_unit: expected a finite number > 0, got {self.length_unit!r}")
+        if self.time_unit is not None and not (math.isfinite(self.time_unit) and self.time_unit > 0):
+            raise ValueError(f"time_unit: expected a finite number > 0, got {self.time_unit!r}")
 
 
 class GapTracker:
@@ -181,12 +217,29 @@ class RowPrediction(NamedTuple):
     ahead: np.ndarray | None      # (p,) prediction ``horizon`` frames ahead (None when horizon == 1)
 
 
-def _stack(states: list[MixtureState]) -> MixtureState:
-    return MixtureState(*(np.concatenate(parts, axis=0) for parts in zip(*states)))
+def _map(function, *trees):
+    """Apply ``function`` to the arrays of nested tuples / NamedTuples of the same structure."""
+    first = trees[0]
+    if isinstance(first, tuple):
+        mapped = [_map(function, *parts) for parts in zip(*trees)]
+        return type(first)(*mapped) if hasattr(first, "_fields") else tuple(mapped)
+    return function(*trees)
 
 
-def _take(state: MixtureState, index) -> MixtureState:
-    return MixtureState(*(value[index] for value in state))
+def _leaves(tree, prefix="state"):
+    """``[(name, array)]`` of a state tree, names like ``state/families/0/mean``."""
+    if isinstance(tree, tuple):
+        names = tree._fields if hasattr(tree, "_fields") else [str(i) for i in range(len(tree))]
+        return [leaf for name, part in zip(names, tree) for leaf in _leaves(part, f"{prefix}/{name}")]
+    return [(prefix, tree)]
+
+
+def _stack(states: list) -> BankState:
+    return _map(lambda *arrays: np.concatenate(arrays, axis=0), *states)
+
+
+def _take(state, index):
+    return _map(lambda a: a[index], state)
 
 
 def _id_to_json(value):
@@ -219,24 +272,50 @@ class TrackPredictor:
     def __init__(self, config: StreamConfig, position_names=None):
         self.config = config
         self.position_names = None if position_names is None else tuple(position_names)
-        self.params: MixtureParams | None = None
-        self.states: dict[Any, MixtureState] = {}
+        self.params: Bank | None = None
+        self.states: dict[Any, BankState] = {}
         self.gaps: dict[Any, GapTracker] = {}
         self.skipped = 0
         self.rows = 0
 
     # -- set-up ---------------------------------------------------------------------
-    def _ensure_params(self, measurement_dim: int) -> MixtureParams:
+    def _ensure_params(self, measurement_dim: int) -> Bank:
         if self.params is None:
-            self.params = make_params(measurement_dim, self.config.n_experts, seed=self.config.seed,
-                                      length_unit=self.config.length_unit, **self.config.options)
+            self.params = self._build(measurement_dim)
         elif self.params.measurement_dim != measurement_dim:
             raise ValueError(f"measurements: expected {self.params.measurement_dim} coordinates per row "
                              f"(as before), got {measurement_dim}")
         return self.params
 
-    def _fresh(self) -> MixtureState:
-        return init_state(self.params, 1, stream_ids=[0])
+    def _build(self, measurement_dim: int) -> Bank:
+        c = self.config
+        return make_bank(measurement_dim, c.bank, rule=c.rule, length_unit=c.length_unit,
+                         time_unit=1.0 if c.time_unit is None else c.time_unit, seed=c.seed, n_akf=c.n_experts,
+                         akf_options=c.options)
+
+    def _learn_time_unit(self, value: float) -> None:
+        """Fix a learned time unit (the bank's parameters scale with it; states do not)."""
+        if self.config.time_unit is None and math.isfinite(value) and value > 0:
+            self.config.time_unit = float(value)
+            if self.params is not None:
+                self.params = self._build(self.params.measurement_dim)
+
+    def _fresh(self) -> BankState:
+        return init_bank_state(self.params, 1)
+
+    def _run(self, values, times, lengths, state, ahead_steps):
+        """The compiled engine (numpy reference without numba); ahead at ``ahead_steps`` time units."""
+        from .core import engine
+        from .core.compiled import numba_available
+
+        run = engine.run
+        if numba_available():
+            from .core.compiled import engine as compiled
+
+            run = compiled.run
+        unit = self.config.time_unit or 1.0
+        return run(self.params, values, times, state, lengths=lengths, ahead_times=times + ahead_steps * unit,
+                   ahead_frames=ahead_steps)
 
     @property
     def track_ids(self) -> list:
@@ -255,13 +334,19 @@ class TrackPredictor:
         if new is None:
             self.skipped += 1
             return None
+        if self.config.time_unit is None and len(gaps.intervals):
+            self._learn_time_unit(gaps.intervals[0])
+            params = self.params
         state = self._fresh() if new else self.states[track_id]
-        state, out = step(params, state, z[None])
-        self.states[track_id] = state
+        values = z[None, None, :]
+        times = np.array([[float(time)]])
+        result = self._run(values, times, None, state, 1)
+        self.states[track_id] = result.state
         ahead = None
         if self.config.horizon > 1:
-            ahead = predict(params, state, self.config.horizon)[0][0]
-        return RowPrediction(track_id, float(time), gaps.segment, out.prediction[0], ahead)
+            ahead = self._run(values, times, None, state, self.config.horizon).ahead[0, 0]
+        out = result.ahead[0]
+        return RowPrediction(track_id, float(time), gaps.segment, out[0], ahead)
 
     # -- a table (or chunk) at once -----------------------------------------------------
     def process_table(self, table, position_names=None):
@@ -305,6 +390,8 @@ class TrackPredictor:
             if gaps is None:
                 gaps = self.gaps[track] = GapTracker()
             new = gaps.advance(float(times[i]), self.config)
+            if self.config.time_unit is None and gaps.intervals:
+                self._learn_time_unit(gaps.intervals[0])
             if new is None:
                 keep[i] = False
                 self.skipped += 1
@@ -315,37 +402,26 @@ class TrackPredictor:
                 runs.append(current[track])
             current[track][2].append(i)
 
+        params = self.params
         horizon = self.config.horizon
         next_pred = np.full((n_rows, values.shape[1]), np.nan)
         ahead_pred = np.full((n_rows, values.shape[1]), np.nan) if horizon > 1 else None
         if runs:
-            order = sorted(range(len(runs)), key=lambda r: -len(runs[r][2]))
-            runs = [runs[r] for r in order]
             lengths = np.array([len(run[2]) for run in runs])
             state = _stack([self._fresh() if run[1] else self.states[run[0]] for run in runs])
-            length_max = int(lengths[0])
-            rows = np.zeros((length_max, len(runs)), dtype=np.int64)
-            active = np.zeros((length_max, len(runs)), dtype=bool)
+            rows = np.zeros((int(lengths.max()), len(runs)), dtype=np.int64)
+            active = np.zeros(rows.shape, dtype=bool)
             for c, run in enumerate(runs):
                 rows[:len(run[2]), c] = run[2]
                 active[:len(run[2]), c] = True
-            # phases of constant width: columns are sorted by length, so the active ones are a prefix
-            t = 0
-            while t < length_max:
-                width = int(active[t].sum())
-                stop = int(lengths[width - 1])
-                sub = _take(state, slice(0, width))
-                for k in range(t, stop):
-                    index = rows[k, :width]
-                    sub, out = step(params, sub, values[index])
-                    next_pred[index] = out.prediction
-                    if horizon > 1:
-                        ahead_pred[index] = predict(params, sub, horizon)[0]
-                for whole, part in zip(state, sub):
-                    whole[:width] = part
-                t = stop
-            for c in np.argsort(order, kind="stable"):  # chronological: a track's last run wins
-                self.states[runs[c][0]] = _take(state, slice(int(c), int(c) + 1))
+            dense = np.where(active[..., None], values[rows], np.nan)
+            dense_times = np.where(active, times[rows], np.nan)
+            result = self._run(dense, dense_times, lengths, state, 1)
+            next_pred[rows[active]] = result.ahead[active]
+            if horizon > 1:
+                ahead_pred[rows[active]] = self._run(dense, dense_times, lengths, state, horizon).ahead[active]
+            for c in range(len(runs)):  # chronological: a track's last run wins
+                self.states[runs[c][0]] = _take(result.state, slice(c, c + 1))
         out = pd.DataFrame({"track_id": ids[keep], "time": times[keep], "segment": segments[keep]})
         for j, name in enumerate(names):
             out[f"pred_{name}"] = next_pred[keep, j]
@@ -366,8 +442,7 @@ class TrackPredictor:
                 "rows": self.rows, "skipped": self.skipped}
         arrays = {}
         if with_state:
-            stacked = _stack([self.states[t] for t in with_state])
-            arrays = {f"state/{name}": value for name, value in stacked._asdict().items()}
+            arrays = dict(_leaves(_stack([self.states[t] for t in with_state])))
         write_archive(path, meta, arrays)
 
     @classmethod
@@ -381,16 +456,18 @@ class TrackPredictor:
             engine._ensure_params(int(meta["measurement_dim"]))
         index = 0
         template = engine._fresh() if engine.params is not None else None
+        names = [name for name, _ in _leaves(template)] if template is not None else []
         for entry in meta["tracks"]:
             track = entry["id"]
             engine.gaps[track] = GapTracker(**entry["gaps"])
             if entry["state"]:
                 fields = {}
-                for name, expected in template._asdict().items():
-                    value = arrays.get(f"state/{name}")
+                for name, expected in _leaves(template):
+                    value = arrays.get(name)
                     if value is None or value.shape[1:] != expected.shape[1:]:
                         raise ValueError(f"{path}: field {name!r} missing or of the wrong shape")
                     fields[name] = value[index:index + 1].copy()
-                engine.states[track] = MixtureState(**fields)
+                leaves = iter(fields[n] for n in names)
+                engine.states[track] = _map(lambda _: next(leaves), template)
                 index += 1
         return engine

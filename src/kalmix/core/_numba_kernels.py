@@ -556,7 +556,7 @@ def _normalise_log(log_joint, out):
 # ---------------------------------------------------------------- one target, all steps
 @jit
 def _advance_target(
-    j, measurements, horizon,
+    j, measurements, lengths, horizon,
     # parameters
     dynamics, gating, gating_input, p, order, kappa, velocity_scale, forgetting, ridge, prior,
     bound, process_init, measurement_init, initial_variance, initial_velocity, expert_scale,
@@ -570,7 +570,7 @@ def _advance_target(
     out_predictions, record_diagnostics, out_weights, out_eta, out_q, out_r,
     record_experts, out_experts,
 ):
-    t_count = measurements.shape[0]
+    t_count = min(measurements.shape[0], lengths[j])
     k_count = weights.shape[1]
     n = order * p
     d = n + 1
@@ -788,8 +788,8 @@ def _extrapolate(mu, trans, off, steps, ahead, scratch, acc):
 
 
 @nb.njit(parallel=True, **_JIT)
-def run_targets(measurements, horizon, params, state, records):
-    """Advance every target through every step (targets in parallel)."""
+def run_targets(measurements, lengths, horizon, params, state, records):
+    """Advance every target ``j`` through its first ``lengths[j]`` steps (targets in parallel)."""
     n_targets = measurements.shape[1]
     for j in nb.prange(n_targets):
-        _advance_target(j, measurements, horizon, *params, *state, *records)
+        _advance_target(j, measurements, lengths, horizon, *params, *state, *records)

@@ -17,6 +17,10 @@ import math
 import numba as nb
 import numpy as np
 
+from .compiled._cache import configure_cache
+
+configure_cache()  # before any decorator below: the cache is keyed on every compiled source
+
 _JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 jit = nb.njit(**_JIT)
 

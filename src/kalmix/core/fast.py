@@ -29,12 +29,11 @@ between, so it picks the same shrink factor as the eigenvalue test.
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 
 from . import dynamics as dyn
 from .mixture import DYNAMICS, GATINGS, MixtureParams, MixtureState, StepOutput, init_state
+from .compiled._cache import numba_available
 from .run import RunResult
 
 __all__ = ["numba_available", "run_fast", "step_fast"]
@@ -42,14 +41,6 @@ __all__ = ["numba_available", "run_fast", "step_fast"]
 _GATING_INPUTS = ("bias", "position", "velocity")
 
 
-@functools.cache
-def numba_available() -> bool:
-    """True when numba can be imported (the ``fast`` extra is installed)."""
-    try:
-        import numba  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 # Below this many experts the scalar kernel (one expert at a time) is faster than the
@@ -121,6 +112,7 @@ def run_fast(
     expert_predictions: bool = False,
     progress=None,
     parallel: bool | None = None,
+    lengths=None,
 ) -> RunResult:
     """:func:`kalmix.core.run.run_core` compiled with numba (same arguments, same result).
 
@@ -131,6 +123,10 @@ def run_fast(
         numba's threads (``NUMBA_NUM_THREADS``).
     progress : callable, optional
         Called with the number of steps done, after each chunk of 256 steps.
+    lengths : array of int (N,), optional
+        Target ``j`` is advanced through its first ``lengths[j]`` steps only (ragged
+        tracks padded to a common length: padding is not fed as missing measurements);
+        outputs past a target's length are NaN. Default: every step.
     """
     import numba
 
@@ -142,14 +138,20 @@ def run_fast(
     k, p = params.n_experts, params.measurement_dim
     packed_params = _pack_params(params)
     packed_state = _pack_state(state)
-    predictions = np.empty((t_count, n, p))
+    if lengths is None:
+        lengths = np.full(n, t_count, dtype=np.int64)
+        fill = np.empty
+    else:
+        lengths = np.minimum(np.asarray(lengths, dtype=np.int64), t_count)
+        fill = (lambda shape: np.full(shape, np.nan))
+    predictions = fill((t_count, n, p))
     if diagnostics:
-        weights, eta = np.empty((t_count, n, k)), np.empty((t_count, n))
-        q_record, r_record = np.empty((t_count, n, k, p)), np.empty((t_count, n, k, p))
+        weights, eta = fill((t_count, n, k)), fill((t_count, n))
+        q_record, r_record = fill((t_count, n, k, p)), fill((t_count, n, k, p))
     else:
         weights, eta = np.empty((0, 0, 0)), np.empty((0, 0))
         q_record, r_record = np.empty((0, 0, 0, 0)), np.empty((0, 0, 0, 0))
-    experts = np.empty((t_count, n, k, p)) if expert_predictions else np.empty((0, 0, 0, 0))
+    experts = fill((t_count, n, k, p)) if expert_predictions else np.empty((0, 0, 0, 0))
     chunk = t_count if progress is None else 256
     threads = numba.get_num_threads()
     if parallel is False:
@@ -159,7 +161,9 @@ def run_fast(
             end = min(begin + chunk, t_count)
             records = (predictions[begin:end], bool(diagnostics), weights[begin:end], eta[begin:end],
                        q_record[begin:end], r_record[begin:end], bool(expert_predictions), experts[begin:end])
-            kernels.run_targets(measurements[begin:end], int(horizon), packed_params, packed_state, records)
+            remaining = np.clip(lengths - begin, 0, end - begin)
+            kernels.run_targets(measurements[begin:end], remaining, int(horizon), packed_params, packed_state,
+                                records)
             if progress is not None:
                 progress(end)
     finally:

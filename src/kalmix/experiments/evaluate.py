@@ -41,16 +41,16 @@ from typing import Any
 
 import numpy as np
 
-from ..bank import make_params
+from ..bank import DEFAULT_BANK, make_bank, make_params
 from ..core.mixture import init_state, predict, step
 from ..metrics import error_summary
-from ..streaming import GapTracker, StreamConfig, _take, auto_length_unit
+from ..streaming import GapTracker, StreamConfig, auto_length_unit, auto_time_unit
 
 __all__ = ["Streams", "EvaluationResult", "split_streams", "evaluate_table", "PREDICTORS"]
 
 #: Row names in table order.
-PREDICTORS = ("mixture", "no prediction", "CV Kalman", "CA Kalman", "IMM (filterpy)", "single AKF",
-              "best expert (hindsight)")
+PREDICTORS = ("mixture", "AKF mixture (previous default)", "no prediction", "CV Kalman", "CA Kalman",
+              "IMM (filterpy)", "single AKF", "best expert (hindsight)")
 _FIXED_PROCESS = tuple(float(v) for v in np.geomspace(1e-3, 1e5, 17))
 _FIXED_MEASUREMENT = (0.05, 0.25, 1.0, 4.0)
 #: Multiples of the rule's length unit tried for the mixture on the tuning part.
@@ -118,41 +118,143 @@ def split_streams(table, *, max_gap: float | None = None, max_gap_factor: float 
 def _run(params, values, horizon, state=None, experts=False, lengths=None):
     """Online run over (T, S, p): one-step and horizon-step predictions (and experts').
 
-    With ``lengths`` (S,), column ``j`` is stepped only over its first ``lengths[j]`` rows
-    (padding is not fed to the filters as missing measurements: thousands of predict-only
-    steps would let a covariance overflow); outputs past a column's length are NaN.
+    Column ``j`` is stepped only over its first ``lengths[j]`` rows, each column with its
+    own state from start to end (padding is never fed to the filters; outputs past a
+    column's length are NaN). The compiled engine runs it when numba is installed, the
+    numpy reference otherwise; both give the same numbers, whatever the batching.
     """
     t_count, s, p = values.shape
     state = init_state(params, s, stream_ids=np.zeros(s, dtype=np.int64)) if state is None else state
     lengths = np.full(s, t_count) if lengths is None else np.asarray(lengths)
-    order = np.argsort(-lengths, kind="stable")
-    values, lengths = values[:, order], lengths[order]
-    state = _take(state, order)
+    from ..core.fast import numba_available, run_fast
+
+    if numba_available():
+        first = run_fast(params, values, state, lengths=lengths, expert_predictions=experts)
+        one, one_experts = first.predictions, first.expert_predictions
+        ahead, ahead_experts = one, one_experts
+        if horizon > 1:
+            later = run_fast(params, values, state, lengths=lengths, expert_predictions=experts, horizon=horizon)
+            ahead, ahead_experts = later.predictions, later.expert_predictions
+        return one, ahead, one_experts, ahead_experts
     k = params.n_experts
     one = np.full((t_count, s, p), np.nan)
     ahead = np.full((t_count, s, p), np.nan) if horizon > 1 else one
     one_experts = np.full((t_count, s, k, p), np.nan) if experts else None
     ahead_experts = (np.full((t_count, s, k, p), np.nan) if horizon > 1 else one_experts) if experts else None
-    t = 0
-    while t < t_count and lengths[0] > t:
-        width = int(np.sum(lengths > t))
-        stop = int(lengths[width - 1])
-        sub = _take(state, slice(0, width))
-        for step_index in range(t, stop):
-            sub, out = step(params, sub, values[step_index, :width])
-            one[step_index, :width] = out.prediction
+    for t in range(t_count):
+        active = t < lengths
+        new, out = step(params, state, values[t])
+        state = type(state)(*(np.where(active.reshape((-1,) + (1,) * (n.ndim - 1)), n, o)
+                              for n, o in zip(new, state)))
+        one[t, active] = out.prediction[active]
+        if experts:
+            one_experts[t, active] = out.expert_predictions[active]
+        if horizon > 1:
+            pred, expert_pred = predict(params, state, horizon)
+            ahead[t, active] = pred[active]
             if experts:
-                one_experts[step_index, :width] = out.expert_predictions
-            if horizon > 1:
-                pred, expert_pred = predict(params, sub, horizon)
-                ahead[step_index, :width] = pred
-                if experts:
-                    ahead_experts[step_index, :width] = expert_pred
-        t = stop
-    back = np.argsort(order, kind="stable")
-    pick = (lambda a: None if a is None else a[:, back])
-    return pick(one), (pick(ahead) if horizon > 1 else pick(one)), pick(one_experts), \
-        (pick(ahead_experts) if horizon > 1 else pick(one_experts))
+                ahead_experts[t, active] = expert_pred[active]
+    return one, ahead, one_experts, ahead_experts
+
+
+def _shift(array, h, fill=np.nan):
+    """``out[t] = array[t + h]`` along the first axis (``fill`` past the end)."""
+    out = np.full_like(array, fill)
+    if h < len(array):
+        out[:len(array) - h] = array[h:]
+    return out
+
+
+def _run_bank(bank, streams, horizon, scored):
+    """The bank's one-step and ``horizon``-step predictions in this module's convention, and the oracle.
+
+    ``one[t]`` predicts row ``t + 1`` (the engine's forecast of that row), ``ahead[t]``
+    row ``t + horizon`` (made after row ``t`` for that row's time). The best expert in
+    hindsight is chosen per track from the engine's per-expert squared errors over the
+    reported rows, then rerun alone (experts do not depend on each other, so alone it
+    predicts what it predicted in the bank).
+    """
+    from ..core.compiled import numba_available
+
+    values, times, lengths = streams.values, streams.times, streams.lengths
+    run = _engine_run()
+    ahead_times = _shift(times, horizon)
+    result = run(bank, values, times, lengths=lengths, ahead_times=ahead_times, ahead_frames=horizon,
+                 **({"score": scored, "score_ahead": _shift(scored, horizon, False)} if numba_available() else
+                    {"record_experts": True}))
+    one = _shift(result.forecasts, 1)
+    ahead = result.ahead
+    if numba_available():
+        sums, counts = result.experts, result.weights
+    else:
+        err = np.sum((result.experts - values[:, :, None, :]) ** 2, axis=-1)
+        ok = scored[..., None] & np.isfinite(err)
+        sums, counts = np.where(ok, err, 0.0).sum(axis=0), ok.sum(axis=0)
+    n_tracks = len(streams.track_ids)
+    per_track = np.zeros((n_tracks, bank.n_experts))
+    per_count = np.zeros_like(per_track)
+    np.add.at(per_track, streams.track_of, sums)
+    np.add.at(per_count, streams.track_of, counts)
+    mse = np.where(per_count > 0, per_track / np.maximum(per_count, 1), np.inf)
+    best = np.where(np.isfinite(mse).any(axis=1), np.argmin(mse, axis=1), 0)
+    oracle_one, oracle_ahead = np.full_like(one, np.nan), np.full_like(one, np.nan)
+    picks = {}
+    for expert in np.unique(best):
+        tracks = np.flatnonzero(best == expert)
+        columns = np.flatnonzero(np.isin(streams.track_of, tracks))
+        alone = _single_expert_bank(bank, int(expert))
+        sub = run(alone, values[:, columns], times[:, columns], lengths=lengths[columns],
+                  ahead_times=ahead_times[:, columns], ahead_frames=horizon)
+        oracle_one[:, columns] = _shift(sub.forecasts, 1)
+        oracle_ahead[:, columns] = sub.ahead
+        for i in tracks:
+            picks[str(streams.track_ids[i])] = _expert_name(bank, int(expert))
+    return one, (ahead if horizon > 1 else one), picks, (oracle_one, oracle_ahead if horizon > 1 else oracle_one)
+
+
+def _engine_run():
+    from ..core import engine
+    from ..core.compiled import numba_available
+
+    if numba_available():
+        from ..core.compiled import engine as compiled
+
+        return compiled.run
+    return engine.run
+
+
+def _locate(bank, expert):
+    for family, columns in zip(bank.families, bank.slices()):
+        if columns.start <= expert < columns.stop:
+            return family, expert - columns.start
+    raise IndexError(expert)
+
+
+def _expert_name(bank, expert):
+    family, i = _locate(bank, expert)
+    if family.kind == "akf":
+        return f"akf[{i}]"
+    return (f"{family.kind}(q={family.params.process_noise[i]:.3g}, r={family.params.measurement_noise[i]:.3g})")
+
+
+def _single_expert_bank(bank, expert):
+    """A bank of the one expert ``expert`` (same parameters), under the same rule."""
+    from dataclasses import replace
+
+    from ..core.engine import Family
+
+    family, i = _locate(bank, expert)
+    if family.kind == "akf":
+        params = family.params
+        per_expert = {name: getattr(params, name)[i:i + 1] for name in (
+            "forgetting", "ridge", "process_noise", "measurement_noise", "initial_variance", "initial_velocity",
+            "expert_scale")}
+        single = replace(params, **per_expert)
+    else:
+        single = family.params._replace(process_noise=family.params.process_noise[i:i + 1],
+                                        measurement_noise=family.params.measurement_noise[i:i + 1],
+                                        initial_variance=family.params.initial_variance[i:i + 1])
+    return replace(bank, families=(Family(family.kind, single),))
 
 
 def _errors(predictions, values, horizon, scored):
@@ -272,7 +374,8 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
                    length_unit: float | None = None, tuning_fraction: float = 0.2,
                    max_gap: float | None = None, max_gap_factor: float = 3.0,
                    max_samples: int | None = None, tracks=None, peers: bool = True,
-                   options: dict | None = None, tune_units: bool = True, log=None) -> EvaluationResult:
+                   options: dict | None = None, tune_units: bool = True, log=None,
+                   bank_options: dict | None = None) -> EvaluationResult:
     """Run every predictor over every track segment and summarise the errors.
 
     Parameters
@@ -302,6 +405,11 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         Other :func:`kalmix.bank.make_params` arguments for the mixture.
     log : callable, optional
         Called with a short progress message before each predictor.
+    bank_options : dict, optional
+        :func:`kalmix.bank.make_bank` arguments of the mixture (default
+        :data:`kalmix.bank.DEFAULT_BANK`); its length unit is the rule's
+        (:func:`~kalmix.streaming.auto_length_unit`) and its time unit
+        :func:`~kalmix.streaming.auto_time_unit`, both on the tuning part.
     """
     if isinstance(horizon, bool) or int(horizon) != horizon or horizon < 1:
         raise ValueError(f"horizon: expected an integer >= 1, got {horizon!r}")
@@ -337,11 +445,17 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     if options:
         tuned["mixture_options"] = options
     predictions: dict[str, tuple] = {}
-    log(f"mixture (K={n_experts}, length unit {unit:.4g})")
-    mix_params = make_params(p, n_experts, seed=seed, length_unit=unit, **options)
-    one, ahead, one_experts, ahead_experts = _run(mix_params, values, horizon, experts=True,
-                                                  lengths=streams.lengths)
+    time_unit = auto_time_unit(np.where(tuning, streams.times, np.nan) if tuning.any() else streams.times)
+    bank = make_bank(p, length_unit=rule, time_unit=time_unit, seed=seed, **dict(bank_options or DEFAULT_BANK))
+    tuned["mixture"] = {"bank": bank.description, "n_experts": bank.n_experts}
+    log(f"mixture: {bank.description['kind']} bank of {bank.n_experts} experts, rule {bank.rule} "
+        f"(length unit {rule:.4g}, time unit {time_unit:.4g})")
+    one, ahead, picks, oracle = _run_bank(bank, streams, horizon, scored)
     predictions["mixture"] = (one, ahead)
+
+    log(f"AKF mixture (previous default: K={n_experts}, fixed share, length unit {unit:.4g})")
+    mix_params = make_params(p, n_experts, seed=seed, length_unit=unit, **options)
+    predictions["AKF mixture (previous default)"] = _run(mix_params, values, horizon, lengths=streams.lengths)[:2]
 
     log("no prediction")
     carried = np.empty_like(values)
@@ -380,27 +494,8 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     akf_params = make_params(p, 1, seed=seed, length_unit=unit, **{**options, "adapt_noise": False})
     predictions["single AKF"] = _run(akf_params, values, horizon, lengths=streams.lengths)[:2]
 
-    # oracle: per track, the expert with the lowest error on the reported part
-    def hindsight(expert_predictions, h):
-        errors = np.full(expert_predictions.shape, np.nan)
-        errors[h:] = values[h:, :, None, :] - expert_predictions[:-h]
-        errors[~scored] = np.nan
-        chosen = np.empty((len(values), s, p))
-        picks = {}
-        for i in range(len(streams.track_ids)):
-            columns = np.flatnonzero(streams.track_of == i)
-            squared = np.nanmean(np.moveaxis(errors[:, columns] ** 2, 2, 0).reshape(errors.shape[2], -1), axis=1) \
-                if np.isfinite(errors[:, columns]).any() else np.zeros(errors.shape[2])
-            best = int(np.nanargmin(squared)) if np.isfinite(squared).any() else 0
-            picks[str(streams.track_ids[i])] = best
-            chosen[:, columns] = expert_predictions[:, columns, best]
-        return chosen, picks
-
-    oracle_one, picks = hindsight(one_experts, 1)
-    oracle_ahead = hindsight(ahead_experts, horizon)[0] if horizon > 1 else oracle_one
     tuned["best expert (hindsight)"] = {"expert_per_track": picks}
-    predictions["best expert (hindsight)"] = (oracle_one, oracle_ahead)
-    del one_experts, ahead_experts
+    predictions["best expert (hindsight)"] = oracle
 
     overall, per_track, errors_one = {}, {}, {}
     for name, (first, later) in predictions.items():

@@ -1,0 +1,100 @@
+"""Ablation of aggregation rules x banks on the shipped recordings (one-step RMS, last 80 % of each track).
+
+Run: python -m benchmarks.ablation [--datasets hawkeye_ball cycling skillcorner] [--json out.json]
+Every bank runs through the compiled engine on the segments ``kalmix predict`` makes
+(gap rule), with the length unit of :func:`kalmix.streaming.auto_length_unit` and the
+time unit :func:`kalmix.streaming.auto_time_unit`, both from the first 20 % of each track.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from kalmix.bank import make_bank
+from kalmix.core.compiled import engine as ce
+from kalmix.experiments.evaluate import split_streams
+from kalmix.io.datasets import load_dataset
+from kalmix.streaming import auto_length_unit, auto_time_unit
+
+CONFIGS = {
+    "akf40 fixed_share(sigma=2u)": dict(kind="akf", rule="fixed_share", fixed_scale=2.0),
+    "akf40 boa": dict(kind="akf", rule="boa"),
+    "kinematic28 boa": dict(kind="kinematic", rule="boa"),
+    "kinematic28 mlpoly": dict(kind="kinematic", rule="mlpoly"),
+    "kinematic28 fixed_share(online)": dict(kind="kinematic", rule="fixed_share"),
+    "mixed68 boa": dict(kind="mixed", rule="boa"),
+    "mixed68 mlpoly": dict(kind="mixed", rule="mlpoly"),
+    "mixed68 fixed_share(online)": dict(kind="mixed", rule="fixed_share"),
+    "mixed68 fixed_share(sigma=2u)": dict(kind="mixed", rule="fixed_share", fixed_scale=2.0),
+    "mixed36 boa (8 AKF)": dict(kind="mixed", rule="boa", n_akf=8),
+    "kinematic28 boa forget .999 share .01": dict(kind="kinematic", rule="boa",
+                                                  rule_options={"forgetting": 0.999, "share": 0.01}),
+    "mixed68 boa forget .999 share .01": dict(kind="mixed", rule="boa",
+                                              rule_options={"forgetting": 0.999, "share": 0.01}),
+}
+
+
+def run_dataset(name, configs, max_samples=None):
+    table = load_dataset(name)
+    streams = split_streams(table, max_samples=max_samples)
+    values, times = streams.values, streams.times
+    track_lengths = np.bincount(streams.track_of, weights=streams.lengths).astype(int)
+    cut = np.ceil(0.2 * track_lengths[streams.track_of]).astype(int)
+    present = streams.sample_index >= 0
+    scored = present & (streams.sample_index >= cut[None, :])
+    tuning = present & ~scored
+    unit = auto_length_unit(np.where(tuning[..., None], values, np.nan))
+    tunit = auto_time_unit(np.where(tuning, times, np.nan))
+    rows = {}
+    for label, cfg in configs.items():
+        cfg = dict(cfg)
+        fixed = cfg.pop("fixed_scale", None)
+        options = dict(cfg.pop("rule_options", {}))
+        if fixed is not None:
+            options["scale"] = fixed * unit
+        bank = make_bank(values.shape[2], length_unit=unit, time_unit=tunit, rule_options=options, **cfg)
+        start = time.perf_counter()
+        result = ce.run(bank, values, times, lengths=streams.lengths, score=scored)
+        seconds = time.perf_counter() - start
+        err = values - result.forecasts
+        rms = float(np.sqrt(np.nanmean(np.where(scored[..., None], err, np.nan) ** 2)))
+        # best expert in hindsight of this bank (per track), from the per-column sums
+        sq, cnt = result.experts, result.weights
+        per_track_sq = np.zeros((len(streams.track_ids), bank.n_experts))
+        per_track_cnt = np.zeros_like(per_track_sq)
+        np.add.at(per_track_sq, streams.track_of, sq)
+        np.add.at(per_track_cnt, streams.track_of, cnt)
+        mse = per_track_sq / np.maximum(per_track_cnt, 1)
+        mse[per_track_cnt == 0] = np.inf
+        best = per_track_sq[np.arange(len(mse)), mse.argmin(axis=1)].sum() / p_count(values, scored, result)
+        rows[label] = dict(rms=rms, best_expert=float(np.sqrt(best)), seconds=seconds)
+        print(f"{name:12s} {label:42s} rms {rms:.5g}  best expert {np.sqrt(best):.5g}  {seconds:.1f}s", flush=True)
+    return dict(unit=unit, time_unit=tunit, rows=rows)
+
+
+def p_count(values, scored, result):
+    """Scored coordinate-values (the denominator of the mixture's mean square)."""
+    ok = scored[..., None] & np.isfinite(values - result.forecasts)
+    return ok.sum()
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--datasets", nargs="+", default=["hawkeye_ball", "cycling", "skillcorner"])
+    parser.add_argument("--max-samples", type=int, default=None)
+    parser.add_argument("--configs", nargs="+", default=None)
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args(argv)
+    configs = CONFIGS if not args.configs else {k: CONFIGS[k] for k in args.configs}
+    out = {name: run_dataset(name, configs, args.max_samples) for name in args.datasets}
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(out, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,25 @@
+"""Helpers shared by the rules."""
+
+import numpy as np
+
+
+def normalise_awake(log_weights, awake):
+    """Softmax of ``log_weights (N, K)`` over the awake experts; rows with none awake are zero."""
+    masked = np.where(awake, log_weights, -np.inf)
+    top = masked.max(axis=-1, keepdims=True)
+    top = np.where(np.isfinite(top), top, 0.0)
+    w = np.where(awake, np.exp(masked - top), 0.0)
+    total = w.sum(axis=-1, keepdims=True)
+    return np.where(total > 0, w / np.where(total > 0, total, 1.0), 0.0)
+
+
+def linearised_regret(weights, experts, measurement, awake):
+    """:math:`r_k = 2 (\\hat y - y) \\cdot (\\hat y - x_k)`, the regret of the gradient trick, ``(N, K)``.
+
+    :math:`\\hat y = \\sum_k w_k x_k` over the awake experts; zero for sleeping experts.
+    """
+    x = np.where(awake[..., None], experts, 0.0)
+    mix = np.einsum("nk,nkp->np", weights, x)
+    with np.errstate(over="ignore", invalid="ignore"):
+        r = 2.0 * np.einsum("np,nkp->nk", mix - measurement, mix[:, None, :] - x)
+    return np.where(awake, r, 0.0)

@@ -1,0 +1,83 @@
+"""BOA, Bernstein online aggregation (Wintenberger 2017), with the gradient trick.
+
+Parameter-free in the scale of the data: with the linearised regret
+:math:`r_{k,t} = 2(\\hat y_t - y_t)\\cdot(\\hat y_t - x_{k,t})`,
+
+.. math::
+
+    V_k \\leftarrow \\rho V_k + r_k^2,\\quad B_k \\leftarrow \\max(\\rho B_k, |r_k|),\\quad
+    \\eta_k = \\min\\Big(\\frac{1}{2 B_k}, \\sqrt{\\frac{\\ln K}{V_k}}\\Big),
+
+    \\tilde R_k \\leftarrow \\rho \\tilde R_k + r_k - \\eta_k r_k^2,\\qquad
+    w_k \\propto \\pi_k\\, \\eta_k \\exp(\\eta_k \\tilde R_k),
+
+over the awake experts, then a fixed-share floor :math:`w \\leftarrow (1-\\alpha) w + \\alpha / K_{awake}`.
+:math:`\\rho = 1` (no forgetting) and :math:`\\alpha = 0` give the original rule, which
+competes with the best convex combination of the experts. An expert with no regret yet
+(:math:`V_k = 0`) takes the largest learning rate of the others (1 when none has one).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from ._common import linearised_regret, normalise_awake
+
+__all__ = ["Params", "State", "init", "weights", "update", "learning_rates"]
+
+
+class Params(NamedTuple):
+    forgetting: float = 1.0   # rho in (0, 1]
+    share: float = 0.0        # alpha in [0, 1)
+
+
+class State(NamedTuple):
+    regret: np.ndarray     # (N, K) regularised cumulative regret R~
+    variance: np.ndarray   # (N, K) V
+    bound: np.ndarray      # (N, K) B
+
+
+def init(params: Params, n_targets: int, n_experts: int) -> State:
+    zeros = np.zeros((n_targets, n_experts))
+    return State(zeros, zeros.copy(), zeros.copy())
+
+
+def learning_rates(state: State, n_experts: int) -> np.ndarray:
+    """:math:`\\eta_k`, with the uninformed experts at the largest informed rate (1 if none)."""
+    informed = state.variance > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        eta = np.minimum(1.0 / (2.0 * state.bound), np.sqrt(math.log(max(n_experts, 2)) / state.variance))
+    eta = np.where(informed, eta, 0.0)
+    top = eta.max(axis=-1, keepdims=True)
+    return np.where(informed, eta, np.where(top > 0, top, 1.0))
+
+
+def weights(params: Params, state: State, awake: np.ndarray) -> np.ndarray:
+    eta = learning_rates(state, state.regret.shape[-1])
+    w = normalise_awake(np.log(eta) + eta * state.regret, awake)
+    count = awake.sum(axis=-1, keepdims=True)
+    floor = np.where(awake, params.share / np.maximum(count, 1), 0.0)
+    return (1.0 - params.share) * w + floor
+
+
+def update(params: Params, state: State, experts, measurement, awake, learn) -> State:
+    w = weights(params, state, awake)
+    r = linearised_regret(w, experts, np.where(learn[:, None], measurement, 0.0), awake)
+    rho = params.forgetting
+    with np.errstate(over="ignore"):
+        variance = rho * state.variance + r * r
+    bound = np.maximum(rho * state.bound, np.abs(r))
+    informed = variance > 0
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        eta = np.where(informed, np.minimum(1.0 / (2.0 * bound),
+                                            np.sqrt(math.log(max(r.shape[-1], 2)) / variance)), 0.0)
+    with np.errstate(invalid="ignore", over="ignore"):
+        regret = rho * state.regret + r - eta * r * r
+    with np.errstate(over="ignore", invalid="ignore"):
+        finite = np.isfinite(r * r).all(axis=-1)   # an overflowing regret (errors ~1e77 and up) teaches nothing
+    go = (learn & finite)[:, None] & awake
+    return State(np.where(go, regret, state.regret), np.where(go, variance, state.variance),
+                 np.where(go, bound, state.bound))

@@ -1,0 +1,59 @@
+"""Numba cache location keyed on the compiled sources (see the package docstring)."""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+from pathlib import Path
+
+_CORE = Path(__file__).resolve().parent.parent
+#: Every file whose code ends up in a compiled kernel.
+COMPILED_SOURCES = (
+    "_numba_linalg.py", "_numba_kernels.py", "_numba_scalar.py",
+    "compiled/kinematic.py", "compiled/rules.py", "compiled/_cache.py",
+)
+
+
+@functools.cache
+def numba_available() -> bool:
+    """True when numba can be imported (the ``fast`` extra is installed)."""
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def source_hash() -> str:
+    digest = hashlib.sha256()
+    for name in COMPILED_SOURCES:
+        digest.update(name.encode())
+        digest.update((_CORE / name).read_bytes())
+    import numba
+
+    digest.update(numba.__version__.encode())
+    return digest.hexdigest()[:16]
+
+
+def cache_directory() -> Path:
+    root = os.environ.get("KALMIX_CACHE_DIR")
+    if root:
+        base = Path(root)
+    else:
+        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "kalmix"
+    return base / f"numba-{source_hash()}"
+
+
+@functools.cache
+def configure_cache() -> Path:
+    """Point numba's cache at :func:`cache_directory` (once, before any kalmix kernel is compiled)."""
+    import numba
+
+    path = cache_directory()
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return path  # read-only home: numba falls back to compiling without a cache
+    numba.config.CACHE_DIR = str(path)
+    return path

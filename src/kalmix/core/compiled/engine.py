@@ -1,0 +1,174 @@
+"""The compiled loop over time of a bank: :func:`kalmix.core.engine.run` with the same numbers, fast.
+
+Families do not depend on the rule's output, so a block of rows is run family by
+family (each writes its experts' forecasts into one ``(B, N, K, p)`` buffer), then the
+rule runs over the block. Blocks are sized so the buffer stays under
+:data:`BUFFER_BYTES`; the state carries over between blocks exactly, so the result does
+not depend on the block size.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..engine import Bank, BankState, EngineResult, init_bank_state
+from ..families.kinematic import KinematicState
+from . import kinematic as ckin
+from . import rules as crules
+
+__all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
+
+#: Upper bound of the per-block expert buffer(s).
+BUFFER_BYTES = 64 * 2**20
+
+
+def pack_rule(bank: Bank, state, n: int):
+    """The rule's state as the five arrays of :mod:`.rules` (fresh copies)."""
+    k = bank.n_experts
+    a, b, c = np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k))
+    d, e = np.zeros(n), np.zeros(n)
+    if bank.rule == "boa":
+        a[:], b[:], c[:] = state.regret, state.variance, state.bound
+    elif bank.rule == "mlpoly":
+        a[:], b[:], d[:] = state.regret, state.variance, state.bound
+    else:
+        a[:], d[:], e[:] = state.log_weights, state.squared, state.count
+    return a, b, c, d, e
+
+
+def unpack_rule(bank: Bank, a, b, c, d, e):
+    module = bank.rule_module
+    if bank.rule == "boa":
+        return module.State(a, b, c)
+    if bank.rule == "mlpoly":
+        return module.State(a, b, d)
+    return module.State(a, d, e)
+
+
+def _rule_scalars(bank: Bank):
+    params = bank.rule_params
+    return (crules.RULE_CODES[bank.rule], float(getattr(params, "forgetting", 1.0)), float(params.share),
+            float(getattr(params, "scale", 0.0)), float(getattr(params, "scale_factor", 0.0)))
+
+
+def _akf_block(params, state, z, learn, lengths, out, offset, ahead, ahead_frames):
+    from ..fast import run_fast
+
+    k = params.n_experts
+    fed = np.where(learn[..., None], z, np.nan)
+    init0 = state.initialised.copy()
+    prior = np.where(init0[:, None, None], state.expert_predictions, np.nan)
+    result = run_fast(params, fed, state, expert_predictions=True, lengths=lengths)
+    started = init0[None, :] | np.logical_or.accumulate(learn, axis=0)           # after each row
+    recorded = np.where(started[..., None, None], result.expert_predictions, np.nan)
+    out[0, :, offset:offset + k] = prior
+    out[1:, :, offset:offset + k] = recorded[:-1]
+    if ahead is not None:
+        if ahead_frames == 1:
+            ahead[:, :, offset:offset + k] = recorded
+        else:
+            later = run_fast(params, fed, state, expert_predictions=True, lengths=lengths,
+                             horizon=ahead_frames).expert_predictions
+            ahead[:, :, offset:offset + k] = np.where(started[..., None, None], later, np.nan)
+    return result.state
+
+
+def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
+        ahead_times=None, ahead_frames: int = 1, record_experts: bool = False, score=None,
+        score_ahead=None) -> EngineResult:
+    """Same arguments and result as :func:`kalmix.core.engine.run`.
+
+    With ``score (T, N)`` (and ``score_ahead``) bool masks, the result's ``experts`` is
+    replaced by the per-target, per-expert sums of squared errors over the scored rows,
+    ``(N, K)``, and ``weights`` by their counts (memory independent of T; what the
+    best-expert-in-hindsight needs), ``expert_ahead`` likewise for the ahead forecasts.
+    """
+    z = np.ascontiguousarray(measurements, dtype=np.float64)
+    t_count, n, p = z.shape
+    times = np.ascontiguousarray(np.broadcast_to(np.asarray(times, dtype=np.float64), (t_count, n)))
+    state = init_bank_state(bank, n) if state is None else state
+    lengths = np.full(n, t_count, dtype=np.int64) if lengths is None else np.asarray(lengths, dtype=np.int64)
+    present = np.isfinite(z).all(axis=-1) & (np.arange(t_count)[:, None] < lengths[None, :])
+    learn = present if learn is None else (np.asarray(learn, dtype=bool) & present)
+    k = bank.n_experts
+    with_ahead = ahead_times is not None
+    if with_ahead:
+        ahead_times = np.ascontiguousarray(np.broadcast_to(np.asarray(ahead_times, dtype=np.float64), (t_count, n)))
+
+    families = []
+    for family, fstate in zip(bank.families, state.families):
+        if family.kind == "akf":
+            families.append(fstate)
+        else:
+            families.append(KinematicState(*(np.array(a, copy=True, order="C") for a in fstate)))
+    a, b, c, d, e = pack_rule(bank, state.rule, n)
+    rule_args = _rule_scalars(bank)
+
+    forecasts = np.full((t_count, n, p), np.nan)
+    ahead = np.full((t_count, n, p), np.nan) if with_ahead else None
+    experts_out = weights_out = ahead_experts_out = None
+    if record_experts:
+        experts_out = np.full((t_count, n, k, p), np.nan)
+        weights_out = np.full((t_count, n, k), np.nan)
+        ahead_experts_out = np.full((t_count, n, k, p), np.nan) if with_ahead else None
+    sums = [np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k))] if score is not None else None
+
+    per_row = n * k * p * 8 * (2 if with_ahead else 1)
+    block = int(max(1, min(t_count, BUFFER_BYTES // max(per_row, 1))))
+    empty4, empty3, empty2 = np.empty((0, 0, 0, 0)), np.empty((0, 0, 0)), np.empty((0, 0))
+    for begin in range(0, t_count, block):
+        end = min(begin + block, t_count)
+        rows = end - begin
+        lens = np.clip(lengths - begin, 0, rows).astype(np.int64)
+        zb, tb, lb = z[begin:end], times[begin:end], learn[begin:end]
+        buffer = np.full((rows, n, k, p), np.nan)
+        ahead_buffer = np.full((rows, n, k, p), np.nan) if with_ahead else None
+        offset = 0
+        for i, family in enumerate(bank.families):
+            if family.kind == "akf":
+                families[i] = _akf_block(family.params, families[i], zb, lb, lens, buffer, offset, ahead_buffer,
+                                         ahead_frames)
+            else:
+                fp, fs = family.params, families[i]
+                ckin.run_block(fp.order, fp.process_noise, fp.measurement_noise, fp.initial_variance,
+                               float(fp.time_unit), float(fp.max_step), float(fp.max_variance),
+                               fs.mean, fs.cov, fs.last_time, fs.initialised, zb, tb, lens, lb, buffer, empty3,
+                               offset, ahead_times[begin:end] if with_ahead else empty2,
+                               ahead_buffer if with_ahead else empty4)
+            offset += family.n_experts
+        w_block = np.full((rows, n, k), np.nan) if record_experts else empty3
+        crules.run_block(*rule_args, a, b, c, d, e, buffer, zb, lens, lb, forecasts[begin:end], w_block,
+                         ahead_buffer if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3)
+        if record_experts:
+            experts_out[begin:end] = buffer
+            weights_out[begin:end] = w_block
+            if with_ahead:
+                ahead_experts_out[begin:end] = ahead_buffer
+        if sums is not None:
+            _accumulate(sums[0], sums[1], buffer, zb, score[begin:end])
+            if with_ahead and score_ahead is not None:
+                _accumulate_ahead(sums[2], sums[3], ahead_buffer, z, begin, end, ahead_frames, score_ahead)
+    final = BankState(tuple(families), unpack_rule(bank, a, b, c, d, e))
+    if sums is not None:
+        return EngineResult(forecasts, final, ahead, sums[0], sums[1], sums[2] if with_ahead else None)
+    return EngineResult(forecasts, final, ahead, experts_out, weights_out, ahead_experts_out)
+
+
+def _accumulate(total, count, buffer, z, score):
+    err = np.sum((buffer - z[:, :, None, :]) ** 2, axis=-1)          # (B, N, K)
+    ok = score[..., None] & np.isfinite(err)
+    total += np.where(ok, err, 0.0).sum(axis=0)
+    count += ok.sum(axis=0)
+
+
+def _accumulate_ahead(total, count, buffer, z, begin, end, h, score_ahead):
+    """Ahead forecasts made after row t are scored against row t + h (rows known in the whole array)."""
+    t_count = z.shape[0]
+    stop = min(end, t_count - h)
+    if stop <= begin:
+        return
+    target = z[begin + h:stop + h]
+    err = np.sum((buffer[:stop - begin] - target[:, :, None, :]) ** 2, axis=-1)
+    ok = score_ahead[begin:stop][..., None] & np.isfinite(err)
+    total += np.where(ok, err, 0.0).sum(axis=0)
+    count += ok.sum(axis=0)

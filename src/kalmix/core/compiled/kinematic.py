@@ -1,0 +1,162 @@
+"""Compiled kinematic family (:mod:`kalmix.core.families.kinematic`): same formulas, one target per thread.
+
+:func:`run_block` advances every target through its rows of a block: at each row it
+writes every expert's forecast of the row (and its variance) into the bank's shared
+buffers at the family's column ``offset``, then learns the row; with ``ahead_times`` it
+also writes the forecast made after the row for that time.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from ._cache import configure_cache
+
+configure_cache()
+_JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
+_FACT = (1.0, 1.0, 2.0)
+
+
+@nb.njit(inline="always", **_JIT)
+def _extrapolate(order, delta, q, mean, cov, m_out, c_out, f, work):
+    """``m_out = F mean``; ``c_out = F cov F^T + q Q(delta)`` (symmetrised), for one expert."""
+    p = mean.shape[1]
+    for i in range(order):
+        for j in range(order):
+            f[i, j] = 0.0
+        f[i, i] = 1.0
+        if i + 1 < order:
+            f[i, i + 1] = delta
+    if order == 3:
+        f[0, 2] = 0.5 * delta * delta
+    for i in range(order):
+        for c in range(p):
+            acc = 0.0
+            for j in range(order):
+                acc += f[i, j] * mean[j, c]
+            m_out[i, c] = acc
+    for i in range(order):
+        for j in range(order):
+            acc = 0.0
+            for l in range(order):
+                acc += f[i, l] * cov[l, j]
+            work[i, j] = acc
+    for i in range(order):
+        for j in range(order):
+            acc = 0.0
+            for l in range(order):
+                acc += work[i, l] * f[j, l]
+            a = order - 1 - i
+            b = order - 1 - j
+            m = a + b + 1
+            c_out[i, j] = acc + q * delta**m / (m * _FACT[a] * _FACT[b])
+    for i in range(order):
+        for j in range(i + 1, order):
+            s = 0.5 * (c_out[i, j] + c_out[j, i])
+            c_out[i, j] = s
+            c_out[j, i] = s
+
+
+@nb.njit(inline="always", **_JIT)
+def _delta(time, last, time_unit, max_step):
+    delta = (time - last) / time_unit
+    if not math.isfinite(delta):
+        return 0.0
+    return min(max(delta, 0.0), max_step)
+
+
+@nb.njit(parallel=True, **_JIT)
+def run_block(order, q, r, initial, time_unit, max_step, max_variance,
+              mean, cov, last_time, initialised,
+              z, times, lengths, learn, out, out_var, offset, ahead_times, out_ahead):
+    n_targets = z.shape[1]
+    k_count = q.shape[0]
+    p = z.shape[2]
+    want_var = out_var.shape[0] > 0
+    want_ahead = out_ahead.shape[0] > 0
+    for n in nb.prange(n_targets):
+        m_pred = np.empty((order, p))
+        c_pred = np.empty((order, order))
+        f = np.empty((order, order))
+        work = np.empty((order, order))
+        gain = np.empty(order)
+        a = np.empty((order, order))
+        for t in range(lengths[n]):
+            # forecast of this row
+            if initialised[n]:
+                delta = _delta(times[t, n], last_time[n], time_unit, max_step)
+                for k in range(k_count):
+                    _extrapolate(order, delta, q[k], mean[n, k], cov[n, k], m_pred, c_pred, f, work)
+                    for c in range(p):
+                        out[t, n, offset + k, c] = m_pred[0, c]
+                    if want_var:
+                        out_var[t, n, offset + k] = min(c_pred[0, 0], max_variance) + r[k]
+            else:
+                for k in range(k_count):
+                    for c in range(p):
+                        out[t, n, offset + k, c] = np.nan
+                    if want_var:
+                        out_var[t, n, offset + k] = np.nan
+            # learn it
+            if learn[t, n]:
+                if not initialised[n]:
+                    for k in range(k_count):
+                        for i in range(order):
+                            for c in range(p):
+                                mean[n, k, i, c] = z[t, n, c] if i == 0 else 0.0
+                            for j in range(order):
+                                cov[n, k, i, j] = initial[k, i] if i == j else 0.0
+                    initialised[n] = True
+                else:
+                    delta = _delta(times[t, n], last_time[n], time_unit, max_step)
+                    for k in range(k_count):
+                        _extrapolate(order, delta, q[k], mean[n, k], cov[n, k], m_pred, c_pred, f, work)
+                        s = c_pred[0, 0] + r[k]
+                        for i in range(order):
+                            gain[i] = c_pred[i, 0] / s
+                        for c in range(p):
+                            innovation = z[t, n, c] - m_pred[0, c]
+                            for i in range(order):
+                                mean[n, k, i, c] = m_pred[i, c] + gain[i] * innovation
+                        # Joseph form: A P A^T + r g g^T, A = I - g e0^T
+                        for i in range(order):
+                            for j in range(order):
+                                a[i, j] = (1.0 if i == j else 0.0) - (gain[i] if j == 0 else 0.0)
+                        for i in range(order):
+                            for j in range(order):
+                                acc = 0.0
+                                for l in range(order):
+                                    acc += a[i, l] * c_pred[l, j]
+                                work[i, j] = acc
+                        for i in range(order):
+                            for j in range(order):
+                                acc = 0.0
+                                for l in range(order):
+                                    acc += work[i, l] * a[j, l]
+                                cov[n, k, i, j] = acc + r[k] * gain[i] * gain[j]
+                        for i in range(order):
+                            for j in range(i + 1, order):
+                                s2 = 0.5 * (cov[n, k, i, j] + cov[n, k, j, i])
+                                cov[n, k, i, j] = s2
+                                cov[n, k, j, i] = s2
+                        excess = cov[n, k, 0, 0] / max_variance
+                        if excess > 1.0:
+                            for i in range(order):
+                                for j in range(order):
+                                    cov[n, k, i, j] /= excess
+                last_time[n] = times[t, n]
+            # forecast made after this row, for a later time
+            if want_ahead:
+                if initialised[n]:
+                    delta = _delta(ahead_times[t, n], last_time[n], time_unit, max_step)
+                    for k in range(k_count):
+                        _extrapolate(order, delta, q[k], mean[n, k], cov[n, k], m_pred, c_pred, f, work)
+                        for c in range(p):
+                            out_ahead[t, n, offset + k, c] = m_pred[0, c]
+                else:
+                    for k in range(k_count):
+                        for c in range(p):
+                            out_ahead[t, n, offset + k, c] = np.nan

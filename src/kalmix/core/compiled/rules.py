@@ -1,0 +1,223 @@
+"""Compiled aggregation rules (:mod:`kalmix.core.aggregators`): same formulas, one target per thread.
+
+Every rule's state is packed into the same five arrays (``a, b, c`` of shape ``(N, K)``,
+``d, e`` of shape ``(N,)``) so that one driver, :func:`run_block`, serves them all:
+
+=============  ===============  ===============  =============  ===========  =========
+rule           a                b                c              d            e
+=============  ===============  ===============  =============  ===========  =========
+boa            regret           variance         bound          --           --
+mlpoly         regret           variance         --             bound        --
+fixed_share    log_weights      --               --             squared      count
+=============  ===============  ===============  =============  ===========  =========
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from ._cache import configure_cache
+
+configure_cache()
+_JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
+
+#: Rule codes of the driver, in the order of :data:`kalmix.core.aggregators.RULES`.
+RULE_CODES = {"boa": 0, "mlpoly": 1, "fixed_share": 2}
+
+
+@nb.njit(inline="always", **_JIT)
+def _awake(x, awake):
+    """Which experts' forecasts ``x (K, p)`` are finite; returns how many."""
+    count = 0
+    for k in range(x.shape[0]):
+        ok = True
+        for c in range(x.shape[1]):
+            if not math.isfinite(x[k, c]):
+                ok = False
+        awake[k] = ok
+        if ok:
+            count += 1
+    return count
+
+
+@nb.njit(inline="always", **_JIT)
+def _softmax(logw, awake, w):
+    top = -np.inf
+    for k in range(w.shape[0]):
+        if awake[k] and logw[k] > top:
+            top = logw[k]
+    if not math.isfinite(top):
+        top = 0.0
+    total = 0.0
+    for k in range(w.shape[0]):
+        w[k] = math.exp(logw[k] - top) if awake[k] else 0.0
+        total += w[k]
+    for k in range(w.shape[0]):
+        w[k] = w[k] / total if total > 0 else 0.0
+
+
+@nb.njit(inline="always", **_JIT)
+def _share(w, awake, count, share):
+    if share > 0:
+        for k in range(w.shape[0]):
+            w[k] = (1.0 - share) * w[k] + (share / max(count, 1) if awake[k] else 0.0)
+
+
+@nb.njit(**_JIT)
+def _weights(rule, forgetting, share, a, b, c, d, awake, count, w, logw):
+    k_count = w.shape[0]
+    if rule == 0:  # BOA
+        top = 0.0
+        log_k = math.log(max(k_count, 2))
+        for k in range(k_count):
+            if b[k] > 0:
+                eta = min(1.0 / (2.0 * c[k]), math.sqrt(log_k / b[k]))
+                logw[k] = eta
+                if eta > top:
+                    top = eta
+            else:
+                logw[k] = -1.0
+        fallback = top if top > 0 else 1.0
+        for k in range(k_count):
+            eta = logw[k] if logw[k] >= 0 else fallback
+            logw[k] = math.log(eta) + eta * a[k]
+        _softmax(logw, awake, w)
+        _share(w, awake, count, share)
+    elif rule == 1:  # ML-Poly
+        total = 0.0
+        for k in range(k_count):
+            denominator = b[k] + d
+            if awake[k] and denominator > 0:
+                w[k] = max(a[k], 0.0) / denominator
+            else:
+                w[k] = 0.0
+            total += w[k]
+        for k in range(k_count):
+            if total > 0:
+                w[k] = w[k] / total
+            else:
+                w[k] = 1.0 / max(count, 1) if awake[k] else 0.0
+        _share(w, awake, count, share)
+    else:  # fixed share: the shared weights are stored
+        _softmax(a, awake, w)
+
+
+@nb.njit(inline="always", **_JIT)
+def _mix(x, w, awake, out):
+    for ci in range(x.shape[1]):
+        acc = 0.0
+        for k in range(x.shape[0]):
+            if awake[k]:
+                acc += w[k] * x[k, ci]
+        out[ci] = acc
+
+
+@nb.njit(**_JIT)
+def _learn(rule, forgetting, share, scale, scale_factor, a, b, c, d, e, x, y, awake, count, w, mix, r):
+    k_count = w.shape[0]
+    p = x.shape[1]
+    if rule == 0 or rule == 1:
+        biggest = 0.0
+        for k in range(k_count):
+            if awake[k]:
+                acc = 0.0
+                for ci in range(p):
+                    acc += (mix[ci] - y[ci]) * (mix[ci] - x[k, ci])
+                r[k] = 2.0 * acc
+            else:
+                r[k] = 0.0
+            if not math.isfinite(r[k] * r[k]):
+                biggest = np.inf
+            elif r[k] * r[k] > biggest:
+                biggest = r[k] * r[k]
+        if not math.isfinite(biggest):
+            return  # an overflowing regret teaches nothing
+        rho = forgetting
+        if rule == 0:
+            log_k = math.log(max(k_count, 2))
+            for k in range(k_count):
+                if awake[k]:
+                    variance = rho * b[k] + r[k] * r[k]
+                    bound = max(rho * c[k], abs(r[k]))
+                    eta = min(1.0 / (2.0 * bound), math.sqrt(log_k / variance)) if variance > 0 else 0.0
+                    a[k] = rho * a[k] + r[k] - eta * r[k] * r[k]
+                    b[k] = variance
+                    c[k] = bound
+        else:
+            for k in range(k_count):
+                if awake[k]:
+                    a[k] = rho * a[k] + r[k]
+                    b[k] = rho * b[k] + r[k] * r[k]
+            d[0] = max(rho * d[0], biggest)
+    else:
+        if count == 0:
+            return
+        sq = 0.0
+        for ci in range(p):
+            sq += (mix[ci] - y[ci]) ** 2
+        worst = sq
+        for k in range(k_count):
+            if awake[k]:
+                loss = 0.0
+                for ci in range(p):
+                    loss += (y[ci] - x[k, ci]) ** 2
+                if not math.isfinite(loss):
+                    worst = np.inf
+                worst = max(worst, loss)
+        if not math.isfinite(worst):
+            return  # an overflowing loss teaches nothing
+        d[0] += sq / p
+        e[0] += 1.0
+        variance = scale * scale if scale > 0 else scale_factor * d[0] / e[0]
+        for k in range(k_count):
+            if awake[k]:
+                loss = 0.0
+                for ci in range(p):
+                    loss += (y[ci] - x[k, ci]) ** 2
+                r[k] = a[k] - (loss / (2.0 * variance) if variance > 0 else 0.0)
+        _softmax(r, awake, w)
+        for k in range(k_count):
+            if awake[k]:
+                a[k] = math.log((1.0 - share) * w[k] + share / count)
+
+
+@nb.njit(parallel=True, **_JIT)
+def run_block(rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
+              experts, z, lengths, learn, out, out_weights, ahead_experts, out_ahead):
+    """Mixture forecast of every row (weights before the row), then learn the row where ``learn``."""
+    n_targets = z.shape[1]
+    k_count = experts.shape[2]
+    p = z.shape[2]
+    want_weights = out_weights.shape[0] > 0
+    want_ahead = out_ahead.shape[0] > 0
+    for n in nb.prange(n_targets):
+        awake = np.empty(k_count, dtype=np.bool_)
+        w = np.empty(k_count)
+        logw = np.empty(k_count)
+        r = np.empty(k_count)
+        mix = np.empty(p)
+        dn = d[n:n + 1]
+        en = e[n:n + 1]
+        for t in range(lengths[n]):
+            x = experts[t, n]
+            count = _awake(x, awake)
+            _weights(rule, forgetting, share, a[n], b[n], c[n], dn[0], awake, count, w, logw)
+            _mix(x, w, awake, mix)
+            for ci in range(p):
+                out[t, n, ci] = mix[ci] if count > 0 else np.nan
+            if want_weights:
+                for k in range(k_count):
+                    out_weights[t, n, k] = w[k]
+            if learn[t, n] and count > 0:
+                _learn(rule, forgetting, share, scale, scale_factor, a[n], b[n], c[n], dn, en,
+                       x, z[t, n], awake, count, w, mix, r)
+            if want_ahead:
+                xa = ahead_experts[t, n]
+                count_ahead = _awake(xa, awake)
+                _weights(rule, forgetting, share, a[n], b[n], c[n], dn[0], awake, count_ahead, w, logw)
+                _mix(xa, w, awake, mix)
+                for ci in range(p):
+                    out_ahead[t, n, ci] = mix[ci] if count_ahead > 0 else np.nan

@@ -1,0 +1,167 @@
+"""Kinematic experts: constant-velocity (CV) and constant-acceleration (CA) Kalman filters in real time.
+
+Each expert is a Kalman filter on the state :math:`[x, \\dot x]` (CV) or
+:math:`[x, \\dot x, \\ddot x]` (CA) of every coordinate, with the transition and the
+process noise of the continuous white-noise acceleration (CV) or jerk (CA) model over
+the real time step :math:`\\Delta` (in units of ``time_unit``, the typical sampling
+interval, so that noise levels do not depend on the clock's units):
+
+.. math::
+
+    F_{CV} = \\begin{bmatrix} 1 & \\Delta \\\\ 0 & 1 \\end{bmatrix},\\quad
+    Q_{CV} = q \\begin{bmatrix} \\Delta^3/3 & \\Delta^2/2 \\\\ \\Delta^2/2 & \\Delta \\end{bmatrix},
+
+    F_{CA} = \\begin{bmatrix} 1 & \\Delta & \\Delta^2/2 \\\\ 0 & 1 & \\Delta \\\\ 0 & 0 & 1 \\end{bmatrix},\\quad
+    Q_{CA} = q \\begin{bmatrix} \\Delta^5/20 & \\Delta^4/8 & \\Delta^3/6 \\\\ \\Delta^4/8 & \\Delta^3/3 & \\Delta^2/2
+             \\\\ \\Delta^3/6 & \\Delta^2/2 & \\Delta \\end{bmatrix},
+
+and :math:`R = r I`. The coordinates share :math:`F, Q, R` and are observed together
+(a row is present or missing as a whole), so their covariances are equal: the state is
+``mean (N, K, d, p)`` and one ``cov (N, K, d, d)`` per expert, ``d`` = 2 or 3.
+
+The family keeps the *filtered* state at the time of its last measurement.
+:func:`forecast` extrapolates it to any later time without changing it (a missing
+measurement changes nothing); :func:`update` extrapolates to the measurement's time and
+applies the Joseph-form update. The first measurement starts the filter at
+``[z, 0, 0]`` with covariance ``diag(r, v0, a0)`` (``initial_variance``).
+
+Time steps are clipped to ``max_step`` intervals so that an absurd gap cannot overflow
+the covariance; the variance cap keeps every number finite after very long gaps.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["KinematicParams", "KinematicState", "init_state", "forecast", "update", "transition", "process_noise"]
+
+
+class KinematicParams(NamedTuple):
+    """Constant parameters of one kinematic family (K experts of one order)."""
+
+    order: int                      # d = 2 (CV) or 3 (CA)
+    process_noise: np.ndarray       # (K,) q, length^2 per time_unit^(2d-3)
+    measurement_noise: np.ndarray   # (K,) r, length^2
+    initial_variance: np.ndarray    # (K, d) diagonal of the first covariance (r, v0[, a0])
+    time_unit: float                # the time step unit (the typical sampling interval)
+    max_step: float = 1e6           # longest step, in time units
+    max_variance: float = 1e300     # position-variance cap (length^2)
+
+    @property
+    def n_experts(self) -> int:
+        return int(self.process_noise.shape[0])
+
+
+class KinematicState(NamedTuple):
+    mean: np.ndarray         # (N, K, d, p) filtered state at last_time
+    cov: np.ndarray          # (N, K, d, d)
+    last_time: np.ndarray    # (N,) time of the last measurement (NaN before the first)
+    initialised: np.ndarray  # (N,) bool
+
+
+def init_state(params: KinematicParams, n_targets: int, measurement_dim: int) -> KinematicState:
+    k, d = params.n_experts, params.order
+    return KinematicState(
+        mean=np.zeros((n_targets, k, d, measurement_dim)),
+        cov=np.broadcast_to(np.eye(d) * params.initial_variance[:, None, :], (n_targets, k, d, d)).copy(),
+        last_time=np.full(n_targets, np.nan),
+        initialised=np.zeros(n_targets, dtype=bool),
+    )
+
+
+def _step(params: KinematicParams, state: KinematicState, time) -> np.ndarray:
+    """Steps from the last measurement to ``time`` in time units, ``(N,)``, clipped to [0, max_step]."""
+    delta = (np.asarray(time, dtype=np.float64) - state.last_time) / params.time_unit
+    return np.clip(np.where(np.isfinite(delta), delta, 0.0), 0.0, params.max_step)
+
+
+def transition(order: int, delta: np.ndarray) -> np.ndarray:
+    """:math:`F(\\Delta)`, ``(..., d, d)`` for steps ``delta (...)``."""
+    f = np.zeros(delta.shape + (order, order))
+    for i in range(order):
+        f[..., i, i] = 1.0
+        if i + 1 < order:
+            f[..., i, i + 1] = delta
+    if order == 3:
+        f[..., 0, 2] = 0.5 * delta * delta
+    return f
+
+
+def process_noise(order: int, delta: np.ndarray) -> np.ndarray:
+    """:math:`Q(\\Delta)/q`, ``(..., d, d)``: entry ``(i, j)`` is :math:`\\Delta^{m} / (m\\, a!\\, b!)`.
+
+    With ``a = d - 1 - i``, ``b = d - 1 - j``, ``m = a + b + 1`` (the integral of the
+    white noise through ``a`` and ``b`` integrations).
+    """
+    q = np.empty(delta.shape + (order, order))
+    fact = (1.0, 1.0, 2.0)
+    for i in range(order):
+        for j in range(order):
+            a, b = order - 1 - i, order - 1 - j
+            m = a + b + 1
+            q[..., i, j] = delta**m / (m * fact[a] * fact[b])
+    return q
+
+
+def _predict(params: KinematicParams, state: KinematicState, delta: np.ndarray):
+    """Mean and covariance extrapolated by ``delta (N,)`` steps."""
+    f = transition(params.order, delta)[:, None]                                   # (N, 1, d, d)
+    mean = f @ state.mean                                                          # (N, K, d, p)
+    cov = f @ state.cov @ np.swapaxes(f, -1, -2)
+    cov = cov + params.process_noise[None, :, None, None] * process_noise(params.order, delta)[:, None]
+    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    return mean, cov
+
+
+def forecast(params: KinematicParams, state: KinematicState, time) -> tuple[np.ndarray, np.ndarray]:
+    """Each expert's predicted measurement at ``time (N,)`` and its variance per coordinate.
+
+    Returns
+    -------
+    means : ndarray (N, K, p)
+    variances : ndarray (N, K) — :math:`P_{00} + r`, the same for every coordinate.
+    """
+    mean, cov = _predict(params, state, _step(params, state, time))
+    variance = np.minimum(cov[..., 0, 0], params.max_variance) + params.measurement_noise
+    return mean[..., 0, :], variance
+
+
+def update(params: KinematicParams, state: KinematicState, measurement: np.ndarray, time,
+           learn: np.ndarray) -> KinematicState:
+    """Assimilate ``measurement (N, p)`` at ``time (N,)`` for the targets where ``learn (N,)``.
+
+    A target not yet started starts at the measurement; the others get the Joseph-form
+    Kalman update of the extrapolated state. Targets outside ``learn`` are unchanged.
+    """
+    time = np.asarray(time, dtype=np.float64)
+    z = np.where(learn[:, None], measurement, 0.0)
+    mean, cov = _predict(params, state, _step(params, state, time))
+    r = params.measurement_noise[None, :]                                          # (1, K)
+    s = cov[..., 0, 0] + r                                                         # (N, K)
+    gain = cov[..., :, 0] / s[..., None]                                           # (N, K, d)
+    innovation = z[:, None, :] - mean[..., 0, :]                                   # (N, K, p)
+    new_mean = mean + gain[..., :, None] * innovation[..., None, :]
+    a = np.eye(params.order) - gain[..., :, None] * np.eye(params.order)[0][None, None, None, :]
+    new_cov = a @ cov @ np.swapaxes(a, -1, -2) + r[..., None, None] * gain[..., :, None] * gain[..., None, :]
+    new_cov = 0.5 * (new_cov + np.swapaxes(new_cov, -1, -2))
+    excess = np.maximum(new_cov[..., 0, 0] / params.max_variance, 1.0)
+    new_cov = new_cov / excess[..., None, None]
+
+    start = learn & ~state.initialised
+    go = learn & state.initialised
+    first_mean = np.zeros_like(state.mean)
+    first_mean[..., 0, :] = z[:, None, :]
+    first_cov = np.broadcast_to(np.eye(params.order) * params.initial_variance[:, None, :], state.cov.shape)
+
+    def pick(fresh, updated, old):
+        shape = (-1,) + (1,) * (old.ndim - 1)
+        return np.where(start.reshape(shape), fresh, np.where(go.reshape(shape), updated, old))
+
+    return KinematicState(
+        mean=pick(first_mean, new_mean, state.mean),
+        cov=pick(first_cov, new_cov, state.cov),
+        last_time=np.where(learn, time, state.last_time),
+        initialised=state.initialised | learn,
+    )

@@ -1,0 +1,99 @@
+"""The contract every bank (family x rule) passes: ``check_bank`` runs the generic checks.
+
+In the spirit of river's estimator checks: one generator of checks, run on every family
+and every rule by the test suite, each check a plain function raising AssertionError:
+
+- weights valid: finite, >= 0, summing to 1 over the awake experts, 0 on sleeping ones;
+- a NaN row is missing data: nothing learned (the time-based state is unchanged);
+- a batch equals the same targets run one at a time;
+- resume equals an uninterrupted run, bit for bit (and the block size does not matter);
+- compiled equals reference to ``rtol`` (on the data given: benign and adversarial);
+- every forecast is finite once the target has started, for finite input.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .engine import Bank, init_bank_state, run
+
+__all__ = ["check_bank", "adversarial_tracks", "benign_tracks"]
+
+
+def benign_tracks(seed: int, t_count: int = 120, n: int = 3, p: int = 2):
+    rng = np.random.default_rng(seed)
+    times = np.cumsum(rng.uniform(0.5, 1.5, (t_count, n)), axis=0)
+    z = np.cumsum(np.cumsum(rng.normal(0, 0.05, (t_count, n, p)), axis=0), axis=0) + rng.normal(0, 0.3, (t_count, n, p))
+    z[20:25, 1] = np.nan
+    return z, times
+
+
+def adversarial_tracks(seed: int, t_count: int = 400, p: int = 2):
+    """Jumps of 1e8, a long NaN gap, constant input and values of 1e200, one target each."""
+    rng = np.random.default_rng(seed)
+    base = np.cumsum(rng.normal(0, 1.0, (t_count, 4, p)), axis=0)
+    base[t_count // 2:, 0] += 1e8                 # a jump of 1e8
+    base[50:50 + t_count // 2, 1] = np.nan        # a long gap
+    base[:, 2] = 3.0                              # constant input
+    base[:, 3] = 1e200 + base[:, 3] * 1e190       # huge values
+    times = np.broadcast_to(np.arange(t_count, dtype=float)[:, None], (t_count, 4)).copy()
+    return base, times
+
+
+def _close(a, b, rtol):
+    finite = np.isfinite(a) & np.isfinite(b)
+    assert np.array_equal(np.isfinite(a), np.isfinite(b)), "finite in one, not in the other"
+    scale = np.maximum(np.abs(a[finite]), np.abs(b[finite]))
+    assert np.all(np.abs(a[finite] - b[finite]) <= rtol * np.maximum(scale, 1.0)), \
+        f"max difference {np.max(np.abs(a[finite] - b[finite]), initial=0):.3g}"
+
+
+def check_bank(bank: Bank, measurements, times, *, rtol: float = 1e-9, compiled=True):
+    """Run every check of the module docstring on ``bank`` with ``measurements (T, N, p)``."""
+    z = np.asarray(measurements, dtype=float)
+    t_count, n, _ = z.shape
+    reference = run(bank, z, times, record_experts=True)
+    # weights valid
+    w, experts = reference.weights, reference.experts
+    awake = np.isfinite(experts).all(axis=-1)
+    assert np.all(np.isfinite(w)) and np.all(w >= 0)
+    assert np.all(w[~awake] == 0)
+    sums = w.sum(axis=-1)
+    started = awake.any(axis=-1)
+    assert np.allclose(sums[started], 1.0, atol=1e-9)
+    # finite once started (finite input)
+    assert np.all(np.isfinite(reference.forecasts[started])), "a forecast is not finite"
+    # batch == singles
+    for j in range(n):
+        single = run(bank, z[:, j:j + 1], times[:, j:j + 1])
+        assert np.array_equal(single.forecasts[:, 0], reference.forecasts[:, j], equal_nan=True), "batch != single"
+    # resume == uninterrupted, bit for bit
+    cut = t_count // 3
+    first = run(bank, z[:cut], times[:cut])
+    second = run(bank, z[cut:], times[cut:], first.state)
+    assert np.array_equal(np.concatenate([first.forecasts, second.forecasts]), reference.forecasts, equal_nan=True)
+    # a NaN row learns nothing: the rule's state is unchanged
+    missing = np.full_like(z[:1], np.nan)
+    after = run(bank, missing, times[cut:cut + 1], first.state).state
+    for old, new in zip(first.state.rule, after.rule):
+        assert np.array_equal(old, new), "a missing row changed the rule's state"
+    for family, old, new in zip(bank.families, first.state.families, after.families):
+        if family.kind != "akf":
+            for a, b in zip(old, new):
+                assert np.array_equal(a, b, equal_nan=True), "a missing row changed a kinematic state"
+    if compiled:
+        from .compiled import engine as ce
+
+        fast = ce.run(bank, z, times)
+        _close(fast.forecasts, reference.forecasts, rtol)
+        resumed = ce.run(bank, z[cut:], times[cut:], ce.run(bank, z[:cut], times[:cut]).state)
+        assert np.array_equal(np.concatenate([ce.run(bank, z[:cut], times[:cut]).forecasts, resumed.forecasts]),
+                              fast.forecasts, equal_nan=True), "compiled resume != uninterrupted"
+        saved = ce.BUFFER_BYTES
+        try:
+            ce.BUFFER_BYTES = 1
+            blocked = ce.run(bank, z, times)
+        finally:
+            ce.BUFFER_BYTES = saved
+        assert np.array_equal(blocked.forecasts, fast.forecasts, equal_nan=True), "block size changed numbers"
+    return reference

@@ -1,0 +1,119 @@
+"""Every family and every rule passes the contract of kalmix.core.testing, on benign and adversarial input."""
+
+import numpy as np
+import pytest
+
+from kalmix.bank import BANK_KINDS, make_bank
+from kalmix.core import aggregators
+from kalmix.core.testing import adversarial_tracks, benign_tracks, check_bank
+
+RULES = list(aggregators.RULES)
+
+
+def _bank(kind, rule, p=2, unit=0.3):
+    # a small AKF family keeps the reference runs quick; 8 experts use the vectorised kernel
+    return make_bank(p, kind, rule=rule, length_unit=unit, n_akf=8 if kind != "akf" else 9)
+
+
+@pytest.mark.parametrize("rule", RULES)
+@pytest.mark.parametrize("kind", BANK_KINDS)
+def test_contract_benign(kind, rule):
+    z, t = benign_tracks(seed=1)
+    check_bank(_bank(kind, rule), z, t)
+
+
+@pytest.mark.parametrize("rule", RULES)
+@pytest.mark.parametrize("kind", ["kinematic"])
+def test_contract_adversarial_kinematic(kind, rule):
+    """Jumps of 1e8, a 200-row gap, constant input, values of 1e200: finite, and compiled == reference."""
+    z, t = adversarial_tracks(seed=2)
+    check_bank(_bank(kind, rule), z, t)
+
+
+def test_fixed_scale_fixed_share_is_the_previous_rule():
+    """fixed_share with a fixed scale is exponential weighting at rate 1/(2 sigma^2): check one step by hand."""
+    from kalmix.core.aggregators import fixed_share
+
+    params = fixed_share.Params(share=0.1, scale=2.0)
+    state = fixed_share.init(params, 1, 3)
+    experts = np.array([[[0.0, 0.0], [1.0, 0.0], [4.0, 0.0]]])
+    z = np.array([[1.0, 0.0]])
+    awake = np.ones((1, 3), bool)
+    new = fixed_share.update(params, state, experts, z, awake, np.array([True]))
+    loss = np.array([1.0, 0.0, 9.0]) / (2 * 4.0)
+    scored = np.exp(-loss) / np.exp(-loss).sum()
+    np.testing.assert_allclose(fixed_share.weights(params, new, awake)[0], 0.9 * scored + 0.1 / 3, rtol=1e-12)
+
+
+def test_boa_competes_with_the_best_convex_combination():
+    """Experts y+1, y, y-2 and y+noise: BOA's mixture becomes exact and the noisy expert's weight vanishes.
+
+    (Here 0.124 (y+1) + 0.813 y + 0.062 (y-2) is exact too: BOA need not be one-hot.)"""
+    from kalmix.core.aggregators import boa
+
+    rng = np.random.default_rng(0)
+    params, state = boa.Params(), boa.init(boa.Params(), 1, 4)
+    awake = np.ones((1, 4), bool)
+    for _ in range(400):
+        y = rng.normal(size=(1, 2))
+        experts = np.stack([y + 1.0, y, y - 2.0, y + rng.normal(size=(1, 2))], axis=1)
+        state = boa.update(params, state, experts, y, awake, np.array([True]))
+    w = boa.weights(params, state, awake)[0]
+    mixture = np.einsum("k,kp->p", w, experts[0])
+    assert np.abs(mixture - y[0]).max() < 1e-2 and w[3] < 0.01 and w[1] == w.max()
+
+
+def test_rules_are_scale_free():
+    """BOA and ML-Poly give the same weights when the data are multiplied by 1e6."""
+    z, t = benign_tracks(seed=3)
+    from kalmix.core import engine
+
+    for rule in ("boa", "mlpoly"):
+        small = engine.run(make_bank(2, "kinematic", rule=rule, length_unit=0.3), z, t, record_experts=True)
+        big = engine.run(make_bank(2, "kinematic", rule=rule, length_unit=0.3e6), z * 1e6, t, record_experts=True)
+        np.testing.assert_allclose(big.weights, small.weights, rtol=1e-6, atol=1e-9)
+
+
+def test_kinematic_family_equals_filterpy():
+    """One CV expert with irregular time steps equals filterpy's KalmanFilter to 1e-10."""
+    filterpy = pytest.importorskip("filterpy.kalman")
+    from kalmix.core.families import kinematic
+
+    rng = np.random.default_rng(4)
+    times = np.cumsum(rng.uniform(0.2, 2.0, 60))
+    z = np.cumsum(rng.normal(size=(60, 1)), axis=0)
+    params = kinematic.KinematicParams(2, np.array([0.7]), np.array([0.3]), np.array([[0.3, 1e4]]), time_unit=0.5)
+    state = kinematic.init_state(params, 1, 1)
+    kf = filterpy.KalmanFilter(dim_x=2, dim_z=1)
+    kf.x = np.array([[z[0, 0]], [0.0]])
+    kf.P = np.diag([0.3, 1e4])
+    kf.H = np.array([[1.0, 0.0]])
+    kf.R = np.array([[0.3]])
+    state = kinematic.update(params, state, z[:1], times[:1], np.array([True]))
+    for i in range(1, 60):
+        d = (times[i] - times[i - 1]) / 0.5
+        kf.F = kinematic.transition(2, np.array(d))
+        kf.Q = 0.7 * kinematic.process_noise(2, np.array(d))
+        kf.predict()
+        mean, _ = kinematic.forecast(params, state, times[i:i + 1])
+        assert abs(mean[0, 0, 0] - kf.x[0, 0]) <= 1e-10 * max(1.0, abs(kf.x[0, 0]))
+        kf.update(z[i:i + 1, :].T)
+        state = kinematic.update(params, state, z[i:i + 1], times[i:i + 1], np.array([True]))
+        np.testing.assert_allclose(state.mean[0, 0, :, 0], kf.x[:, 0], rtol=1e-10, atol=1e-10)
+        np.testing.assert_allclose(state.cov[0, 0], kf.P, rtol=1e-10, atol=1e-10)
+
+
+def test_compiled_cache_is_keyed_on_the_sources(tmp_path, monkeypatch):
+    """Editing any compiled source changes the cache directory, so a warm cache never serves stale code."""
+    from kalmix.core.compiled import _cache
+
+    before = _cache.source_hash()
+    monkeypatch.setattr(_cache, "_CORE", tmp_path)
+    for name in _cache.COMPILED_SOURCES:
+        target = tmp_path / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes((_cache.Path(__file__).resolve().parents[1] / "src/kalmix/core" / name).read_bytes())
+    assert _cache.source_hash() == before
+    rules = tmp_path / "compiled/rules.py"
+    rules.write_text(rules.read_text() + "\n# edited\n")
+    assert _cache.source_hash() != before
