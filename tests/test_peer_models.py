@@ -273,7 +273,7 @@ def test_registry():
     assert set(PEERS) == {"cv_dt", "ca_dt", "imm_dt", "mmae_dt", "holt_winters", "rls_ar", "ucm_llt"}
     for name, peer in PEERS.items():
         assert peer.name == name and callable(peer.tune) and callable(peer.predict)
-        assert (peer.max_rows is None) == (not peer.needs or name == "ucm_llt")
+        assert (peer.max_rows is not None) == (name in ("imm_dt", "mmae_dt"))  # the filterpy loops
     assert peer_models.available("cv_dt")
     with pytest.raises(ValueError, match="peer: expected one of"):
         peer_models.available("kalman")

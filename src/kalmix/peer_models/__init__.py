@@ -21,15 +21,18 @@ Input (one track segment)
     (the measurement-noise size: grids are multiples of ``unit**2``), ``time_unit`` the
     typical sampling interval. Budget, the same order for every peer: a grid of at most
     ~70 candidates, or maximum likelihood (statsmodels). Returns a JSON-serialisable dict
-    of floats, with the tuning RMS of the chosen candidate under ``"tuning_rms"``.
+    of numbers, with the tuning RMS of the chosen candidate under ``"tuning_rms"``.
 
 :data:`PEERS` maps a name to a :class:`Peer`. ``Peer.max_rows`` is set for the peers
-that are Python loops over rows (filterpy, river, padasip) and cannot keep up with
-~500k rows in a few minutes: evaluate them on the first ``n`` rows of every segment, the
-largest ``n`` that keeps the total within ``max_rows`` (:func:`row_budget`, deterministic).
-Their ``tune`` also caps the tuning rows it scores per candidate the same way (each
-module's ``TUNE_ROWS``). ``Peer.predict_many`` (when set) runs a list of ``(values,
-times)`` in one batched pass with the same results as ``predict`` on each.
+that cannot keep up with ~500k rows in a few minutes, filterpy's IMM and MMAE (Python
+loops over rows and filters: on 50,000 rows, 16 s and 27 s at horizon 1, 49 s and 25 s at
+horizon 5, measured by ``python -m benchmarks.peer_models_timing``; river's and padasip's
+loops take 0.2 s and 1-2 s there and need no cap): evaluate them on the first ``n`` rows of
+every segment, the largest ``n`` that keeps the total within ``max_rows``
+(:func:`row_budget`, deterministic). The tuning of the loop peers (filterpy, river,
+padasip) scores each candidate on at most ``TUNE_ROWS`` rows chosen the same way from the
+tuning parts (a constant of each module). ``Peer.predict_many`` (when set) runs a list
+of ``(values, times)`` in one batched pass with the same results as ``predict`` on each.
 
 Peers (modules):
 
@@ -75,8 +78,8 @@ PEERS: dict[str, Peer] = {peer.name: peer for peer in (
     Peer("ca_dt", kinematic.tune_ca, kinematic.predict_ca, predict_many=kinematic.predict_many_ca),
     Peer("imm_dt", multiple_model.tune_imm, multiple_model.predict_imm, ("filterpy",), max_rows=50_000),
     Peer("mmae_dt", multiple_model.tune_mmae, multiple_model.predict_mmae, ("filterpy",), max_rows=50_000),
-    Peer("holt_winters", holt_winters.tune, holt_winters.predict, ("river",), max_rows=200_000),
-    Peer("rls_ar", rls_ar.tune, rls_ar.predict, ("padasip",), max_rows=100_000),
+    Peer("holt_winters", holt_winters.tune, holt_winters.predict, ("river",)),
+    Peer("rls_ar", rls_ar.tune, rls_ar.predict, ("padasip",)),
     Peer("ucm_llt", ucm.tune, ucm.predict, ("statsmodels",)),
 )}
 
