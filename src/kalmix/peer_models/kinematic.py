@@ -20,7 +20,8 @@ Per coordinate the state is ``[pos, vel]`` (CV) or ``[pos, vel, acc]`` (CA), wit
 
 Written from these equations (not :mod:`kalmix.core`), one numpy pass over every candidate
 and every segment at once (arrays ``(K, S, p, n)``; segments sorted by length so that the
-active ones are a prefix); the test suite checks it against filterpy's ``KalmanFilter``.
+active ones are a prefix, in batches padded to at most twice their rows); the test suite
+checks it against filterpy's ``KalmanFilter``.
 """
 
 from __future__ import annotations
@@ -63,26 +64,49 @@ def process_noise_shape(dt, order: int) -> np.ndarray:
     return np.concatenate([np.concatenate(row, -1) for row in rows], -2)
 
 
-def _pad(pieces, time_unit):
-    """Segments sorted by length (longest first) as ``(T, S, p)`` values and ``(T, S)`` Δt."""
-    order = np.argsort([-len(piece[1]) for piece in pieces], kind="stable")
-    lengths = np.array([len(pieces[j][1]) for j in order])
-    t_count, p = int(lengths[0]), pieces[0][0].shape[1]
-    z = np.full((t_count, len(order), p), np.nan)
-    dt = np.zeros((t_count, len(order)))
-    for s, j in enumerate(order):
+def _batches(lengths):
+    """Segment indices, longest first, in batches padded to at most twice their rows."""
+    order = np.argsort(-np.asarray(lengths), kind="stable")
+    batch, rows = [], 0
+    for j in order:
+        if batch and lengths[batch[0]] * (len(batch) + 1) > 2 * (rows + lengths[j]):
+            yield batch
+            batch, rows = [], 0
+        batch.append(int(j))
+        rows += int(lengths[j])
+    if batch:
+        yield batch
+
+
+def _pad(pieces, batch, time_unit, horizon=None):
+    """A batch as ``(T, S, p)`` values, ``(T, S)`` Δt to the next row, lengths, masks and τ.
+
+    ``τ[t]`` is the time from row ``t`` to row ``t + horizon`` (NaN where there is none);
+    the mask is the third item of each piece, if any.
+    """
+    lengths = np.array([len(pieces[j][1]) for j in batch])
+    t_count, s_count, p = int(lengths[0]), len(batch), pieces[batch[0]][0].shape[1]
+    z = np.full((t_count, s_count, p), np.nan)
+    dt = np.zeros((t_count, s_count))
+    mask = np.zeros((t_count, s_count), dtype=bool)
+    tau = None if horizon is None else np.full((t_count, s_count), np.nan)
+    for s, j in enumerate(batch):
         values, times = pieces[j][:2]
         z[:len(times), s] = values
         dt[:len(times) - 1, s] = np.diff(times) / time_unit
-    return z, dt, lengths, order
+        if len(pieces[j]) > 2:
+            mask[:len(times), s] = pieces[j][2]
+        if horizon is not None and len(times) > horizon:
+            tau[:len(times) - horizon, s] = (times[horizon:] - times[:-horizon]) / time_unit
+    return z, dt, lengths, mask, tau
 
 
-def _run(z, dt, lengths, q, r, order, *, score=None, keep=False):
+def _run(z, dt, lengths, q, r, order, *, score=None, tau=None):
     """Filter ``(T, S, p)`` with every candidate ``(q[k], r[k])``; lengths sorted descending.
 
-    Returns the posterior states ``(T, K, S, p, n)`` if ``keep``; with ``score`` (T, S) bool,
-    the sum of squared one-step errors ``(K,)``, of normalised squared errors ``(K,)`` and
-    the number of scored errors, over the updates at rows where ``score`` is True.
+    With ``tau`` (T, S), returns the predictions ``(T, K, S, p)``, ``H F(τ) x̂``; with
+    ``score`` (T, S) bool, the sums of squared one-step errors ``(K,)`` and of normalised
+    squared errors ``(K,)``, and the number of errors, over the updates where ``score`` is True.
     """
     t_count, s_count, p = z.shape
     k_count = len(q)
@@ -92,7 +116,7 @@ def _run(z, dt, lengths, q, r, order, *, score=None, keep=False):
     p0 = np.diag([1.0] + [INITIAL_VARIANCE_RATIO] * (order - 1)) * r[:, None, None, None]
     eye = np.eye(order)
     started = np.zeros(s_count, dtype=bool)
-    states = np.full((t_count, k_count, s_count, p, order), np.nan) if keep else None
+    out = np.full((t_count, k_count, s_count, p), np.nan) if tau is not None else None
     sse, nis, count = np.zeros(k_count), np.zeros(k_count), 0
     widths = np.searchsorted(-lengths, -np.arange(t_count), side="left")  # segments with length > t
     for t in range(t_count):
@@ -122,25 +146,28 @@ def _run(z, dt, lengths, q, r, order, *, score=None, keep=False):
             xs[..., 0][:, new] = zt[new]
             ps[:, new] = p0
             started[:w] |= new
-        if keep:
-            states[t, :, :w] = xs
+        if tau is not None:
+            ahead = tau[t, :w, None]
+            out[t, :, :w] = xs[..., 0] + ahead * xs[..., 1]
+            if order == 3:
+                out[t, :, :w] += ahead**2 / 2 * xs[..., 2]
         f = transition(dt[t, :w], order)
         xs[:] = (f[:, None] @ xs[..., None])[..., 0]
         ps[:] = f @ ps @ f.swapaxes(-1, -2) + q[:, None, None, None] * process_noise_shape(dt[t, :w], order)
-    return states if keep else (sse, nis, count)
+    return out if tau is not None else (sse, nis, count)
 
 
 def _tune(segments, unit, time_unit, order):
     segments = check_segments(segments)
     unit, time_unit = check_positive("unit", unit), check_positive("time_unit", time_unit)
     pieces = tuning_rows(segments)
-    z, dt, lengths, order_ = _pad(pieces, time_unit)
-    score = np.zeros(dt.shape, dtype=bool)
-    for s, j in enumerate(order_):
-        score[:lengths[s], s] = pieces[j][2]
     grid = [(qq * unit**2, rr * unit**2) for qq in PROCESS_GRID for rr in MEASUREMENT_GRID]
     q, r = np.array(grid).T
-    sse, nis, count = _run(z, dt, lengths, q, r, order, score=score)
+    sse, nis, count = np.zeros(len(grid)), np.zeros(len(grid)), 0
+    for batch in _batches([len(piece[1]) for piece in pieces]):
+        z, dt, lengths, mask, _ = _pad(pieces, batch, time_unit)
+        more = _run(z, dt, lengths, q, r, order, score=mask)
+        sse, nis, count = sse + more[0], nis + more[1], count + more[2]
     if count == 0:
         raise ValueError("segments: expected tuning rows after a first valid measurement, got none")
     mse = np.where(np.isfinite(sse), sse / count, np.inf)
@@ -170,23 +197,13 @@ def _predict_many(segments, params, horizon, order, single=False):
     horizon = check_horizon(horizon)
     pieces = [check_segment(v, t, where="" if single else f" of segments[{i}]") for i, (v, t) in enumerate(segments)]
     out = [np.full(z.shape, np.nan) for z, _ in pieces]
-    if not pieces:
-        return out
     if len({z.shape[1] for z, _ in pieces}) > 1:
         raise ValueError("segments: expected the same number of coordinates in every segment, got several")
-    z, dt, lengths, order_ = _pad(pieces, time_unit)
-    states = _run(z, dt, lengths, [q], [r], order, keep=True)[:, 0]
-    for s, j in enumerate(order_):
-        times = pieces[j][1]
-        n = len(times) - horizon
-        if n <= 0:
-            continue
-        tau = ((times[horizon:] - times[:n]) / time_unit)[:, None]
-        x = states[:n, s]
-        pred = x[..., 0] + tau * x[..., 1]
-        if order == 3:
-            pred = pred + tau**2 / 2 * x[..., 2]
-        out[j][:n] = pred
+    for batch in _batches([len(t) for _, t in pieces]):
+        z, dt, lengths, _, tau = _pad(pieces, batch, time_unit, horizon)
+        predictions = _run(z, dt, lengths, [q], [r], order, tau=tau)[:, 0]
+        for s, j in enumerate(batch):
+            out[j][:] = predictions[:len(out[j]), s]
     return out
 
 
