@@ -50,7 +50,9 @@ __all__ = ["Streams", "EvaluationResult", "split_streams", "evaluate_table", "PR
 
 #: Row names in table order.
 PREDICTORS = ("mixture", "AKF mixture (previous default)", "no prediction", "CV Kalman", "CA Kalman",
-              "IMM (filterpy)", "single AKF", "best expert (hindsight)")
+              "IMM (filterpy)", "CV Kalman (real dt)", "CA Kalman (real dt)", "IMM (filterpy, real dt)",
+              "MMAE bank (filterpy, real dt)", "Holt-Winters (river)", "RLS AR (padasip)",
+              "local linear trend (statsmodels ML)", "single AKF", "best expert (hindsight)")
 _FIXED_PROCESS = tuple(float(v) for v in np.geomspace(1e-3, 1e5, 17))
 _FIXED_MEASUREMENT = (0.05, 0.25, 1.0, 4.0)
 #: Multiples of the rule's length unit tried for the mixture on the tuning part.
@@ -255,6 +257,43 @@ def _single_expert_bank(bank, expert):
                                         measurement_noise=family.params.measurement_noise[i:i + 1],
                                         initial_variance=family.params.initial_variance[i:i + 1])
     return replace(bank, families=(Family(family.kind, single),))
+
+
+#: Rows of the peers of :mod:`kalmix.peer_models`, by their registry name.
+PEER_LABELS = {"cv_dt": "CV Kalman (real dt)", "ca_dt": "CA Kalman (real dt)", "imm_dt": "IMM (filterpy, real dt)",
+               "mmae_dt": "MMAE bank (filterpy, real dt)", "holt_winters": "Holt-Winters (river)",
+               "rls_ar": "RLS AR (padasip)", "ucm_llt": "local linear trend (statsmodels ML)"}
+
+
+def _run_peer_models(streams, tuning, unit, horizon, predictions, tuned, log):
+    """Tune every installed peer of :mod:`kalmix.peer_models` on the tuning part and run it on every segment.
+
+    A peer with ``max_rows`` runs on the first rows of each segment (:func:`~kalmix.peer_models.row_budget`);
+    its rows past that are not predicted, which the ``tuned`` entry says (``rows_evaluated``).
+    """
+    from ..peer_models import PEERS, available, row_budget
+
+    time_unit = auto_time_unit(np.where(tuning, streams.times, np.nan) if tuning.any() else streams.times)
+    segments = [(streams.values[:n, j], streams.times[:n, j], tuning[:n, j]) for j, n in enumerate(streams.lengths)]
+    for name, peer in PEERS.items():
+        if not available(peer):
+            continue
+        label = PEER_LABELS.get(name, name)
+        keep = row_budget(streams.lengths, peer.max_rows)
+        log(f"{label}: tuning and running on {int(keep.sum())} of {int(streams.lengths.sum())} rows")
+        cut = [(v[:n], t[:n], m[:n]) for (v, t, m), n in zip(segments, keep) if n > 1]
+        params = peer.tune([c for c in cut if c[2].any()] or cut, unit=unit, time_unit=time_unit)
+        one = np.full_like(streams.values, np.nan)
+        ahead = np.full_like(streams.values, np.nan) if horizon > 1 else one
+        for j, n in enumerate(keep):
+            if n < 2:
+                continue
+            v, t = streams.values[:n, j], streams.times[:n, j]
+            one[:n, j] = peer.predict(v, t, params, horizon=1)
+            if horizon > 1:
+                ahead[:n, j] = peer.predict(v, t, params, horizon=horizon)
+        predictions[label] = (one, ahead)
+        tuned[label] = {**params, "rows_evaluated": int(keep.sum()), "rows": int(streams.lengths.sum())}
 
 
 def _errors(predictions, values, horizon, scored):
@@ -489,6 +528,9 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
                 n = streams.lengths[j]
                 imm[:n, j] = imm_predictions(values[:n, j], length_unit=rule, **best)
             predictions["IMM (filterpy)"] = (imm, None)
+
+    if peers:
+        _run_peer_models(streams, tune_scored, rule, horizon, predictions, tuned, log)
 
     log("single AKF")
     akf_params = make_params(p, 1, seed=seed, length_unit=unit, **{**options, "adapt_noise": False})
