@@ -38,7 +38,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .archive import read_archive, write_archive
+from .archive import open_archive, write_archive
 from .bank import make_params
 from .core.mixture import MixtureParams, MixtureState, init_state, predict, step
 
@@ -373,24 +373,31 @@ class TrackPredictor:
     @classmethod
     def load(cls, path: str | os.PathLike) -> "TrackPredictor":
         """Read a file written by :meth:`save`; ``ValueError`` with the reason on a bad file."""
-        meta, arrays = read_archive(path, magic=_MAGIC, version=STATE_FORMAT_VERSION, what="kalmix state file",
-                                    written_by="kalmix predict --state")
-        engine = cls(StreamConfig(**meta["config"]), meta.get("position_names"))
-        engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
-        if meta["measurement_dim"] is not None:
-            engine._ensure_params(int(meta["measurement_dim"]))
+        with open_archive(path, magic=_MAGIC, version=STATE_FORMAT_VERSION, what="kalmix state file",
+                          written_by="kalmix predict --state") as archive:
+            meta = archive.meta
+            try:
+                engine = cls(StreamConfig(**meta["config"]), meta.get("position_names"))
+                engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
+                if meta["measurement_dim"] is not None:
+                    engine._ensure_params(int(meta["measurement_dim"]))
+                entries = [(entry["id"], GapTracker(**entry["gaps"]), bool(entry["state"]))
+                           for entry in meta["tracks"]]
+            except (KeyError, TypeError) as error:
+                raise ValueError(f"{path}: the kalmix state file's settings are incomplete or corrupt: "
+                                 f"{error!r}") from error
+            count = sum(has_state for _, _, has_state in entries)
+            stacked = None
+            if count:
+                template = engine._fresh()
+                stacked = {name: archive.array(f"state/{name}", (count, *expected.shape[1:]), expected.dtype,
+                                                  label=name)
+                           for name, expected in template._asdict().items()}
         index = 0
-        template = engine._fresh() if engine.params is not None else None
-        for entry in meta["tracks"]:
-            track = entry["id"]
-            engine.gaps[track] = GapTracker(**entry["gaps"])
-            if entry["state"]:
-                fields = {}
-                for name, expected in template._asdict().items():
-                    value = arrays.get(f"state/{name}")
-                    if value is None or value.shape[1:] != expected.shape[1:]:
-                        raise ValueError(f"{path}: field {name!r} missing or of the wrong shape")
-                    fields[name] = value[index:index + 1].copy()
-                engine.states[track] = MixtureState(**fields)
+        for track, gaps, has_state in entries:
+            engine.gaps[track] = gaps
+            if has_state:
+                engine.states[track] = MixtureState(**{name: value[index:index + 1].copy()
+                                                       for name, value in stacked.items()})
                 index += 1
         return engine

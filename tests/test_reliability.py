@@ -1,0 +1,136 @@
+"""Nothing lost, nothing silently wrong: stop signals, concurrent state files, bounded work, clear errors, progress.
+
+Issue 15, classes 1, 2, 3, 6, 7 and 8. Stops are made deterministic with the test hook
+``KALMIX_TEST_SIGNAL_AFTER=SIGNAME:N`` (the process sends itself SIGNAME after its N-th unit
+of work: a piece of a chunk, or a stdin row), or with a real signal sent once the output
+shows the process is waiting for input.
+"""
+
+import io
+import os
+import subprocess
+import sys
+import time
+import zipfile
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from kalmix import MixturePredictor, make_params
+from kalmix.archive import write_archive
+from kalmix.cli import build
+from kalmix.streaming import GapTracker, StreamConfig, TrackPredictor
+
+FAST = ["--experts", "2", "--seed", "1", "--length-unit", "1", "--no-progress"]
+SIGNALS = ["SIGINT", "SIGTERM", "SIGHUP"]
+
+
+@pytest.fixture(scope="module")
+def cli():
+    return build()
+
+
+def _run(cli, args, input=None, env=None):
+    return CliRunner().invoke(cli, args, input=input, env=env, catch_exceptions=False)
+
+
+def _feed(n_tracks=6, n=60, seed=0):
+    """Rows of all tracks interleaved in time order (a live feed), with a gap and a missing value."""
+    rng = np.random.default_rng(seed)
+    t = np.repeat(np.arange(n) * 0.1, n_tracks)
+    t[t >= 3.0] += 2.0 * (np.tile(np.arange(n_tracks), n)[t >= 3.0] == 1)  # track 1 has a 2 s hole
+    ids = np.tile(np.arange(n_tracks), n)
+    xy = np.cumsum(rng.normal(size=(n * n_tracks, 2)), axis=0)
+    xy[7] = np.nan
+    frame = pd.DataFrame({"id": ids, "t": np.round(t, 6), "x": xy[:, 0], "y": xy[:, 1]})
+    return frame.sort_values(["t", "id"], kind="stable").reset_index(drop=True)
+
+
+@pytest.fixture(scope="module")
+def feed_csv(tmp_path_factory):
+    path = tmp_path_factory.mktemp("feed") / "feed.csv"
+    _feed().to_csv(path, index=False, na_rep="")
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def reference(cli, feed_csv, tmp_path_factory):
+    """Uninterrupted output of the same command (same --chunk-rows: chunks set the row order), cached."""
+    out, cache = tmp_path_factory.mktemp("ref"), {}
+
+    def get(fmt="csv", chunk_rows=None):
+        key = (fmt, chunk_rows)
+        if key not in cache:
+            path = out / f"{fmt}{chunk_rows}.{'jsonl' if fmt == 'jsonl' else 'csv'}"
+            source = "-" if fmt == "stdin" else feed_csv
+            chunks = [] if chunk_rows is None else ["--chunk-rows", str(chunk_rows)]
+            result = _run(cli, ["predict", source, *FAST, "-H", "3", *chunks, "-o", str(path)],
+                          input=open(feed_csv).read() if fmt == "stdin" else None)
+            assert result.exit_code == 0, result.output
+            cache[key] = path.read_bytes()
+        return cache[key]
+
+    return get
+
+
+def _subprocess(args, stdin=None, env=None):
+    full_env = {**os.environ, **(env or {})}
+    return subprocess.run([sys.executable, "-m", "kalmix.cli", *args], input=stdin, capture_output=True,
+                          env=full_env, timeout=120)
+
+
+def test_state_writes_are_unique_fsynced_and_keep_permissions(tmp_path, monkeypatch):
+    path = tmp_path / "s.npz"
+    path.write_bytes(b"old")
+    os.chmod(path, 0o640)
+    (tmp_path / "s.npz.tmp").mkdir()  # the old fixed temporary name, taken
+    synced, renamed = [], []
+    real_fsync, real_replace = os.fsync, os.replace
+    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(os.path.isdir(f"/proc/self/fd/{fd}")),
+                                                 real_fsync(fd))[1])
+    monkeypatch.setattr(os, "replace", lambda a, b: (renamed.append(a), real_replace(a, b))[1])
+    write_archive(path, {"magic": "m"}, {"a": np.arange(3)})
+    write_archive(path, {"magic": "m"}, {"a": np.arange(4)})
+    assert synced == [False, True, False, True]  # the file, then its directory, each time
+    assert len(set(renamed)) == 2 and all(os.path.dirname(a) == str(tmp_path) for a in renamed)
+    assert oct(os.stat(path).st_mode & 0o777) == oct(0o640)
+    assert sorted(os.listdir(tmp_path)) == ["s.npz", "s.npz.tmp"]
+
+
+def test_foreign_and_oversized_state_files_are_refused_without_inflating(tmp_path, monkeypatch):
+    np.save(tmp_path / "a.npy", np.zeros(3))
+    for loader, what in ((TrackPredictor.load, "state"), (MixturePredictor.load, "predictor")):
+        with pytest.raises(ValueError, match=f"not a kalmix {what} file"):
+            loader(tmp_path / "a.npy")
+        with pytest.raises(ValueError, match="got a directory"):
+            loader(tmp_path)
+    engine = TrackPredictor(StreamConfig(n_experts=2))
+    engine.step_row("a", 0.0, [1.0, 2.0])
+    engine.save(tmp_path / "s.npz")
+    zeros = np.zeros(4_000_000)  # 32 MB that deflate to ~30 kB
+    with zipfile.ZipFile(tmp_path / "s.npz", "a", zipfile.ZIP_DEFLATED) as archive:
+        with archive.open("junk.npy", "w", force_zip64=True) as member:
+            np.lib.format.write_array(member, zeros)
+    opened = []
+    real_open = zipfile.ZipFile.open
+    monkeypatch.setattr(zipfile.ZipFile, "open", lambda self, name, *a, **k: (
+        opened.append(getattr(name, "filename", name)), real_open(self, name, *a, **k))[1])
+    loaded = TrackPredictor.load(tmp_path / "s.npz")
+    assert "junk.npy" not in opened and loaded.track_ids == ["a"]
+    # a member the loader needs, but far larger than its shape: refused before decompressing
+    with zipfile.ZipFile(tmp_path / "s.npz") as archive:
+        members = {name: archive.read(name) for name in archive.namelist() if name != "junk.npy"}
+    buffer = io.BytesIO()
+    np.lib.format.write_array(buffer, zeros)
+    members["state/cov.npy"] = buffer.getvalue()
+    with zipfile.ZipFile(tmp_path / "big.npz", "w", zipfile.ZIP_DEFLATED) as archive:
+        for name, data in members.items():
+            archive.writestr(name, data)
+    opened.clear()
+    with pytest.raises(ValueError, match=r"field 'cov' expected \d+ bytes .* the archive declares 32000128"):
+        TrackPredictor.load(tmp_path / "big.npz")
+    assert "state/cov.npy" not in opened
+
+
