@@ -20,6 +20,7 @@ from click.testing import CliRunner
 
 from kalmix import MixturePredictor, make_params
 from kalmix.archive import write_archive
+from kalmix.bank import MAX_HORIZON
 from kalmix.cli import build
 from kalmix.streaming import GapTracker, StreamConfig, TrackPredictor
 
@@ -132,5 +133,59 @@ def test_foreign_and_oversized_state_files_are_refused_without_inflating(tmp_pat
     with pytest.raises(ValueError, match=r"field 'cov' expected \d+ bytes .* the archive declares 32000128"):
         TrackPredictor.load(tmp_path / "big.npz")
     assert "state/cov.npy" not in opened
+
+
+# -------------------------------------------------------------------------- 6: bounded horizons
+def test_horizons_have_a_documented_maximum(cli, feed_csv):
+    predictor = MixturePredictor(4, backend="numpy")
+    predictor.run(np.cumsum(np.ones((50, 2)), axis=0))
+    assert np.isfinite(predictor.predict(MAX_HORIZON)).all()
+    for bad in (MAX_HORIZON + 1, 10**6, 0, 2.0, True):
+        with pytest.raises(ValueError, match=rf"horizon: expected an integer in \[1, {MAX_HORIZON}\], got"):
+            predictor.predict(bad)
+    with pytest.raises(ValueError, match="horizon"):
+        predictor.run(np.zeros((3, 2)), horizon=MAX_HORIZON + 1)
+    with pytest.raises(ValueError, match="horizon"):
+        StreamConfig(horizon=10**6)
+    for command in ("predict", "evaluate"):
+        result = _run(cli, [command, feed_csv, "-H", "1000000"])
+        assert result.exit_code == 2 and f"1000000 is not in the range 1<=x<={MAX_HORIZON}" in result.stderr
+
+
+# ---------------------------------------------------------------------------- 7: clear errors
+@pytest.mark.parametrize("options, error, message", [
+    ({"seed": 2**64}, ValueError, r"seed: expected an integer in \[0, 2\*\*63 - 1\], got 18446744073709551616"),
+    ({"seed": -1}, ValueError, r"seed: expected an integer in \[0, 2\*\*63 - 1\], got -1"),
+    ({"process_noise_range": 5}, ValueError, r"process_noise_range: expected a pair \(low, high\) .*, got 5"),
+    ({"ridge_levels": 0.1}, ValueError, r"ridge_levels: expected a sequence of numbers > 0, got 0.1"),
+    ({"length_unit": 1e300}, ValueError, r"length_unit: expected a number in \[1e-100, 1e\+100\]"),
+    ({"length_unit": 1e-300}, ValueError, r"length_unit: expected a number in \[1e-100, 1e\+100\]"),
+])
+def test_bad_bank_arguments_are_refused_at_construction(options, error, message):
+    with pytest.raises(error, match=message):
+        make_params(2, 4, **options)
+    with pytest.raises(error, match=message):
+        MixturePredictor(4, **options)
+    direct = set(options) <= {"seed", "length_unit"}
+    with pytest.raises(error, match=message):
+        StreamConfig(n_experts=4, **(options if direct else {"options": options}))
+
+
+@pytest.mark.parametrize("unit", [1e-100, 1e100])
+def test_the_length_unit_range_is_scale_equivariant_at_both_ends(unit):
+    z = np.cumsum(np.cumsum(np.random.default_rng(3).normal(size=(120, 2)), 0), 0) * 0.1
+    reference = MixturePredictor(4, seed=1, backend="numpy").run(z).predictions
+    scaled = MixturePredictor(4, seed=1, backend="numpy", length_unit=unit).run(z * unit).predictions / unit
+    np.testing.assert_allclose(scaled[1:], reference[1:], rtol=1e-9, atol=0)
+
+
+@pytest.mark.parametrize("content", ["t,x\n0,1\n", "t,x\n0,1\n1,2\n", "t,x\n0,1\n0,2\n0,3\n",
+                                     "t,x\n0,1\n1,2\n2,3\n3,5\n4,6\n"])
+def test_evaluate_on_too_little_data_says_so(cli, tmp_path, content):
+    path = tmp_path / "tiny.csv"
+    path.write_text(content)
+    result = _run(cli, ["evaluate", str(path), "--experts", "2", "--no-peers"])
+    assert result.exit_code == 1 and "All-NaN" not in result.stderr
+    assert "too little data to tune the predictors on" in result.stderr.splitlines()[-1]
 
 

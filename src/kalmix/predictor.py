@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from .archive import open_archive, write_archive
-from .bank import make_params
+from .bank import check_horizon, make_params
 from .core.mixture import MixtureParams, MixtureState, init_state, predict, step
 from .core.fast import numba_available, step_fast
 from .core.run import BACKENDS, RunResult, run_core
@@ -136,10 +136,12 @@ class MixturePredictor:
         return self
 
     def predict(self, horizon: int = 1) -> np.ndarray:
-        """Prediction ``horizon`` frames after the last measurement, shape (p,) or (N, p)."""
+        """Prediction ``horizon`` frames after the last measurement, shape (p,) or (N, p).
+
+        ``horizon`` is an integer in [1, :data:`kalmix.bank.MAX_HORIZON`] (10 000).
+        """
         self._require_fitted()
-        if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
-            raise ValueError(f"horizon: expected an integer >= 1, got {horizon!r}")
+        horizon = check_horizon(horizon)
         prediction, _ = predict(self._params, self._state, int(horizon))
         return self._unbatch(prediction)
 
@@ -153,8 +155,7 @@ class MixturePredictor:
         array = _as_measurements(measurements, "measurements")
         if array.ndim not in (2, 3) or array.shape[0] < 1:
             raise ValueError(f"measurements: expected shape (T, p) or (T, N, p) with T >= 1, got {array.shape}")
-        if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
-            raise ValueError(f"horizon: expected an integer >= 1, got {horizon!r}")
+        horizon = check_horizon(horizon)
         self._batch(array[0])  # builds on first use and checks the per-step shape
         batched = array[:, None, :] if self._single else array
         result = run_core(self._params, batched, self._state, horizon=int(horizon), diagnostics=diagnostics,

@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .archive import open_archive, write_archive
-from .bank import make_params
+from .bank import check_horizon, check_length_unit, make_params
 from .core.mixture import MixtureParams, MixtureState, init_state, predict, step
 
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "auto_length_unit",
@@ -124,14 +124,16 @@ class StreamConfig:
     options: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        if isinstance(self.horizon, bool) or int(self.horizon) != self.horizon or self.horizon < 1:
-            raise ValueError(f"horizon: expected an integer >= 1, got {self.horizon!r}")
+        self.horizon = check_horizon(self.horizon)
         if self.max_gap is not None and not self.max_gap > 0:
             raise ValueError(f"max_gap: expected a time step > 0, got {self.max_gap!r}")
         if not self.max_gap_factor > 1:
             raise ValueError(f"max_gap_factor: expected a number > 1, got {self.max_gap_factor!r}")
-        if not (math.isfinite(self.length_unit) and self.length_unit > 0):
-            raise ValueError(f"length_unit: expected a finite number > 0, got {self.length_unit!r}")
+        self.length_unit = check_length_unit(self.length_unit)
+        if not isinstance(self.options, dict):
+            raise TypeError(f"options: expected a dict of make_params arguments, got {self.options!r}")
+        # every bank argument is checked now, not at the first row
+        make_params(1, self.n_experts, seed=self.seed, length_unit=self.length_unit, **self.options)
 
 
 class GapTracker:

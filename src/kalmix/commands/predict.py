@@ -18,6 +18,8 @@ import warnings
 import click
 import numpy as np
 
+from ..bank import LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED
+
 _LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres). "
                      "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
                      "(files) or 1 (stdin, unless a --state file holds one).")
@@ -72,12 +74,14 @@ def _positions(text):
 def _length_unit(text):
     if text is None or str(text).lower() == "auto":
         return None
+    low, high = LENGTH_UNIT_RANGE
+    expected = f"expected a number in [{low:g}, {high:g}] or 'auto', got {text!r}"
     try:
         value = float(text)
     except ValueError:
-        raise click.BadParameter(f"expected a number > 0 or 'auto', got {text!r}", param_hint="--length-unit")
-    if not (math.isfinite(value) and value > 0):
-        raise click.BadParameter(f"expected a number > 0 or 'auto', got {text!r}", param_hint="--length-unit")
+        raise click.BadParameter(expected, param_hint="--length-unit") from None
+    if not low <= value <= high:
+        raise click.BadParameter(expected, param_hint="--length-unit")
     return value
 
 
@@ -110,6 +114,9 @@ def _user_errors():
             yield
     except (ValueError, TypeError, FileNotFoundError, ImportError) as error:
         raise click.ClickException(str(error)) from error
+    except OSError as error:  # a disk, permission or device error: one line, not a traceback
+        where = f" {error.filename!r}" if error.filename else ""
+        raise click.ClickException(f"{error.strerror or error}{where}") from error
     finally:
         warnings.showwarning = previous
 
@@ -216,12 +223,12 @@ def _output_columns(frame, columns, names):
 @click.command()
 @click.argument("input_path", metavar="INPUT")
 @_column_options
-@click.option("--horizon", "-H", default=1, show_default=True, type=click.IntRange(min=1),
-              help="Also predict H samples ahead (columns pred<H>_<pos>).")
+@click.option("--horizon", "-H", default=1, show_default=True, type=click.IntRange(1, MAX_HORIZON),
+              help=f"Also predict H samples ahead (columns pred<H>_<pos>); at most {MAX_HORIZON}.")
 @click.option("--output", "-o", default=None, type=click.Path(dir_okay=False),
               help="Output file: .csv, .parquet or .jsonl (default: CSV on stdout).")
 @click.option("--experts", "n_experts", default=None, type=click.IntRange(min=1), help="Experts K [default: 40].")
-@click.option("--seed", default=None, type=click.IntRange(min=0), help="Seed of the bank [default: 0].")
+@click.option("--seed", default=None, type=click.IntRange(0, MAX_SEED), help="Seed of the bank [default: 0].")
 @click.option("--length-unit", default="auto", show_default=True, help=_LENGTH_UNIT_HELP)
 @click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP + " 'none' never splits.")
 @click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True),
@@ -286,6 +293,8 @@ def _predict_file(path, engine, settings, unit, state_path, save_every, output, 
 
     if not os.path.exists(path):
         raise FileNotFoundError(f"INPUT: no such file {path!r}")
+    if os.path.isdir(path):
+        raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {path!r}")
     in_fmt = "parquet" if _file_format(path) == "parquet" else "csv"
     columns = _columns(_header(path, in_fmt), time_column, position_columns, id_column)
     total = None
@@ -461,10 +470,10 @@ def _predict_stream(stdin, engine, settings, unit, state_path, save_every, outpu
 @click.option("--dataset", default=None, help="A shipped recording instead of INPUT: hawkeye_ball, skillcorner, "
               "cycling (needs the 'data' extra).")
 @_column_options
-@click.option("--horizon", "-H", default=1, show_default=True, type=click.IntRange(min=1),
-              help="Also report the H-step errors.")
+@click.option("--horizon", "-H", default=1, show_default=True, type=click.IntRange(1, MAX_HORIZON),
+              help=f"Also report the H-step errors; at most {MAX_HORIZON}.")
 @click.option("--experts", "n_experts", default=40, show_default=True, type=click.IntRange(min=1))
-@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0))
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(0, MAX_SEED))
 @click.option("--length-unit", default="auto", show_default=True,
               help="Mixture's length unit; 'auto': the second-difference rule on the tuning part.")
 @click.option("--tuning-fraction", default=0.2, show_default=True, type=click.FloatRange(0.0, 1.0, max_open=True),
@@ -505,6 +514,8 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
             from ..io import read_tracks
             if not os.path.exists(input_path):
                 raise FileNotFoundError(f"INPUT: no such file {input_path!r}")
+            if os.path.isdir(input_path):
+                raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {input_path!r}")
             fmt = "parquet" if _file_format(input_path) == "parquet" else "csv"
             columns = _columns(_header(input_path, fmt), time_column, position_columns, id_column)
             table = read_tracks(input_path, columns=columns, format=fmt)
