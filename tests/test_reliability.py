@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from click.testing import CliRunner
+from hypothesis import HealthCheck, given, settings, strategies as st
 
 from kalmix import MixturePredictor, make_params
 from kalmix.archive import write_archive
@@ -189,3 +190,33 @@ def test_evaluate_on_too_little_data_says_so(cli, tmp_path, content):
     assert "too little data to tune the predictors on" in result.stderr.splitlines()[-1]
 
 
+@settings(max_examples=40, deadline=None)
+@given(steps=st.lists(st.floats(0.01, 2.0), min_size=3, max_size=40), where=st.integers(0, 39),
+       jump=st.floats(1e3, 1e12))
+def test_one_wrong_future_timestamp_loses_no_later_row(steps, where, jump):
+    """The row after a jump ahead that comes back in between marks the jump as a wrong timestamp."""
+    times = list(np.cumsum(steps))
+    where = where % len(times)
+    glitched = times[:where] + [times[-1] + jump] + times[where + 1:]
+    config = StreamConfig(n_experts=1)
+    tracker = GapTracker()
+    flags = [tracker.advance(t, config) for t in glitched]
+    later = flags[where + 1:]
+    assert None not in later and tracker.glitches == (1 if later else 0)
+    assert tracker.last_time == glitched[-1]
+    clean = GapTracker()
+    assert None not in [clean.advance(t, config) for t in times] and clean.glitches == 0
+
+
+def test_ids_are_text_as_written_in_files_and_on_stdin_and_a_bom_is_ignored(cli, tmp_path):
+    text = "id,t,x\n1,0,1\n01,0,5\n1,1,2\n01,1,6\n1,2,3\n01,2,7\n"
+    (tmp_path / "ids.csv").write_text(text)
+    from_file = _run(cli, ["predict", str(tmp_path / "ids.csv"), *FAST])
+    from_stdin = _run(cli, ["predict", "-", *FAST], input=("\ufeff" + text).encode("utf-8"))
+    assert from_file.exit_code == from_stdin.exit_code == 0
+    assert "skipped" not in from_file.stderr + from_stdin.stderr
+    file_rows, stdin_rows = (pd.read_csv(io.StringIO(out), dtype={"id": str}).sort_values(["id", "t"], kind="stable")
+                             for out in (from_file.stdout, from_stdin.stdout))
+    assert sorted(set(file_rows["id"])) == ["01", "1"]
+    pd.testing.assert_frame_equal(file_rows.reset_index(drop=True), stdin_rows.reset_index(drop=True),
+                                  check_exact=True)

@@ -27,6 +27,17 @@ A row whose time is not after its track's previous time (out of order or a repea
 timestamp) cannot be undone in a stream: it is skipped and counted in
 :attr:`TrackPredictor.skipped`. (File inputs are sorted and de-duplicated when read,
 see :mod:`kalmix.io.tables`.)
+
+One exception keeps a single wrong timestamp from costing the rest of a track: when a
+track's previous row *jumped ahead* (a gap, or the track's first row) and the next row
+comes back to a time between the time before the jump and the jump, the jump was a wrong
+timestamp (a clock glitch, a typo in a feed). The track's first step has no reference
+interval to be judged by, so it counts as such a jump only when it is more than
+``max_gap_factor`` times the step the next row implies (``0, 1e9, 1``: yes, and its
+interval is taken back out of the reference; ``0, 1, 0.5``: no, 0.5 is skipped). The track's
+clock goes back to the new row, which continues the jump's segment (no row is skipped),
+and the event is counted in :attr:`GapTracker.glitches` (:attr:`TrackPredictor.time_glitches`).
+Without this, every later row of the track would be "before its previous time" and skipped.
 """
 
 from __future__ import annotations
@@ -139,12 +150,24 @@ class StreamConfig:
 class GapTracker:
     """Causal gap detection for one track (see the module docstring)."""
 
-    __slots__ = ("last_time", "intervals", "segment")
+    __slots__ = ("last_time", "intervals", "segment", "jumped_from", "jump_counted", "glitches")
 
-    def __init__(self, last_time: float | None = None, intervals=(), segment: int = -1):
+    def __init__(self, last_time: float | None = None, intervals=(), segment: int = -1,
+                 jumped_from: float | None = None, jump_counted: bool = False, glitches: int = 0):
         self.last_time = last_time
         self.intervals = list(intervals)
         self.segment = segment
+        #: when the previous row jumped ahead (a gap, the track's first row, or its first step, which
+        #: has no reference to be judged against): the time before it; else None
+        self.jumped_from = jumped_from
+        #: that jump's step went into ``intervals`` (the first step), to be taken back if it was wrong
+        self.jump_counted = jump_counted
+        #: rows that came back before a jump (the jump's timestamp was wrong)
+        self.glitches = glitches
+
+    def copy(self) -> "GapTracker":
+        return GapTracker(self.last_time, self.intervals, self.segment, self.jumped_from, self.jump_counted,
+                          self.glitches)
 
     def threshold(self, config: StreamConfig) -> float:
         if config.max_gap is not None:
@@ -157,20 +180,36 @@ class GapTracker:
         """Register ``time``; True if it starts a new segment, None if out of order (skip)."""
         if self.last_time is None:
             self.last_time, self.segment = time, self.segment + 1
+            self.jumped_from, self.jump_counted = -math.inf, False
             return True
         dt = time - self.last_time
         if not dt > 0:
+            if self.jumped_from is not None and self.jumped_from < time < self.last_time and (
+                    not self.jump_counted  # a gap or the first row: any row coming back in between
+                    or self.last_time - self.jumped_from > config.max_gap_factor * (time - self.jumped_from)):
+                # the previous row jumped ahead and this one comes back in between: that jump was a
+                # wrong timestamp; the clock follows this row, which continues the jump's segment
+                if self.jump_counted:
+                    self.intervals.pop()
+                self.last_time, self.jumped_from, self.jump_counted = time, None, False
+                self.glitches += 1
+                return False
             return None
+        unjudged = not self.intervals and config.max_gap is None
         gap = dt > self.threshold(config)
+        self.jumped_from = self.last_time if gap or unjudged else None
+        self.jump_counted = False
         if gap:
             self.segment += 1
         elif len(self.intervals) < REFERENCE_INTERVALS:
             self.intervals.append(dt)
+            self.jump_counted = unjudged
         self.last_time = time
         return gap
 
     def to_json(self) -> dict:
-        return {"last_time": self.last_time, "intervals": self.intervals, "segment": self.segment}
+        return {"last_time": self.last_time, "intervals": self.intervals, "segment": self.segment,
+                "jumped_from": self.jumped_from, "jump_counted": self.jump_counted, "glitches": self.glitches}
 
 
 class RowPrediction(NamedTuple):

@@ -306,7 +306,8 @@ def _predict_file(path, engine, settings, unit, state_path, save_every, output, 
     since_save = 0
     try:
         with tqdm(total=total, unit="rows", file=sys.stderr, disable=not show, desc="kalmix predict") as bar:
-            for chunk in iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt):
+            for chunk in iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
+                                           ids_as_text=True):
                 if engine is None:
                     chosen = unit if unit is not None else auto_length_unit(to_arrays(chunk).values)
                     if unit is None:
@@ -347,15 +348,11 @@ def _parse_number(text, column, line_number):
     return value
 
 
-def _parse_id(value):
-    if isinstance(value, str):
-        text = value.strip()
-        try:
-            if text and text.lstrip("-").isdigit():
-                return int(text)
-        except ValueError:
-            pass
-        return text
+def _parse_id(value, column, line_number):
+    """A track id as written: CSV text unchanged (``01`` is not ``1``, as in a file), a JSON value as parsed."""
+    if value is None or value == "" or isinstance(value, (dict, list)):
+        raise ValueError(f"line {line_number}: column {column!r} (track id) must hold an id (text or a number), "
+                         f"got {value!r}")
     return value
 
 
@@ -368,6 +365,8 @@ def _predict_stream(stdin, engine, settings, unit, state_path, save_every, outpu
     first = None
     for raw in lines:
         line_number += 1
+        if line_number == 1:
+            raw = raw.lstrip("\ufeff")  # a UTF-8 byte order mark would glue itself to the first column's name
         if raw.strip():
             first = raw
             break
@@ -428,7 +427,8 @@ def _predict_stream(stdin, engine, settings, unit, state_path, save_every, outpu
 
     try:
         for number, record in records():
-            track = _parse_id(get(record, columns.track_id, number)) if columns.track_id else 0
+            track = _parse_id(get(record, columns.track_id, number), columns.track_id, number) \
+                if columns.track_id else 0
             if columns.time is None:
                 time = float(counts.get(track, engine.gaps[track].last_time + 1 if track in engine.gaps else 0))
                 counts[track] = time + 1
@@ -518,7 +518,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
                 raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {input_path!r}")
             fmt = "parquet" if _file_format(input_path) == "parquet" else "csv"
             columns = _columns(_header(input_path, fmt), time_column, position_columns, id_column)
-            table = read_tracks(input_path, columns=columns, format=fmt)
+            table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True)
             label = os.path.basename(input_path)
         wanted = [t.strip() for t in tracks.split(",")] if tracks else None
         result = evaluate_table(table, horizon=horizon, n_experts=n_experts, seed=seed, length_unit=unit,
