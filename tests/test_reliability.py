@@ -220,3 +220,41 @@ def test_ids_are_text_as_written_in_files_and_on_stdin_and_a_bom_is_ignored(cli,
     assert sorted(set(file_rows["id"])) == ["01", "1"]
     pd.testing.assert_frame_equal(file_rows.reset_index(drop=True), stdin_rows.reset_index(drop=True),
                                   check_exact=True)
+
+
+def test_engine_calls_are_all_or_nothing(monkeypatch):
+    """An exception inside a step leaves trackers, counters and states as they were."""
+    import kalmix.streaming as streaming
+
+    table = _feed(n_tracks=3, n=30).rename(columns={"id": "track_id", "t": "time"})
+    config = StreamConfig(n_experts=2, seed=1, horizon=2)
+    real_step, calls = streaming.step, []
+
+    def failing(*args):
+        calls.append(1)
+        if len(calls) == 7:
+            raise KeyboardInterrupt
+        return real_step(*args)
+
+    expected = TrackPredictor(config).process_table(table)
+    engine = TrackPredictor(config)
+    monkeypatch.setattr(streaming, "step", failing)
+    with pytest.raises(KeyboardInterrupt):
+        engine.process_table(table)
+    assert (engine.rows, engine.skipped, engine.gaps, engine.states) == (0, 0, {}, {})
+    monkeypatch.setattr(streaming, "step", real_step)
+    pd.testing.assert_frame_equal(engine.process_table(table), expected, check_exact=True)
+
+    clean, engine = TrackPredictor(config), TrackPredictor(config)
+    rows = list(table.itertuples())
+    expected = [clean.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows]
+    calls.clear()
+    monkeypatch.setattr(streaming, "step", failing)
+    got = [engine.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows[:6]]
+    before = (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, dict(engine.states))
+    with pytest.raises(KeyboardInterrupt):
+        engine.step_row(rows[6].track_id, rows[6].time, [rows[6].x, rows[6].y])
+    assert (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, dict(engine.states)) == before
+    monkeypatch.setattr(streaming, "step", real_step)
+    got += [engine.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows[6:]]
+    assert np.array_equal(np.array(got), np.array(expected), equal_nan=True)

@@ -38,6 +38,14 @@ interval is taken back out of the reference; ``0, 1, 0.5``: no, 0.5 is skipped).
 clock goes back to the new row, which continues the jump's segment (no row is skipped),
 and the event is counted in :attr:`GapTracker.glitches` (:attr:`TrackPredictor.time_glitches`).
 Without this, every later row of the track would be "before its previous time" and skipped.
+
+Transactions
+------------
+:meth:`~TrackPredictor.step_row` and :meth:`~TrackPredictor.process_table` change the
+predictor only when they return: an exception (``KeyboardInterrupt`` included) in the
+middle leaves every track, counter and gap tracker as it was.
+:meth:`~TrackPredictor.checkpoint` / :meth:`~TrackPredictor.rollback` extend that over
+several calls (``kalmix predict`` rolls a whole chunk back when interrupted).
 """
 
 from __future__ import annotations
@@ -53,10 +61,13 @@ from .archive import open_archive, write_archive
 from .bank import check_horizon, check_length_unit, make_params
 from .core.mixture import MixtureParams, MixtureState, init_state, predict, step
 
-__all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "auto_length_unit",
+__all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Checkpoint", "auto_length_unit",
            "STATE_FORMAT_VERSION"]
 
-STATE_FORMAT_VERSION = 1
+#: 2: gap trackers hold the time-glitch bookkeeping and the file may record the output it
+#: belongs to (``kalmix predict -o``); version 1 files are still read.
+STATE_FORMAT_VERSION = 2
+_READABLE_VERSIONS = (1, 2)
 _MAGIC = "kalmix-track-predictor"
 #: Number of first non-gap time steps whose median is a track's reference interval.
 REFERENCE_INTERVALS = 16
@@ -254,7 +265,10 @@ class TrackPredictor:
     skipped : int
         Rows skipped because their time was not after their track's previous time.
     rows : int
-        Rows processed (including skipped ones) since construction or :meth:`load`.
+        Rows processed (including skipped ones), counted over saves and resumes.
+    output : dict or None
+        What the program that saved the state wrote with it (``kalmix predict`` records its
+        ``-o`` file there); kept as is by :meth:`save` / :meth:`load`.
     """
 
     def __init__(self, config: StreamConfig, position_names=None):
@@ -265,6 +279,8 @@ class TrackPredictor:
         self.gaps: dict[Any, GapTracker] = {}
         self.skipped = 0
         self.rows = 0
+        self.output: dict | None = None
+        self.loaded_version: int | None = None  # format version of the file :meth:`load` read
 
     # -- set-up ---------------------------------------------------------------------
     def _ensure_params(self, measurement_dim: int) -> MixtureParams:
@@ -283,30 +299,61 @@ class TrackPredictor:
     def track_ids(self) -> list:
         return list(self.gaps)
 
+    @property
+    def time_glitches(self) -> int:
+        """Rows that came back before a jump ahead in time (see the module docstring)."""
+        return sum(g.glitches for g in self.gaps.values())
+
+    # -- transactions -----------------------------------------------------------------
+    def checkpoint(self, track_ids=None) -> "Checkpoint":
+        """Snapshot of the counters and of ``track_ids``' trackers and states (all tracks if None).
+
+        :meth:`rollback` returns to it, provided only those tracks were touched in between.
+        Cheap: the states are never modified in place, so only references are kept.
+        """
+        ids = list(self.gaps) if track_ids is None else [_id_to_json(t) for t in track_ids]
+        tracks = {t: (self.gaps[t].copy() if t in self.gaps else None, self.states.get(t)) for t in ids}
+        return Checkpoint(self.rows, self.skipped, self.position_names, tracks)
+
+    def rollback(self, checkpoint: "Checkpoint") -> None:
+        """Undo everything done since ``checkpoint`` was taken."""
+        self.rows, self.skipped, self.position_names = checkpoint.rows, checkpoint.skipped, checkpoint.position_names
+        for track, (gaps, state) in checkpoint.tracks.items():
+            for table, value in ((self.gaps, gaps), (self.states, state)):
+                if value is None:
+                    table.pop(track, None)
+                else:
+                    table[track] = value
+
     # -- one row at a time ------------------------------------------------------------
     def step_row(self, track_id, time: float, z) -> RowPrediction | None:
-        """Learn from one measurement (NaN = missing) and predict; None if the row is skipped."""
+        """Learn from one measurement (NaN = missing) and predict; None if the row is skipped.
+
+        All or nothing: the track's tracker and state change only once the step succeeded.
+        """
         z = np.asarray(z, dtype=np.float64).reshape(-1)
         params = self._ensure_params(z.shape[0])
-        self.rows += 1
-        gaps = self.gaps.get(track_id)
-        if gaps is None:
-            gaps = self.gaps[track_id] = GapTracker()
+        known = self.gaps.get(track_id)
+        gaps = GapTracker() if known is None else known.copy()
         new = gaps.advance(float(time), self.config)
         if new is None:
+            self.rows += 1
             self.skipped += 1
             return None
         state = self._fresh() if new else self.states[track_id]
         state, out = step(params, state, z[None])
-        self.states[track_id] = state
         ahead = None
         if self.config.horizon > 1:
             ahead = predict(params, state, self.config.horizon)[0][0]
+        self.gaps[track_id], self.states[track_id] = gaps, state
+        self.rows += 1
         return RowPrediction(track_id, float(time), gaps.segment, out.prediction[0], ahead)
 
     # -- a table (or chunk) at once -----------------------------------------------------
     def process_table(self, table, position_names=None):
         """Step every track of a track table through the batched core.
+
+        All or nothing: an exception in the middle leaves the predictor as it was.
 
         Parameters
         ----------
@@ -323,6 +370,16 @@ class TrackPredictor:
             ``track_id, time, segment, pred_<pos>...`` (and ``pred<H>_<pos>`` for a
             horizon H > 1), one row per input row that was not skipped, in table order.
         """
+        import pandas as pd
+
+        saved = self.checkpoint(pd.unique(table["track_id"]))
+        try:
+            return self._process_table(table, position_names)
+        except BaseException:
+            self.rollback(saved)
+            raise
+
+    def _process_table(self, table, position_names):
         import pandas as pd
 
         names = list(position_names or [c for c in table.columns if c not in ("track_id", "time")])
@@ -397,14 +454,18 @@ class TrackPredictor:
 
     # -- persistence ------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:
-        """Write settings, every track's state and gap bookkeeping to ``path`` (``.npz``), atomically."""
+        """Write settings, every track's state and gap bookkeeping to ``path`` (``.npz``).
+
+        Atomic and durable (see :func:`kalmix.archive.write_archive`): a reader sees the old
+        file or the new one, never a mixture.
+        """
         tracks = list(self.gaps)
         with_state = [t for t in tracks if t in self.states]
         meta = {"magic": _MAGIC, "format_version": STATE_FORMAT_VERSION, "config": asdict(self.config),
                 "measurement_dim": None if self.params is None else self.params.measurement_dim,
                 "position_names": None if self.position_names is None else list(self.position_names),
                 "tracks": [{"id": t, "gaps": self.gaps[t].to_json(), "state": t in self.states} for t in tracks],
-                "rows": self.rows, "skipped": self.skipped}
+                "rows": self.rows, "skipped": self.skipped, "output": self.output}
         arrays = {}
         if with_state:
             stacked = _stack([self.states[t] for t in with_state])
@@ -414,12 +475,14 @@ class TrackPredictor:
     @classmethod
     def load(cls, path: str | os.PathLike) -> "TrackPredictor":
         """Read a file written by :meth:`save`; ``ValueError`` with the reason on a bad file."""
-        with open_archive(path, magic=_MAGIC, version=STATE_FORMAT_VERSION, what="kalmix state file",
+        with open_archive(path, magic=_MAGIC, version=_READABLE_VERSIONS, what="kalmix state file",
                           written_by="kalmix predict --state") as archive:
             meta = archive.meta
             try:
                 engine = cls(StreamConfig(**meta["config"]), meta.get("position_names"))
                 engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
+                engine.output = meta.get("output")
+                engine.loaded_version = meta["format_version"]
                 if meta["measurement_dim"] is not None:
                     engine._ensure_params(int(meta["measurement_dim"]))
                 entries = [(entry["id"], GapTracker(**entry["gaps"]), bool(entry["state"]))
@@ -442,3 +505,12 @@ class TrackPredictor:
                                                        for name, value in stacked.items()})
                 index += 1
         return engine
+
+
+class Checkpoint(NamedTuple):
+    """What :meth:`TrackPredictor.checkpoint` returns."""
+
+    rows: int
+    skipped: int
+    position_names: tuple | None
+    tracks: dict   # track id -> (GapTracker copy or None, MixtureState or None)
