@@ -8,6 +8,8 @@ shows the process is waiting for input.
 
 import io
 import os
+import re
+import signal
 import subprocess
 import sys
 import time
@@ -23,6 +25,8 @@ from kalmix import MixturePredictor, make_params
 from kalmix.archive import write_archive
 from kalmix.bank import MAX_HORIZON
 from kalmix.cli import build
+from kalmix.commands import _predict_run
+from kalmix.commands._durable import TEST_HOOK, count_rows
 from kalmix.streaming import GapTracker, StreamConfig, TrackPredictor
 
 FAST = ["--experts", "2", "--seed", "1", "--length-unit", "1", "--no-progress"]
@@ -83,6 +87,165 @@ def _subprocess(args, stdin=None, env=None):
                           env=full_env, timeout=120)
 
 
+# ---------------------------------------------------------------------- 1 + 2: stop and resume
+@pytest.mark.parametrize("sig", SIGNALS)
+def test_a_stopped_file_run_resumes_to_exactly_the_uninterrupted_output(sig, feed_csv, reference, tmp_path):
+    """A real process, stopped by SIGINT / SIGTERM / SIGHUP in the middle of its third chunk."""
+    state, out = str(tmp_path / "s.npz"), str(tmp_path / "out.csv")
+    args = ["predict", feed_csv, *FAST, "-H", "3", "--chunk-rows", "50", "--state", state, "-o", out]
+    first = _subprocess(args, env={TEST_HOOK: f"{sig}:3"})
+    assert first.returncode == 128 + signal.Signals[sig].value, first.stderr
+    message = first.stderr.decode().strip().splitlines()[-1]
+    assert message.startswith(f"kalmix: stopped by {sig} after 100 input row(s)") and "state saved" in message
+    assert open(out, "rb").read().count(b"\n") == 1 + 100  # two chunks written, the third rolled back
+    second = _subprocess(args)
+    assert second.returncode == 0, second.stderr
+    assert "skipped 100 row(s)" in second.stderr.decode()  # the rows already written, not those rolled back
+    assert open(out, "rb").read() == reference("csv", 50)
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(chunk_rows=st.integers(7, 200), piece_rows=st.integers(3, 120), stop_after=st.integers(1, 12),
+       sig=st.sampled_from(SIGNALS), fmt=st.sampled_from(["csv", "jsonl"]), save_every=st.integers(1, 400))
+def test_any_stop_point_resumes_bit_for_bit(cli, feed_csv, reference, tmp_path_factory, monkeypatch, chunk_rows,
+                                            piece_rows, stop_after, sig, fmt, save_every):
+    """Stopped after any piece of any chunk, then resumed (maybe stopped again): the same bytes as one run."""
+    monkeypatch.setattr(_predict_run, "PIECE_ROWS", piece_rows)
+    folder = tmp_path_factory.mktemp("any")
+    state, out = str(folder / "s.npz"), str(folder / f"out.{fmt}")
+    args = ["predict", feed_csv, *FAST, "-H", "3", "--chunk-rows", str(chunk_rows), "--save-every",
+            str(save_every), "--state", state, "-o", out]
+    codes = []
+    for hook in (f"{sig}:{stop_after}", f"SIGINT:{stop_after + 5}", None):
+        result = _run(cli, args, env={TEST_HOOK: hook})
+        codes.append(result.exit_code)
+        if result.exit_code == 0:
+            break
+    assert codes[-1] == 0 and set(codes[:-1]) <= {130, 143, 129}
+    assert open(out, "rb").read() == reference(fmt, chunk_rows)
+
+
+def test_rows_written_after_the_last_save_are_cut_and_computed_again(feed_csv, reference, tmp_path):
+    """SIGKILL (no chance to save) after chunk 3 was written but only chunks 1-2 were saved."""
+    state, out = str(tmp_path / "s.npz"), str(tmp_path / "out.csv")
+    args = ["predict", feed_csv, *FAST, "-H", "3", "--chunk-rows", "50", "--save-every", "100", "--state", state,
+            "-o", out]
+    killed = _subprocess(args, env={TEST_HOOK: "SIGKILL:4"})
+    assert killed.returncode == -signal.SIGKILL
+    assert open(out, "rb").read().count(b"\n") == 1 + 150
+    resumed = _subprocess(args)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "dropped the last 50 line(s)" in resumed.stderr.decode()
+    assert open(out, "rb").read() == reference("csv", 50)
+
+
+def test_a_stopped_stdin_pipeline_loses_no_row(feed_csv, reference, tmp_path):
+    """A real SIGTERM while the pipeline waits for input; the replayed feed resumes it exactly."""
+    state, out = str(tmp_path / "s.npz"), str(tmp_path / "out.csv")
+    lines = open(feed_csv).read().splitlines(keepends=True)
+    args = [sys.executable, "-m", "kalmix.cli", "predict", "-", *FAST, "-H", "3", "--state", state, "-o", out]
+    process = subprocess.Popen(args, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+    process.stdin.write("".join(lines[:41]).encode())
+    process.stdin.flush()
+    deadline = time.monotonic() + 60  # wait for the 40 predictions: then it blocks reading stdin
+    while not (os.path.exists(out) and open(out, "rb").read().count(b"\n") == 41):
+        assert process.poll() is None and time.monotonic() < deadline
+        time.sleep(0.05)
+    process.send_signal(signal.SIGTERM)
+    assert process.wait(60) == 128 + signal.SIGTERM
+    assert "stopped by SIGTERM after 40 input row(s)" in process.stderr.read().decode()
+    resumed = _subprocess(args[3:], stdin="".join(lines).encode())  # the whole feed again
+    assert resumed.returncode == 0, resumed.stderr
+    assert open(out, "rb").read() == reference("stdin")
+
+
+def test_engine_calls_are_all_or_nothing(monkeypatch):
+    """An exception inside a step leaves trackers, counters and states as they were."""
+    import kalmix.streaming as streaming
+
+    table = _feed(n_tracks=3, n=30).rename(columns={"id": "track_id", "t": "time"})
+    config = StreamConfig(n_experts=2, seed=1, horizon=2)
+    real_step, calls = streaming.step, []
+
+    def failing(*args):
+        calls.append(1)
+        if len(calls) == 7:
+            raise KeyboardInterrupt
+        return real_step(*args)
+
+    expected = TrackPredictor(config).process_table(table)
+    engine = TrackPredictor(config)
+    monkeypatch.setattr(streaming, "step", failing)
+    with pytest.raises(KeyboardInterrupt):
+        engine.process_table(table)
+    assert (engine.rows, engine.skipped, engine.gaps, engine.states) == (0, 0, {}, {})
+    monkeypatch.setattr(streaming, "step", real_step)
+    pd.testing.assert_frame_equal(engine.process_table(table), expected, check_exact=True)
+
+    clean, engine = TrackPredictor(config), TrackPredictor(config)
+    rows = list(table.itertuples())
+    expected = [clean.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows]
+    calls.clear()
+    monkeypatch.setattr(streaming, "step", failing)
+    got = [engine.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows[:6]]
+    before = (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, dict(engine.states))
+    with pytest.raises(KeyboardInterrupt):
+        engine.step_row(rows[6].track_id, rows[6].time, [rows[6].x, rows[6].y])
+    assert (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, dict(engine.states)) == before
+    monkeypatch.setattr(streaming, "step", real_step)
+    got += [engine.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows[6:]]
+    assert np.array_equal(np.array(got), np.array(expected), equal_nan=True)
+
+
+# ------------------------------------------------------------------------ 1: the -o file on resume
+@pytest.mark.parametrize("damage, message", [
+    ("truncate", "was truncated or replaced"),
+    ("edit", "the file was modified"),
+    ("foreign", "is not the output recorded in the state file"),
+])
+def test_an_output_that_does_not_match_the_state_is_refused(cli, feed_csv, tmp_path, damage, message):
+    state, out = str(tmp_path / "s.npz"), str(tmp_path / "out.csv")
+    args = ["predict", feed_csv, *FAST, "--chunk-rows", "50", "--state", state]
+    assert _run(cli, [*args, "-o", out], env={TEST_HOOK: "SIGTERM:3"}).exit_code == 143
+    text = open(out).read()
+    if damage == "truncate":
+        open(out, "w").write(text[:-30])
+    elif damage == "edit":
+        open(out, "w").write(text.replace("\n", "\r\n", 1)[:len(text)] + text[len(text):])
+    else:
+        out = str(tmp_path / "other.csv")
+        open(out, "w").write("unrelated,file\n1,2\n")
+    result = _run(cli, [*args, "-o", out])
+    assert result.exit_code == 1 and message in result.stderr and len(result.stderr.splitlines()) == 1
+
+
+def test_a_parquet_output_is_not_continued(cli, feed_csv, tmp_path):
+    state, out = str(tmp_path / "s.npz"), str(tmp_path / "out.parquet")
+    args = ["predict", feed_csv, *FAST, "--chunk-rows", "50", "--state", state, "-o", out]
+    assert _run(cli, args, env={TEST_HOOK: "SIGINT:2"}).exit_code == 130
+    assert len(pd.read_parquet(out)) == 50  # a valid file of the committed chunk
+    result = _run(cli, args)
+    assert result.exit_code == 1 and "a Parquet file cannot be continued" in result.stderr
+
+
+# ------------------------------------------------------------------- 3: one writer per state file
+def test_a_second_writer_on_a_state_file_gets_a_clear_error(cli, tmp_path):
+    state = str(tmp_path / "s.npz")
+    first = subprocess.Popen([sys.executable, "-m", "kalmix.cli", "predict", "-", *FAST, "--state", state],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        first.stdin.write(b"t,x\n0,1\n")
+        first.stdin.flush()
+        assert first.stdout.readline().startswith(b"t,segment")  # it runs, and holds the lock
+        second = _run(cli, ["predict", "-", *FAST, "--state", state], input="t,x\n0,1\n")
+        assert second.exit_code == 1
+        assert "is in use by another kalmix process" in second.stderr and second.stdout == ""
+    finally:
+        first.stdin.close()
+        assert first.wait(60) == 0
+    assert _run(cli, ["predict", "-", *FAST, "--state", state], input="t,x\n1,2\n").exit_code == 0
+
+
 def test_state_writes_are_unique_fsynced_and_keep_permissions(tmp_path, monkeypatch):
     path = tmp_path / "s.npz"
     path.write_bytes(b"old")
@@ -101,39 +264,25 @@ def test_state_writes_are_unique_fsynced_and_keep_permissions(tmp_path, monkeypa
     assert sorted(os.listdir(tmp_path)) == ["s.npz", "s.npz.tmp"]
 
 
-def test_foreign_and_oversized_state_files_are_refused_without_inflating(tmp_path, monkeypatch):
-    np.save(tmp_path / "a.npy", np.zeros(3))
-    for loader, what in ((TrackPredictor.load, "state"), (MixturePredictor.load, "predictor")):
-        with pytest.raises(ValueError, match=f"not a kalmix {what} file"):
-            loader(tmp_path / "a.npy")
-        with pytest.raises(ValueError, match="got a directory"):
-            loader(tmp_path)
-    engine = TrackPredictor(StreamConfig(n_experts=2))
-    engine.step_row("a", 0.0, [1.0, 2.0])
-    engine.save(tmp_path / "s.npz")
-    zeros = np.zeros(4_000_000)  # 32 MB that deflate to ~30 kB
-    with zipfile.ZipFile(tmp_path / "s.npz", "a", zipfile.ZIP_DEFLATED) as archive:
-        with archive.open("junk.npy", "w", force_zip64=True) as member:
-            np.lib.format.write_array(member, zeros)
-    opened = []
-    real_open = zipfile.ZipFile.open
-    monkeypatch.setattr(zipfile.ZipFile, "open", lambda self, name, *a, **k: (
-        opened.append(getattr(name, "filename", name)), real_open(self, name, *a, **k))[1])
-    loaded = TrackPredictor.load(tmp_path / "s.npz")
-    assert "junk.npy" not in opened and loaded.track_ids == ["a"]
-    # a member the loader needs, but far larger than its shape: refused before decompressing
-    with zipfile.ZipFile(tmp_path / "s.npz") as archive:
-        members = {name: archive.read(name) for name in archive.namelist() if name != "junk.npy"}
-    buffer = io.BytesIO()
-    np.lib.format.write_array(buffer, zeros)
-    members["state/cov.npy"] = buffer.getvalue()
-    with zipfile.ZipFile(tmp_path / "big.npz", "w", zipfile.ZIP_DEFLATED) as archive:
-        for name, data in members.items():
-            archive.writestr(name, data)
-    opened.clear()
-    with pytest.raises(ValueError, match=r"field 'cov' expected \d+ bytes .* the archive declares 32000128"):
-        TrackPredictor.load(tmp_path / "big.npz")
-    assert "state/cov.npy" not in opened
+@pytest.mark.parametrize("setup, message", [
+    ("missing_dir", "the directory"),
+    ("read_only", "is read-only (mode 0444)"),
+    ("directory", "is a directory"),
+])
+def test_state_file_problems_fail_before_any_work(cli, feed_csv, tmp_path, setup, message):
+    state = tmp_path / "s.npz"
+    if setup == "missing_dir":
+        state = tmp_path / "absent" / "s.npz"
+    elif setup == "read_only":
+        assert _run(cli, ["predict", feed_csv, *FAST, "--state", str(state), "-o", os.devnull]).exit_code == 0
+        os.chmod(state, 0o444)
+    else:
+        state.mkdir()
+    before = state.read_bytes() if setup == "read_only" else None
+    result = _run(cli, ["predict", feed_csv, *FAST, "--state", str(state)])
+    assert result.exit_code in (1, 2) and message in result.stderr and result.stdout == ""
+    if before is not None:
+        assert state.read_bytes() == before
 
 
 # -------------------------------------------------------------------------- 6: bounded horizons
@@ -180,14 +329,70 @@ def test_the_length_unit_range_is_scale_equivariant_at_both_ends(unit):
     np.testing.assert_allclose(scaled[1:], reference[1:], rtol=1e-9, atol=0)
 
 
-@pytest.mark.parametrize("content", ["t,x\n0,1\n", "t,x\n0,1\n1,2\n", "t,x\n0,1\n0,2\n0,3\n",
-                                     "t,x\n0,1\n1,2\n2,3\n3,5\n4,6\n"])
-def test_evaluate_on_too_little_data_says_so(cli, tmp_path, content):
-    path = tmp_path / "tiny.csv"
-    path.write_text(content)
-    result = _run(cli, ["evaluate", str(path), "--experts", "2", "--no-peers"])
-    assert result.exit_code == 1 and "All-NaN" not in result.stderr
-    assert "too little data to tune the predictors on" in result.stderr.splitlines()[-1]
+def test_foreign_and_oversized_state_files_are_refused_without_inflating(tmp_path, monkeypatch):
+    np.save(tmp_path / "a.npy", np.zeros(3))
+    for loader, what in ((TrackPredictor.load, "state"), (MixturePredictor.load, "predictor")):
+        with pytest.raises(ValueError, match=f"not a kalmix {what} file"):
+            loader(tmp_path / "a.npy")
+        with pytest.raises(ValueError, match="got a directory"):
+            loader(tmp_path)
+    engine = TrackPredictor(StreamConfig(n_experts=2))
+    engine.step_row("a", 0.0, [1.0, 2.0])
+    engine.save(tmp_path / "s.npz")
+    zeros = np.zeros(4_000_000)  # 32 MB that deflate to ~30 kB
+    with zipfile.ZipFile(tmp_path / "s.npz", "a", zipfile.ZIP_DEFLATED) as archive:
+        with archive.open("junk.npy", "w", force_zip64=True) as member:
+            np.lib.format.write_array(member, zeros)
+    opened = []
+    real_open = zipfile.ZipFile.open
+    monkeypatch.setattr(zipfile.ZipFile, "open", lambda self, name, *a, **k: (
+        opened.append(getattr(name, "filename", name)), real_open(self, name, *a, **k))[1])
+    loaded = TrackPredictor.load(tmp_path / "s.npz")
+    assert "junk.npy" not in opened and loaded.track_ids == ["a"]
+    # a member the loader needs, but far larger than its shape: refused before decompressing
+    with zipfile.ZipFile(tmp_path / "s.npz") as archive:
+        members = {name: archive.read(name) for name in archive.namelist() if name != "junk.npy"}
+    buffer = io.BytesIO()
+    np.lib.format.write_array(buffer, zeros)
+    members["state/cov.npy"] = buffer.getvalue()
+    with zipfile.ZipFile(tmp_path / "big.npz", "w", zipfile.ZIP_DEFLATED) as archive:
+        for name, data in members.items():
+            archive.writestr(name, data)
+    opened.clear()
+    with pytest.raises(ValueError, match=r"field 'cov' expected \d+ bytes .* the archive declares 32000128"):
+        TrackPredictor.load(tmp_path / "big.npz")
+    assert "state/cov.npy" not in opened
+
+
+@pytest.mark.parametrize("args, message", [
+    (["{dir}"], "INPUT: expected a track file (CSV or Parquet), got the directory"),
+    (["{csv}", "-o", "/dev/full"], "--output: cannot write '/dev/full': No space left on device"),
+    (["{csv}", "--state", "{npy}"], "not a kalmix state file"),
+    (["{csv}", "--length-unit", "1e300"], "expected a number in [1e-100, 1e+100] or 'auto'"),
+    (["{csv}", "--seed", str(2**64)], "is not in the range 0<=x<=9223372036854775807"),
+    (["{csv}", "--option", "process_noise_range=5"], "process_noise_range: expected a pair"),
+])
+def test_bad_command_lines_give_one_clear_line(cli, feed_csv, tmp_path, args, message):
+    np.save(tmp_path / "s.npy", np.zeros(3))
+    names = {"dir": str(tmp_path), "csv": feed_csv, "npy": str(tmp_path / "s.npy")}
+    result = _run(cli, ["predict", *FAST, *[a.format(**names) for a in args]])
+    assert result.exit_code in (1, 2) and message in result.stderr and "Traceback" not in result.stderr
+    if result.exit_code == 1:
+        assert len(result.stderr.splitlines()) == 1
+
+
+def test_ids_are_text_as_written_in_files_and_on_stdin_and_a_bom_is_ignored(cli, tmp_path):
+    text = "id,t,x\n1,0,1\n01,0,5\n1,1,2\n01,1,6\n1,2,3\n01,2,7\n"
+    (tmp_path / "ids.csv").write_text(text)
+    from_file = _run(cli, ["predict", str(tmp_path / "ids.csv"), *FAST])
+    from_stdin = _run(cli, ["predict", "-", *FAST], input=("\ufeff" + text).encode("utf-8"))
+    assert from_file.exit_code == from_stdin.exit_code == 0
+    assert "skipped" not in from_file.stderr + from_stdin.stderr
+    file_rows, stdin_rows = (pd.read_csv(io.StringIO(out), dtype={"id": str}).sort_values(["id", "t"], kind="stable")
+                             for out in (from_file.stdout, from_stdin.stdout))
+    assert sorted(set(file_rows["id"])) == ["01", "1"]
+    pd.testing.assert_frame_equal(file_rows.reset_index(drop=True), stdin_rows.reset_index(drop=True),
+                                  check_exact=True)
 
 
 @settings(max_examples=40, deadline=None)
@@ -208,53 +413,62 @@ def test_one_wrong_future_timestamp_loses_no_later_row(steps, where, jump):
     assert None not in [clean.advance(t, config) for t in times] and clean.glitches == 0
 
 
-def test_ids_are_text_as_written_in_files_and_on_stdin_and_a_bom_is_ignored(cli, tmp_path):
-    text = "id,t,x\n1,0,1\n01,0,5\n1,1,2\n01,1,6\n1,2,3\n01,2,7\n"
-    (tmp_path / "ids.csv").write_text(text)
-    from_file = _run(cli, ["predict", str(tmp_path / "ids.csv"), *FAST])
-    from_stdin = _run(cli, ["predict", "-", *FAST], input=("\ufeff" + text).encode("utf-8"))
-    assert from_file.exit_code == from_stdin.exit_code == 0
-    assert "skipped" not in from_file.stderr + from_stdin.stderr
-    file_rows, stdin_rows = (pd.read_csv(io.StringIO(out), dtype={"id": str}).sort_values(["id", "t"], kind="stable")
-                             for out in (from_file.stdout, from_stdin.stdout))
-    assert sorted(set(file_rows["id"])) == ["01", "1"]
-    pd.testing.assert_frame_equal(file_rows.reset_index(drop=True), stdin_rows.reset_index(drop=True),
-                                  check_exact=True)
+def test_a_future_timestamp_on_stdin_costs_no_later_row(cli):
+    feed = "t,x\n0,0\n1,1\n2,2\n1e9,3\n4,4\n5,5\n6,6\n"
+    result = _run(cli, ["predict", "-", *FAST], input=feed)
+    assert result.exit_code == 0
+    assert pd.read_csv(io.StringIO(result.stdout))["t"].tolist() == [0, 1, 2, 1e9, 4, 5, 6]
+    assert "1 row(s) came back in time after a jump ahead" in result.stderr
+    # a repeated or older time is still skipped, and replaying a feed still skips what was done
+    result = _run(cli, ["predict", "-", *FAST], input="t,x\n0,0\n1,1\n1,1\n0.5,2\n2,2\n")
+    assert result.exit_code == 0 and result.stderr.count("row skipped") == 2
 
 
-def test_engine_calls_are_all_or_nothing(monkeypatch):
-    """An exception inside a step leaves trackers, counters and states as they were."""
-    import kalmix.streaming as streaming
+@pytest.mark.parametrize("content", ["t,x\n0,1\n", "t,x\n0,1\n1,2\n", "t,x\n0,1\n0,2\n0,3\n",
+                                     "t,x\n0,1\n1,2\n2,3\n3,5\n4,6\n"])
+def test_evaluate_on_too_little_data_says_so(cli, tmp_path, content):
+    path = tmp_path / "tiny.csv"
+    path.write_text(content)
+    result = _run(cli, ["evaluate", str(path), "--experts", "2", "--no-peers"])
+    assert result.exit_code == 1 and "All-NaN" not in result.stderr
+    assert "too little data to tune the predictors on" in result.stderr.splitlines()[-1]
 
-    table = _feed(n_tracks=3, n=30).rename(columns={"id": "track_id", "t": "time"})
-    config = StreamConfig(n_experts=2, seed=1, horizon=2)
-    real_step, calls = streaming.step, []
 
-    def failing(*args):
-        calls.append(1)
-        if len(calls) == 7:
-            raise KeyboardInterrupt
-        return real_step(*args)
+# -------------------------------------------------------------------------------- 8: progress
+def test_the_progress_bar_has_a_total_and_moves_within_a_chunk(cli, feed_csv, monkeypatch):
+    import functools
 
-    expected = TrackPredictor(config).process_table(table)
-    engine = TrackPredictor(config)
-    monkeypatch.setattr(streaming, "step", failing)
-    with pytest.raises(KeyboardInterrupt):
-        engine.process_table(table)
-    assert (engine.rows, engine.skipped, engine.gaps, engine.states) == (0, 0, {}, {})
-    monkeypatch.setattr(streaming, "step", real_step)
-    pd.testing.assert_frame_equal(engine.process_table(table), expected, check_exact=True)
+    import tqdm
 
-    clean, engine = TrackPredictor(config), TrackPredictor(config)
-    rows = list(table.itertuples())
-    expected = [clean.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows]
-    calls.clear()
-    monkeypatch.setattr(streaming, "step", failing)
-    got = [engine.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows[:6]]
-    before = (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, dict(engine.states))
-    with pytest.raises(KeyboardInterrupt):
-        engine.step_row(rows[6].track_id, rows[6].time, [rows[6].x, rows[6].y])
-    assert (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, dict(engine.states)) == before
-    monkeypatch.setattr(streaming, "step", real_step)
-    got += [engine.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows[6:]]
-    assert np.array_equal(np.array(got), np.array(expected), equal_nan=True)
+    monkeypatch.setattr(_predict_run, "PIECE_ROWS", 40)
+    monkeypatch.setattr(tqdm, "tqdm", functools.partial(tqdm.tqdm, mininterval=0, miniters=1))  # draw every update
+    result = _run(cli, ["predict", feed_csv, *FAST[:-1], "--progress", "--chunk-rows", "1000", "-o", os.devnull])
+    assert result.exit_code == 0
+    shown = set(re.findall(r"(\d+)/360 ", result.stderr))  # the total, counted before the first chunk
+    assert {"0", "360"} < shown and len(shown) >= 9  # one chunk, nine pieces: the bar moved inside it
+
+
+def test_count_rows(tmp_path):
+    import gzip
+
+    (tmp_path / "a.csv").write_bytes(b"t,x\n0,1\n1,2\n2,3")  # no final newline
+    with gzip.open(tmp_path / "b.csv.gz", "wb") as handle:
+        handle.write(b"t,x\n" + b"".join(b"%d,1\n" % i for i in range(300_000)))
+    (tmp_path / "c.csv").write_bytes(b"t,x\n")
+    assert [count_rows(str(tmp_path / n)) for n in ("a.csv", "b.csv.gz", "c.csv")] == [3, 300_000, 0]
+
+
+@settings(max_examples=30, deadline=None)
+@given(lengths=st.lists(st.integers(1, 30), min_size=1, max_size=8), rows=st.integers(1, 50))
+def test_pieces_keep_every_track_in_order_and_merge_back(lengths, rows):
+    chunk = pd.DataFrame({"track_id": np.repeat([f"t{i}" for i in range(len(lengths))], lengths),
+                          "time": np.concatenate([np.arange(n) * 0.5 for n in lengths])})
+    parts = _predict_run.pieces(chunk, rows)
+    assert sum(len(p) for p in parts) == len(chunk) and len(parts) <= _predict_run._MAX_PIECES
+    for track, n in zip(chunk["track_id"].unique(), lengths):  # a track with enough rows is in every piece
+        assert n < len(parts) or all((p["track_id"] == track).any() for p in parts)
+    seen = pd.concat(parts)
+    assert seen.groupby("track_id", sort=False)["time"].apply(lambda t: t.is_monotonic_increasing).all()
+    shuffled = [p.assign(x=1.0) for p in parts[::-1]]
+    pd.testing.assert_frame_equal(_predict_run.merge(shuffled, chunk)[["track_id", "time"]],
+                                  chunk.reset_index(drop=True))

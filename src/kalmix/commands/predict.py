@@ -8,11 +8,9 @@ writes and prints.
 from __future__ import annotations
 
 import contextlib
-import csv
 import json
 import math
 import os
-import sys
 import warnings
 
 import click
@@ -148,67 +146,6 @@ def _columns(header, time_column, position_columns, id_column):
     return detect_columns(header, time=time_column, positions=_positions(position_columns), track_id=id_column)
 
 
-class _Writer:
-    """CSV, JSON lines or Parquet output, written incrementally."""
-
-    def __init__(self, output, fmt):
-        self.output, self.fmt = output, fmt
-        self.handle, self.parquet, self.header_written = None, None, False
-        if fmt == "parquet":
-            return
-        self.handle = sys.stdout if output is None else open(output, "w", newline="")
-
-    def write_table(self, frame):
-        if self.fmt == "parquet":
-            import pyarrow as pa
-            import pyarrow.parquet as pq
-            table = pa.Table.from_pandas(frame, preserve_index=False)
-            if self.parquet is None:
-                self.parquet = pq.ParquetWriter(self.output, table.schema)
-            self.parquet.write_table(table)
-        elif self.fmt == "jsonl":
-            for record in frame.to_dict(orient="records"):
-                self.write_record(record)
-        else:
-            frame.to_csv(self.handle, index=False, header=not self.header_written, lineterminator="\n")
-            self.header_written = True
-        if self.handle is not None:
-            self.handle.flush()
-
-    def write_record(self, record):
-        if self.fmt == "jsonl":
-            self.handle.write(json.dumps({k: _json_value(v) for k, v in record.items()}) + "\n")
-        else:
-            if not self.header_written:
-                self.handle.write(",".join(record) + "\n")
-                self.header_written = True
-            self.handle.write(",".join(_csv_value(v) for v in record.values()) + "\n")
-        self.handle.flush()
-
-    def close(self):
-        if self.parquet is not None:
-            self.parquet.close()
-        if self.handle is not None and self.handle is not sys.stdout:
-            self.handle.close()
-
-
-def _json_value(value):
-    if isinstance(value, (np.floating, float)):
-        return None if not math.isfinite(value) else float(value)
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
-
-
-def _csv_value(value):
-    if isinstance(value, (float, np.floating)):
-        return "" if math.isnan(value) else repr(float(value))
-    text = str(value)
-    if any(c in text for c in ',"\n'):
-        text = '"' + text.replace('"', '""') + '"'
-    return text
-
-
 def _output_columns(frame, columns, names):
     """Rename the engine's columns back to the input's names; drop the id if the input had none."""
     renames = {"time": columns.time or "row"}
@@ -249,14 +186,21 @@ def predict(input_path, time_column, position_columns, id_column, horizon, outpu
     of the track); with --horizon H also pred<H>_<position>. A file is processed in chunks,
     all tracks at once through the batched core; '-' reads CSV rows (header first) or JSON
     lines from stdin and writes each prediction as soon as its measurement arrives.
+
+    Stopped by Ctrl-C, SIGTERM or SIGHUP, it saves the --state file to match what it wrote
+    (a chunk in progress is rolled back, a stdin row in progress finished) and exits with
+    128 + the signal number; the same command then continues (-o is continued, not rewritten).
     """
     from ..streaming import TrackPredictor
+    from ._durable import SignalGuard, StateLock
+    from ._predict_run import run_predict
 
     unit = _length_unit(length_unit)
     gap, never = _max_gap(max_gap)
     options = _mixture_options(mixture_options)
     out_fmt = _file_format(output) if output else "csv"
-    with _user_errors():
+    with _user_errors(), SignalGuard() as guard, \
+            (StateLock(state_path) if state_path else contextlib.nullcontext()):
         engine = None
         if state_path and os.path.exists(state_path):
             engine = TrackPredictor.load(state_path)
@@ -274,194 +218,10 @@ def predict(input_path, time_column, position_columns, id_column, horizon, outpu
         if engine is None and options:
             from ..bank import make_params
             make_params(1, settings["n_experts"], **options)  # a bad option fails before any output
-        if input_path == "-":
-            if out_fmt == "parquet":
-                raise ValueError("--output: streaming from stdin writes CSV or JSON lines, got a .parquet name")
-            _predict_stream(sys.stdin, engine, settings, unit, state_path, save_every, output, out_fmt,
-                            time_column, position_columns, id_column)
-        else:
-            _predict_file(input_path, engine, settings, unit, state_path, save_every, output, out_fmt,
-                          time_column, position_columns, id_column, chunk_rows, progress)
-
-
-def _predict_file(path, engine, settings, unit, state_path, save_every, output, out_fmt,
-                  time_column, position_columns, id_column, chunk_rows, progress):
-    from tqdm import tqdm
-
-    from ..io import iter_track_chunks, to_arrays
-    from ..streaming import StreamConfig, TrackPredictor, auto_length_unit
-
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"INPUT: no such file {path!r}")
-    if os.path.isdir(path):
-        raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {path!r}")
-    in_fmt = "parquet" if _file_format(path) == "parquet" else "csv"
-    columns = _columns(_header(path, in_fmt), time_column, position_columns, id_column)
-    total = None
-    if in_fmt == "parquet":
-        import pyarrow.parquet as pq
-        total = pq.ParquetFile(path).metadata.num_rows
-    show = sys.stderr.isatty() if progress is None else progress
-    writer = _Writer(output, out_fmt)
-    since_save = 0
-    try:
-        with tqdm(total=total, unit="rows", file=sys.stderr, disable=not show, desc="kalmix predict") as bar:
-            for chunk in iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
-                                           ids_as_text=True):
-                if engine is None:
-                    chosen = unit if unit is not None else auto_length_unit(to_arrays(chunk).values)
-                    if unit is None:
-                        click.echo(f"kalmix: length unit {chosen:.6g} (auto; pass --length-unit to override)",
-                                   err=True)
-                    engine = TrackPredictor(StreamConfig(length_unit=chosen, **settings), columns.positions)
-                frame = engine.process_table(chunk, list(columns.positions))
-                writer.write_table(_output_columns(frame, columns, columns.positions))
-                bar.update(len(chunk))
-                since_save += len(chunk)
-                if state_path and since_save >= save_every:
-                    engine.save(state_path)
-                    since_save = 0
-    finally:
-        writer.close()
-        if state_path and engine is not None:
-            engine.save(state_path)
-    if engine is not None and engine.skipped:
-        click.echo(f"kalmix: warning: skipped {engine.skipped} row(s) at or before their track's last time "
-                   "(already processed or out of order)", err=True)
-
-
-def _parse_number(text, column, line_number):
-    if text is None:
-        return math.nan
-    if isinstance(text, (int, float)) and not isinstance(text, bool):
-        value = float(text)
-    else:
-        stripped = str(text).strip()
-        if stripped.lower() in ("", "nan", "na", "n/a", "null", "none"):
-            return math.nan
-        try:
-            value = float(stripped)
-        except ValueError:
-            raise ValueError(f"line {line_number}: column {column!r} must hold a number, got {text!r}") from None
-    if math.isinf(value):
-        raise ValueError(f"line {line_number}: column {column!r} must be finite, got {text!r}")
-    return value
-
-
-def _parse_id(value, column, line_number):
-    """A track id as written: CSV text unchanged (``01`` is not ``1``, as in a file), a JSON value as parsed."""
-    if value is None or value == "" or isinstance(value, (dict, list)):
-        raise ValueError(f"line {line_number}: column {column!r} (track id) must hold an id (text or a number), "
-                         f"got {value!r}")
-    return value
-
-
-def _predict_stream(stdin, engine, settings, unit, state_path, save_every, output, out_fmt,
-                    time_column, position_columns, id_column):
-    from ..streaming import StreamConfig, TrackPredictor
-
-    lines = iter(stdin.readline, "")
-    line_number = 0
-    first = None
-    for raw in lines:
-        line_number += 1
-        if line_number == 1:
-            raw = raw.lstrip("\ufeff")  # a UTF-8 byte order mark would glue itself to the first column's name
-        if raw.strip():
-            first = raw
-            break
-    if first is None:
-        raise ValueError("stdin: no input (expected a CSV header line or JSON lines)")
-    is_json = first.lstrip().startswith("{")
-    if is_json:
-        try:
-            record = json.loads(first)
-        except json.JSONDecodeError as error:
-            raise ValueError(f"line {line_number}: not valid JSON: {error}") from None
-        header = list(record)
-        pending = [(line_number, record)]
-    else:
-        header = next(csv.reader([first]))
-        pending = []
-    columns = _columns(header, time_column, position_columns, id_column)
-    if engine is None:
-        if unit is None:
-            click.echo("kalmix: length unit 1 (stdin has no sample to estimate it from; pass --length-unit)",
-                       err=True)
-        engine = TrackPredictor(StreamConfig(length_unit=1.0 if unit is None else unit, **settings),
-                                columns.positions)
-    if engine.position_names is not None and len(engine.position_names) != len(columns.positions):
-        raise ValueError(f"the state file tracks {len(engine.position_names)} coordinates "
-                         f"{list(engine.position_names)}, the input has {list(columns.positions)}")
-    index = {name: i for i, name in enumerate(header)}
-    out_fmt = out_fmt if output else ("jsonl" if is_json else "csv")
-    writer = _Writer(output, out_fmt)
-    counts: dict = {}
-    since_save = 0
-
-    def records():
-        yield from pending
-        nonlocal line_number
-        for raw in lines:
-            line_number += 1
-            if not raw.strip():
-                continue
-            if is_json:
-                try:
-                    yield line_number, json.loads(raw)
-                except json.JSONDecodeError as error:
-                    raise ValueError(f"line {line_number}: not valid JSON: {error}") from None
-            else:
-                row = next(csv.reader([raw]))
-                if len(row) != len(header):
-                    raise ValueError(f"line {line_number}: expected {len(header)} fields like the header, "
-                                     f"got {len(row)}")
-                yield line_number, row
-
-    def get(record, name, number):
-        if is_json:
-            if name not in record:
-                raise ValueError(f"line {number}: key {name!r} missing (keys: {list(record)})")
-            return record[name]
-        return record[index[name]]
-
-    try:
-        for number, record in records():
-            track = _parse_id(get(record, columns.track_id, number), columns.track_id, number) \
-                if columns.track_id else 0
-            if columns.time is None:
-                time = float(counts.get(track, engine.gaps[track].last_time + 1 if track in engine.gaps else 0))
-                counts[track] = time + 1
-            else:
-                time = _parse_number(get(record, columns.time, number), columns.time, number)
-                if math.isnan(time):
-                    click.echo(f"kalmix: warning: line {number}: no time, row skipped", err=True)
-                    continue
-            z = [_parse_number(get(record, name, number), name, number) for name in columns.positions]
-            result = engine.step_row(track, time, z)
-            if result is None:
-                click.echo(f"kalmix: warning: line {number}: time {time!r} is not after track {track!r}'s "
-                           "previous time; row skipped", err=True)
-                continue
-            out = {}
-            if columns.track_id is not None:
-                out[columns.track_id] = track
-            out[columns.time or "row"] = time
-            out["segment"] = result.segment
-            for j, name in enumerate(columns.positions):
-                out[f"pred_{name}"] = float(result.next[j])
-            if result.ahead is not None:
-                for j, name in enumerate(columns.positions):
-                    out[f"pred{engine.config.horizon}_{name}"] = float(result.ahead[j])
-            writer.write_record(out)
-            since_save += 1
-            if state_path and since_save >= save_every:
-                engine.save(state_path)
-                since_save = 0
-    finally:
-        writer.close()
-        if state_path and engine.params is not None:
-            engine.save(state_path)
+        if input_path == "-" and out_fmt == "parquet":
+            raise ValueError("--output: streaming from stdin writes CSV or JSON lines, got a .parquet name")
+        run_predict(guard, engine, settings, unit, input_path, state_path, save_every, output, out_fmt,
+                    time_column, position_columns, id_column, chunk_rows, progress)
 
 
 # -------------------------------------------------------------------------------------- evaluate

@@ -425,7 +425,8 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
     Yields
     ------
     pandas.DataFrame
-        Track table chunks (``track_id``, ``time``, positions).
+        Track table chunks (``track_id``, ``time``, positions); ``chunk.attrs["file_rows"]``
+        is the number of file rows it was made from (a progress count).
     """
     if int(chunk_rows) < 1:
         raise ValueError(f"Expected chunk_rows >= 1, got {chunk_rows}")
@@ -459,6 +460,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
                     "file or use read_tracks)")
             last.update(chunk.groupby("track_id", sort=False)["time"].last().to_dict())
             offset += len(raw)
+            chunk.attrs["file_rows"] = len(raw)  # rows read, before dropping rows without a time or repeated
             yield chunk
     if offset == 0:
         raise ValueError(f"The track file {os.fspath(path)!r} has no rows (only a header)")
