@@ -381,6 +381,35 @@ def test_bad_command_lines_give_one_clear_line(cli, feed_csv, tmp_path, args, me
         assert len(result.stderr.splitlines()) == 1
 
 
+@pytest.mark.parametrize("command, args, message", [
+    ("predict", ["{csv}", "-o", "{csv}"], "--output: '{csv}' is the same file as INPUT"),
+    ("predict", ["{csv}", "--state", "{out}", "-o", "{out}"], "--state: '{out}' is the same file as --output"),
+    ("predict", ["{gz}"], "the input ends early (a truncated or corrupt file?)"),
+    ("predict", ["{npz}"], "is not a CSV text file (UTF-8 expected"),
+    ("evaluate", ["{csv}", "--plot", "{missing}/p.png"], "--plot: the directory"),
+])
+def test_more_bad_command_lines_fail_at_start_with_one_line(cli, tmp_path, command, args, message):
+    import gzip
+
+    data = _feed(n_tracks=2, n=40)
+    names = {"csv": str(tmp_path / "in.csv"), "out": str(tmp_path / "out.csv"), "gz": str(tmp_path / "cut.csv.gz"),
+             "npz": str(tmp_path / "bin.csv"), "missing": str(tmp_path / "absent")}
+    data.to_csv(names["csv"], index=False)
+    before = open(names["csv"]).read()
+    (tmp_path / "cut.csv.gz").write_bytes(gzip.compress(before.encode())[:200])
+    np.savez(tmp_path / "bin.npz", a=np.arange(50))
+    os.replace(tmp_path / "bin.npz", names["npz"])
+    result = _run(cli, [command, *FAST[:2], *[a.format(**names) for a in args]])
+    lines = result.stderr.splitlines()
+    assert result.exit_code == 1 and len(lines) == 1 and message.format(**names) in lines[0]
+    assert open(names["csv"]).read() == before  # the input is never touched
+
+
+def test_process_table_names_missing_columns():
+    with pytest.raises(ValueError, match=r"missing \['time'\]"):
+        TrackPredictor(StreamConfig(n_experts=2)).process_table(pd.DataFrame({"track_id": [1], "x": [1.0]}))
+
+
 def test_ids_are_text_as_written_in_files_and_on_stdin_and_a_bom_is_ignored(cli, tmp_path):
     text = "id,t,x\n1,0,1\n01,0,5\n1,1,2\n01,1,6\n1,2,3\n01,2,7\n"
     (tmp_path / "ids.csv").write_text(text)

@@ -372,6 +372,10 @@ class TrackPredictor:
         """
         import pandas as pd
 
+        missing = [c for c in ("track_id", "time", *(position_names or ())) if c not in table.columns]
+        if missing:
+            raise ValueError(f"table: expected the columns track_id, time and the positions, missing {missing} "
+                             f"(columns: {list(table.columns)})")
         saved = self.checkpoint(pd.unique(table["track_id"]))
         try:
             return self._process_table(table, position_names)

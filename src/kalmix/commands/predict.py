@@ -112,6 +112,8 @@ def _user_errors():
             yield
     except (ValueError, TypeError, FileNotFoundError, ImportError) as error:
         raise click.ClickException(str(error)) from error
+    except EOFError as error:  # pandas on a truncated .gz; click would print a bare 'Aborted!'
+        raise click.ClickException(f"the input ends early (a truncated or corrupt file?): {error}") from error
     except OSError as error:  # a disk, permission or device error: one line, not a traceback
         where = f" {error.filename!r}" if error.filename else ""
         raise click.ClickException(f"{error.strerror or error}{where}") from error
@@ -129,6 +131,33 @@ def _header(path, fmt):
         return [str(c) for c in pd.read_csv(path, nrows=0).columns]
     except pd.errors.EmptyDataError:
         raise ValueError(f"The track file {os.fspath(path)!r} is empty (no header, no rows)") from None
+    except UnicodeDecodeError as error:
+        raise ValueError(f"INPUT: {os.fspath(path)!r} is not a CSV text file (UTF-8 expected; {error.reason} "
+                         f"at byte {error.start})") from None
+
+
+def _distinct_files(*named):
+    """``ValueError`` when two of the ``(option, path)`` pairs (path None or '-': unused) are one file.
+
+    ``kalmix predict data.csv -o data.csv`` would empty the input before reading it, and
+    ``--state x -o x`` would replace the predictions by the state at the first save.
+    """
+    named = [(name, os.fspath(path)) for name, path in named if path not in (None, "-")]
+    for i, (first, a) in enumerate(named):
+        for second, b in named[i + 1:]:
+            same = os.path.realpath(a) == os.path.realpath(b)
+            if not same and os.path.exists(a) and os.path.exists(b):
+                same = os.path.samefile(a, b)
+            if same:
+                raise ValueError(f"{second}: {b!r} is the same file as {first} {a!r}; give another name")
+
+
+def _directory_exists(name, path):
+    """``ValueError`` at start when an output file's directory does not exist (not after all the work)."""
+    if path:
+        directory = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(directory):
+            raise ValueError(f"{name}: the directory {directory!r} does not exist")
 
 
 def _file_format(path):
@@ -199,6 +228,8 @@ def predict(input_path, time_column, position_columns, id_column, horizon, outpu
     gap, never = _max_gap(max_gap)
     options = _mixture_options(mixture_options)
     out_fmt = _file_format(output) if output else "csv"
+    with _user_errors():
+        _distinct_files(("INPUT", input_path), ("--output", output), ("--state", state_path))
     with _user_errors(), SignalGuard() as guard, \
             (StateLock(state_path) if state_path else contextlib.nullcontext()):
         engine = None
@@ -266,6 +297,9 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
     with _user_errors():
         if (input_path is None) == (dataset is None):
             raise ValueError("give either INPUT or --dataset NAME")
+        _distinct_files(("INPUT", input_path), ("--json", json_path), ("--plot", plot_path))
+        _directory_exists("--json", json_path)
+        _directory_exists("--plot", plot_path)
         if dataset is not None:
             from ..io import load_dataset
             table = load_dataset(dataset)
