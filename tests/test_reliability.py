@@ -159,6 +159,19 @@ def test_a_stopped_stdin_pipeline_loses_no_row(feed_csv, reference, tmp_path):
     assert open(out, "rb").read() == reference("stdin")
 
 
+@pytest.mark.parametrize("sig, after", [("SIGINT", 1), ("SIGHUP", 57), ("SIGTERM", 200)])
+def test_a_signal_during_a_stdin_row_finishes_that_row(cli, feed_csv, reference, tmp_path, sig, after):
+    state, out = str(tmp_path / "s.npz"), str(tmp_path / "out.csv")
+    args = ["predict", "-", *FAST, "-H", "3", "--save-every", "7", "--state", state, "-o", out]
+    feed = open(feed_csv).read()
+    first = _run(cli, args, input=feed, env={TEST_HOOK: f"{sig}:{after}"})
+    assert first.exit_code == 128 + signal.Signals[sig].value
+    assert f"after {after} input row(s) in this run (the row in progress was finished)" in first.stderr
+    assert open(out, "rb").read().count(b"\n") == 1 + after
+    assert _run(cli, args, input=feed).exit_code == 0
+    assert open(out, "rb").read() == reference("stdin")
+
+
 def test_engine_calls_are_all_or_nothing(monkeypatch):
     """An exception inside a step leaves trackers, counters and states as they were."""
     import kalmix.streaming as streaming
