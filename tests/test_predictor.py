@@ -93,7 +93,7 @@ def test_bad_measurements_are_named_with_expected_and_received():
         MixturePredictor(3).step(np.zeros((2, 2, 2)))
     with pytest.raises(ValueError, match=r"measurements: expected shape \(T, p\) or \(T, N, p\) with T >= 1, got \(5,\)"):
         MixturePredictor(3).run(np.zeros(5))
-    with pytest.raises(ValueError, match=r"horizon: expected an integer >= 1, got 0"):
+    with pytest.raises(ValueError, match=r"horizon: expected an integer in \[1, 10000\], got 0"):
         predictor.predict(0)
     with pytest.raises(RuntimeError, match="has seen no measurement yet"):
         MixturePredictor(3).predict()

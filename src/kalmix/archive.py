@@ -1,45 +1,158 @@
-"""The ``.npz`` files that hold a predictor's state: written atomically, read with clear errors."""
+"""The ``.npz`` files that hold a predictor's state: written durably, read lazily with clear errors.
+
+Writing: the archive goes to a uniquely named temporary file in the destination's
+directory, is fsynced, renamed over the destination (atomic on POSIX) and the directory
+is fsynced, so a crash or a concurrent writer never leaves half a file, and two writers
+never share a temporary name.
+
+Reading: only the members a caller asks for are decompressed, each after checking the
+size its zip entry declares against the size the caller expects (a state file with a
+huge unused or oversized member is refused, not inflated).
+"""
 
 from __future__ import annotations
 
-import io
+import contextlib
 import json
 import os
+import stat
+import tempfile
 import zipfile
 
 import numpy as np
 
-__all__ = ["write_archive", "read_archive"]
+__all__ = ["write_archive", "open_archive", "Archive"]
+
+#: Room for the ``.npy`` header in front of a member's data (the format caps it at 64 KiB).
+_NPY_HEADER_ROOM = 65_536 + 16
+
+
+def _new_file_mode(path: str) -> int:
+    """Permissions for the new file: those of the file it replaces, else 0o666 minus the umask."""
+    try:
+        return stat.S_IMODE(os.stat(path).st_mode)
+    except OSError:
+        mask = os.umask(0)
+        os.umask(mask)
+        return 0o666 & ~mask
+
+
+def _fsync_directory(directory: str) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:  # pragma: no cover - platforms without directory handles
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover - file systems that refuse fsync on a directory
+        pass
+    finally:
+        os.close(fd)
 
 
 def write_archive(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarray]) -> None:
     """Write JSON ``meta`` and named ``arrays`` to ``path``; a crash never leaves half a file."""
-    buffer = io.BytesIO()
-    np.savez(buffer, meta=np.array(json.dumps(meta)), **arrays)
-    tmp = f"{os.fspath(path)}.tmp"
-    with open(tmp, "wb") as handle:
-        handle.write(buffer.getvalue())
-    os.replace(tmp, path)
-
-
-def read_archive(path: str | os.PathLike, *, magic: str, version: int, what: str,
-                 written_by: str) -> tuple[dict, dict[str, np.ndarray]]:
-    """Read a file written by :func:`write_archive`, checking its magic string and version.
-
-    Raises ``FileNotFoundError`` for a missing file and ``ValueError`` naming ``what`` was
-    expected for a corrupt, foreign or other-version file.
-    """
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    mode = _new_file_mode(path)
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
     try:
-        with np.load(path, allow_pickle=False) as archive:
-            meta = json.loads(str(archive["meta"]))
-            arrays = {name: archive[name] for name in archive.files if name != "meta"}
+        with os.fdopen(fd, "wb") as handle:
+            np.savez(handle, meta=np.array(json.dumps(meta)), **arrays)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.chmod(tmp, mode)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    _fsync_directory(directory)
+
+
+class Archive:
+    """An open archive: its checked ``meta`` and members read on demand (see :func:`open_archive`)."""
+
+    def __init__(self, zip_file: zipfile.ZipFile, path, meta: dict, what: str):
+        self._zip, self.path, self.meta, self._what = zip_file, path, meta, what
+
+    @property
+    def names(self) -> list[str]:
+        """Array member names (without ``.npy``), ``meta`` excluded."""
+        return [n[:-4] for n in self._zip.namelist() if n.endswith(".npy") and n != "meta.npy"]
+
+    def size(self, name: str) -> int:
+        """Uncompressed size that member ``name`` declares (0 if absent), read without decompressing."""
+        try:
+            return self._zip.getinfo(f"{name}.npy").file_size
+        except KeyError:
+            return 0
+
+    def array(self, name: str, shape: tuple, dtype, label: str | None = None) -> np.ndarray:
+        """Member ``name``, which must hold ``shape`` and ``dtype``; ``ValueError`` otherwise.
+
+        The size declared by the zip entry is checked before anything is decompressed;
+        messages call the member ``label`` (default ``name``).
+        """
+        dtype = np.dtype(dtype)
+        what = name if label is None else label
+        try:
+            info = self._zip.getinfo(f"{name}.npy")
+        except KeyError:
+            raise ValueError(f"{self.path}: field {what!r} missing (the {self._what} is corrupt or of "
+                             "another version)") from None
+        expected = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        if info.file_size > expected + _NPY_HEADER_ROOM:
+            raise ValueError(f"{self.path}: field {what!r} expected {expected} bytes for shape {tuple(shape)} "
+                             f"{dtype}, the archive declares {info.file_size}")
+        try:
+            with self._zip.open(info) as handle:
+                value = np.lib.format.read_array(handle, allow_pickle=False)
+        except (zipfile.BadZipFile, OSError, ValueError, EOFError) as error:
+            raise ValueError(f"{self.path}: field {what!r} is unreadable: {error}") from error
+        if value.shape != tuple(shape) or value.dtype != dtype:
+            raise ValueError(f"{self.path}: field {what!r} expected shape {tuple(shape)} {dtype}, "
+                             f"got {value.shape} {value.dtype}")
+        return value
+
+
+@contextlib.contextmanager
+def open_archive(path: str | os.PathLike, *, magic: str, version: int | tuple[int, ...], what: str, written_by: str,
+                 max_meta_bytes: int = 1 << 30):
+    """Open a file written by :func:`write_archive`, checking its magic string and version.
+
+    Yields an :class:`Archive`. Raises ``FileNotFoundError`` for a missing file and
+    ``ValueError`` naming ``what`` was expected for a directory, a corrupt, foreign
+    (``.npy``, pickle, other zip) or other-version file.
+    """
+    if os.path.isdir(path):
+        raise ValueError(f"{path}: expected a {what}, got a directory")
+    bad = f"{path}: not a {what} (expected a .npz written by {written_by})"
+    try:
+        zip_file = zipfile.ZipFile(path)
     except FileNotFoundError:
         raise
-    except (zipfile.BadZipFile, OSError, KeyError, ValueError, EOFError) as error:
-        raise ValueError(f"{path}: not a {what} (expected a .npz written by {written_by}): {error}") from error
-    if not isinstance(meta, dict) or meta.get("magic") != magic:
-        found = meta.get("magic") if isinstance(meta, dict) else None
-        raise ValueError(f"{path}: not a {what} (magic {found!r})")
-    if meta.get("format_version") != version:
-        raise ValueError(f"{path}: expected format version {version}, got {meta.get('format_version')!r}")
-    return meta, arrays
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as error:
+        raise ValueError(f"{bad}: {error}") from error
+    with zip_file:
+        try:
+            info = zip_file.getinfo("meta.npy")
+        except KeyError:
+            raise ValueError(f"{bad}: it has no 'meta' entry") from None
+        if info.file_size > max_meta_bytes:
+            raise ValueError(f"{bad}: its 'meta' entry declares {info.file_size} bytes")
+        try:
+            with zip_file.open(info) as handle:
+                meta = json.loads(str(np.lib.format.read_array(handle, allow_pickle=False)))
+        except (zipfile.BadZipFile, OSError, ValueError, EOFError) as error:
+            raise ValueError(f"{bad}: {error}") from error
+        if not isinstance(meta, dict) or meta.get("magic") != magic:
+            found = meta.get("magic") if isinstance(meta, dict) else None
+            raise ValueError(f"{path}: not a {what} (magic {found!r})")
+        versions = (version,) if isinstance(version, int) else tuple(version)
+        if meta.get("format_version") not in versions:
+            expected = " or ".join(map(str, versions))
+            raise ValueError(f"{path}: expected format version {expected}, got {meta.get('format_version')!r} "
+                             f"(a {what} of another kalmix version)")
+        yield Archive(zip_file, path, meta, what)
+

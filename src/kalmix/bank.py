@@ -15,8 +15,24 @@ from .core.dynamics import polynomial_prior
 from .core.gating import GATING_INPUTS
 from .core.mixture import DYNAMICS, GATINGS, MixtureParams
 
-__all__ = ["make_params", "noise_grid", "make_bank", "BANK_KINDS", "KINEMATIC_PROCESS_LEVELS",
-           "KINEMATIC_MEASUREMENT_LEVELS"]
+__all__ = ["make_params", "noise_grid", "check_horizon", "check_length_unit", "MAX_HORIZON", "MAX_SEED",
+           "LENGTH_UNIT_RANGE", "make_bank", "BANK_KINDS", "KINEMATIC_PROCESS_LEVELS",
+           "KINEMATIC_MEASUREMENT_LEVELS", "DEFAULT_BANK"]
+
+#: Largest prediction horizon (frames ahead). A prediction H frames ahead costs H - 1
+#: matrix-vector products per expert and stream, so every call is bounded (about 30 ms for
+#: one stream of 40 experts at H = 10 000 on the numpy path); 10 000 frames is 10 s at 1 kHz or
+#: 5.5 min at 30 fps, past any useful motion forecast, and with the default spectral-radius
+#: guard (1.02) the extrapolation stays finite there (1.02**10 000 ~ 1e86), which it does not
+#: at 10**6 (NaN).
+MAX_HORIZON = 10_000
+#: Largest seed: the compiled kernels hold it in a signed 64-bit integer.
+MAX_SEED = 2**63 - 1
+#: Accepted ``length_unit`` range. The bank squares it (noise variances) and divides by its
+#: square; within 1e-100 .. 1e100 those stay far inside double range and the predictions are
+#: scale-equivariant (data and unit scaled together give predictions scaled alike, to 1e-10
+#: relative, tested at both ends); at 1e+-300 the squares overflow or vanish.
+LENGTH_UNIT_RANGE = (1e-100, 1e100)
 
 #: Process-noise levels of the grid span this range (measurement units squared per frame).
 PROCESS_NOISE_RANGE = (1e-2, 1e2)
@@ -48,6 +64,42 @@ def _check_int(name, value, minimum):
     if value < minimum:
         raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
     return int(value)
+
+
+def check_horizon(value, name: str = "horizon") -> int:
+    """``value`` as an int in [1, :data:`MAX_HORIZON`]; ``ValueError`` naming ``name`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 1 <= value <= MAX_HORIZON:
+        raise ValueError(f"{name}: expected an integer in [1, {MAX_HORIZON}], got {value!r}")
+    return int(value)
+
+
+def check_length_unit(value, name: str = "length_unit") -> float:
+    """``value`` as a float in :data:`LENGTH_UNIT_RANGE`; ``TypeError``/``ValueError`` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name}: expected a real number, got {type(value).__name__} {value!r}")
+    low, high = LENGTH_UNIT_RANGE
+    if not low <= float(value) <= high:  # also refuses NaN
+        raise ValueError(f"{name}: expected a number in [{low:g}, {high:g}] (the typical measurement-noise "
+                         f"size in data units), got {value!r}")
+    return float(value)
+
+
+def _check_pair(name, pair):
+    if isinstance(pair, (str, bytes)) or not hasattr(pair, "__len__") or len(pair) != 2:
+        raise ValueError(f"{name}: expected a pair (low, high) of numbers > 0, got {pair!r}")
+    low, high = (_check_positive(f"{name}[{i}]", v) for i, v in enumerate(pair))
+    if low > high:
+        raise ValueError(f"{name}: expected low <= high, got {pair!r}")
+    return low, high
+
+
+def _check_levels(name, levels, upper=None):
+    if isinstance(levels, (str, bytes)) or not hasattr(levels, "__iter__"):
+        raise ValueError(f"{name}: expected a sequence of numbers > 0, got {levels!r}")
+    values = [_check_positive(f"{name}[{i}]", v, upper=upper) for i, v in enumerate(levels)]
+    if not values:
+        raise ValueError(f"{name}: expected at least one value, got none")
+    return values
 
 
 def _check_choice(name, value, choices):
@@ -188,21 +240,19 @@ def make_params(
     _check_choice("dynamics", dynamics, DYNAMICS)
     _check_choice("gating", gating, GATINGS)
     _check_choice("gating_input", gating_input, GATING_INPUTS)
-    seed = _check_int("seed", seed, 0)
-    unit = _check_positive("length_unit", length_unit)
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
+        raise TypeError(f"seed: expected an integer in [0, 2**63 - 1], got {type(seed).__name__} {seed!r}")
+    if not 0 <= seed <= MAX_SEED:
+        raise ValueError(f"seed: expected an integer in [0, 2**63 - 1], got {seed!r}")
+    seed = int(seed)
+    unit = check_length_unit(length_unit)
     kappa = 100.0 * unit if feature_scale is None else _check_positive("feature_scale", feature_scale)
     for name, pair in (("process_noise_range", process_noise_range),
                        ("measurement_noise_range", measurement_noise_range),
                        ("initial_variance_range", initial_variance_range)):
-        if len(pair) != 2:
-            raise ValueError(f"{name}: expected (low, high), got {pair!r}")
-        low, high = (_check_positive(f"{name}[{i}]", v) for i, v in enumerate(pair))
-        if low > high:
-            raise ValueError(f"{name}: expected low <= high, got {pair!r}")
-    forgetting_levels = [_check_positive("forgetting_levels", v, upper=1.0) for v in forgetting_levels]
-    ridge_levels = [_check_positive("ridge_levels", v) for v in ridge_levels]
-    if not forgetting_levels or not ridge_levels:
-        raise ValueError("forgetting_levels and ridge_levels: expected at least one value, got none")
+        _check_pair(name, pair)
+    forgetting_levels = _check_levels("forgetting_levels", forgetting_levels, upper=1.0)
+    ridge_levels = _check_levels("ridge_levels", ridge_levels)
     if prior_degree is not None:
         _check_choice("prior_degree", prior_degree, tuple(range(min(o, 3))))
     values = dict(

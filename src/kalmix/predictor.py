@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from .archive import read_archive, write_archive
-from .bank import make_params
+from .archive import open_archive, write_archive
+from .bank import check_horizon, make_params
 from .core.mixture import MixtureParams, MixtureState, init_state, predict, step
 from .core.fast import numba_available, step_fast
 from .core.run import BACKENDS, RunResult, run_core
@@ -136,10 +136,12 @@ class MixturePredictor:
         return self
 
     def predict(self, horizon: int = 1) -> np.ndarray:
-        """Prediction ``horizon`` frames after the last measurement, shape (p,) or (N, p)."""
+        """Prediction ``horizon`` frames after the last measurement, shape (p,) or (N, p).
+
+        ``horizon`` is an integer in [1, :data:`kalmix.bank.MAX_HORIZON`] (10 000).
+        """
         self._require_fitted()
-        if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
-            raise ValueError(f"horizon: expected an integer >= 1, got {horizon!r}")
+        horizon = check_horizon(horizon)
         prediction, _ = predict(self._params, self._state, int(horizon))
         return self._unbatch(prediction)
 
@@ -153,8 +155,7 @@ class MixturePredictor:
         array = _as_measurements(measurements, "measurements")
         if array.ndim not in (2, 3) or array.shape[0] < 1:
             raise ValueError(f"measurements: expected shape (T, p) or (T, N, p) with T >= 1, got {array.shape}")
-        if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
-            raise ValueError(f"horizon: expected an integer >= 1, got {horizon!r}")
+        horizon = check_horizon(horizon)
         self._batch(array[0])  # builds on first use and checks the per-step shape
         batched = array[:, None, :] if self._single else array
         result = run_core(self._params, batched, self._state, horizon=int(horizon), diagnostics=diagnostics,
@@ -209,22 +210,23 @@ class MixturePredictor:
     @classmethod
     def load(cls, path: str | os.PathLike) -> "MixturePredictor":
         """Read a predictor written by :meth:`save`; raises ``ValueError`` on a bad file."""
-        meta, arrays = read_archive(path, magic=_MAGIC, version=FORMAT_VERSION, what="kalmix predictor file",
-                                    written_by="MixturePredictor.save")
-        config = meta["config"]
-        predictor = cls(config["n_experts"], seed=config["seed"], backend=config.get("backend", "auto"),
-                        **config["options"])
-        predictor._build(meta["measurement_dim"], meta["n_targets"], meta["single"])
-        template = predictor._state
-        fields = {}
-        for name, expected in template._asdict().items():
-            key = f"state/{name}"
-            if key not in arrays:
-                raise ValueError(f"{path}: missing field {name!r} (file is corrupt or of another version)")
-            if arrays[key].shape != expected.shape or arrays[key].dtype != expected.dtype:
-                raise ValueError(f"{path}: field {name!r} expected shape {expected.shape} {expected.dtype}, "
-                                 f"got {arrays[key].shape} {arrays[key].dtype}")
-            fields[name] = arrays[key]
+        with open_archive(path, magic=_MAGIC, version=FORMAT_VERSION, what="kalmix predictor file",
+                          written_by="MixturePredictor.save") as archive:
+            meta = archive.meta
+            try:
+                config, n_targets = meta["config"], meta["n_targets"]
+                if isinstance(n_targets, bool) or not isinstance(n_targets, int) or not (
+                        0 < 8 * n_targets <= archive.size("state/steps")):
+                    raise ValueError(f"{path}: the kalmix predictor file's target count {n_targets!r} does not "
+                                     "match its arrays")
+                predictor = cls(config["n_experts"], seed=config["seed"], backend=config.get("backend", "auto"),
+                                **config["options"])
+                predictor._build(meta["measurement_dim"], n_targets, meta["single"])
+            except (KeyError, TypeError) as error:
+                raise ValueError(f"{path}: the kalmix predictor file's settings are incomplete or corrupt: "
+                                 f"{error!r}") from error
+            fields = {name: archive.array(f"state/{name}", expected.shape, expected.dtype, label=name)
+                      for name, expected in predictor._state._asdict().items()}
         predictor._state = MixtureState(**fields)
         return predictor
 

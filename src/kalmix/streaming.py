@@ -27,6 +27,25 @@ A row whose time is not after its track's previous time (out of order or a repea
 timestamp) cannot be undone in a stream: it is skipped and counted in
 :attr:`TrackPredictor.skipped`. (File inputs are sorted and de-duplicated when read,
 see :mod:`kalmix.io.tables`.)
+
+One exception keeps a single wrong timestamp from costing the rest of a track: when a
+track's previous row *jumped ahead* (a gap, or the track's first row) and the next row
+comes back to a time between the time before the jump and the jump, the jump was a wrong
+timestamp (a clock glitch, a typo in a feed). The track's first step has no reference
+interval to be judged by, so it counts as such a jump only when it is more than
+``max_gap_factor`` times the step the next row implies (``0, 1e9, 1``: yes, and its
+interval is taken back out of the reference; ``0, 1, 0.5``: no, 0.5 is skipped). The track's
+clock goes back to the new row, which continues the jump's segment (no row is skipped),
+and the event is counted in :attr:`GapTracker.glitches` (:attr:`TrackPredictor.time_glitches`).
+Without this, every later row of the track would be "before its previous time" and skipped.
+
+Transactions
+------------
+:meth:`~TrackPredictor.step_row` and :meth:`~TrackPredictor.process_table` change the
+predictor only when they return: an exception (``KeyboardInterrupt`` included) in the
+middle leaves every track, counter and gap tracker as it was.
+:meth:`~TrackPredictor.checkpoint` / :meth:`~TrackPredictor.rollback` extend that over
+several calls (``kalmix predict`` rolls a whole chunk back when interrupted).
 """
 
 from __future__ import annotations
@@ -38,14 +57,18 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .archive import read_archive, write_archive
-from .bank import DEFAULT_BANK, make_bank
+from .archive import open_archive, write_archive
+from .bank import DEFAULT_BANK, check_horizon, check_length_unit, make_bank, make_params
 from .core.engine import Bank, BankState, init_bank_state
 
-__all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "auto_length_unit", "auto_time_unit",
-           "STATE_FORMAT_VERSION"]
+__all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Checkpoint", "auto_length_unit",
+           "auto_time_unit", "STATE_FORMAT_VERSION"]
 
-STATE_FORMAT_VERSION = 2
+#: 3: one state per track for a bank of expert families (kalmix.core.engine), gap trackers with
+#: the time-glitch bookkeeping, and the output the file belongs to (``kalmix predict -o``).
+#: Files of versions 1 and 2 held the previous single-mixture state and cannot be resumed.
+STATE_FORMAT_VERSION = 3
+_READABLE_VERSIONS = (3,)
 _MAGIC = "kalmix-track-predictor"
 #: Number of first non-gap time steps whose median is a track's reference interval.
 REFERENCE_INTERVALS = 16
@@ -158,27 +181,43 @@ class StreamConfig:
     time_unit: float | None = None
 
     def __post_init__(self):
-        if isinstance(self.horizon, bool) or int(self.horizon) != self.horizon or self.horizon < 1:
-            raise ValueError(f"horizon: expected an integer >= 1, got {self.horizon!r}")
+        self.horizon = check_horizon(self.horizon)
         if self.max_gap is not None and not self.max_gap > 0:
             raise ValueError(f"max_gap: expected a time step > 0, got {self.max_gap!r}")
         if not self.max_gap_factor > 1:
             raise ValueError(f"max_gap_factor: expected a number > 1, got {self.max_gap_factor!r}")
-        if not (math.isfinite(self.length_unit) and self.length_unit > 0):
-            raise ValueError(f"length_unit: expected a finite number > 0, got {self.length_unit!r}")
+        self.length_unit = check_length_unit(self.length_unit)
         if self.time_unit is not None and not (math.isfinite(self.time_unit) and self.time_unit > 0):
             raise ValueError(f"time_unit: expected a finite number > 0, got {self.time_unit!r}")
+        if not isinstance(self.options, dict):
+            raise TypeError(f"options: expected a dict of make_params arguments, got {self.options!r}")
+        # every bank argument is checked now, not at the first row
+        make_params(1, self.n_experts, seed=self.seed, length_unit=self.length_unit, **self.options)
+        make_bank(1, self.bank, rule=self.rule, length_unit=self.length_unit, time_unit=self.time_unit or 1.0,
+                  seed=self.seed, n_akf=self.n_experts, akf_options=self.options)
 
 
 class GapTracker:
     """Causal gap detection for one track (see the module docstring)."""
 
-    __slots__ = ("last_time", "intervals", "segment")
+    __slots__ = ("last_time", "intervals", "segment", "jumped_from", "jump_counted", "glitches")
 
-    def __init__(self, last_time: float | None = None, intervals=(), segment: int = -1):
+    def __init__(self, last_time: float | None = None, intervals=(), segment: int = -1,
+                 jumped_from: float | None = None, jump_counted: bool = False, glitches: int = 0):
         self.last_time = last_time
         self.intervals = list(intervals)
         self.segment = segment
+        #: when the previous row jumped ahead (a gap, the track's first row, or its first step, which
+        #: has no reference to be judged against): the time before it; else None
+        self.jumped_from = jumped_from
+        #: that jump's step went into ``intervals`` (the first step), to be taken back if it was wrong
+        self.jump_counted = jump_counted
+        #: rows that came back before a jump (the jump's timestamp was wrong)
+        self.glitches = glitches
+
+    def copy(self) -> "GapTracker":
+        return GapTracker(self.last_time, self.intervals, self.segment, self.jumped_from, self.jump_counted,
+                          self.glitches)
 
     def threshold(self, config: StreamConfig) -> float:
         if config.max_gap is not None:
@@ -191,20 +230,36 @@ class GapTracker:
         """Register ``time``; True if it starts a new segment, None if out of order (skip)."""
         if self.last_time is None:
             self.last_time, self.segment = time, self.segment + 1
+            self.jumped_from, self.jump_counted = -math.inf, False
             return True
         dt = time - self.last_time
         if not dt > 0:
+            if self.jumped_from is not None and self.jumped_from < time < self.last_time and (
+                    not self.jump_counted  # a gap or the first row: any row coming back in between
+                    or self.last_time - self.jumped_from > config.max_gap_factor * (time - self.jumped_from)):
+                # the previous row jumped ahead and this one comes back in between: that jump was a
+                # wrong timestamp; the clock follows this row, which continues the jump's segment
+                if self.jump_counted:
+                    self.intervals.pop()
+                self.last_time, self.jumped_from, self.jump_counted = time, None, False
+                self.glitches += 1
+                return False
             return None
+        unjudged = not self.intervals and config.max_gap is None
         gap = dt > self.threshold(config)
+        self.jumped_from = self.last_time if gap or unjudged else None
+        self.jump_counted = False
         if gap:
             self.segment += 1
         elif len(self.intervals) < REFERENCE_INTERVALS:
             self.intervals.append(dt)
+            self.jump_counted = unjudged
         self.last_time = time
         return gap
 
     def to_json(self) -> dict:
-        return {"last_time": self.last_time, "intervals": self.intervals, "segment": self.segment}
+        return {"last_time": self.last_time, "intervals": self.intervals, "segment": self.segment,
+                "jumped_from": self.jumped_from, "jump_counted": self.jump_counted, "glitches": self.glitches}
 
 
 class RowPrediction(NamedTuple):
@@ -266,7 +321,10 @@ class TrackPredictor:
     skipped : int
         Rows skipped because their time was not after their track's previous time.
     rows : int
-        Rows processed (including skipped ones) since construction or :meth:`load`.
+        Rows processed (including skipped ones), counted over saves and resumes.
+    output : dict or None
+        What the program that saved the state wrote with it (``kalmix predict`` records its
+        ``-o`` file there); kept as is by :meth:`save` / :meth:`load`.
     """
 
     def __init__(self, config: StreamConfig, position_names=None):
@@ -277,6 +335,8 @@ class TrackPredictor:
         self.gaps: dict[Any, GapTracker] = {}
         self.skipped = 0
         self.rows = 0
+        self.output: dict | None = None
+        self.loaded_version: int | None = None  # format version of the file :meth:`load` read
 
     # -- set-up ---------------------------------------------------------------------
     def _ensure_params(self, measurement_dim: int) -> Bank:
@@ -321,17 +381,49 @@ class TrackPredictor:
     def track_ids(self) -> list:
         return list(self.gaps)
 
+    @property
+    def time_glitches(self) -> int:
+        """Rows that came back before a jump ahead in time (see the module docstring)."""
+        return sum(g.glitches for g in self.gaps.values())
+
+    # -- transactions -----------------------------------------------------------------
+    def checkpoint(self, track_ids=None) -> "Checkpoint":
+        """Snapshot of the counters and of ``track_ids``' trackers and states (all tracks if None).
+
+        :meth:`rollback` returns to it, provided only those tracks were touched in between.
+        Cheap: the states are never modified in place, so only references are kept.
+        """
+        ids = list(self.gaps) if track_ids is None else [_id_to_json(t) for t in track_ids]
+        tracks = {t: (self.gaps[t].copy() if t in self.gaps else None, self.states.get(t)) for t in ids}
+        return Checkpoint(self.rows, self.skipped, self.position_names, tracks, self.config.time_unit)
+
+    def rollback(self, checkpoint: "Checkpoint") -> None:
+        """Undo everything done since ``checkpoint`` was taken."""
+        self.rows, self.skipped, self.position_names = checkpoint.rows, checkpoint.skipped, checkpoint.position_names
+        if self.config.time_unit != checkpoint.time_unit:  # a unit learned from rows now undone
+            self.config.time_unit = checkpoint.time_unit
+            if self.params is not None:
+                self.params = self._build(self.params.measurement_dim)
+        for track, (gaps, state) in checkpoint.tracks.items():
+            for table, value in ((self.gaps, gaps), (self.states, state)):
+                if value is None:
+                    table.pop(track, None)
+                else:
+                    table[track] = value
+
     # -- one row at a time ------------------------------------------------------------
     def step_row(self, track_id, time: float, z) -> RowPrediction | None:
-        """Learn from one measurement (NaN = missing) and predict; None if the row is skipped."""
+        """Learn from one measurement (NaN = missing) and predict; None if the row is skipped.
+
+        All or nothing: the track's tracker and state change only once the step succeeded.
+        """
         z = np.asarray(z, dtype=np.float64).reshape(-1)
         params = self._ensure_params(z.shape[0])
-        self.rows += 1
-        gaps = self.gaps.get(track_id)
-        if gaps is None:
-            gaps = self.gaps[track_id] = GapTracker()
+        known = self.gaps.get(track_id)
+        gaps = GapTracker() if known is None else known.copy()
         new = gaps.advance(float(time), self.config)
         if new is None:
+            self.rows += 1
             self.skipped += 1
             return None
         if self.config.time_unit is None and len(gaps.intervals):
@@ -341,16 +433,18 @@ class TrackPredictor:
         values = z[None, None, :]
         times = np.array([[float(time)]])
         result = self._run(values, times, None, state, 1)
-        self.states[track_id] = result.state
         ahead = None
         if self.config.horizon > 1:
             ahead = self._run(values, times, None, state, self.config.horizon).ahead[0, 0]
-        out = result.ahead[0]
-        return RowPrediction(track_id, float(time), gaps.segment, out[0], ahead)
+        self.gaps[track_id], self.states[track_id] = gaps, result.state
+        self.rows += 1
+        return RowPrediction(track_id, float(time), gaps.segment, result.ahead[0, 0], ahead)
 
     # -- a table (or chunk) at once -----------------------------------------------------
     def process_table(self, table, position_names=None):
         """Step every track of a track table through the batched core.
+
+        All or nothing: an exception in the middle leaves the predictor as it was.
 
         Parameters
         ----------
@@ -367,6 +461,20 @@ class TrackPredictor:
             ``track_id, time, segment, pred_<pos>...`` (and ``pred<H>_<pos>`` for a
             horizon H > 1), one row per input row that was not skipped, in table order.
         """
+        import pandas as pd
+
+        missing = [c for c in ("track_id", "time", *(position_names or ())) if c not in table.columns]
+        if missing:
+            raise ValueError(f"table: expected the columns track_id, time and the positions, missing {missing} "
+                             f"(columns: {list(table.columns)})")
+        saved = self.checkpoint(pd.unique(table["track_id"]))
+        try:
+            return self._process_table(table, position_names)
+        except BaseException:
+            self.rollback(saved)
+            raise
+
+    def _process_table(self, table, position_names):
         import pandas as pd
 
         names = list(position_names or [c for c in table.columns if c not in ("track_id", "time")])
@@ -432,14 +540,18 @@ class TrackPredictor:
 
     # -- persistence ------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:
-        """Write settings, every track's state and gap bookkeeping to ``path`` (``.npz``), atomically."""
+        """Write settings, every track's state and gap bookkeeping to ``path`` (``.npz``).
+
+        Atomic and durable (see :func:`kalmix.archive.write_archive`): a reader sees the old
+        file or the new one, never a mixture.
+        """
         tracks = list(self.gaps)
         with_state = [t for t in tracks if t in self.states]
         meta = {"magic": _MAGIC, "format_version": STATE_FORMAT_VERSION, "config": asdict(self.config),
                 "measurement_dim": None if self.params is None else self.params.measurement_dim,
                 "position_names": None if self.position_names is None else list(self.position_names),
                 "tracks": [{"id": t, "gaps": self.gaps[t].to_json(), "state": t in self.states} for t in tracks],
-                "rows": self.rows, "skipped": self.skipped}
+                "rows": self.rows, "skipped": self.skipped, "output": self.output}
         arrays = {}
         if with_state:
             arrays = dict(_leaves(_stack([self.states[t] for t in with_state])))
@@ -448,26 +560,42 @@ class TrackPredictor:
     @classmethod
     def load(cls, path: str | os.PathLike) -> "TrackPredictor":
         """Read a file written by :meth:`save`; ``ValueError`` with the reason on a bad file."""
-        meta, arrays = read_archive(path, magic=_MAGIC, version=STATE_FORMAT_VERSION, what="kalmix state file",
-                                    written_by="kalmix predict --state")
-        engine = cls(StreamConfig(**meta["config"]), meta.get("position_names"))
-        engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
-        if meta["measurement_dim"] is not None:
-            engine._ensure_params(int(meta["measurement_dim"]))
+        with open_archive(path, magic=_MAGIC, version=_READABLE_VERSIONS, what="kalmix state file",
+                          written_by="kalmix predict --state") as archive:
+            meta = archive.meta
+            try:
+                engine = cls(StreamConfig(**meta["config"]), meta.get("position_names"))
+                engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
+                engine.output = meta.get("output")
+                engine.loaded_version = meta["format_version"]
+                if meta["measurement_dim"] is not None:
+                    engine._ensure_params(int(meta["measurement_dim"]))
+                entries = [(entry["id"], GapTracker(**entry["gaps"]), bool(entry["state"]))
+                           for entry in meta["tracks"]]
+            except (KeyError, TypeError) as error:
+                raise ValueError(f"{path}: the kalmix state file's settings are incomplete or corrupt: "
+                                 f"{error!r}") from error
+            count = sum(has_state for _, _, has_state in entries)
+            stacked, template = None, None
+            if count:
+                template = engine._fresh()
+                stacked = {name: archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name)
+                           for name, expected in _leaves(template)}
         index = 0
-        template = engine._fresh() if engine.params is not None else None
-        names = [name for name, _ in _leaves(template)] if template is not None else []
-        for entry in meta["tracks"]:
-            track = entry["id"]
-            engine.gaps[track] = GapTracker(**entry["gaps"])
-            if entry["state"]:
-                fields = {}
-                for name, expected in _leaves(template):
-                    value = arrays.get(name)
-                    if value is None or value.shape[1:] != expected.shape[1:]:
-                        raise ValueError(f"{path}: field {name!r} missing or of the wrong shape")
-                    fields[name] = value[index:index + 1].copy()
-                leaves = iter(fields[n] for n in names)
+        for track, gaps, has_state in entries:
+            engine.gaps[track] = gaps
+            if has_state:
+                leaves = iter([value[index:index + 1].copy() for value in stacked.values()])
                 engine.states[track] = _map(lambda _: next(leaves), template)
                 index += 1
         return engine
+
+
+class Checkpoint(NamedTuple):
+    """What :meth:`TrackPredictor.checkpoint` returns."""
+
+    rows: int
+    skipped: int
+    position_names: tuple | None
+    tracks: dict   # track id -> (GapTracker copy or None, BankState or None)
+    time_unit: float | None = None

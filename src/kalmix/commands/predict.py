@@ -8,15 +8,15 @@ writes and prints.
 from __future__ import annotations
 
 import contextlib
-import csv
 import json
 import math
 import os
-import sys
 import warnings
 
 import click
 import numpy as np
+
+from ..bank import LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED
 
 _LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres). "
                      "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
@@ -72,12 +72,14 @@ def _positions(text):
 def _length_unit(text):
     if text is None or str(text).lower() == "auto":
         return None
+    low, high = LENGTH_UNIT_RANGE
+    expected = f"expected a number in [{low:g}, {high:g}] or 'auto', got {text!r}"
     try:
         value = float(text)
     except ValueError:
-        raise click.BadParameter(f"expected a number > 0 or 'auto', got {text!r}", param_hint="--length-unit")
-    if not (math.isfinite(value) and value > 0):
-        raise click.BadParameter(f"expected a number > 0 or 'auto', got {text!r}", param_hint="--length-unit")
+        raise click.BadParameter(expected, param_hint="--length-unit") from None
+    if not low <= value <= high:
+        raise click.BadParameter(expected, param_hint="--length-unit")
     return value
 
 
@@ -110,6 +112,11 @@ def _user_errors():
             yield
     except (ValueError, TypeError, FileNotFoundError, ImportError) as error:
         raise click.ClickException(str(error)) from error
+    except EOFError as error:  # pandas on a truncated .gz; click would print a bare 'Aborted!'
+        raise click.ClickException(f"the input ends early (a truncated or corrupt file?): {error}") from error
+    except OSError as error:  # a disk, permission or device error: one line, not a traceback
+        where = f" {error.filename!r}" if error.filename else ""
+        raise click.ClickException(f"{error.strerror or error}{where}") from error
     finally:
         warnings.showwarning = previous
 
@@ -124,6 +131,33 @@ def _header(path, fmt):
         return [str(c) for c in pd.read_csv(path, nrows=0).columns]
     except pd.errors.EmptyDataError:
         raise ValueError(f"The track file {os.fspath(path)!r} is empty (no header, no rows)") from None
+    except UnicodeDecodeError as error:
+        raise ValueError(f"INPUT: {os.fspath(path)!r} is not a CSV text file (UTF-8 expected; {error.reason} "
+                         f"at byte {error.start})") from None
+
+
+def _distinct_files(*named):
+    """``ValueError`` when two of the ``(option, path)`` pairs (path None or '-': unused) are one file.
+
+    ``kalmix predict data.csv -o data.csv`` would empty the input before reading it, and
+    ``--state x -o x`` would replace the predictions by the state at the first save.
+    """
+    named = [(name, os.fspath(path)) for name, path in named if path not in (None, "-")]
+    for i, (first, a) in enumerate(named):
+        for second, b in named[i + 1:]:
+            same = os.path.realpath(a) == os.path.realpath(b)
+            if not same and os.path.exists(a) and os.path.exists(b):
+                same = os.path.samefile(a, b)
+            if same:
+                raise ValueError(f"{second}: {b!r} is the same file as {first} {a!r}; give another name")
+
+
+def _directory_exists(name, path):
+    """``ValueError`` at start when an output file's directory does not exist (not after all the work)."""
+    if path:
+        directory = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(directory):
+            raise ValueError(f"{name}: the directory {directory!r} does not exist")
 
 
 def _file_format(path):
@@ -141,67 +175,6 @@ def _columns(header, time_column, position_columns, id_column):
     return detect_columns(header, time=time_column, positions=_positions(position_columns), track_id=id_column)
 
 
-class _Writer:
-    """CSV, JSON lines or Parquet output, written incrementally."""
-
-    def __init__(self, output, fmt):
-        self.output, self.fmt = output, fmt
-        self.handle, self.parquet, self.header_written = None, None, False
-        if fmt == "parquet":
-            return
-        self.handle = sys.stdout if output is None else open(output, "w", newline="")
-
-    def write_table(self, frame):
-        if self.fmt == "parquet":
-            import pyarrow as pa
-            import pyarrow.parquet as pq
-            table = pa.Table.from_pandas(frame, preserve_index=False)
-            if self.parquet is None:
-                self.parquet = pq.ParquetWriter(self.output, table.schema)
-            self.parquet.write_table(table)
-        elif self.fmt == "jsonl":
-            for record in frame.to_dict(orient="records"):
-                self.write_record(record)
-        else:
-            frame.to_csv(self.handle, index=False, header=not self.header_written, lineterminator="\n")
-            self.header_written = True
-        if self.handle is not None:
-            self.handle.flush()
-
-    def write_record(self, record):
-        if self.fmt == "jsonl":
-            self.handle.write(json.dumps({k: _json_value(v) for k, v in record.items()}) + "\n")
-        else:
-            if not self.header_written:
-                self.handle.write(",".join(record) + "\n")
-                self.header_written = True
-            self.handle.write(",".join(_csv_value(v) for v in record.values()) + "\n")
-        self.handle.flush()
-
-    def close(self):
-        if self.parquet is not None:
-            self.parquet.close()
-        if self.handle is not None and self.handle is not sys.stdout:
-            self.handle.close()
-
-
-def _json_value(value):
-    if isinstance(value, (np.floating, float)):
-        return None if not math.isfinite(value) else float(value)
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
-
-
-def _csv_value(value):
-    if isinstance(value, (float, np.floating)):
-        return "" if math.isnan(value) else repr(float(value))
-    text = str(value)
-    if any(c in text for c in ',"\n'):
-        text = '"' + text.replace('"', '""') + '"'
-    return text
-
-
 def _output_columns(frame, columns, names):
     """Rename the engine's columns back to the input's names; drop the id if the input had none."""
     renames = {"time": columns.time or "row"}
@@ -216,12 +189,12 @@ def _output_columns(frame, columns, names):
 @click.command()
 @click.argument("input_path", metavar="INPUT")
 @_column_options
-@click.option("--horizon", "-H", default=1, show_default=True, type=click.IntRange(min=1),
-              help="Also predict H samples ahead (columns pred<H>_<pos>).")
+@click.option("--horizon", "-H", default=1, show_default=True, type=click.IntRange(1, MAX_HORIZON),
+              help=f"Also predict H samples ahead (columns pred<H>_<pos>); at most {MAX_HORIZON}.")
 @click.option("--output", "-o", default=None, type=click.Path(dir_okay=False),
               help="Output file: .csv, .parquet or .jsonl (default: CSV on stdout).")
 @click.option("--experts", "n_experts", default=None, type=click.IntRange(min=1), help="Experts K [default: 40].")
-@click.option("--seed", default=None, type=click.IntRange(min=0), help="Seed of the bank [default: 0].")
+@click.option("--seed", default=None, type=click.IntRange(0, MAX_SEED), help="Seed of the bank [default: 0].")
 @click.option("--length-unit", default="auto", show_default=True, help=_LENGTH_UNIT_HELP)
 @click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP + " 'none' never splits.")
 @click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True),
@@ -242,14 +215,23 @@ def predict(input_path, time_column, position_columns, id_column, horizon, outpu
     of the track); with --horizon H also pred<H>_<position>. A file is processed in chunks,
     all tracks at once through the batched core; '-' reads CSV rows (header first) or JSON
     lines from stdin and writes each prediction as soon as its measurement arrives.
+
+    Stopped by Ctrl-C, SIGTERM or SIGHUP, it saves the --state file to match what it wrote
+    (a chunk in progress is rolled back, a stdin row in progress finished) and exits with
+    128 + the signal number; the same command then continues (-o is continued, not rewritten).
     """
     from ..streaming import TrackPredictor
+    from ._durable import SignalGuard, StateLock
+    from ._predict_run import run_predict
 
     unit = _length_unit(length_unit)
     gap, never = _max_gap(max_gap)
     options = _mixture_options(mixture_options)
     out_fmt = _file_format(output) if output else "csv"
     with _user_errors():
+        _distinct_files(("INPUT", input_path), ("--output", output), ("--state", state_path))
+    with _user_errors(), SignalGuard() as guard, \
+            (StateLock(state_path) if state_path else contextlib.nullcontext()):
         engine = None
         if state_path and os.path.exists(state_path):
             engine = TrackPredictor.load(state_path)
@@ -267,192 +249,10 @@ def predict(input_path, time_column, position_columns, id_column, horizon, outpu
         if engine is None and options:
             from ..bank import make_params
             make_params(1, settings["n_experts"], **options)  # a bad option fails before any output
-        if input_path == "-":
-            if out_fmt == "parquet":
-                raise ValueError("--output: streaming from stdin writes CSV or JSON lines, got a .parquet name")
-            _predict_stream(sys.stdin, engine, settings, unit, state_path, save_every, output, out_fmt,
-                            time_column, position_columns, id_column)
-        else:
-            _predict_file(input_path, engine, settings, unit, state_path, save_every, output, out_fmt,
-                          time_column, position_columns, id_column, chunk_rows, progress)
-
-
-def _predict_file(path, engine, settings, unit, state_path, save_every, output, out_fmt,
-                  time_column, position_columns, id_column, chunk_rows, progress):
-    from tqdm import tqdm
-
-    from ..io import iter_track_chunks, to_arrays
-    from ..streaming import StreamConfig, TrackPredictor, auto_length_unit
-
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"INPUT: no such file {path!r}")
-    in_fmt = "parquet" if _file_format(path) == "parquet" else "csv"
-    columns = _columns(_header(path, in_fmt), time_column, position_columns, id_column)
-    total = None
-    if in_fmt == "parquet":
-        import pyarrow.parquet as pq
-        total = pq.ParquetFile(path).metadata.num_rows
-    show = sys.stderr.isatty() if progress is None else progress
-    writer = _Writer(output, out_fmt)
-    since_save = 0
-    try:
-        with tqdm(total=total, unit="rows", file=sys.stderr, disable=not show, desc="kalmix predict") as bar:
-            for chunk in iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt):
-                if engine is None:
-                    chosen = unit if unit is not None else auto_length_unit(to_arrays(chunk).values)
-                    if unit is None:
-                        click.echo(f"kalmix: length unit {chosen:.6g} (auto; pass --length-unit to override)",
-                                   err=True)
-                    engine = TrackPredictor(StreamConfig(length_unit=chosen, **settings), columns.positions)
-                frame = engine.process_table(chunk, list(columns.positions))
-                writer.write_table(_output_columns(frame, columns, columns.positions))
-                bar.update(len(chunk))
-                since_save += len(chunk)
-                if state_path and since_save >= save_every:
-                    engine.save(state_path)
-                    since_save = 0
-    finally:
-        writer.close()
-        if state_path and engine is not None:
-            engine.save(state_path)
-    if engine is not None and engine.skipped:
-        click.echo(f"kalmix: warning: skipped {engine.skipped} row(s) at or before their track's last time "
-                   "(already processed or out of order)", err=True)
-
-
-def _parse_number(text, column, line_number):
-    if text is None:
-        return math.nan
-    if isinstance(text, (int, float)) and not isinstance(text, bool):
-        value = float(text)
-    else:
-        stripped = str(text).strip()
-        if stripped.lower() in ("", "nan", "na", "n/a", "null", "none"):
-            return math.nan
-        try:
-            value = float(stripped)
-        except ValueError:
-            raise ValueError(f"line {line_number}: column {column!r} must hold a number, got {text!r}") from None
-    if math.isinf(value):
-        raise ValueError(f"line {line_number}: column {column!r} must be finite, got {text!r}")
-    return value
-
-
-def _parse_id(value):
-    if isinstance(value, str):
-        text = value.strip()
-        try:
-            if text and text.lstrip("-").isdigit():
-                return int(text)
-        except ValueError:
-            pass
-        return text
-    return value
-
-
-def _predict_stream(stdin, engine, settings, unit, state_path, save_every, output, out_fmt,
-                    time_column, position_columns, id_column):
-    from ..streaming import StreamConfig, TrackPredictor
-
-    lines = iter(stdin.readline, "")
-    line_number = 0
-    first = None
-    for raw in lines:
-        line_number += 1
-        if raw.strip():
-            first = raw
-            break
-    if first is None:
-        raise ValueError("stdin: no input (expected a CSV header line or JSON lines)")
-    is_json = first.lstrip().startswith("{")
-    if is_json:
-        try:
-            record = json.loads(first)
-        except json.JSONDecodeError as error:
-            raise ValueError(f"line {line_number}: not valid JSON: {error}") from None
-        header = list(record)
-        pending = [(line_number, record)]
-    else:
-        header = next(csv.reader([first]))
-        pending = []
-    columns = _columns(header, time_column, position_columns, id_column)
-    if engine is None:
-        if unit is None:
-            click.echo("kalmix: length unit 1 (stdin has no sample to estimate it from; pass --length-unit)",
-                       err=True)
-        engine = TrackPredictor(StreamConfig(length_unit=1.0 if unit is None else unit, **settings),
-                                columns.positions)
-    if engine.position_names is not None and len(engine.position_names) != len(columns.positions):
-        raise ValueError(f"the state file tracks {len(engine.position_names)} coordinates "
-                         f"{list(engine.position_names)}, the input has {list(columns.positions)}")
-    index = {name: i for i, name in enumerate(header)}
-    out_fmt = out_fmt if output else ("jsonl" if is_json else "csv")
-    writer = _Writer(output, out_fmt)
-    counts: dict = {}
-    since_save = 0
-
-    def records():
-        yield from pending
-        nonlocal line_number
-        for raw in lines:
-            line_number += 1
-            if not raw.strip():
-                continue
-            if is_json:
-                try:
-                    yield line_number, json.loads(raw)
-                except json.JSONDecodeError as error:
-                    raise ValueError(f"line {line_number}: not valid JSON: {error}") from None
-            else:
-                row = next(csv.reader([raw]))
-                if len(row) != len(header):
-                    raise ValueError(f"line {line_number}: expected {len(header)} fields like the header, "
-                                     f"got {len(row)}")
-                yield line_number, row
-
-    def get(record, name, number):
-        if is_json:
-            if name not in record:
-                raise ValueError(f"line {number}: key {name!r} missing (keys: {list(record)})")
-            return record[name]
-        return record[index[name]]
-
-    try:
-        for number, record in records():
-            track = _parse_id(get(record, columns.track_id, number)) if columns.track_id else 0
-            if columns.time is None:
-                time = float(counts.get(track, engine.gaps[track].last_time + 1 if track in engine.gaps else 0))
-                counts[track] = time + 1
-            else:
-                time = _parse_number(get(record, columns.time, number), columns.time, number)
-                if math.isnan(time):
-                    click.echo(f"kalmix: warning: line {number}: no time, row skipped", err=True)
-                    continue
-            z = [_parse_number(get(record, name, number), name, number) for name in columns.positions]
-            result = engine.step_row(track, time, z)
-            if result is None:
-                click.echo(f"kalmix: warning: line {number}: time {time!r} is not after track {track!r}'s "
-                           "previous time; row skipped", err=True)
-                continue
-            out = {}
-            if columns.track_id is not None:
-                out[columns.track_id] = track
-            out[columns.time or "row"] = time
-            out["segment"] = result.segment
-            for j, name in enumerate(columns.positions):
-                out[f"pred_{name}"] = float(result.next[j])
-            if result.ahead is not None:
-                for j, name in enumerate(columns.positions):
-                    out[f"pred{engine.config.horizon}_{name}"] = float(result.ahead[j])
-            writer.write_record(out)
-            since_save += 1
-            if state_path and since_save >= save_every:
-                engine.save(state_path)
-                since_save = 0
-    finally:
-        writer.close()
-        if state_path and engine.params is not None:
-            engine.save(state_path)
+        if input_path == "-" and out_fmt == "parquet":
+            raise ValueError("--output: streaming from stdin writes CSV or JSON lines, got a .parquet name")
+        run_predict(guard, engine, settings, unit, input_path, state_path, save_every, output, out_fmt,
+                    time_column, position_columns, id_column, chunk_rows, progress)
 
 
 # -------------------------------------------------------------------------------------- evaluate
@@ -461,10 +261,10 @@ def _predict_stream(stdin, engine, settings, unit, state_path, save_every, outpu
 @click.option("--dataset", default=None, help="A shipped recording instead of INPUT: hawkeye_ball, skillcorner, "
               "cycling (needs the 'data' extra).")
 @_column_options
-@click.option("--horizon", "-H", default=1, show_default=True, type=click.IntRange(min=1),
-              help="Also report the H-step errors.")
+@click.option("--horizon", "-H", default=1, show_default=True, type=click.IntRange(1, MAX_HORIZON),
+              help=f"Also report the H-step errors; at most {MAX_HORIZON}.")
 @click.option("--experts", "n_experts", default=40, show_default=True, type=click.IntRange(min=1))
-@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0))
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(0, MAX_SEED))
 @click.option("--length-unit", default="auto", show_default=True,
               help="Mixture's length unit; 'auto': the second-difference rule on the tuning part.")
 @click.option("--tuning-fraction", default=0.2, show_default=True, type=click.FloatRange(0.0, 1.0, max_open=True),
@@ -497,6 +297,9 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
     with _user_errors():
         if (input_path is None) == (dataset is None):
             raise ValueError("give either INPUT or --dataset NAME")
+        _distinct_files(("INPUT", input_path), ("--json", json_path), ("--plot", plot_path))
+        _directory_exists("--json", json_path)
+        _directory_exists("--plot", plot_path)
         if dataset is not None:
             from ..io import load_dataset
             table = load_dataset(dataset)
@@ -505,9 +308,11 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
             from ..io import read_tracks
             if not os.path.exists(input_path):
                 raise FileNotFoundError(f"INPUT: no such file {input_path!r}")
+            if os.path.isdir(input_path):
+                raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {input_path!r}")
             fmt = "parquet" if _file_format(input_path) == "parquet" else "csv"
             columns = _columns(_header(input_path, fmt), time_column, position_columns, id_column)
-            table = read_tracks(input_path, columns=columns, format=fmt)
+            table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True)
             label = os.path.basename(input_path)
         wanted = [t.strip() for t in tracks.split(",")] if tracks else None
         result = evaluate_table(table, horizon=horizon, n_experts=n_experts, seed=seed, length_unit=unit,

@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from ..bank import DEFAULT_BANK, make_bank, make_params
+from ..bank import DEFAULT_BANK, check_horizon, check_length_unit, make_bank, make_params
 from ..core.mixture import init_state, predict, step
 from ..metrics import error_summary
 from ..streaming import GapTracker, StreamConfig, auto_length_unit, auto_time_unit
@@ -409,6 +409,15 @@ class EvaluationResult:
                                  for i, t in enumerate(self.streams.track_ids)}})
 
 
+def _require_errors(values, mask, doing, part, track_lengths):
+    """``ValueError`` unless ``mask`` holds a one-step error: a measurement right after another."""
+    present = np.isfinite(values).all(axis=-1)
+    if not (mask[1:] & present[1:] & present[:-1]).any():
+        raise ValueError(f"too little data to {doing}: {part} holds no two consecutive measurements of a "
+                         f"segment (longest track: {int(track_lengths.max())} row(s) after de-duplicating times; "
+                         "evaluate needs tracks of a few dozen rows)")
+
+
 def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 0,
                    length_unit: float | None = None, tuning_fraction: float = 0.2,
                    max_gap: float | None = None, max_gap_factor: float = 3.0,
@@ -450,8 +459,9 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         (:func:`~kalmix.streaming.auto_length_unit`) and its time unit
         :func:`~kalmix.streaming.auto_time_unit`, both on the tuning part.
     """
-    if isinstance(horizon, bool) or int(horizon) != horizon or horizon < 1:
-        raise ValueError(f"horizon: expected an integer >= 1, got {horizon!r}")
+    horizon = check_horizon(horizon)
+    if length_unit is not None:
+        length_unit = check_length_unit(length_unit)
     if not 0 <= tuning_fraction < 1:
         raise ValueError(f"tuning_fraction: expected a number in [0, 1), got {tuning_fraction!r}")
     log = log or (lambda message: None)
@@ -470,6 +480,9 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     options = dict(options or {})
     tuned: dict[str, Any] = {}
     tune_scored = tuning if tuning.any() else scored
+    _require_errors(values, tune_scored, "tune the predictors on",
+                    f"the first {tuning_fraction:.0%} of each track (--tuning-fraction)", track_lengths)
+    _require_errors(values, scored, "score", "the rest of each track", track_lengths)
     if length_unit is not None:
         unit = rule = float(length_unit)
         tuned["length_unit"] = {"given": unit}

@@ -23,6 +23,13 @@ Validation and handling, applied to every table read:
   ``RuntimeWarning`` gives the count;
 - a file without data rows: ``ValueError`` ("no rows");
 - more than 3 position columns: ``ValueError``.
+
+Track ids: with ``ids_as_text=True`` (what ``kalmix predict`` and ``kalmix evaluate`` use)
+a CSV id column is read as text exactly as written, so ``01`` and ``1`` are two tracks
+(as on stdin) and a column whose chunks look numeric in one place and textual in another
+keeps one type; tracks then come in order of first appearance instead of sorted by id.
+By default pandas infers the type (``01`` and ``1`` both become the integer 1). Parquet
+ids keep their column type either way.
 """
 
 from __future__ import annotations
@@ -235,8 +242,18 @@ def _to_float(s: pd.Series, name: str, offset: int) -> np.ndarray:
     return out
 
 
+def _csv_options(cols: TrackColumns, ids_as_text: bool) -> dict:
+    """``pd.read_csv`` arguments that read the id column as text exactly as written (empty = missing)."""
+    if not ids_as_text or cols.track_id is None:
+        return {}
+    from pandas._libs.parsers import STR_NA_VALUES
+
+    others = {name: sorted(STR_NA_VALUES) for name in cols.names if name != cols.track_id}
+    return {"dtype": {cols.track_id: str}, "keep_default_na": False, "na_values": {**others, cols.track_id: [""]}}
+
+
 def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
-               counts: dict | None = None) -> pd.DataFrame:
+               counts: dict | None = None, first_appearance: bool = False) -> pd.DataFrame:
     """Validate one raw table (or chunk) into the canonical sorted long table."""
     if len(raw) == 0:
         raise ValueError("The track file has no rows (only a header or nothing at all)")
@@ -272,7 +289,11 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
     if back:
         warnings.warn(f"Times decrease at {back} row(s) within tracks; sorted each track's rows "
                       "by time (stable)", RuntimeWarning, stacklevel=3)
-    out = out.sort_values(["track_id", "time"], kind="stable")
+    if first_appearance:
+        first = pd.factorize(out["track_id"], sort=False)[0]
+        out = out.iloc[np.lexsort((out["time"].to_numpy(), first))]
+    else:
+        out = out.sort_values(["track_id", "time"], kind="stable")
     dup = out.duplicated(["track_id", "time"], keep="last").to_numpy()
     if dup.any():
         warnings.warn(f"{int(dup.sum())} row(s) repeat a timestamp within their track; kept the "
@@ -321,7 +342,7 @@ def _resolve(header: list[str], columns: TrackColumns | None) -> TrackColumns:
 
 
 def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: TrackColumns | None = None,
-                format: str | None = None) -> pd.DataFrame:
+                format: str | None = None, ids_as_text: bool = False) -> pd.DataFrame:
     """Read a CSV (optionally ``.gz``) or Parquet track file into a track table.
 
     Parameters
@@ -334,12 +355,15 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
         Which columns to use; detected with :func:`detect_columns` if omitted.
     format : {'csv', 'parquet'}, optional
         Overrides the extension.
+    ids_as_text : bool, default False
+        Read a CSV id column as text exactly as written (see the module docstring).
 
     Returns
     -------
     pandas.DataFrame
         Columns ``['track_id', 'time', *columns.positions]``, sorted by
-        ``(track_id, time)`` (stable), time and positions as float64, NaN for a
+        ``(track_id, time)`` (stable; with ``ids_as_text`` on a CSV file: tracks in order
+        of first appearance, then time), time and positions as float64, NaN for a
         missing measurement. See the module docstring for the validation rules.
 
     Raises
@@ -355,7 +379,7 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
             import pyarrow.parquet as pq
             raw = pq.read_table(path_or_buffer, columns=cols.names).to_pandas()
         else:
-            raw = pd.read_csv(path_or_buffer, usecols=cols.names)
+            raw = pd.read_csv(path_or_buffer, usecols=cols.names, **_csv_options(cols, ids_as_text))
     else:
         if fmt == "parquet":
             raw = pd.read_parquet(path_or_buffer)
@@ -365,11 +389,11 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
             except pd.errors.EmptyDataError:
                 raise ValueError("The track file has no rows (it is empty)") from None
         cols = _resolve([str(c) for c in raw.columns], columns)
-    return _normalise(raw, cols)
+    return _normalise(raw, cols, first_appearance=ids_as_text and fmt == "csv" and is_path)
 
 
 def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None = None,
-                      chunk_rows: int = 1_000_000, format: str | None = None
+                      chunk_rows: int = 1_000_000, format: str | None = None, ids_as_text: bool = False
                       ) -> Iterator[pd.DataFrame]:
     """Read a huge CSV or Parquet track file in bounded memory, chunk by chunk.
 
@@ -395,11 +419,14 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         Maximum file rows per chunk.
     format : {'csv', 'parquet'}, optional
         Overrides the extension.
+    ids_as_text : bool, default False
+        Read a CSV id column as text exactly as written (see the module docstring).
 
     Yields
     ------
     pandas.DataFrame
-        Track table chunks (``track_id``, ``time``, positions).
+        Track table chunks (``track_id``, ``time``, positions); ``chunk.attrs["file_rows"]``
+        is the number of file rows it was made from (a progress count).
     """
     if int(chunk_rows) < 1:
         raise ValueError(f"Expected chunk_rows >= 1, got {chunk_rows}")
@@ -415,11 +442,12 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
             batches = (b.to_pandas() for b in
                        parquet.iter_batches(batch_size=int(chunk_rows), columns=cols.names))
         else:
-            batches = stack.enter_context(pd.read_csv(path, usecols=cols.names, chunksize=int(chunk_rows)))
+            batches = stack.enter_context(pd.read_csv(path, usecols=cols.names, chunksize=int(chunk_rows),
+                                                      **_csv_options(cols, ids_as_text)))
         for raw in batches:
             if len(raw) == 0:
                 continue
-            chunk = _normalise(raw, cols, offset, counts)
+            chunk = _normalise(raw, cols, offset, counts, first_appearance=ids_as_text and fmt == "csv")
             firsts = chunk.groupby("track_id", sort=False)["time"].first()
             prev = firsts.index.map(last).to_numpy(np.float64, na_value=np.nan)
             back = prev >= firsts.to_numpy()
@@ -432,6 +460,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
                     "file or use read_tracks)")
             last.update(chunk.groupby("track_id", sort=False)["time"].last().to_dict())
             offset += len(raw)
+            chunk.attrs["file_rows"] = len(raw)  # rows read, before dropping rows without a time or repeated
             yield chunk
     if offset == 0:
         raise ValueError(f"The track file {os.fspath(path)!r} has no rows (only a header)")

@@ -1,0 +1,381 @@
+"""What keeps ``kalmix predict`` consistent when it is stopped: signals, the state lock, the output.
+
+The unit of work is a *chunk* (a file) or a *row* (stdin). It is computed, then committed:
+its output is written and, every ``--save-every`` rows and at exit, the state file is
+saved with the position of the output it matches. A chunk that is stopped before its
+commit is rolled back (:meth:`kalmix.streaming.TrackPredictor.rollback`), so the state
+file, the trackers and the output always describe the same rows.
+
+- :class:`SignalGuard`: SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` at once
+  while the work in progress can be rolled back (reading, computing a chunk), and only
+  after the commit in progress otherwise (writing, saving, one stdin row).
+- :class:`StateLock`: one process per ``--state`` file (``flock`` on ``<state>.lock``), and
+  the checks that would otherwise fail only at the first save (missing directory,
+  read-only file).
+- :class:`Output`: the ``-o`` file (or stdout), written one committed piece at a time,
+  with the byte and line count of the last commit, which the state file records; a
+  resumed run checks the file against that record and continues it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gzip
+import json
+import math
+import os
+import signal
+import stat
+import sys
+import threading
+
+import numpy as np
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX
+    fcntl = None
+
+__all__ = ["json_value", "csv_value", "Interrupted", "OutputClosed", "SignalGuard", "StateLock", "Output",
+           "count_rows", "TEST_HOOK"]
+
+_STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+#: Test hook, ``SIGNAME:N``: after the N-th unit of work (a slice of a chunk, a stdin row) the
+#: process sends itself SIGNAME, at a known point instead of after a sleep.
+TEST_HOOK = "KALMIX_TEST_SIGNAL_AFTER"
+
+
+def json_value(value):
+    """A prediction value for JSON lines: NaN/inf as null, numpy scalars as Python numbers."""
+    if isinstance(value, (float, np.floating)):
+        return None if not math.isfinite(value) else float(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def csv_value(value) -> str:
+    """A prediction value for a CSV line: NaN as an empty field, floats round-tripping, text quoted."""
+    if isinstance(value, (float, np.floating)):
+        return "" if math.isnan(value) else repr(float(value))
+    text = str(value)
+    if any(c in text for c in ',"\n\r'):
+        text = '"' + text.replace('"', '""') + '"'
+    return text
+
+
+class Interrupted(BaseException):
+    """A stop signal arrived. A ``BaseException`` like ``KeyboardInterrupt``: no ``except Exception`` swallows it."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = int(signum)
+
+    @property
+    def name(self) -> str:
+        return signal.Signals(self.signum).name
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum
+
+
+class OutputClosed(Exception):
+    """The reader of stdout went away (broken pipe)."""
+
+
+def _parse_hook(text):
+    if not text:
+        return None
+    name, _, count = text.partition(":")
+    try:
+        return signal.Signals[name.strip().upper()].value, int(count)
+    except (KeyError, ValueError):
+        raise ValueError(f"{TEST_HOOK}: expected SIGNAME:N (e.g. SIGTERM:3), got {text!r}") from None
+
+
+class SignalGuard:
+    """Stop signals become :class:`Interrupted`: at once, or after the commit in progress (:meth:`deferred`)."""
+
+    def __init__(self):
+        self.received: int | None = None
+        self._deferring = 0
+        self._previous: dict = {}
+        self._ticks = 0
+        self._hook = _parse_hook(os.environ.get(TEST_HOOK))
+
+    def __enter__(self) -> "SignalGuard":
+        if threading.current_thread() is threading.main_thread():
+            for sig in _STOP_SIGNALS:
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        self._previous.clear()
+        return False
+
+    def _handle(self, signum, frame):
+        if self.received is None:
+            self.received = signum
+        if not self._deferring:
+            raise Interrupted(signum)
+
+    @contextlib.contextmanager
+    def deferred(self, deliver: bool = True):
+        """A commit: signals wait until it is done; then (``deliver``) the first one is raised."""
+        self._deferring += 1
+        try:
+            yield
+        finally:
+            self._deferring -= 1
+        if deliver and not self._deferring and self.received is not None:
+            raise Interrupted(self.received)
+
+    def tick(self) -> None:
+        """One unit of work done (see :data:`TEST_HOOK`)."""
+        if self._hook is not None:
+            self._ticks += 1
+            if self._ticks == self._hook[1]:
+                os.kill(os.getpid(), self._hook[0])
+
+
+class StateLock:
+    """Exclusive use of a ``--state`` file by this process, checked before any work.
+
+    ``ValueError`` (naming ``--state``) when the directory is missing or not writable, the
+    file is read-only or not a regular file, or another process holds the lock. The lock
+    file ``<state>.lock`` stays on disk (removing it would race with the next writer); the
+    lock itself goes with the process.
+    """
+
+    def __init__(self, path):
+        self.path = os.fspath(path)
+        self.lock_path = self.path + ".lock"
+        self._fd: int | None = None
+
+    def __enter__(self) -> "StateLock":
+        directory = os.path.dirname(os.path.abspath(self.path))
+        if not os.path.isdir(directory):
+            raise ValueError(f"--state: the directory {directory!r} does not exist (state file {self.path!r})")
+        if os.path.lexists(self.path):
+            if not os.path.isfile(self.path):
+                raise ValueError(f"--state: expected a state file, got {self.path!r}, which is not a regular file")
+            mode = os.stat(self.path).st_mode
+            if not mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH) or not os.access(self.path, os.W_OK):
+                raise ValueError(f"--state: {self.path!r} is read-only (mode {stat.S_IMODE(mode):04o}) and every save "
+                                 "replaces it; make it writable or give another --state file")
+        if not os.access(directory, os.W_OK):
+            raise ValueError(f"--state: the directory {directory!r} is not writable")
+        try:
+            self._fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as error:
+            raise ValueError(f"--state: cannot open the lock file {self.lock_path!r}: {error.strerror}") from None
+        if fcntl is not None:
+            try:
+                fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                os.close(self._fd)
+                self._fd = None
+                raise ValueError(f"--state: {self.path!r} is in use by another kalmix process (it holds "
+                                 f"{self.lock_path!r}); wait for it to finish or give another --state file") from None
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+        return False
+
+
+def _count_newlines(path: str, upto: int | None = None) -> int:
+    count, left = 0, upto
+    with open(path, "rb") as handle:
+        while left is None or left > 0:
+            block = handle.read(1 << 20 if left is None else min(1 << 20, left))
+            if not block:
+                break
+            count += block.count(b"\n")
+            if left is not None:
+                left -= len(block)
+    return count
+
+
+def count_rows(path: str) -> int:
+    """Data rows of a CSV (``.gz`` too) file: its lines minus the header, in one fast pass."""
+    opener = gzip.open if os.fspath(path).lower().endswith(".gz") else open
+    count, last = 0, b"\n"
+    with opener(path, "rb") as handle:
+        while block := handle.read(1 << 20):
+            count += block.count(b"\n")
+            last = block[-1:]
+    return max(0, count - 1 + (last != b"\n"))
+
+
+class Output:
+    """``-o`` (or stdout) written one committed piece at a time; see the module docstring.
+
+    Parameters
+    ----------
+    path : str or None
+        Output file; None for stdout.
+    fmt : {"csv", "jsonl", "parquet"}
+    previous : dict or None
+        What the state file recorded about its output (:meth:`record` of the run that saved it).
+    resuming : bool
+        A state file was loaded: an existing non-empty ``path`` must be the output it recorded,
+        which is then checked and continued; otherwise ``path`` is written from scratch.
+    state_path : str or None
+        For messages.
+    note : callable
+        Prints a one-line note to the user.
+    """
+
+    def __init__(self, path, fmt, *, previous=None, resuming=False, state_path=None, note=print):
+        self.path, self.fmt = path, fmt
+        self.bytes = self.lines = self.rows = 0
+        self.header_written = False
+        self._handle = None
+        self._parquet = None
+        self._regular = False
+        self._failed = False
+        if path is None:
+            self._handle = sys.stdout
+            return
+        start = self._resume_point(previous, state_path, note) if resuming else None
+        if fmt == "parquet":
+            return  # the writer opens with the first chunk, when the schema is known
+        try:
+            if start is None:
+                self._handle = open(path, "wb")
+            else:
+                self._handle = open(path, "r+b")
+                self._handle.truncate(start[0])
+                self._handle.seek(start[0])
+                self.bytes, self.lines = start
+                self.header_written = start[0] > 0
+        except OSError as error:
+            raise ValueError(f"--output: cannot open {path!r}: {error.strerror or error}") from None
+        self._regular = stat.S_ISREG(os.fstat(self._handle.fileno()).st_mode)
+
+    def _resume_point(self, previous, state_path, note):
+        """(bytes, lines) to continue ``path`` from, or None to write it from scratch."""
+        path = self.path
+        regular = os.path.isfile(path)
+        recorded = isinstance(previous, dict) and previous.get("path") == os.path.realpath(path)
+        if not regular or (os.path.getsize(path) == 0 and not (recorded and previous.get("bytes"))):
+            if recorded and not os.path.exists(path) and previous.get("lines"):
+                note(f"{path} (recorded in {state_path}) is gone; writing a new file from the rows still to come")
+            return None
+        if not recorded:
+            was = previous.get("path") if isinstance(previous, dict) else None
+            raise ValueError(f"--output: {path!r} exists and is not the output recorded in the state file "
+                             f"{state_path!r} (that is {was or 'stdout'}); give a new -o name, remove the file, "
+                             "or use a new --state file")
+        if self.fmt == "parquet" or previous.get("format") == "parquet":
+            raise ValueError(f"--output: a Parquet file cannot be continued ({path!r} was written before with "
+                             f"{state_path!r}); give a new -o name (or CSV / JSON lines, which are continued)")
+        want_bytes, want_lines = int(previous.get("bytes", 0)), int(previous.get("lines", 0))
+        size = os.path.getsize(path)
+        if size < want_bytes:
+            raise ValueError(f"--output: {path!r} holds {size} bytes but the state file {state_path!r} recorded "
+                             f"{want_bytes} written: the file was truncated or replaced; give a new -o name")
+        lines = _count_newlines(path, want_bytes)
+        if lines != want_lines:
+            raise ValueError(f"--output: {path!r} holds {lines} lines in its first {want_bytes} bytes but the state "
+                             f"file {state_path!r} recorded {want_lines}: the file was modified; give a new -o name")
+        if size > want_bytes:
+            extra = _count_newlines(path) - lines
+            note(f"{path}: dropped the last {extra} line(s), written after the last state save; they are "
+                 "computed again")
+        return want_bytes, want_lines
+
+    # -- writing ------------------------------------------------------------------------
+    def write_frame(self, frame) -> None:
+        """Write a table of predictions as one piece (all of it, or on failure nothing)."""
+        if self.fmt == "parquet":
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+            table = pa.Table.from_pandas(frame, preserve_index=False)
+            try:
+                if self._parquet is None:
+                    self._parquet = pq.ParquetWriter(self.path, table.schema)
+                self._parquet.write_table(table)
+            except OSError as error:
+                self._failed = True
+                raise ValueError(f"--output: cannot write {self.path!r}: {error}") from None
+            self.rows += len(frame)
+            return
+        if self.fmt == "jsonl":
+            text = "".join(json.dumps({k: json_value(v) for k, v in record.items()}) + "\n"
+                           for record in frame.to_dict(orient="records"))
+        else:
+            text = frame.to_csv(None, index=False, header=not self.header_written, lineterminator="\n")
+        self._write(text, len(frame))
+
+    def write_record(self, record: dict) -> None:
+        """Write one prediction row."""
+        if self.fmt == "jsonl":
+            text = json.dumps({k: json_value(v) for k, v in record.items()}) + "\n"
+        else:
+            text = ("" if self.header_written else ",".join(csv_value(k) for k in record) + "\n") + \
+                   ",".join(csv_value(v) for v in record.values()) + "\n"
+        self._write(text, 1)
+
+    def _write(self, text: str, rows: int) -> None:
+        if not text:
+            return
+        data = text if self._handle is sys.stdout else text.encode("utf-8")
+        try:
+            self._handle.write(data)
+            self._handle.flush()
+        except BrokenPipeError:
+            self._failed = True
+            raise OutputClosed() from None
+        except OSError as error:
+            self._failed = True
+            self._undo()
+            name = "stdout" if self.path is None else repr(self.path)
+            raise ValueError(f"--output: cannot write {name}: {error.strerror or error}") from None
+        self.bytes += len(data)
+        self.lines += text.count("\n")
+        self.rows += rows
+        self.header_written = True
+
+    def _undo(self) -> None:
+        """After a failed write: cut a regular file back to the last commit (best effort)."""
+        if self._regular:
+            with contextlib.suppress(OSError, ValueError):
+                self._handle.seek(self.bytes)
+                self._handle.truncate(self.bytes)
+
+    def sync(self) -> None:
+        """Flush and fsync a regular output file, so a state saved next never claims more than is on disk."""
+        if self._regular and not self._failed:
+            try:
+                self._handle.flush()
+                os.fsync(self._handle.fileno())
+            except OSError as error:
+                self._failed = True
+                raise ValueError(f"--output: cannot write {self.path!r}: {error.strerror or error}") from None
+
+    def record(self) -> dict | None:
+        """What the state file keeps about this output (None for stdout)."""
+        if self.path is None:
+            return None
+        entry = {"path": os.path.realpath(self.path), "format": self.fmt, "rows": self.rows}
+        if self.fmt != "parquet":
+            entry.update(bytes=self.bytes, lines=self.lines)
+        return entry
+
+    def close(self) -> None:
+        if self._parquet is not None:
+            with contextlib.suppress(OSError) if self._failed else contextlib.nullcontext():
+                self._parquet.close()
+        if self._handle is not None and self._handle is not sys.stdout:
+            try:
+                self._handle.close()
+            except OSError as error:
+                if not self._failed:
+                    raise ValueError(f"--output: cannot write {self.path!r}: {error.strerror or error}") from None

@@ -1,0 +1,367 @@
+"""The body of ``kalmix predict``: a file chunk by chunk or stdin row by row, each committed whole.
+
+A chunk (file) or a row (stdin) is computed by :class:`kalmix.streaming.TrackPredictor`,
+then committed: its predictions are written and, every ``--save-every`` rows and at exit,
+the state file is saved with the output position it matches (:mod:`._durable`). A chunk
+stopped before its commit is rolled back; a stdin row, once read, is finished. So after
+SIGINT, SIGTERM or SIGHUP the output and the state file describe the same rows, and the
+same command run again continues exactly where the first stopped.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import sys
+
+import click
+import numpy as np
+
+from ._durable import Interrupted, Output, OutputClosed, count_rows
+from .predict import _columns, _file_format, _header, _output_columns
+
+#: A chunk is stepped in pieces of about this many rows (each track's rows split in order,
+#: so every piece holds every track of the chunk and the batch stays as wide): the progress
+#: bar moves and a stop signal is honoured after each piece, not once per chunk.
+PIECE_ROWS = 4_096
+_MAX_PIECES = 64
+
+
+class Run:
+    """One ``kalmix predict`` run: the engine, its output and its state file, committed together."""
+
+    def __init__(self, guard, engine, state_path, save_every, output, out_fmt):
+        self.guard, self.engine, self.state_path, self.save_every = guard, engine, state_path, save_every
+        self.output, self.out_fmt = output, out_fmt
+        self.resuming = engine is not None  # a state file was loaded
+        self.sink: Output | None = None
+        self.rows = self.since_save = 0
+        self.skipped0 = engine.skipped if engine is not None else 0
+        self.glitches0 = engine.time_glitches if engine is not None else 0
+        self.stopped: Interrupted | None = None
+        self.closed = False
+        self.unit = "chunk"
+
+    def open_output(self, fmt=None):
+        """Open ``-o`` (checked against the state file's record when resuming) once the input is known good."""
+        self.sink = Output(self.output, fmt or self.out_fmt, previous=self.engine.output if self.resuming else None,
+                           resuming=self.resuming, state_path=self.state_path,
+                           note=lambda text: click.echo(f"kalmix: {text}", err=True))
+
+    def commit(self, rows: int) -> None:
+        """``rows`` input rows are written; save the state when due (called inside a deferred section)."""
+        self.rows += rows
+        self.since_save += rows
+        if self.since_save >= self.save_every:
+            self.save()
+
+    def save(self) -> None:
+        if self.state_path and self.engine is not None and self.engine.params is not None and self.sink is not None:
+            self.sink.sync()
+            self.engine.output = self.sink.record()
+            self.engine.save(self.state_path)
+        self.since_save = 0
+
+    def finish(self) -> None:
+        """Close the output and save the state (both reflect the last commit)."""
+        try:
+            self.save()
+        finally:
+            if self.sink is not None:
+                self.sink.close()
+
+    def report(self) -> None:
+        """Summary warnings; on a stop signal or a closed stdout, one line and a non-zero exit."""
+        engine = self.engine
+        if engine is not None and engine.skipped > self.skipped0:
+            click.echo(f"kalmix: warning: skipped {engine.skipped - self.skipped0} row(s) at or before their "
+                       "track's last time (already processed or out of order)", err=True)
+        if engine is not None and engine.time_glitches > self.glitches0:
+            click.echo(f"kalmix: warning: {engine.time_glitches - self.glitches0} row(s) came back in time after "
+                       "a jump ahead: the jump's timestamp was taken as wrong and the track went on", err=True)
+        saved = (f"state saved to {self.state_path}: the same command resumes" if self.state_path
+                 else "no --state, nothing to resume from")
+        if self.stopped is not None:
+            undone = ("the chunk in progress was rolled back" if self.unit == "chunk"
+                      else "the row in progress was finished")
+            click.echo(f"kalmix: stopped by {self.stopped.name} after {self.rows} input row(s) in this run "
+                       f"({undone}); {saved}", err=True)
+            raise SystemExit(self.stopped.exit_code)
+        if self.closed:
+            click.echo(f"kalmix: the output was closed (broken pipe) after {self.rows} input row(s); {saved}",
+                       err=True)
+            raise SystemExit(1)
+
+
+def _check_resumed(engine, columns, state_path, text_ids):
+    if engine is None:
+        return
+    if engine.position_names is not None and len(engine.position_names) != len(columns.positions):
+        raise ValueError(f"the state file tracks {len(engine.position_names)} coordinates "
+                         f"{list(engine.position_names)}, the input has {list(columns.positions)}")
+
+
+def _new_engine(settings, unit, positions):
+    from ..bank import LENGTH_UNIT_RANGE
+    from ..streaming import StreamConfig, TrackPredictor
+
+    low, high = LENGTH_UNIT_RANGE
+    if not low <= unit <= high:
+        raise ValueError(f"--length-unit: the automatic length unit {unit:.3g} is outside [{low:g}, {high:g}]; "
+                         "rescale the data or pass --length-unit")
+    return TrackPredictor(StreamConfig(length_unit=unit, **settings), positions)
+
+
+# ------------------------------------------------------------------------------------------ files
+def pieces(chunk, rows: int | None = None) -> list:
+    """Split a chunk (tracks contiguous, each in time order) into pieces that each hold part of every track."""
+    import pandas as pd
+
+    rows = PIECE_ROWS if rows is None else rows
+    count = min(_MAX_PIECES, -(-len(chunk) // rows))
+    if count <= 1:
+        return [chunk]
+    codes = pd.factorize(chunk["track_id"], sort=False)[0]
+    rank = chunk.groupby(codes, sort=False).cumcount().to_numpy()
+    part = rank * count // np.bincount(codes)[codes]
+    return [chunk[part == k] for k in range(count) if (part == k).any()]
+
+
+def merge(frames, chunk):
+    """The pieces' predictions back in the chunk's row order (tracks in chunk order, then time)."""
+    import pandas as pd
+
+    if len(frames) == 1:
+        return frames[0]
+    out = pd.concat(frames, ignore_index=True)
+    codes = pd.Index(pd.unique(chunk["track_id"])).get_indexer(out["track_id"])
+    return out.iloc[np.lexsort((out["time"].to_numpy(), codes))].reset_index(drop=True)
+
+
+def predict_file(run, path, settings, unit, time_column, position_columns, id_column, chunk_rows, progress):
+    import pandas as pd
+    from tqdm import tqdm
+
+    from ..io import iter_track_chunks, to_arrays
+    from ..streaming import auto_length_unit
+
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"INPUT: no such file {path!r}")
+    if os.path.isdir(path):
+        raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {path!r}")
+    in_fmt = "parquet" if _file_format(path) == "parquet" else "csv"
+    columns = _columns(_header(path, in_fmt), time_column, position_columns, id_column)
+    _check_resumed(run.engine, columns, run.state_path, text_ids=in_fmt == "csv")
+    run.open_output()
+    show = sys.stderr.isatty() if progress is None else progress
+    total = None
+    if in_fmt == "parquet":
+        import pyarrow.parquet as pq
+        total = pq.ParquetFile(path).metadata.num_rows
+    elif show:
+        total = count_rows(path)
+    names = list(columns.positions)
+    with tqdm(total=total, unit="rows", file=sys.stderr, disable=not show,
+              desc="kalmix predict", smoothing=0.1) as bar:
+        for chunk in iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
+                                       ids_as_text=True):
+            if run.engine is None:
+                chosen = unit if unit is not None else auto_length_unit(to_arrays(chunk).values)
+                if unit is None:
+                    click.echo(f"kalmix: length unit {chosen:.6g} (auto; pass --length-unit to override)", err=True)
+                run.engine = _new_engine(settings, chosen, columns.positions)
+            engine = run.engine
+            mark = engine.checkpoint(pd.unique(chunk["track_id"]))
+            committed = False
+            try:
+                frames = []
+                for piece in pieces(chunk):
+                    frames.append(engine.process_table(piece, names))
+                    bar.update(len(piece))
+                    run.guard.tick()
+                frame = _output_columns(merge(frames, chunk), columns, columns.positions)
+                with run.guard.deferred():
+                    run.sink.write_frame(frame)
+                    committed = True
+                    run.commit(len(chunk))
+            except BaseException:
+                if not committed:
+                    with run.guard.deferred(deliver=False):
+                        engine.rollback(mark)
+                raise
+            bar.update(chunk.attrs.get("file_rows", len(chunk)) - len(chunk))
+
+
+# ------------------------------------------------------------------------------------------ stdin
+def _parse_number(text, column, line_number):
+    if text is None:
+        return math.nan
+    if isinstance(text, (int, float)) and not isinstance(text, bool):
+        value = float(text)
+    else:
+        stripped = str(text).strip()
+        if stripped.lower() in ("", "nan", "na", "n/a", "null", "none"):
+            return math.nan
+        try:
+            value = float(stripped)
+        except ValueError:
+            raise ValueError(f"line {line_number}: column {column!r} must hold a number, got {text!r}") from None
+    if math.isinf(value):
+        raise ValueError(f"line {line_number}: column {column!r} must be finite, got {text!r}")
+    return value
+
+
+def _parse_id(value, column, line_number):
+    """A track id as written: CSV text unchanged (``01`` is not ``1``, as in a file), a JSON value as parsed."""
+    if value is None or value == "" or isinstance(value, (dict, list)):
+        raise ValueError(f"line {line_number}: column {column!r} (track id) must hold an id (text or a number), "
+                         f"got {value!r}")
+    return value
+
+
+def predict_stream(run, stdin, settings, unit, time_column, position_columns, id_column):
+    run.unit = "row"
+    lines = iter(stdin.readline, "")
+    line_number = 0
+    first = None
+    for raw in lines:
+        line_number += 1
+        if line_number == 1:
+            raw = raw.lstrip("\ufeff")  # a UTF-8 byte order mark would glue itself to the first column's name
+        if raw.strip():
+            first = raw
+            break
+    if first is None:
+        raise ValueError("stdin: no input (expected a CSV header line or JSON lines)")
+    is_json = first.lstrip().startswith("{")
+    if is_json:
+        try:
+            record = json.loads(first)
+        except json.JSONDecodeError as error:
+            raise ValueError(f"line {line_number}: not valid JSON: {error}") from None
+        if not isinstance(record, dict):
+            raise ValueError(f"line {line_number}: expected a JSON object, got {first.strip()[:80]!r}")
+        header = list(record)
+        pending = [(line_number, record)]
+    else:
+        header = next(csv.reader([first]))
+        pending = []
+    columns = _columns(header, time_column, position_columns, id_column)
+    _check_resumed(run.engine, columns, run.state_path, text_ids=not is_json)
+    if run.engine is None:
+        if unit is None:
+            click.echo("kalmix: length unit 1 (stdin has no sample to estimate it from; pass --length-unit)",
+                       err=True)
+        run.engine = _new_engine(settings, 1.0 if unit is None else unit, columns.positions)
+    engine = run.engine
+    run.open_output(run.out_fmt if run.output else ("jsonl" if is_json else "csv"))
+    index = {name: i for i, name in enumerate(header)}
+    counts: dict = {}
+
+    def records():
+        yield from pending
+        nonlocal line_number
+        for raw in lines:
+            line_number += 1
+            if not raw.strip():
+                continue
+            if is_json:
+                try:
+                    record = json.loads(raw)
+                except json.JSONDecodeError as error:
+                    raise ValueError(f"line {line_number}: not valid JSON: {error}") from None
+                if not isinstance(record, dict):
+                    raise ValueError(f"line {line_number}: expected a JSON object, got {raw.strip()[:80]!r}")
+                yield line_number, record
+            else:
+                row = next(csv.reader([raw]))
+                if len(row) != len(header):
+                    raise ValueError(f"line {line_number}: expected {len(header)} fields like the header, "
+                                     f"got {len(row)}")
+                yield line_number, row
+
+    def get(record, name, number):
+        if is_json:
+            if name not in record:
+                raise ValueError(f"line {number}: key {name!r} missing (keys: {list(record)})")
+            return record[name]
+        return record[index[name]]
+
+    for number, record in records():
+        track = _parse_id(get(record, columns.track_id, number), columns.track_id, number) if columns.track_id else 0
+        if columns.time is None:
+            time = float(counts.get(track, engine.gaps[track].last_time + 1 if track in engine.gaps else 0))
+            counts[track] = time + 1
+        else:
+            time = _parse_number(get(record, columns.time, number), columns.time, number)
+            if math.isnan(time):
+                click.echo(f"kalmix: warning: line {number}: no time, row skipped", err=True)
+                continue
+        z = [_parse_number(get(record, name, number), name, number) for name in columns.positions]
+        with run.guard.deferred():  # a row that was read is finished, whatever signal comes
+            glitches = engine.gaps[track].glitches if track in engine.gaps else 0
+            mark = engine.checkpoint([track])
+            committed = False
+            try:
+                result = engine.step_row(track, time, z)
+                if result is not None:
+                    run.sink.write_record(_row_record(result, track, time, columns, engine.config.horizon))
+                committed = True
+            except BaseException:
+                if not committed:
+                    engine.rollback(mark)
+                raise
+            run.commit(1)
+            if result is None:
+                click.echo(f"kalmix: warning: line {number}: time {time!r} is not after track {track!r}'s "
+                           "previous time; row skipped", err=True)
+            elif engine.gaps[track].glitches > glitches:
+                click.echo(f"kalmix: warning: line {number}: time {time!r} comes back before track {track!r}'s "
+                           "jump ahead; that jump's timestamp was taken as wrong and the track goes on", err=True)
+            run.guard.tick()
+
+
+def _row_record(result, track, time, columns, horizon):
+    out = {}
+    if columns.track_id is not None:
+        out[columns.track_id] = track
+    out[columns.time or "row"] = time
+    out["segment"] = result.segment
+    for j, name in enumerate(columns.positions):
+        out[f"pred_{name}"] = float(result.next[j])
+    if result.ahead is not None:
+        for j, name in enumerate(columns.positions):
+            out[f"pred{horizon}_{name}"] = float(result.ahead[j])
+    return out
+
+
+def run_predict(guard, engine, settings, unit, input_path, state_path, save_every, output, out_fmt,
+                time_column, position_columns, id_column, chunk_rows, progress):
+    """Run, commit, and on any exit save what was committed; then report."""
+    run = Run(guard, engine, state_path, save_every, output, out_fmt)
+    try:
+        if input_path == "-":
+            predict_stream(run, sys.stdin, settings, unit, time_column, position_columns, id_column)
+        else:
+            predict_file(run, input_path, settings, unit, time_column, position_columns, id_column, chunk_rows,
+                         progress)
+    except Interrupted as stop:
+        run.stopped = stop
+    except OutputClosed:
+        run.closed = True
+        _silence_stdout()
+    finally:
+        with guard.deferred(deliver=False):
+            run.finish()
+    run.report()
+
+
+def _silence_stdout():
+    """After a broken pipe, send what is left in stdout's buffer nowhere (no second error at exit)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # no real file descriptor (e.g. a test runner's buffer)
+        pass
