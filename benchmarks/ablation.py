@@ -1,7 +1,8 @@
 """Ablation of aggregation rules x banks on the shipped recordings (one-step RMS, last 80 % of each track).
 
 Run: python -m benchmarks.ablation [--datasets hawkeye_ball cycling skillcorner] [--json out.json]
-Every bank runs through the compiled engine on the segments ``kalmix predict`` makes
+Every bank (with the glitch screen at its default threshold unless the row says otherwise)
+runs through the compiled engine on the segments ``kalmix predict`` makes
 (gap rule), with the length unit of :func:`kalmix.streaming.auto_length_unit` and the
 time unit :func:`kalmix.streaming.auto_time_unit`, both from the first 20 % of each track.
 """
@@ -35,6 +36,12 @@ CONFIGS = {
                                                   rule_options={"forgetting": 0.999, "share": 0.01}),
     "mixed68 boa forget .999 share .01": dict(kind="mixed", rule="boa",
                                               rule_options={"forgetting": 0.999, "share": 0.01}),
+    "mixed68 boa, no glitch screen": dict(kind="mixed", rule="boa", outlier_threshold=float("inf")),
+    "mixed68 boa, screen 30": dict(kind="mixed", rule="boa", outlier_threshold=30.0),
+    "mixed68 boa, screen 300": dict(kind="mixed", rule="boa", outlier_threshold=300.0),
+    "kinematic28 boa, no glitch screen": dict(kind="kinematic", rule="boa", outlier_threshold=float("inf")),
+    "mixed68 boa, screen 100, restart at 2": dict(kind="mixed", rule="boa", outlier_rejects=2),
+    "mixed68 boa, screen 1000": dict(kind="mixed", rule="boa", outlier_threshold=1000.0),
 }
 
 
@@ -71,8 +78,12 @@ def run_dataset(name, configs, max_samples=None):
         mse = per_track_sq / np.maximum(per_track_cnt, 1)
         mse[per_track_cnt == 0] = np.inf
         best = per_track_sq[np.arange(len(mse)), mse.argmin(axis=1)].sum() / p_count(values, scored, result)
-        rows[label] = dict(rms=rms, best_expert=float(np.sqrt(best)), seconds=seconds)
-        print(f"{name:12s} {label:42s} rms {rms:.5g}  best expert {np.sqrt(best):.5g}  {seconds:.1f}s", flush=True)
+        mae = float(np.nanmean(np.abs(np.where(scored[..., None], err, np.nan))))
+        outliers = float(result.state.screen.outliers.sum())
+        rows[label] = dict(rms=rms, mean_abs=mae, best_expert=float(np.sqrt(best)), seconds=seconds,
+                           outliers=outliers)
+        print(f"{name:12s} {label:42s} rms {rms:.5g}  mean|e| {mae:.4g}  best expert {np.sqrt(best):.5g}  "
+              f"outliers {outliers:.0f}  {seconds:.1f}s", flush=True)
     return dict(unit=unit, time_unit=tunit, rows=rows)
 
 

@@ -363,6 +363,8 @@ def make_bank(
     measurement_levels=KINEMATIC_MEASUREMENT_LEVELS,
     rule_options: dict | None = None,
     akf_options: dict | None = None,
+    outlier_threshold: float = 1000.0,
+    outlier_rejects: int = 3,
 ):
     """Build and validate a bank of expert families and its aggregation rule.
 
@@ -395,6 +397,12 @@ def make_bank(
         The rule's parameters (e.g. ``{"forgetting": 0.999, "share": 0.01}``).
     akf_options : dict, optional
         Other :func:`make_params` arguments of the AKF family.
+    outlier_threshold : float
+        The glitch screen's threshold (:mod:`kalmix.core.screen`): a row further than this
+        many times the track's typical extrapolation error is not learned; ``inf``
+        turns the screen off.
+    outlier_rejects : int
+        That many outliers in a row restart the track from the last of them (a relocation).
     """
     from .core import aggregators
     from .core.engine import Bank, Family
@@ -429,12 +437,19 @@ def make_bank(
         akf = make_params(p, _check_int("n_akf", n_akf, 1), seed=seed, length_unit=unit,
                           **{**(akf_options or {}), "adapt_noise": False})
         families.append(Family("akf", akf))
-    description = dict(kind=kind, rule=rule, length_unit=unit, time_unit=tunit, seed=seed, n_akf=n_akf,
+    threshold = float(outlier_threshold)
+    if not threshold > 1:
+        raise ValueError(f"outlier_threshold: expected a number > 1 (inf: no screen), got {outlier_threshold!r}")
+    from .core.screen import ScreenParams
+
+    description = dict(kind=kind, rule=rule, outlier_threshold=threshold, outlier_rejects=int(outlier_rejects), length_unit=unit, time_unit=tunit, seed=seed, n_akf=n_akf,
                        process_levels=[float(v) for v in process_levels],
                        measurement_levels=[float(v) for v in measurement_levels],
                        rule_options=options, akf_options=dict(akf_options or {}))
     return Bank(measurement_dim=p, families=tuple(families), rule=rule, rule_params=module.Params(**options),
-                description=description)
+                description=description,
+                screen_params=ScreenParams(threshold=threshold,
+                                           max_rejects=_check_int("outlier_rejects", outlier_rejects, 1)))
 
 
 #: The default bank and rule of ``kalmix predict`` / ``evaluate`` / :class:`kalmix.BankPredictor`,

@@ -335,6 +335,7 @@ class TrackPredictor:
         self.gaps: dict[Any, GapTracker] = {}
         self.skipped = 0
         self.rows = 0
+        self.outliers = 0   # rows the glitch screen did not learn (kalmix.core.screen)
         self.output: dict | None = None
         self.loaded_version: int | None = None  # format version of the file :meth:`load` read
 
@@ -395,11 +396,12 @@ class TrackPredictor:
         """
         ids = list(self.gaps) if track_ids is None else [_id_to_json(t) for t in track_ids]
         tracks = {t: (self.gaps[t].copy() if t in self.gaps else None, self.states.get(t)) for t in ids}
-        return Checkpoint(self.rows, self.skipped, self.position_names, tracks, self.config.time_unit)
+        return Checkpoint(self.rows, self.skipped, self.position_names, tracks, self.config.time_unit, self.outliers)
 
     def rollback(self, checkpoint: "Checkpoint") -> None:
         """Undo everything done since ``checkpoint`` was taken."""
         self.rows, self.skipped, self.position_names = checkpoint.rows, checkpoint.skipped, checkpoint.position_names
+        self.outliers = checkpoint.outliers
         if self.config.time_unit != checkpoint.time_unit:  # a unit learned from rows now undone
             self.config.time_unit = checkpoint.time_unit
             if self.params is not None:
@@ -437,6 +439,7 @@ class TrackPredictor:
         if self.config.horizon > 1:
             ahead = self._run(values, times, None, state, self.config.horizon).ahead[0, 0]
         self.gaps[track_id], self.states[track_id] = gaps, result.state
+        self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
         self.rows += 1
         return RowPrediction(track_id, float(time), gaps.segment, result.ahead[0, 0], ahead)
 
@@ -525,6 +528,7 @@ class TrackPredictor:
             dense = np.where(active[..., None], values[rows], np.nan)
             dense_times = np.where(active, times[rows], np.nan)
             result = self._run(dense, dense_times, lengths, state, 1)
+            self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
             next_pred[rows[active]] = result.ahead[active]
             if horizon > 1:
                 ahead_pred[rows[active]] = self._run(dense, dense_times, lengths, state, horizon).ahead[active]
@@ -551,7 +555,8 @@ class TrackPredictor:
                 "measurement_dim": None if self.params is None else self.params.measurement_dim,
                 "position_names": None if self.position_names is None else list(self.position_names),
                 "tracks": [{"id": t, "gaps": self.gaps[t].to_json(), "state": t in self.states} for t in tracks],
-                "rows": self.rows, "skipped": self.skipped, "output": self.output}
+                "rows": self.rows, "skipped": self.skipped, "outliers": self.outliers,
+                "output": self.output}
         arrays = {}
         if with_state:
             arrays = dict(_leaves(_stack([self.states[t] for t in with_state])))
@@ -566,6 +571,7 @@ class TrackPredictor:
             try:
                 engine = cls(StreamConfig(**meta["config"]), meta.get("position_names"))
                 engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
+                engine.outliers = int(meta.get("outliers", 0))
                 engine.output = meta.get("output")
                 engine.loaded_version = meta["format_version"]
                 if meta["measurement_dim"] is not None:
@@ -599,3 +605,4 @@ class Checkpoint(NamedTuple):
     position_names: tuple | None
     tracks: dict   # track id -> (GapTracker copy or None, BankState or None)
     time_unit: float | None = None
+    outliers: int = 0

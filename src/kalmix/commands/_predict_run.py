@@ -40,6 +40,7 @@ class Run:
         self.rows = self.since_save = 0
         self.skipped0 = engine.skipped if engine is not None else 0
         self.glitches0 = engine.time_glitches if engine is not None else 0
+        self.outliers0 = engine.outliers if engine is not None else 0
         self.stopped: Interrupted | None = None
         self.closed = False
         self.unit = "chunk"
@@ -81,6 +82,9 @@ class Run:
         if engine is not None and engine.time_glitches > self.glitches0:
             click.echo(f"kalmix: warning: {engine.time_glitches - self.glitches0} row(s) came back in time after "
                        "a jump ahead: the jump's timestamp was taken as wrong and the track went on", err=True)
+        if engine is not None and engine.outliers > self.outliers0:
+            click.echo(f"kalmix: {engine.outliers - self.outliers0} outlier row(s) not learned (glitches far from "
+                       "their track's extrapolation; their predictions are still written)", err=True)
         saved = (f"state saved to {self.state_path}: the same command resumes" if self.state_path
                  else "no --state, nothing to resume from")
         if self.stopped is not None:

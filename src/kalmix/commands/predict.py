@@ -332,13 +332,14 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
 
 def _table(title, summaries, horizon):
     lines = [title]
-    head = f"{'predictor':<26}{'mean|e|':>10}{'RMS':>10}{'max':>10}"
+    width = max([26] + [len(name) + 2 for name in summaries])
+    head = f"{'predictor':<{width}}{'mean|e|':>10}{'RMS':>10}{'max':>10}"
     if horizon > 1:
         head += f"  |{f'mean|e| H={horizon}':>14}{'RMS':>10}{'max':>10}"
     lines.append(head)
     for name, entry in summaries.items():
         one = entry["one_step"]
-        line = f"{name:<26}{one['mean_abs']:>10.4g}{one['rms']:>10.4g}{one['max']:>10.4g}"
+        line = f"{name:<{width}}{one['mean_abs']:>10.4g}{one['rms']:>10.4g}{one['max']:>10.4g}"
         if horizon > 1:
             later = entry.get("horizon")
             line += "  |" + (f"{later['mean_abs']:>14.4g}{later['rms']:>10.4g}{later['max']:>10.4g}" if later
@@ -355,6 +356,11 @@ def format_result(result, per_track=True) -> str:
              f"segment(s); length unit {result.length_unit:.4g}; first {result.tuning_fraction:.0%} of each "
              "track tunes the peers and is not scored; errors per coordinate, data units", ""]
     lines += _table("overall", result.overall, result.horizon)
+    partial = {name: entry for name, entry in result.tuned.items()
+               if isinstance(entry, dict) and "rows_evaluated" in entry and entry["rows_evaluated"] < entry["rows"]}
+    for name, entry in partial.items():
+        lines.append(f"note: {name} ran on a subsample, the first rows of each segment: {entry['rows_evaluated']} of "
+                     f"{entry['rows']} rows (a Python loop; its errors are not on the same pairs as the other rows)")
     if per_track:
         for track, summaries in result.per_track.items():
             lines += [""] + _table(f"track {track}", summaries, result.horizon)

@@ -14,7 +14,9 @@ same numbers fast, and is what every command uses):
 - ``lengths (N,)``: target ``n`` has rows ``0 .. lengths[n] - 1``; later rows are
   padding, never fed to anything (outputs there are NaN);
 - ``learn (T, N)``: rows to learn from (default: every present row). A row not learned
-  still advances the frame-based families by one frame;
+  still advances the frame-based families by one frame. Rows then pass the glitch screen
+  (:mod:`kalmix.core.screen`): an outlier is not learned; a restart row starts the families
+  again (the rule does not learn from it, and keeps what it learned before);
 - output ``forecasts[t]`` is the mixture's forecast of row ``t`` made *before* seeing
   it (so the one-step error is ``measurements[t] - forecasts[t]``); with ``ahead_times``
   / ``ahead_frames``, ``ahead[t]`` is the forecast made *after* row ``t`` of the time
@@ -33,8 +35,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from . import aggregators
+from . import screen as glitch
 from .families import akf, kinematic
-from .mixture import MixtureParams
 
 __all__ = ["Family", "Bank", "BankState", "EngineResult", "init_bank_state", "run", "FAMILY_KINDS"]
 
@@ -67,6 +69,7 @@ class Bank:
     rule: str
     rule_params: Any
     description: dict | None = None
+    screen_params: glitch.ScreenParams = glitch.ScreenParams()
 
     @property
     def n_experts(self) -> int:
@@ -88,6 +91,7 @@ class Bank:
 class BankState(NamedTuple):
     families: tuple   # one state per family
     rule: Any         # the rule's state
+    screen: glitch.ScreenState   # the glitch screen's (kalmix.core.screen)
 
 
 class EngineResult(NamedTuple):
@@ -102,7 +106,8 @@ class EngineResult(NamedTuple):
 def init_bank_state(bank: Bank, n_targets: int) -> BankState:
     p = bank.measurement_dim
     return BankState(tuple(f.module.init_state(f.params, n_targets, p) for f in bank.families),
-                     bank.rule_module.init(bank.rule_params, n_targets, bank.n_experts))
+                     bank.rule_module.init(bank.rule_params, n_targets, bank.n_experts),
+                     glitch.init(n_targets, p))
 
 
 def _family_forecast(family: Family, state, time, frames: int):
@@ -113,9 +118,16 @@ def _family_forecast(family: Family, state, time, frames: int):
     return np.where(state.initialised[:, None, None], means, np.nan)
 
 
-def _family_update(family: Family, state, z, time, learn, active):
+def _family_update(family: Family, state, z, time, learn, active, restart):
+    """Learn the row; a target that ``restart``s starts again from it (as after a time gap)."""
     if family.kind == "akf":
+        if restart.any():
+            fresh = akf.init_state(family.params, len(restart), z.shape[-1])
+            state = type(state)(*(np.where(restart.reshape((-1,) + (1,) * (o.ndim - 1)), f, o)
+                                  for f, o in zip(fresh, state)))
         return akf.update(family.params, state, z, learn, active)
+    if restart.any():
+        state = state._replace(initialised=state.initialised & ~restart)
     return kinematic.update(family.params, state, z, time, learn)
 
 
@@ -141,12 +153,16 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
     active = np.ones(n, dtype=bool) if active is None else np.asarray(active, dtype=bool)
     present = np.isfinite(z).all(axis=-1) & active
     learn = present if learn is None else (np.asarray(learn, dtype=bool) & present)
+    screened, accept, restart = glitch.screen(bank.screen_params, state.screen, np.where(learn[:, None], z, 0.0),
+                                              time, learn)
+    learn = learn & accept
     experts = expert_forecasts(bank, state, time)
     weights, mix = mixture_forecast(bank, state, experts)
     awake = np.isfinite(experts).all(axis=-1)
-    rule_state = bank.rule_module.update(bank.rule_params, state.rule, experts, z, awake, learn)
-    families = tuple(_family_update(f, s, z, time, learn, active) for f, s in zip(bank.families, state.families))
-    return BankState(families, rule_state), mix, experts, weights
+    rule_state = bank.rule_module.update(bank.rule_params, state.rule, experts, z, awake, learn & ~restart)
+    families = tuple(_family_update(f, s, z, time, learn, active, restart)
+                     for f, s in zip(bank.families, state.families))
+    return BankState(families, rule_state, screened), mix, experts, weights
 
 
 def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,

@@ -12,9 +12,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..engine import Bank, BankState, EngineResult, init_bank_state
+from ..families import akf
 from ..families.kinematic import KinematicState
+from ..screen import ScreenState
 from . import kinematic as ckin
 from . import rules as crules
+from . import screen as cscreen
 
 __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
 
@@ -51,7 +54,28 @@ def _rule_scalars(bank: Bank):
             float(getattr(params, "scale", 0.0)), float(getattr(params, "scale_factor", 0.0)))
 
 
-def _akf_block(params, state, z, learn, lengths, out, offset, ahead, ahead_frames):
+def _akf_block(params, state, z, learn, restart, lengths, out, offset, ahead, ahead_frames):
+    """The AKF family over a block; cut where a target restarts, whose state is then fresh."""
+    cuts = sorted(set(np.flatnonzero(restart.any(axis=1)).tolist()) - {0}) + [len(z)]
+    begin = 0
+    k = params.n_experts
+    for end in cuts:
+        mask = restart[begin]
+        if mask.any():  # the restart row was forecast by the old state; the new one starts from it
+            before = np.where(state.initialised[:, None, None], state.expert_predictions, np.nan)
+            fresh = akf.init_state(params, len(state.initialised), z.shape[-1])
+            state = type(state)(*(np.where(mask.reshape((-1,) + (1,) * (o.ndim - 1)), f, o)
+                                  for f, o in zip(fresh, state)))
+        lens = np.clip(lengths - begin, 0, end - begin).astype(np.int64)
+        state = _akf_piece(params, state, z[begin:end], learn[begin:end], lens, out[begin:end], offset,
+                           None if ahead is None else ahead[begin:end], ahead_frames)
+        if mask.any():
+            out[begin, mask, offset:offset + k] = before[mask]
+        begin = end
+    return state
+
+
+def _akf_piece(params, state, z, learn, lengths, out, offset, ahead, ahead_frames):
     from ..fast import run_fast
 
     k = params.n_experts
@@ -61,7 +85,7 @@ def _akf_block(params, state, z, learn, lengths, out, offset, ahead, ahead_frame
     result = run_fast(params, fed, state, expert_predictions=True, lengths=lengths)
     started = init0[None, :] | np.logical_or.accumulate(learn, axis=0)           # after each row
     recorded = np.where(started[..., None, None], result.expert_predictions, np.nan)
-    out[0, :, offset:offset + k] = prior
+    out[0, :, offset:offset + k] = np.where((lengths > 0)[:, None, None], prior, np.nan)
     out[1:, :, offset:offset + k] = recorded[:-1]
     if ahead is not None:
         if ahead_frames == 1:
@@ -103,6 +127,9 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
             families.append(KinematicState(*(np.array(a, copy=True, order="C") for a in fstate)))
     a, b, c, d, e = pack_rule(bank, state.rule, n)
     rule_args = _rule_scalars(bank)
+    scr = ScreenState(*(np.array(x, dtype=np.float64, copy=True, order="C") for x in state.screen))
+    sp = bank.screen_params
+    screen_args = (float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window))
 
     forecasts = np.full((t_count, n, p), np.nan)
     ahead = np.full((t_count, n, p), np.nan) if with_ahead else None
@@ -120,24 +147,29 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         end = min(begin + block, t_count)
         rows = end - begin
         lens = np.clip(lengths - begin, 0, rows).astype(np.int64)
-        zb, tb, lb = z[begin:end], times[begin:end], learn[begin:end]
+        zb, tb = z[begin:end], times[begin:end]
+        accept = np.zeros((rows, n), dtype=bool)
+        restart = np.zeros((rows, n), dtype=bool)
+        cscreen.screen_block(*screen_args, *scr, zb, tb, lens, learn[begin:end], accept, restart)
+        lb = learn[begin:end] & accept
         buffer = np.full((rows, n, k, p), np.nan)
         ahead_buffer = np.full((rows, n, k, p), np.nan) if with_ahead else None
         offset = 0
         for i, family in enumerate(bank.families):
             if family.kind == "akf":
-                families[i] = _akf_block(family.params, families[i], zb, lb, lens, buffer, offset, ahead_buffer,
-                                         ahead_frames)
+                families[i] = _akf_block(family.params, families[i], zb, lb, restart, lens, buffer, offset,
+                                         ahead_buffer, ahead_frames)
             else:
                 fp, fs = family.params, families[i]
                 ckin.run_block(fp.order, fp.process_noise, fp.measurement_noise, fp.initial_variance,
                                float(fp.time_unit), float(fp.max_step), float(fp.max_variance),
-                               fs.mean, fs.cov, fs.last_time, fs.initialised, zb, tb, lens, lb, buffer, empty3,
+                               fs.mean, fs.cov, fs.last_time, fs.initialised, zb, tb, lens, lb, restart, buffer,
+                               empty3,
                                offset, ahead_times[begin:end] if with_ahead else empty2,
                                ahead_buffer if with_ahead else empty4)
             offset += family.n_experts
         w_block = np.full((rows, n, k), np.nan) if record_experts else empty3
-        crules.run_block(*rule_args, a, b, c, d, e, buffer, zb, lens, lb, forecasts[begin:end], w_block,
+        crules.run_block(*rule_args, a, b, c, d, e, buffer, zb, lens, lb & ~restart, forecasts[begin:end], w_block,
                          ahead_buffer if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3)
         if record_experts:
             experts_out[begin:end] = buffer
@@ -148,7 +180,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
             _accumulate(sums[0], sums[1], buffer, zb, score[begin:end])
             if with_ahead and score_ahead is not None:
                 _accumulate_ahead(sums[2], sums[3], ahead_buffer, z, begin, end, ahead_frames, score_ahead)
-    final = BankState(tuple(families), unpack_rule(bank, a, b, c, d, e))
+    final = BankState(tuple(families), unpack_rule(bank, a, b, c, d, e), scr)
     if sums is not None:
         return EngineResult(forecasts, final, ahead, sums[0], sums[1], sums[2] if with_ahead else None)
     return EngineResult(forecasts, final, ahead, experts_out, weights_out, ahead_experts_out)

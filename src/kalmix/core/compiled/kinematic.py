@@ -2,7 +2,7 @@
 
 :func:`run_block` advances every target through its rows of a block: at each row it
 writes every expert's forecast of the row (and its variance) into the bank's shared
-buffers at the family's column ``offset``, then learns the row; with ``ahead_times`` it
+buffers at the family's column ``offset``, then learns the row (a ``restart`` row starts the filters again from it); with ``ahead_times`` it
 also writes the forecast made after the row for that time.
 """
 
@@ -71,7 +71,7 @@ def _delta(time, last, time_unit, max_step):
 @nb.njit(parallel=True, **_JIT)
 def run_block(order, q, r, initial, time_unit, max_step, max_variance,
               mean, cov, last_time, initialised,
-              z, times, lengths, learn, out, out_var, offset, ahead_times, out_ahead):
+              z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead):
     n_targets = z.shape[1]
     k_count = q.shape[0]
     p = z.shape[2]
@@ -102,7 +102,7 @@ def run_block(order, q, r, initial, time_unit, max_step, max_variance,
                         out_var[t, n, offset + k] = np.nan
             # learn it
             if learn[t, n]:
-                if not initialised[n]:
+                if restart[t, n] or not initialised[n]:
                     for k in range(k_count):
                         for i in range(order):
                             for c in range(p):
