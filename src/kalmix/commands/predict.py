@@ -193,7 +193,16 @@ def _output_columns(frame, columns, names):
               help=f"Also predict H samples ahead (columns pred<H>_<pos>); at most {MAX_HORIZON}.")
 @click.option("--output", "-o", default=None, type=click.Path(dir_okay=False),
               help="Output file: .csv, .parquet or .jsonl (default: CSV on stdout).")
-@click.option("--experts", "n_experts", default=None, type=click.IntRange(min=1), help="Experts K [default: 40].")
+@click.option("--bank", "bank_kind", default=None, type=click.Choice(["mixed", "kinematic", "akf"]),
+              help="Expert families: CV/CA Kalman filters in real time and the paper's AKFs (mixed), "
+                   "one of them alone [default: mixed].")
+@click.option("--rule", default=None, type=click.Choice(["boa", "mlpoly", "fixed_share"]),
+              help="Aggregation rule [default: boa].")
+@click.option("--time-unit", default=None, type=click.FloatRange(min=0, min_open=True),
+              help="Typical sampling interval (time units) that scales the CV/CA experts' noise "
+                   "[default: the data's first positive time step].")
+@click.option("--experts", "n_experts", default=None, type=click.IntRange(min=1),
+              help="Experts of the AKF family [default: 40].")
 @click.option("--seed", default=None, type=click.IntRange(0, MAX_SEED), help="Seed of the bank [default: 0].")
 @click.option("--length-unit", default="auto", show_default=True, help=_LENGTH_UNIT_HELP)
 @click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP + " 'none' never splits.")
@@ -207,8 +216,9 @@ def _output_columns(frame, columns, names):
               help="Rows read at a time from a file (bounded memory).")
 @click.option("--progress/--no-progress", default=None, help="Progress bar on stderr [default: when a terminal].")
 @click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
-def predict(input_path, time_column, position_columns, id_column, horizon, output, n_experts, seed, length_unit,
-            max_gap, max_gap_factor, state_path, save_every, chunk_rows, progress, mixture_options):
+def predict(input_path, time_column, position_columns, id_column, horizon, output, bank_kind, rule, time_unit,
+            n_experts, seed, length_unit, max_gap, max_gap_factor, state_path, save_every, chunk_rows, progress,
+            mixture_options):
     """Predict the next position of every track in INPUT (CSV, Parquet, or - for stdin).
 
     Output: the input's id and time columns, 'segment', and pred_<position> (the next sample
@@ -239,13 +249,19 @@ def predict(input_path, time_column, position_columns, id_column, horizon, outpu
             for name, given, have in (("--experts", n_experts, stored.n_experts), ("--seed", seed, stored.seed),
                                       ("--length-unit", unit, stored.length_unit),
                                       ("--horizon", horizon if horizon != 1 else None, stored.horizon),
+                                      ("--bank", bank_kind, stored.bank), ("--rule", rule, stored.rule),
+                                      ("--time-unit", time_unit, stored.time_unit),
                                       ("--option", options or None, stored.options)):
                 if given is not None and given != have:
                     raise ValueError(f"{name}: the state file {state_path} was made with {have}, got {given}; "
                                      "use a new --state file to change it")
         settings = dict(n_experts=40 if n_experts is None else n_experts, seed=0 if seed is None else seed,
                         horizon=horizon, max_gap=gap, max_gap_factor=math.inf if never else max_gap_factor,
-                        options=options)
+                        options=options, time_unit=time_unit)
+        if bank_kind is not None:
+            settings["bank"] = bank_kind
+        if rule is not None:
+            settings["rule"] = rule
         if engine is None and options:
             from ..bank import make_params
             make_params(1, settings["n_experts"], **options)  # a bad option fails before any output
