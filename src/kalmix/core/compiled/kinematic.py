@@ -68,6 +68,86 @@ def _delta(time, last, time_unit, max_step):
     return min(max(delta, 0.0), max_step)
 
 
+@nb.njit(inline="always", **_JIT)
+def forecast_expert(order, delta, q, r, max_variance, mean_k, cov_k, out, m_pred, c_pred, f, work):
+    """Expert ``k``'s forecast ``delta`` steps after its state into ``out (p,)``; returns its variance."""
+    _extrapolate(order, delta, q, mean_k, cov_k, m_pred, c_pred, f, work)
+    for c in range(out.shape[0]):
+        out[c] = m_pred[0, c]
+    return min(c_pred[0, 0], max_variance) + r
+
+
+@nb.njit(inline="always", **_JIT)
+def _start(order, initial_k, z, mean_k, cov_k):
+    for i in range(order):
+        for c in range(z.shape[0]):
+            mean_k[i, c] = z[c] if i == 0 else 0.0
+        for j in range(order):
+            cov_k[i, j] = initial_k[i] if i == j else 0.0
+
+
+@nb.njit(inline="always", **_JIT)
+def _update(order, r, max_variance, z, mean_k, cov_k, m_pred, c_pred, work, gain, a):
+    """Joseph-form update of the extrapolated ``m_pred, c_pred`` with ``z`` into ``mean_k, cov_k``."""
+    p = z.shape[0]
+    s = c_pred[0, 0] + r
+    for i in range(order):
+        gain[i] = c_pred[i, 0] / s
+    for c in range(p):
+        innovation = z[c] - m_pred[0, c]
+        for i in range(order):
+            mean_k[i, c] = m_pred[i, c] + gain[i] * innovation
+    # Joseph form: A P A^T + r g g^T, A = I - g e0^T
+    for i in range(order):
+        for j in range(order):
+            a[i, j] = (1.0 if i == j else 0.0) - (gain[i] if j == 0 else 0.0)
+    for i in range(order):
+        for j in range(order):
+            acc = 0.0
+            for l in range(order):
+                acc += a[i, l] * c_pred[l, j]
+            work[i, j] = acc
+    for i in range(order):
+        for j in range(order):
+            acc = 0.0
+            for l in range(order):
+                acc += work[i, l] * a[j, l]
+            cov_k[i, j] = acc + r * gain[i] * gain[j]
+    for i in range(order):
+        for j in range(i + 1, order):
+            s2 = 0.5 * (cov_k[i, j] + cov_k[j, i])
+            cov_k[i, j] = s2
+            cov_k[j, i] = s2
+    excess = cov_k[0, 0] / max_variance
+    if excess > 1.0:
+        for i in range(order):
+            for j in range(order):
+                cov_k[i, j] /= excess
+
+
+@nb.njit(inline="always", **_JIT)
+def step_expert(order, delta, q, r, initial_k, max_variance, started, learn, fresh, z, mean_k, cov_k, out,
+                m_pred, c_pred, f, work, gain, a):
+    """One row for expert ``k``: its forecast into ``out (p,)`` (NaN before its start), then, if ``learn``,
+    the update with ``z`` from that same extrapolation (or a fresh start at ``z``). Returns the forecast's
+    variance (NaN before the start)."""
+    variance = np.nan
+    if started:
+        _extrapolate(order, delta, q, mean_k, cov_k, m_pred, c_pred, f, work)
+        for c in range(out.shape[0]):
+            out[c] = m_pred[0, c]
+        variance = min(c_pred[0, 0], max_variance) + r
+    else:
+        for c in range(out.shape[0]):
+            out[c] = np.nan
+    if learn:
+        if fresh or not started:
+            _start(order, initial_k, z, mean_k, cov_k)
+        else:
+            _update(order, r, max_variance, z, mean_k, cov_k, m_pred, c_pred, work, gain, a)
+    return variance
+
+
 @nb.njit(parallel=True, **_JIT)
 def run_block(order, q, r, initial, time_unit, max_step, max_variance,
               mean, cov, last_time, initialised,
@@ -85,77 +165,26 @@ def run_block(order, q, r, initial, time_unit, max_step, max_variance,
         gain = np.empty(order)
         a = np.empty((order, order))
         for t in range(lengths[n]):
-            # forecast of this row
-            if initialised[n]:
-                delta = _delta(times[t, n], last_time[n], time_unit, max_step)
-                for k in range(k_count):
-                    _extrapolate(order, delta, q[k], mean[n, k], cov[n, k], m_pred, c_pred, f, work)
-                    for c in range(p):
-                        out[t, n, offset + k, c] = m_pred[0, c]
-                    if want_var:
-                        out_var[t, n, offset + k] = min(c_pred[0, 0], max_variance) + r[k]
-            else:
-                for k in range(k_count):
-                    for c in range(p):
-                        out[t, n, offset + k, c] = np.nan
-                    if want_var:
-                        out_var[t, n, offset + k] = np.nan
-            # learn it
-            if learn[t, n]:
-                if restart[t, n] or not initialised[n]:
-                    for k in range(k_count):
-                        for i in range(order):
-                            for c in range(p):
-                                mean[n, k, i, c] = z[t, n, c] if i == 0 else 0.0
-                            for j in range(order):
-                                cov[n, k, i, j] = initial[k, i] if i == j else 0.0
-                    initialised[n] = True
-                else:
-                    delta = _delta(times[t, n], last_time[n], time_unit, max_step)
-                    for k in range(k_count):
-                        _extrapolate(order, delta, q[k], mean[n, k], cov[n, k], m_pred, c_pred, f, work)
-                        s = c_pred[0, 0] + r[k]
-                        for i in range(order):
-                            gain[i] = c_pred[i, 0] / s
-                        for c in range(p):
-                            innovation = z[t, n, c] - m_pred[0, c]
-                            for i in range(order):
-                                mean[n, k, i, c] = m_pred[i, c] + gain[i] * innovation
-                        # Joseph form: A P A^T + r g g^T, A = I - g e0^T
-                        for i in range(order):
-                            for j in range(order):
-                                a[i, j] = (1.0 if i == j else 0.0) - (gain[i] if j == 0 else 0.0)
-                        for i in range(order):
-                            for j in range(order):
-                                acc = 0.0
-                                for l in range(order):
-                                    acc += a[i, l] * c_pred[l, j]
-                                work[i, j] = acc
-                        for i in range(order):
-                            for j in range(order):
-                                acc = 0.0
-                                for l in range(order):
-                                    acc += work[i, l] * a[j, l]
-                                cov[n, k, i, j] = acc + r[k] * gain[i] * gain[j]
-                        for i in range(order):
-                            for j in range(i + 1, order):
-                                s2 = 0.5 * (cov[n, k, i, j] + cov[n, k, j, i])
-                                cov[n, k, i, j] = s2
-                                cov[n, k, j, i] = s2
-                        excess = cov[n, k, 0, 0] / max_variance
-                        if excess > 1.0:
-                            for i in range(order):
-                                for j in range(order):
-                                    cov[n, k, i, j] /= excess
+            # every expert's forecast of this row, then its learning (a restart row starts it again)
+            learning = learn[t, n]
+            fresh = restart[t, n] or not initialised[n]
+            delta = _delta(times[t, n], last_time[n], time_unit, max_step)
+            for k in range(k_count):
+                v = step_expert(order, delta, q[k], r[k], initial[k], max_variance, initialised[n], learning, fresh,
+                                z[t, n], mean[n, k], cov[n, k], out[t, n, offset + k], m_pred, c_pred, f, work,
+                                gain, a)
+                if want_var:
+                    out_var[t, n, offset + k] = v
+            if learning:
+                initialised[n] = True
                 last_time[n] = times[t, n]
             # forecast made after this row, for a later time
             if want_ahead:
                 if initialised[n]:
                     delta = _delta(ahead_times[t, n], last_time[n], time_unit, max_step)
                     for k in range(k_count):
-                        _extrapolate(order, delta, q[k], mean[n, k], cov[n, k], m_pred, c_pred, f, work)
-                        for c in range(p):
-                            out_ahead[t, n, offset + k, c] = m_pred[0, c]
+                        forecast_expert(order, delta, q[k], r[k], max_variance, mean[n, k], cov[n, k],
+                                        out_ahead[t, n, offset + k], m_pred, c_pred, f, work)
                 else:
                     for k in range(k_count):
                         for c in range(p):

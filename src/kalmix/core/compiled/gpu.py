@@ -1,0 +1,237 @@
+"""GPU engine (numba-cuda, fp64) for banks of kinematic families: one thread per target.
+
+Each thread runs its target's rows with the whole row fused (glitch screen, every expert's
+forecast, the rule's weights and mixture, the rule's and the experts' learning) by calling
+the **same per-row functions** as the CPU engine (:func:`.screen.screen_row`,
+:func:`.kinematic.step_expert` / :func:`.kinematic.forecast_expert`, the rules of
+:mod:`.rules`), compiled for the GPU; so the numbers are the CPU engine's, and the
+contract tests run it under numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``) in CI.
+
+Layout: on the device every per-expert array has the target index last (``(K, 3, p, N)``),
+so the threads of a warp read neighbouring addresses; the shared functions get strided views.
+
+Scope: banks whose families are all kinematic (``make_bank(p, "kinematic")``), up to
+:data:`MAX_EXPERTS` experts, 1 to 3 coordinates, any rule. The AKF family has no GPU
+kernel yet: :func:`run` refuses such a bank with a clear error (use the CPU engine).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from ..engine import Bank, BankState, EngineResult, init_bank_state
+from ..families.kinematic import KinematicState
+from ..screen import ScreenState
+from . import kinematic as ckin
+from . import rules as crules
+from . import screen as cscreen
+
+if not hasattr(np, "row_stack"):  # numba-cuda 0.30 registers an overload of np.row_stack, gone from numpy 2.4+
+    np.row_stack = np.vstack
+try:  # numba-cuda is optional (the 'gpu' extra)
+    from numba import boolean, cuda, float64
+except ImportError:  # pragma: no cover - depends on the install
+    cuda = None
+
+__all__ = ["run", "gpu_available", "MAX_EXPERTS", "THREADS_PER_BLOCK"]
+
+MAX_EXPERTS = 64
+THREADS_PER_BLOCK = 128
+_kernel_cache = {}
+forecast_expert, step_expert, delta_of = ckin.forecast_expert, ckin.step_expert, ckin._delta
+screen_row = cscreen.screen_row
+awake_of, weights_of, mix_of, learn_rule = crules._awake, crules._weights, crules._mix, crules._learn
+
+
+def gpu_available() -> bool:
+    """True when numba-cuda finds a GPU (or the CUDA simulator is on)."""
+    if cuda is None:
+        return False
+    return bool(os.environ.get("NUMBA_ENABLE_CUDASIM") == "1" or cuda.is_available())
+
+
+def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
+           rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
+           threshold, max_rejects, warmup, window, position, velocity, seen, spread, count, rejects, outliers,
+           points, z, times, lengths, learn, out, ahead_times, out_ahead):
+    n = cuda.grid(1)
+    if n >= z.shape[1]:
+        return
+    k_count = orders.shape[0]
+    p = z.shape[2]
+    want_ahead = out_ahead.shape[0] > 0
+    x_all = cuda.local.array((MAX_EXPERTS, 3), float64)
+    awake_all = cuda.local.array(MAX_EXPERTS, boolean)
+    w_all = cuda.local.array(MAX_EXPERTS, float64)
+    logw_all = cuda.local.array(MAX_EXPERTS, float64)
+    r_all = cuda.local.array(MAX_EXPERTS, float64)
+    mix_all = cuda.local.array(3, float64)
+    m_pred = cuda.local.array((3, 3), float64)
+    c_pred = cuda.local.array((3, 3), float64)
+    f = cuda.local.array((3, 3), float64)
+    work = cuda.local.array((3, 3), float64)
+    gain = cuda.local.array(3, float64)
+    amat = cuda.local.array((3, 3), float64)
+    x = x_all[:k_count, :p]
+    awake = awake_all[:k_count]
+    w = w_all[:k_count]
+    logw = logw_all[:k_count]
+    rr = r_all[:k_count]
+    mix = mix_all[:p]
+    dn = d[n:n + 1]
+    en = e[n:n + 1]
+    for t in range(lengths[n]):
+        code = screen_row(threshold, max_rejects, warmup, window, position, velocity, seen, spread, count,
+                          rejects, outliers, points, n, z[t, n], times[t, n], learn[t, n])
+        # every expert's forecast of the row, and its learning from the same extrapolation
+        learning = code != 0
+        fresh = code == 2 or not initialised[n]
+        for k in range(k_count):
+            delta = delta_of(times[t, n], last_time[n], time_unit[k], max_step)
+            step_expert(orders[k], delta, q[k], r[k], initial[k], max_variance, initialised[n], learning, fresh,
+                        z[t, n], mean[k, :, :, n], cov[k, :, :, n], x[k], m_pred, c_pred, f, work, gain, amat)
+        if learning:
+            initialised[n] = True
+            last_time[n] = times[t, n]
+        awake_count = awake_of(x, awake)
+        weights_of(rule, forgetting, share, a[:, n], b[:, n], c[:, n], dn[0], awake, awake_count, w, logw)
+        mix_of(x, w, awake, mix)
+        for ci in range(p):
+            out[t, n, ci] = mix[ci] if awake_count > 0 else math.nan
+        if code == 1 and awake_count > 0:
+            learn_rule(rule, forgetting, share, scale, scale_factor, a[:, n], b[:, n], c[:, n], dn, en, x, z[t, n],
+                       awake, awake_count, w, mix, rr)
+        if want_ahead:
+            for k in range(k_count):
+                if initialised[n]:
+                    delta = delta_of(ahead_times[t, n], last_time[n], time_unit[k], max_step)
+                    forecast_expert(orders[k], delta, q[k], r[k], max_variance, mean[k, :, :, n], cov[k, :, :, n], x[k],
+                                    m_pred, c_pred, f, work)
+                else:
+                    for ci in range(p):
+                        x[k, ci] = math.nan
+            awake_count = awake_of(x, awake)
+            weights_of(rule, forgetting, share, a[:, n], b[:, n], c[:, n], dn[0], awake, awake_count, w, logw)
+            mix_of(x, w, awake, mix)
+            for ci in range(p):
+                out_ahead[t, n, ci] = mix[ci] if awake_count > 0 else math.nan
+
+
+def _kernel():
+    """The kernel, compiled on first use (numba-cuda compiles per argument types)."""
+    if "kernel" not in _kernel_cache:
+        _kernel_cache["kernel"] = cuda.jit(_body)
+    return _kernel_cache["kernel"]
+
+
+def check_bank(bank: Bank) -> None:
+    """Raise ``ValueError`` unless the GPU engine can run ``bank``."""
+    kinds = [f.kind for f in bank.families]
+    if any(kind not in ("cv", "ca") for kind in kinds):
+        raise ValueError(f"backend 'gpu': runs banks of kinematic families (cv, ca) only, got families {kinds}; "
+                         "use make_bank(p, 'kinematic') or the CPU engine for the AKF family")
+    if bank.n_experts > MAX_EXPERTS:
+        raise ValueError(f"backend 'gpu': at most {MAX_EXPERTS} experts, got {bank.n_experts}")
+    if bank.measurement_dim > 3:
+        raise ValueError(f"backend 'gpu': 1 to 3 coordinates, got {bank.measurement_dim}")
+
+
+def _pack_families(bank: Bank, states, n: int, p: int):
+    k = bank.n_experts
+    orders = np.empty(k, np.int64)
+    q, r, tu = np.empty(k), np.empty(k), np.empty(k)
+    initial = np.zeros((k, 3))
+    mean, cov = np.zeros((n, k, 3, p)), np.zeros((n, k, 3, 3))
+    columns = bank.slices()
+    for family, state, cols in zip(bank.families, states, columns):
+        fp, d = family.params, family.params.order
+        orders[cols], q[cols], r[cols], tu[cols] = d, fp.process_noise, fp.measurement_noise, fp.time_unit
+        initial[cols, :d] = fp.initial_variance
+        mean[:, cols, :d], cov[:, cols, :d, :d] = state.mean, state.cov
+    first = states[0]
+    for state in states[1:]:
+        if not (np.array_equal(state.initialised, first.initialised)
+                and np.array_equal(state.last_time, first.last_time, equal_nan=True)):
+            raise ValueError("backend 'gpu': the kinematic families' clocks differ (a state not made by the engine)")
+    params = bank.families[0].params
+    return (orders, q, r, initial, tu, float(params.max_step), float(params.max_variance), mean, cov,
+            first.last_time.astype(np.float64).copy(), first.initialised.astype(np.bool_).copy())
+
+
+def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
+        ahead_times=None, ahead_frames: int = 1, threads_per_block: int = THREADS_PER_BLOCK,
+        timings: dict | None = None) -> EngineResult:
+    """:func:`kalmix.core.engine.run` on the GPU (kinematic banks; see the module docstring).
+
+    ``timings``, if given, receives the seconds spent in the kernel alone (``"kernel"``)
+    and in the whole call with the transfers (``"total"``).
+    """
+    import time
+
+    start = time.perf_counter()
+    from .engine import _rule_scalars, pack_rule, unpack_rule
+
+    check_bank(bank)
+    if not gpu_available():
+        raise RuntimeError("backend 'gpu': no CUDA GPU found (numba-cuda sees none); use the CPU engine")
+    z = np.ascontiguousarray(measurements, dtype=np.float64)
+    t_count, n, p = z.shape
+    times = np.ascontiguousarray(np.broadcast_to(np.asarray(times, dtype=np.float64), (t_count, n)))
+    state = init_bank_state(bank, n) if state is None else state
+    lengths = np.full(n, t_count, dtype=np.int64) if lengths is None else np.asarray(lengths, dtype=np.int64)
+    present = np.isfinite(z).all(axis=-1) & (np.arange(t_count)[:, None] < lengths[None, :])
+    learn = present if learn is None else (np.asarray(learn, dtype=bool) & present)
+    (orders, q, r, initial, tu, max_step, max_variance, mean, cov, last_time,
+     initialised) = _pack_families(bank, state.families, n, p)
+    a, b, c, d, e = pack_rule(bank, state.rule, n)
+    scr = [np.array(x, dtype=np.float64, copy=True, order="C") for x in state.screen]
+    sp = bank.screen_params
+    with_ahead = ahead_times is not None
+    ahead_host = (np.ascontiguousarray(np.broadcast_to(np.asarray(ahead_times, dtype=np.float64), (t_count, n)))
+                  if with_ahead else np.empty((0, 0)))
+    # target index last on the device: neighbouring threads read neighbouring addresses (coalesced)
+    soa = lambda array: np.ascontiguousarray(np.moveaxis(array, 0, -1))  # noqa: E731
+    device = {name: cuda.to_device(value) for name, value in dict(
+        orders=orders, q=q, r=r, initial=initial, tu=tu, mean=soa(mean), cov=soa(cov), last_time=last_time,
+        initialised=initialised, a=soa(a), b=soa(b), c=soa(c), d=d, e=e, z=z, times=times, lengths=lengths,
+        learn=np.ascontiguousarray(learn), ahead_times=ahead_host).items()}
+    screen_dev = [cuda.to_device(x) for x in scr]
+    out = cuda.device_array((t_count, n, p))
+    out_ahead = cuda.device_array((t_count, n, p) if with_ahead else (0, 0, 0))
+    blocks = max(1, math.ceil(n / threads_per_block))
+    kernel = _kernel()
+    cuda.synchronize()
+    launched = time.perf_counter()
+    kernel[blocks, threads_per_block](
+        device["orders"], device["q"], device["r"], device["initial"], device["tu"], max_step, max_variance,
+        device["mean"], device["cov"], device["last_time"], device["initialised"],
+        *_rule_scalars(bank), device["a"], device["b"], device["c"], device["d"], device["e"],
+        float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window), *screen_dev,
+        device["z"], device["times"], device["lengths"], device["learn"], out, device["ahead_times"], out_ahead)
+    cuda.synchronize()
+    kernel_seconds = time.perf_counter() - launched
+    forecasts = out.copy_to_host()
+    rows = np.arange(t_count)[:, None] < lengths[None, :]
+    forecasts[~rows] = np.nan
+    ahead = None
+    if with_ahead:
+        ahead = out_ahead.copy_to_host()
+        ahead[~rows] = np.nan
+    aos = lambda array: np.ascontiguousarray(np.moveaxis(array, -1, 0))  # noqa: E731
+    mean, cov = aos(device["mean"].copy_to_host()), aos(device["cov"].copy_to_host())
+    last_time, initialised = device["last_time"].copy_to_host(), device["initialised"].copy_to_host()
+    families = []
+    for family, cols in zip(bank.families, bank.slices()):
+        dd = family.params.order
+        families.append(KinematicState(np.ascontiguousarray(mean[:, cols, :dd]),
+                                       np.ascontiguousarray(cov[:, cols, :dd, :dd]), last_time.copy(),
+                                       initialised.copy()))
+    rule_state = unpack_rule(bank, *(aos(device[k].copy_to_host()) for k in "abc"),
+                             *(device[k].copy_to_host() for k in "de"))
+    screen_state = ScreenState(*(x.copy_to_host() for x in screen_dev))
+    if timings is not None:
+        timings.update(kernel=kernel_seconds, total=time.perf_counter() - start)
+    return EngineResult(forecasts, BankState(tuple(families), rule_state, screen_state), ahead)
