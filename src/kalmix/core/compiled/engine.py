@@ -97,6 +97,18 @@ def _akf_piece(params, state, z, learn, lengths, out, offset, ahead, ahead_frame
     return result.state
 
 
+def prepare(bank: Bank, measurements, times, state, lengths, learn):
+    """Contiguous float inputs, a fresh state if none, lengths, and the rows to learn (present ones only)."""
+    z = np.ascontiguousarray(measurements, dtype=np.float64)
+    t_count, n, _ = z.shape
+    times = np.ascontiguousarray(np.broadcast_to(np.asarray(times, dtype=np.float64), (t_count, n)))
+    state = init_bank_state(bank, n) if state is None else state
+    lengths = np.full(n, t_count, dtype=np.int64) if lengths is None else np.asarray(lengths, dtype=np.int64)
+    present = np.isfinite(z).all(axis=-1) & (np.arange(t_count)[:, None] < lengths[None, :])
+    learn = present if learn is None else (np.asarray(learn, dtype=bool) & present)
+    return z, times, state, lengths, learn
+
+
 def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
         ahead_times=None, ahead_frames: int = 1, record_experts: bool = False, score=None,
         score_ahead=None) -> EngineResult:
@@ -107,13 +119,8 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     ``(N, K)``, and ``weights`` by their counts (memory independent of T; what the
     best-expert-in-hindsight needs), ``expert_ahead`` likewise for the ahead forecasts.
     """
-    z = np.ascontiguousarray(measurements, dtype=np.float64)
+    z, times, state, lengths, learn = prepare(bank, measurements, times, state, lengths, learn)
     t_count, n, p = z.shape
-    times = np.ascontiguousarray(np.broadcast_to(np.asarray(times, dtype=np.float64), (t_count, n)))
-    state = init_bank_state(bank, n) if state is None else state
-    lengths = np.full(n, t_count, dtype=np.int64) if lengths is None else np.asarray(lengths, dtype=np.int64)
-    present = np.isfinite(z).all(axis=-1) & (np.arange(t_count)[:, None] < lengths[None, :])
-    learn = present if learn is None else (np.asarray(learn, dtype=bool) & present)
     k = bank.n_experts
     with_ahead = ahead_times is not None
     if with_ahead:

@@ -22,7 +22,7 @@ import os
 
 import numpy as np
 
-from ..engine import Bank, BankState, EngineResult, init_bank_state
+from ..engine import Bank, BankState, EngineResult
 from ..families.kinematic import KinematicState
 from ..screen import ScreenState
 from . import kinematic as ckin
@@ -172,18 +172,13 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     import time
 
     start = time.perf_counter()
-    from .engine import _rule_scalars, pack_rule, unpack_rule
+    from .engine import _rule_scalars, pack_rule, prepare, unpack_rule
 
     check_bank(bank)
     if not gpu_available():
         raise RuntimeError("backend 'gpu': no CUDA GPU found (numba-cuda sees none); use the CPU engine")
-    z = np.ascontiguousarray(measurements, dtype=np.float64)
+    z, times, state, lengths, learn = prepare(bank, measurements, times, state, lengths, learn)
     t_count, n, p = z.shape
-    times = np.ascontiguousarray(np.broadcast_to(np.asarray(times, dtype=np.float64), (t_count, n)))
-    state = init_bank_state(bank, n) if state is None else state
-    lengths = np.full(n, t_count, dtype=np.int64) if lengths is None else np.asarray(lengths, dtype=np.int64)
-    present = np.isfinite(z).all(axis=-1) & (np.arange(t_count)[:, None] < lengths[None, :])
-    learn = present if learn is None else (np.asarray(learn, dtype=bool) & present)
     (orders, q, r, initial, tu, max_step, max_variance, mean, cov, last_time,
      initialised) = _pack_families(bank, state.families, n, p)
     a, b, c, d, e = pack_rule(bank, state.rule, n)
