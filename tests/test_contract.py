@@ -23,9 +23,11 @@ def test_contract_benign(kind, rule):
 
 
 @pytest.mark.parametrize("rule", RULES)
-@pytest.mark.parametrize("kind", ["kinematic"])
-def test_contract_adversarial_kinematic(kind, rule):
-    """Jumps of 1e8, a 200-row gap, constant input, values of 1e200: finite, and compiled == reference."""
+@pytest.mark.parametrize("kind", ["kinematic", "akf"])
+def test_contract_adversarial(kind, rule):
+    """Jumps of 1e8, a 200-row gap, constant input, values of 1e200: finite, and compiled == reference.
+
+    (The mixed bank: tests/test_glitches.py.)"""
     z, t = adversarial_tracks(seed=2)
     check_bank(_bank(kind, rule), z, t)
 

@@ -3,11 +3,12 @@
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from kalmix.bank import make_bank
 from kalmix.core import engine
 from kalmix.core.compiled import engine as ce
-from kalmix.core.testing import adversarial_tracks, check_bank
+from kalmix.core.testing import _close, adversarial_tracks, check_bank
 from kalmix.streaming import StreamConfig, TrackPredictor
 
 
@@ -59,13 +60,25 @@ def test_a_real_relocation_restarts_the_track():
     np.testing.assert_allclose(result.forecasts, engine.run(bank, moved, t).forecasts, rtol=1e-9, atol=1e-6)
 
 
-def test_mixed_bank_contract_on_jumps_gaps_and_constant_input():
-    """The mixed bank (with the AKF family) passes the contract on the adversarial targets it can represent.
+def test_mixed_bank_contract_on_jumps_gaps_constant_input_and_1e200():
+    """The mixed bank (with the AKF family) passes the contract on all four adversarial targets.
 
-    Values of 1e200 are left out here: the AKF's squared features overflow there and the numpy
-    reference's Cholesky raises (the compiled engine puts those experts to sleep, test_contract)."""
+    Values of 1e200 once made the reference raise (Cholesky of overflowed RLS statistics) and the
+    compiled engine put those experts to sleep; the AKF now moves its origin to a measurement far
+    from it (kalmix.core.mixture.reanchor), so both stay finite and agree."""
     z, t = adversarial_tracks(seed=2)
-    check_bank(make_bank(2, "mixed", length_unit=0.3, n_akf=8), z[:, :3], t[:, :3])
+    check_bank(make_bank(2, "mixed", length_unit=0.3, n_akf=8), z, t)
+
+
+@pytest.mark.parametrize("n_akf", [4, 9])
+def test_akf_bank_paths_agree_on_adversarial_tracks(n_akf):
+    """The AKF-only bank (scalar and experts-last kernels), every row finite once started, both engines."""
+    z, t = adversarial_tracks(seed=5)
+    bank = make_bank(2, "akf", length_unit=0.3, n_akf=n_akf)
+    reference = engine.run(bank, z, t).forecasts
+    compiled = ce.run(bank, z, t).forecasts
+    assert np.isfinite(reference[1:]).all() and np.isfinite(compiled[1:]).all()
+    _close(compiled, reference, 1e-9)
 
 
 def test_predict_reports_outliers_and_keeps_them_out_of_the_state():
@@ -83,3 +96,15 @@ def test_predict_reports_outliers_and_keeps_them_out_of_the_state():
     assert np.isfinite(out[["pred_x", "pred_y"]].to_numpy()).all()
     after = out[(out.track_id == "a") & (out.time > 5.3)][["pred_x", "pred_y"]].to_numpy()
     assert np.abs(after).max() < 1e3
+
+
+@settings(max_examples=4, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**16), p=st.integers(1, 3), rule=st.sampled_from(["boa", "mlpoly", "fixed_share"]))
+def test_mixed_bank_property_both_engines_on_adversarial_tracks(seed, p, rule):
+    """Any seed and dimension: a jump of 1e8, a long gap, constant input, 1e200 values; finite, equal."""
+    z, t = adversarial_tracks(seed=seed, t_count=240, p=p)
+    bank = make_bank(p, "mixed", rule=rule, length_unit=0.3, n_akf=8)
+    reference = engine.run(bank, z, t).forecasts
+    compiled = ce.run(bank, z, t).forecasts
+    assert np.isfinite(reference[1:]).all() and np.isfinite(compiled[1:]).all()
+    _close(compiled, reference, 1e-9)

@@ -27,6 +27,11 @@ from . import _numba_linalg as la
 _JIT = la._JIT
 jit = la.jit
 
+#: :data:`kalmix.core.gating.LOG_FLOOR` and :data:`kalmix.core.gating.ERROR_CAP` (a test checks
+#: that they agree; literals here so that the compiled cache, keyed on this file, follows them).
+LOG_FLOOR = -1e300
+ERROR_CAP = 1e300
+
 
 # ---------------------------------------------------------------- random gate (splitmix64)
 @jit
@@ -283,22 +288,89 @@ def _kalman_update(mu, cv, features, r, kappa, residual, r_diag, s_work, s_lower
 
 
 @jit
-def _kalman_start(mu, cv, features, order, kappa, initial_variance, initial_velocity):
-    """Start every expert at the first measurement: lags extrapolated back, P = P0 I."""
+def _kalman_start(mu, cv, features, order, kappa, initial_variance, initial_velocity, fresh):
+    """Start the experts where ``fresh`` at this measurement: lags extrapolated back, P = P0 I."""
     experts = initial_variance.shape[0]
     n, p = mu.shape[0], features.shape[0]
     for lag in range(order):
         for i in range(p):
             for k in range(experts):
-                mu[lag * p + i, k] = features[i] - lag * (initial_velocity[k, i] / kappa)
+                if fresh[k]:
+                    mu[lag * p + i, k] = features[i] - lag * (initial_velocity[k, i] / kappa)
     for a in range(n):
         for c in range(n):
             if a == c:
                 for k in range(experts):
-                    cv[a, c, k] = initial_variance[k] / kappa**2
+                    if fresh[k]:
+                        cv[a, c, k] = initial_variance[k] / kappa**2
             else:
                 for k in range(experts):
-                    cv[a, c, k] = 0.0
+                    if fresh[k]:
+                        cv[a, c, k] = 0.0
+
+
+@jit
+def _prior_dynamics(k_count, n, p, prior, trans, off):
+    """The prior's companion matrix and drift for every expert (experts last)."""
+    for a in range(n):
+        for c in range(n):
+            value = prior[a, c] if a < p else (1.0 if c == a - p else 0.0)
+            for k in range(k_count):
+                trans[a, c, k] = value
+        value = prior[a, n] if a < p else 0.0
+        for k in range(k_count):
+            off[a, k] = value
+
+
+@jit
+def _reanchor_target(j, k_count, n, p, order, z, delta, prior, origin, history, gram, cross, mu, gm, cr,
+                     trans, off):
+    """:func:`kalmix.core.mixture.reanchor` of target j: the origin moves to ``z`` (features ``delta``),
+    the means with it; RLS statistics zero (working copies and state), prior dynamics, no history."""
+    gram[j] = 0.0
+    cross[j] = 0.0
+    gm[:] = 0.0
+    cr[:] = 0.0
+    for i in range(p):
+        origin[j, i] = z[i]
+        for lag in range(order):
+            history[j, lag, i] = np.nan
+            for k in range(k_count):
+                mu[lag * p + i, k] = mu[lag * p + i, k] - delta[i]
+    _prior_dynamics(k_count, n, p, prior, trans, off)
+
+
+@jit
+def _restart_target(j, k_count, n, p, prior, process_init, measurement_init, initialised, origin, history,
+                    gram, cross, gm, cr, trans, off, q, r, ep, gate_weights, gate_input, weights,
+                    responsibilities, eta):
+    """:func:`kalmix.core.mixture.restart` of target j: everything as before its first measurement,
+    counters kept (the Kalman mean and covariance are set by the start that follows). The RLS
+    statistics are zeroed in the working copies and in the state (stored back only for rls)."""
+    gram[j] = 0.0
+    cross[j] = 0.0
+    initialised[j] = False
+    for i in range(p):
+        origin[j, i] = 0.0
+    for lag in range(history.shape[1]):
+        for i in range(p):
+            history[j, lag, i] = np.nan
+    gm[:] = 0.0
+    cr[:] = 0.0
+    _prior_dynamics(k_count, n, p, prior, trans, off)
+    for i in range(p):
+        for k in range(k_count):
+            q[i, k] = process_init[k, i]
+            r[i, k] = measurement_init[k, i]
+            ep[i, k] = 0.0
+    for k in range(k_count):
+        for i in range(gate_weights.shape[2]):
+            gate_weights[j, k, i] = 0.0
+        weights[j, k] = 1.0 / k_count
+        responsibilities[j, k] = 1.0 / k_count
+    for i in range(gate_input.shape[1]):
+        gate_input[j, i] = 0.0
+    eta[j] = 0.0
 
 
 @jit
@@ -395,8 +467,9 @@ def _predict_full(mu, cv, trans, off, new_mean, tmp, tmp2, acc):
 
 
 @jit
-def _add_process_noise(cv, q, kappa, state_jitter, max_variance, acc):
-    """``P += Q + jitter I``, then scale P down where its largest variance exceeds the cap."""
+def _add_process_noise(cv, q, kappa, state_jitter, max_variance, acc, mu, before):
+    """``P += Q + jitter I``, then scale P down where its largest variance exceeds the cap; there the
+    expert's mean goes back to ``before`` (its value before the prediction: it stops extrapolating)."""
     experts = acc.shape[0]
     n, p = cv.shape[0], q.shape[0]
     for a in range(n):
@@ -421,6 +494,9 @@ def _add_process_noise(cv, q, kappa, state_jitter, max_variance, acc):
                 for k in range(experts):
                     if acc[k] != 1.0:
                         cv[a, c, k] = cv[a, c, k] * acc[k]
+            for k in range(experts):
+                if acc[k] != 1.0:
+                    mu[a, k] = before[a, k]
 
 
 # ---------------------------------------------------------------- gate
@@ -447,7 +523,7 @@ def _posterior(j, log_lik, weights, old_weights, log_weights, joint, resp):
 def _learning_rate(valid_steps, dominant_error, eta_initial, eta_minimum, eta_decay, eta_sensitivity):
     """Adaptive rate ``eta_k = eta(t) (1 - exp(-alpha e^2))`` from the dominant expert's squared error."""
     base = eta_minimum + (eta_initial - eta_minimum) * math.exp(-float(valid_steps) / eta_decay)
-    return base * -math.expm1(-eta_sensitivity * dominant_error)
+    return base * -math.expm1(-eta_sensitivity * min(dominant_error, ERROR_CAP))
 
 
 @jit
@@ -537,7 +613,10 @@ def _adapt_noise(noise, initial, rate, resp, floor, reinflation, factor):
 @jit
 def _normalise_log(log_joint, out):
     """``exp(a - logsumexp(a))``, the max split out as scipy does: ``e_k / (1 + sum_{k != top} e_k)``
-    with ``e_k = exp(a_k - max a)`` (one exponential per entry)."""
+    with ``e_k = exp(a_k - max a)`` (one exponential per entry); ``a`` is first floored at
+    ``LOG_FLOOR`` (in place), as :func:`kalmix.core.gating.posterior` does."""
+    for k in range(log_joint.shape[0]):
+        log_joint[k] = max(log_joint[k], LOG_FLOOR)
     top = 0
     for k in range(1, log_joint.shape[0]):
         if log_joint[k] > log_joint[top]:
@@ -562,6 +641,7 @@ def _advance_target(
     bound, process_init, measurement_init, initial_variance, initial_velocity, expert_scale,
     temperature, share, eta_initial, eta_minimum, eta_decay, eta_sensitivity, adapt,
     q_shrink, r_shrink, floor, reinflation, seed, state_jitter, guard_gammas, max_variance, fast_guard,
+    feature_limit, miss_limit,
     # state (mutated in place)
     steps, valid_steps, initialised, stream_ids, origin, history, mean, cov, gram, cross,
     transition, offset, process_noise, measurement_noise, gate_weights, gate_input, weights,
@@ -637,6 +717,9 @@ def _advance_target(
     log_weights = np.empty(k_count)
     q_init = np.empty((p, k_count))
     r_init = np.empty((p, k_count))
+    before = np.empty((n, k_count))
+    fresh = np.empty(k_count, dtype=np.bool_)
+    delta = np.empty(p)
     for k in range(k_count):
         log_scale[k] = p * math.log(expert_scale[k])
         for i in range(p):
@@ -649,11 +732,25 @@ def _advance_target(
             z[i] = measurements[t, j, i]
             if not math.isfinite(z[i]):
                 valid = False
-        start = valid and not initialised[j]
-        learn = valid and initialised[j]
         if not valid:
             for i in range(p):
                 z[i] = 0.0
+        if valid and initialised[j]:  # far from the origin: move it here (mixture.reanchor / restart)
+            far = False
+            finite = True
+            for i in range(p):
+                delta[i] = (z[i] - origin[j, i]) / kappa
+                far = far or not abs(delta[i]) <= feature_limit
+                finite = finite and math.isfinite(delta[i])
+            if far and finite:
+                _reanchor_target(j, k_count, n, p, order, z, delta, prior, origin, history, gram, cross, mu, gm,
+                                 cr, trans, off)
+            elif far:
+                _restart_target(j, k_count, n, p, prior, process_init, measurement_init, initialised, origin,
+                                history, gram, cross, gm, cr, trans, off, q, r, ep, gate_weights, gate_input,
+                                weights, responsibilities, eta)
+        start = valid and not initialised[j]
+        learn = valid and initialised[j]
         if start:
             for i in range(p):
                 origin[j, i] = z[i]
@@ -718,16 +815,28 @@ def _advance_target(
 
         # 4. Kalman update, (re)start, predict, using C = [I 0] and, for rls / fixed
         # dynamics, the companion form of A (only its first p rows are free).
+        # an expert whose prediction misses this measurement by more than miss_limit starts again here
+        any_fresh = start
+        for k in range(k_count):
+            fresh[k] = start
         if learn:
+            for i in range(p):
+                for k in range(k_count):
+                    fresh[k] = fresh[k] or not abs(features[i] - mu[i, k]) <= miss_limit
+            for k in range(k_count):
+                any_fresh = any_fresh or fresh[k]
             _kalman_update(mu, cv, features, r, kappa, residual, r_diag, s_work, s_lower, s_lower_inv, s_inv,
                            gain, new_mean, w_block, tmp, acc)
-        if start:
-            _kalman_start(mu, cv, features, order, kappa, initial_variance, initial_velocity)
+        if any_fresh:
+            _kalman_start(mu, cv, features, order, kappa, initial_variance, initial_velocity, fresh)
+        for a in range(n):
+            for k in range(k_count):
+                before[a, k] = mu[a, k]
         if dynamics != 1:
             _predict_companion(mu, cv, trans, off, new_mean, g_block, acc)
         else:
             _predict_full(mu, cv, trans, off, new_mean, tmp, tmp2, acc)
-        _add_process_noise(cv, q, kappa, state_jitter, max_variance, acc)
+        _add_process_noise(cv, q, kappa, state_jitter, max_variance, acc, mu, before)
         if start:
             initialised[j] = True
         if initialised[j]:

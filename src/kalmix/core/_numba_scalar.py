@@ -196,6 +196,7 @@ def _advance_target(
     bound, process_init, measurement_init, initial_variance, initial_velocity, expert_scale,
     temperature, share, eta_initial, eta_minimum, eta_decay, eta_sensitivity, adapt,
     q_shrink, r_shrink, floor, reinflation, seed, state_jitter, guard_gammas, max_variance, fast_guard,
+    feature_limit, miss_limit,
     # state (mutated in place)
     steps, valid_steps, initialised, stream_ids, origin, history, mean, cov, gram, cross,
     transition, offset, process_noise, measurement_noise, gate_weights, gate_input, weights,
@@ -250,6 +251,8 @@ def _advance_target(
     logits = np.empty(k_count)
     rw = np.empty(k_count)
     log_scale = np.empty(k_count)
+    before = np.empty(n)
+    delta = np.empty(p)
     for k in range(k_count):
         log_scale[k] = p * math.log(expert_scale[k])
 
@@ -259,11 +262,25 @@ def _advance_target(
             z[i] = measurements[t, j, i]
             if not math.isfinite(z[i]):
                 valid = False
-        start = valid and not initialised[j]
-        learn = valid and initialised[j]
         if not valid:
             for i in range(p):
                 z[i] = 0.0
+        if valid and initialised[j]:  # far from the origin: move it here (mixture.reanchor / restart)
+            far = False
+            finite = True
+            for i in range(p):
+                delta[i] = (z[i] - origin[j, i]) / kappa
+                far = far or not abs(delta[i]) <= feature_limit
+                finite = finite and math.isfinite(delta[i])
+            if far and finite:
+                _reanchor_target(j, n, p, order, z, delta, prior, origin, history, mean, gram, cross, transition,
+                                 offset)
+            elif far:
+                _restart_target(j, n, p, prior, process_init, measurement_init, initialised, origin, history,
+                                gram, cross, transition, offset, process_noise, measurement_noise,
+                                expert_predictions, gate_weights, gate_input, weights, responsibilities, eta)
+        start = valid and not initialised[j]
+        learn = valid and initialised[j]
         if start:
             for i in range(p):
                 origin[j, i] = z[i]
@@ -371,7 +388,11 @@ def _advance_target(
             mu = mean[j, k]
             a = transition[j, k]
             off = offset[j, k]
+            # an expert whose prediction misses this measurement by more than miss_limit starts again here
+            fresh = start
             if learn:
+                for i in range(p):
+                    fresh = fresh or not abs(features[i] - mu[i]) <= miss_limit
                 for i in range(p):
                     residual[i] = features[i] - mu[i]
                     r_diag[i] = measurement_noise[j, k, i] / kappa ** 2
@@ -411,7 +432,7 @@ def _advance_target(
                     for c in range(r, n):
                         cv[r, c] = tmp[r, c]
                         cv[c, r] = tmp[r, c]
-            if start:
+            if fresh:
                 p0 = initial_variance[k] / kappa ** 2
                 for lag in range(order):
                     for i in range(p):
@@ -419,6 +440,8 @@ def _advance_target(
                 for r in range(n):
                     for c in range(n):
                         cv[r, c] = p0 if r == c else 0.0
+            for r in range(n):
+                before[r] = mu[r]
             # predict: x <- A x + u, P <- A P A^T + Q
             if companion:
                 # A = [Theta; I 0]: x <- [Theta x + u_top; x[:n-p]],
@@ -486,10 +509,12 @@ def _advance_target(
             for r in range(n):
                 cv[r, r] += state_jitter + (process_noise[j, k, r] / kappa ** 2 if r < p else 0.0)
                 largest = max(largest, cv[r, r])
-            # cap the variance (only reached after very long runs of missing measurements)
+            # cap the variance (only reached after very long runs of missing measurements); the
+            # mean of a capped expert goes back to before the prediction (it stops extrapolating)
             factor = min(1.0, max_variance / largest)
             if factor != 1.0:
                 for r in range(n):
+                    mu[r] = before[r]
                     for c in range(n):
                         cv[r, c] = cv[r, c] * factor
         if start:
@@ -533,6 +558,65 @@ def _advance_target(
                 for i in range(p):
                     out_q[t, j, k, i] = process_noise[j, k, i]
                     out_r[t, j, k, i] = measurement_noise[j, k, i]
+
+
+@jit
+def _prior_dynamics(j, k, n, p, prior, transition, offset):
+    """Expert k of target j gets the prior's companion matrix and drift."""
+    for a in range(n):
+        for c in range(n):
+            transition[j, k, a, c] = prior[a, c] if a < p else (1.0 if c == a - p else 0.0)
+        offset[j, k, a] = prior[a, n] if a < p else 0.0
+
+
+@jit
+def _reanchor_target(j, n, p, order, z, delta, prior, origin, history, mean, gram, cross, transition, offset):
+    """:func:`kalmix.core.mixture.reanchor` of target j: the origin moves to ``z`` (features ``delta``),
+    the means with it; RLS statistics zero, prior dynamics, no history."""
+    gram[j] = 0.0
+    cross[j] = 0.0
+    for i in range(p):
+        origin[j, i] = z[i]
+        for lag in range(order):
+            history[j, lag, i] = np.nan
+    for k in range(mean.shape[1]):
+        for lag in range(order):
+            for i in range(p):
+                mean[j, k, lag * p + i] = mean[j, k, lag * p + i] - delta[i]
+        _prior_dynamics(j, k, n, p, prior, transition, offset)
+
+
+@jit
+def _restart_target(j, n, p, prior, process_init, measurement_init, initialised, origin, history, gram, cross,
+                    transition, offset, process_noise, measurement_noise, expert_predictions, gate_weights,
+                    gate_input, weights, responsibilities, eta):
+    """:func:`kalmix.core.mixture.restart` of target j: everything as before its first measurement,
+    counters kept (the Kalman mean and covariance are set by the start that follows)."""
+    k_count = weights.shape[1]
+    initialised[j] = False
+    for i in range(p):
+        origin[j, i] = 0.0
+        for lag in range(history.shape[1]):
+            history[j, lag, i] = np.nan
+    for i in range(gate_input.shape[1]):
+        gate_input[j, i] = 0.0
+    eta[j] = 0.0
+    for k in range(k_count):
+        for a in range(gram.shape[2]):
+            for c in range(gram.shape[3]):
+                gram[j, k, a, c] = 0.0
+        for a in range(p):
+            for c in range(cross.shape[3]):
+                cross[j, k, a, c] = 0.0
+        _prior_dynamics(j, k, n, p, prior, transition, offset)
+        for i in range(p):
+            process_noise[j, k, i] = process_init[k, i]
+            measurement_noise[j, k, i] = measurement_init[k, i]
+            expert_predictions[j, k, i] = 0.0
+        for i in range(gate_weights.shape[2]):
+            gate_weights[j, k, i] = 0.0
+        weights[j, k] = 1.0 / k_count
+        responsibilities[j, k] = 1.0 / k_count
 
 
 @nb.njit(parallel=True, **_JIT)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kalman import cholesky_inverse
+from .kalman import cholesky_inverse, cholesky_solve_rows
 
 __all__ = [
     "polynomial_prior",
@@ -100,8 +100,7 @@ def rls_solve(gram, cross, ridge, prior):
     """
     d = gram.shape[-1]
     rho = np.asarray(ridge)[..., None, None]
-    inverse, _ = cholesky_inverse(gram + rho * np.eye(d), jitter=0.0)
-    return (cross + rho * prior) @ inverse
+    return cholesky_solve_rows(gram + rho * np.eye(d), cross + rho * prior)
 
 
 def companion_from_theta(theta: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:

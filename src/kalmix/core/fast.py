@@ -75,6 +75,7 @@ def _pack_params(params: MixtureParams) -> tuple:
         float(params.measurement_noise_shrink), float(params.noise_floor), float(params.noise_reinflation),
         int(params.random_seed), float(params.state_jitter), dyn._GUARD_SHRINK.astype(np.float64),
         float(params.max_variance), _fast_guard(params),
+        float(params.feature_limit), float(params.miss_limit),
     )
 
 

@@ -84,12 +84,23 @@ def log_expert_likelihood(errors: np.ndarray, scale: np.ndarray) -> np.ndarray:
     return -p * np.log(scale) - squared / (2.0 * scale**2)
 
 
+#: Floor of the log joint scores of :func:`posterior`: an error whose square overflows
+#: (values near 1e154 and beyond) scores -inf, and -inf everywhere has no posterior.
+LOG_FLOOR = -1e300
+#: Largest squared error fed to :func:`learning_rate` (an overflowed one is inf).
+ERROR_CAP = 1e300
+
+
 def posterior(weights: np.ndarray, log_likelihood: np.ndarray) -> np.ndarray:
     """Eq. (10) in log space: :math:`h_i \\propto g_i\\, e^{\\ell_i}`.
 
-    Finite and normalised even when every likelihood underflows in linear space.
+    Finite and normalised even when every likelihood underflows in linear space, and when
+    squared errors overflow (log scores are floored at :data:`LOG_FLOOR`). The largest score
+    is subtracted first, so that the normalisation does not round at the scores' magnitude
+    (scores of -1e12 would leave the weights off by 1e-4).
     """
-    log_joint = np.log(np.maximum(weights, 1e-300)) + log_likelihood
+    log_joint = np.maximum(np.log(np.maximum(weights, 1e-300)) + log_likelihood, LOG_FLOOR)
+    log_joint = log_joint - log_joint.max(axis=-1, keepdims=True)
     return np.exp(log_joint - logsumexp(log_joint, axis=-1, keepdims=True))
 
 
@@ -140,7 +151,7 @@ def learning_rate(valid_steps, last_error, initial: float, minimum: float, decay
         currently dominant expert.
     """
     base = minimum + (initial - minimum) * np.exp(-np.asarray(valid_steps) / decay_steps)
-    return base * -np.expm1(-sensitivity * last_error)
+    return base * -np.expm1(-sensitivity * np.minimum(last_error, ERROR_CAP))
 
 
 def adapt_noise(noise, initial, rate, responsibilities, shrink: float, floor: float, reinflation: float):

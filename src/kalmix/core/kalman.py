@@ -16,6 +16,7 @@ import numpy as np
 __all__ = [
     "symmetrize",
     "cholesky_inverse",
+    "cholesky_solve_rows",
     "kalman_predict",
     "kalman_update",
 ]
@@ -55,6 +56,57 @@ def cholesky_inverse(spd: np.ndarray, jitter: float = 1e-12) -> tuple[np.ndarray
     inverse = np.swapaxes(lower_inv, -1, -2) @ lower_inv
     log_det = 2.0 * np.sum(np.log(np.diagonal(lower, axis1=-2, axis2=-1)), axis=-1)
     return inverse, log_det
+
+
+def cholesky_solve_rows(spd: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``rhs @ spd^{-1}`` for symmetric positive definite ``spd``: each row of ``rhs`` solved.
+
+    .. math:: S = L L^T, \\qquad L y = b, \\qquad L^T x = y
+
+    The factor and the two substitutions are written out entry by entry, vectorised over
+    the leading axes, in the order of the compiled kernels
+    (:func:`kalmix.core._numba_linalg.cholesky_solve_rows`), so that both give the same bits:
+    the RLS solve is where digits are lost (its Gram matrix is as ill-conditioned as the
+    regressor is far from its origin), and a rounding difference in the system matrix
+    grows with every frame extrapolated through it (long gaps).
+    A matrix that is not positive definite gives NaN (no exception), as in the kernels.
+
+    Parameters
+    ----------
+    spd : ndarray, shape (..., m, m)
+        Only the lower triangle is read.
+    rhs : ndarray, shape (..., r, m)
+
+    Returns
+    -------
+    ndarray, shape (..., r, m)
+    """
+    m = spd.shape[-1]
+    shape = np.broadcast_shapes(spd.shape[:-2], rhs.shape[:-2])
+    lower = np.zeros(shape + (m, m))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for j in range(m):
+            acc = spd[..., j, j]
+            for k in range(j):
+                acc = acc - lower[..., j, k] * lower[..., j, k]
+            lower[..., j, j] = np.sqrt(acc)
+            for i in range(j + 1, m):
+                acc = spd[..., i, j]
+                for k in range(j):
+                    acc = acc - lower[..., i, k] * lower[..., j, k]
+                lower[..., i, j] = acc / lower[..., j, j]
+        out = np.zeros(shape + rhs.shape[-2:])
+        for i in range(m):  # L y = b
+            acc = rhs[..., :, i]
+            for k in range(i):
+                acc = acc - lower[..., i, k, None] * out[..., :, k]
+            out[..., :, i] = acc / lower[..., i, i, None]
+        for i in range(m - 1, -1, -1):  # L^T x = y
+            acc = out[..., :, i]
+            for k in range(i + 1, m):
+                acc = acc - lower[..., k, i, None] * out[..., :, k]
+            out[..., :, i] = acc / lower[..., i, i, None]
+    return out
 
 
 def kalman_predict(

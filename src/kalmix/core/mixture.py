@@ -14,6 +14,23 @@ One frame, for every target whose measurement :math:`z_k` is present:
 5. gate the experts' predictions: :math:`y_k = \\sum_i g_{i,k} y_{i,k}` (eq. 8).
 
 A target whose measurement row holds a NaN only predicts (steps 1-3 are skipped).
+
+Extreme input keeps every number finite, the same way in the compiled kernels:
+
+- a measurement more than ``feature_limit`` feature units from the target's origin (100
+  ``feature_scale`` = 1e4 length units by default) moves the origin there (:func:`reanchor`):
+  the experts' means move with it, their dynamics start again from the prior. The RLS fit of
+  a regressor that far from its origin is ill-conditioned (at 3000 feature units the numpy and
+  compiled paths already differ by 1e-8, at 1e4 by 1e-2; beyond, its Cholesky fails), and
+  squared features overflow near 1e154. Where the distance itself overflows, the target
+  restarts (:func:`restart`);
+- an expert whose prediction misses the measurement by more than ``miss_limit`` feature units
+  (1000 length units by default; after a long run of missing measurements its extrapolation can
+  run off by any amount) starts again from it, rather than being pulled back by a Kalman update
+  that cancels all but a few digits of its state;
+- an expert whose :math:`P` reaches ``max_variance`` (only after very long runs of missing
+  measurements) stops extrapolating: its mean is held, and stays finite however long the gap;
+- scores whose squares overflow floor the log-likelihoods (:func:`kalmix.core.gating.posterior`).
 """
 
 from __future__ import annotations
@@ -73,7 +90,9 @@ class MixtureParams:
     noise_reinflation: float
     random_seed: int
     state_jitter: float = 1e-10
-    max_variance: float = 1e8
+    max_variance: float = 1e8       # cap of P's largest variance (normalised features^2)
+    feature_limit: float = 100.0    # |s| beyond it moves the origin (normalised features)
+    miss_limit: float = 10.0        # an expert missing a measurement by more restarts (features)
 
     @property
     def n_experts(self) -> int:
@@ -191,15 +210,56 @@ def _where(mask: np.ndarray, new: np.ndarray, old: np.ndarray) -> np.ndarray:
     return np.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
 
 
-def _cap_variance(cov: np.ndarray, max_variance: float) -> np.ndarray:
-    """Scale :math:`P` down where its largest variance exceeds ``max_variance``.
+def _cap_variance(cov: np.ndarray, max_variance: float) -> tuple[np.ndarray, np.ndarray]:
+    """Scale :math:`P` down where its largest variance exceeds ``max_variance``; also return where.
 
     Only reached after very long runs of missing measurements, where the prediction
     is meaningless anyway; it keeps every number finite and :math:`P` positive definite.
     """
     largest = np.diagonal(cov, axis1=-2, axis2=-1).max(axis=-1)
     factor = np.minimum(1.0, max_variance / largest)
-    return cov * factor[..., None, None]
+    return cov * factor[..., None, None], factor < 1.0
+
+
+def _missed(params: MixtureParams, mean: np.ndarray, features: np.ndarray) -> np.ndarray:
+    """``(N, K)``: the experts whose predicted features miss ``features`` by more than ``miss_limit``."""
+    residual = features[:, None, :] - mean[..., : params.measurement_dim]
+    return ~(np.abs(residual) <= params.miss_limit).all(axis=-1)
+
+
+def _far(params: MixtureParams, state: MixtureState, z: np.ndarray, valid: np.ndarray):
+    """``(far, delta)``: started targets whose measurement lies more than ``feature_limit`` feature
+    units (``feature_limit * feature_scale`` measurement units) from their origin, or overflows
+    there, and its features :math:`\\delta = (z - c)/\\kappa` ``(N, p)``."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        delta = (z - state.origin) / params.feature_scale
+    return valid & state.initialised & ~(np.abs(delta) <= params.feature_limit).all(axis=-1), delta
+
+
+def reanchor(params: MixtureParams, state: MixtureState, mask: np.ndarray, z: np.ndarray,
+             delta: np.ndarray) -> MixtureState:
+    """Move the origin of the targets in ``mask`` to their measurement ``z`` (features ``delta``).
+
+    The experts' means move with it (:math:`\\hat x \\leftarrow \\hat x - [\\delta; \\dots; \\delta]`;
+    :math:`P`, the noise levels and the gate are kept); their dynamics start again (RLS statistics
+    zero, :math:`A, u` the prior's, no history).
+    """
+    with np.errstate(invalid="ignore"):  # inf where the distance overflowed (those are not in mask)
+        shift = np.where(mask[:, None], np.tile(delta, params.order), 0.0)  # (N, n)
+    transition, offset = dyn.companion_from_theta(params.prior_theta, params.order)
+    fresh = state._replace(
+        origin=z, history=np.full_like(state.history, np.nan), mean=state.mean - shift[:, None, :],
+        gram=np.zeros_like(state.gram), cross=np.zeros_like(state.cross),
+        transition=np.broadcast_to(transition, state.transition.shape),
+        offset=np.broadcast_to(offset, state.offset.shape))
+    return MixtureState(*(_where(mask, f, o) for f, o in zip(fresh, state)))
+
+
+def restart(params: MixtureParams, state: MixtureState, mask: np.ndarray) -> MixtureState:
+    """The targets in ``mask`` forget everything (as before their first measurement); counters are kept."""
+    fresh = init_state(params, mask.shape[0], state.stream_ids)._replace(
+        steps=state.steps, valid_steps=state.valid_steps)
+    return MixtureState(*(_where(mask, f, o) for f, o in zip(fresh, state)))
 
 
 def _update_dynamics(params, state, features, learn):
@@ -251,22 +311,27 @@ def step(params: MixtureParams, state: MixtureState, measurement: np.ndarray) ->
     """
     kappa = params.feature_scale
     valid = np.isfinite(measurement).all(axis=-1)
+    z = np.where(valid[:, None], measurement, 0.0)
+    far, delta = _far(params, state, z, valid)
+    if far.any():  # far from the origin: move it here (restart where the distance overflows)
+        finite = np.isfinite(delta).all(axis=-1)
+        state = restart(params, reanchor(params, state, far & finite, z, delta), far & ~finite)
     start = valid & ~state.initialised
     learn = valid & state.initialised
-    z = np.where(valid[:, None], measurement, 0.0)
     origin = _where(start, z, state.origin)
     features = (z - origin) / kappa
 
     # 1. score the previous predictions (eq. 10) and the adaptive learning rate
-    errors = z[:, None, :] - state.expert_predictions
-    log_lik = gate.log_expert_likelihood(errors, params.expert_scale)
-    responsibilities = gate.posterior(state.weights, log_lik)
-    dominant = np.argmax(state.weights, axis=-1)
-    dominant_error = np.take_along_axis(errors, dominant[:, None, None], axis=1)[:, 0]
-    eta = gate.learning_rate(
-        state.valid_steps, np.sum(dominant_error**2, axis=-1),
-        params.eta_initial, params.eta_minimum, params.eta_decay_steps, params.eta_sensitivity,
-    )
+    with np.errstate(over="ignore"):  # squares of errors near 1e154 and beyond: see gate.posterior
+        errors = z[:, None, :] - state.expert_predictions
+        log_lik = gate.log_expert_likelihood(errors, params.expert_scale)
+        responsibilities = gate.posterior(state.weights, log_lik)
+        dominant = np.argmax(state.weights, axis=-1)
+        dominant_error = np.take_along_axis(errors, dominant[:, None, None], axis=1)[:, 0]
+        eta = gate.learning_rate(
+            state.valid_steps, np.sum(dominant_error**2, axis=-1),
+            params.eta_initial, params.eta_minimum, params.eta_decay_steps, params.eta_sensitivity,
+        )
     rate = np.where(learn, eta, 0.0)
 
     # 2. gate learning (eq. 9 or fixed share) and noise adaptation (eq. 11/12)
@@ -274,7 +339,8 @@ def step(params: MixtureParams, state: MixtureState, measurement: np.ndarray) ->
     if params.gating == "paper":
         gate_weights = gate.paper_gate_update(gate_weights, rate, responsibilities, state.weights, state.gate_input)
     elif params.gating == "fixed_share":
-        shared = gate.fixed_share_update(state.weights, log_lik, params.temperature, params.gate_share)
+        with np.errstate(over="ignore"):
+            shared = gate.fixed_share_update(state.weights, log_lik, params.temperature, params.gate_share)
         weights = _where(learn, shared, state.weights)
     process_noise, measurement_noise = state.process_noise, state.measurement_noise
     if params.adapt_noise:
@@ -295,12 +361,15 @@ def step(params: MixtureParams, state: MixtureState, measurement: np.ndarray) ->
         observation_matrix(params), _diag_embed(measurement_noise / kappa**2, params.measurement_dim),
     )
     p0 = params.initial_variance[:, None, None] / kappa**2 * np.eye(params.state_dim)
-    mean = _where(start, _initial_mean(params, features), mean)
-    cov = _where(start, np.broadcast_to(p0, cov.shape), cov)
+    fresh = start[:, None] | (learn[:, None] & _missed(params, state.mean, features))  # (N, K)
+    mean = np.where(fresh[..., None], _initial_mean(params, features), mean)
+    cov = np.where(fresh[..., None, None], np.broadcast_to(p0, cov.shape), cov)
     process_cov = _diag_embed(process_noise / kappa**2, params.state_dim)
     process_cov = process_cov + params.state_jitter * np.eye(params.state_dim)
-    mean, cov = kalman_predict(mean, cov, transition, process_cov, offset)
-    cov = _cap_variance(cov, params.max_variance)
+    predicted, cov = kalman_predict(mean, cov, transition, process_cov, offset)
+    cov, held = _cap_variance(cov, params.max_variance)
+    # an expert whose P reached the cap stops extrapolating: its mean is held (it stays finite)
+    mean = np.where(held[..., None], mean, predicted)
     initialised = state.initialised | start
     expert_predictions = _where(initialised, _expert_outputs(params, origin, mean), state.expert_predictions)
 
