@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine import Bank, BankState, EngineResult, init_bank_state
+from ..engine import Bank, BankState, EngineResult, check_run_arguments, init_bank_state
 from ..families import akf
 from ..families.kinematic import KinematicState
 from ..screen import ScreenState
@@ -107,9 +107,10 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     ``(N, K)``, and ``weights`` by their counts (memory independent of T; what the
     best-expert-in-hindsight needs), ``expert_ahead`` likewise for the ahead forecasts.
     """
-    z = np.ascontiguousarray(measurements, dtype=np.float64)
+    z, times, lengths = check_run_arguments(bank, measurements, times, state, lengths)
+    z = np.ascontiguousarray(z)
     t_count, n, p = z.shape
-    times = np.ascontiguousarray(np.broadcast_to(np.asarray(times, dtype=np.float64), (t_count, n)))
+    times = np.ascontiguousarray(times)
     state = init_bank_state(bank, n) if state is None else state
     lengths = np.full(n, t_count, dtype=np.int64) if lengths is None else np.asarray(lengths, dtype=np.int64)
     present = np.isfinite(z).all(axis=-1) & (np.arange(t_count)[:, None] < lengths[None, :])
