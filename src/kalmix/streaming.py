@@ -99,21 +99,30 @@ def auto_length_unit(values, *, minimum_samples: int = 8) -> float:
     float
         The ``length_unit`` to pass to :func:`kalmix.bank.make_params`.
     """
+    unit, _ = _length_unit_rule(values, minimum_samples)
+    return unit
+
+
+def _length_unit_rule(values, minimum_samples: int = 8) -> tuple[float, str | None]:
+    """:func:`auto_length_unit` and, when it fell back to 1, why (else None)."""
     z = np.asarray(values, dtype=np.float64)
     if z.ndim == 2:
         z = z[:, None, :]
     if z.shape[0] < 3:
-        return 1.0
-    second = np.abs(z[2:] - 2.0 * z[1:-1] + z[:-2]).ravel()
+        return 1.0, "fewer than 3 samples of a track to estimate it from"
+    with np.errstate(over="ignore", invalid="ignore"):  # values near 1e308: those triples are skipped
+        second = np.abs(z[2:] - 2.0 * z[1:-1] + z[:-2]).ravel()
     second = second[np.isfinite(second)]
     if second.size < minimum_samples:
-        return 1.0
+        return 1.0, f"only {second.size} second difference(s) to estimate it from (it needs {minimum_samples})"
     scale = 0.6745 * math.sqrt(6.0)
     unit = float(np.median(second)) / scale
     if unit <= 0:
         nonzero = second[second > 0]
-        unit = float(np.median(nonzero)) / scale if nonzero.size else 1.0
-    return unit
+        if not nonzero.size:
+            return 1.0, "second differences that are all 0 (positions constant, or exactly on a line)"
+        unit = float(np.median(nonzero)) / scale
+    return unit, None
 
 
 def auto_time_unit(times) -> float:
@@ -428,7 +437,19 @@ class TrackPredictor:
 
         All or nothing: the track's tracker and state change only once the step succeeded.
         """
-        z = np.asarray(z, dtype=np.float64).reshape(-1)
+        try:
+            z = np.asarray(z, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise ValueError(f"z: expected numbers (NaN for a missing measurement), got {z!r:.80}") from None
+        try:
+            time = float(time)
+        except (TypeError, ValueError):
+            raise ValueError(f"time: expected a number, got {time!r:.80}") from None
+        try:
+            hash(track_id)
+        except TypeError:
+            raise TypeError(f"track_id: expected a hashable id (text or a number), got {type(track_id).__name__} "
+                            f"{track_id!r:.80}") from None
         params = self._ensure_params(z.shape[0])
         known = self.gaps.get(track_id)
         gaps = GapTracker() if known is None else known.copy()

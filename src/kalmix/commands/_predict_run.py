@@ -149,7 +149,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     from tqdm import tqdm
 
     from ..io import iter_track_chunks, to_arrays
-    from ..streaming import auto_length_unit
+    from ..streaming import _length_unit_rule
 
     if not os.path.exists(path):
         raise FileNotFoundError(f"INPUT: no such file {path!r}")
@@ -172,9 +172,12 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
         for chunk in iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
                                        ids_as_text=True):
             if run.engine is None:
-                chosen = unit if unit is not None else auto_length_unit(to_arrays(chunk).values)
-                if unit is None:
+                chosen, why = (unit, None) if unit is not None else _length_unit_rule(to_arrays(chunk).values)
+                if unit is None and why is None:
                     click.echo(f"kalmix: length unit {chosen:.6g} (auto; pass --length-unit to override)", err=True)
+                elif unit is None:
+                    click.echo(f"kalmix: length unit 1 (auto could not estimate it: the first chunk has {why}; "
+                               "pass --length-unit)", err=True)
                 run.engine = _new_engine(settings, chosen, columns.positions)
             engine = run.engine
             mark = engine.checkpoint(pd.unique(chunk["track_id"]))

@@ -16,7 +16,7 @@ import warnings
 import click
 import numpy as np
 
-from ..bank import LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED
+from ..bank import DEFAULT_BANK, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED
 
 _LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres). "
                      "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
@@ -50,9 +50,25 @@ def _mixture_options(pairs):
         except json.JSONDecodeError:
             value = text
         options[key.strip().replace("-", "_")] = value
-    if "length_unit" in options:
-        raise click.BadParameter("use --length-unit for the length unit", param_hint="--option")
+    for key, flag in (("length_unit", "--length-unit"), ("seed", "--seed")):
+        if key in options:
+            raise click.BadParameter(f"use {flag} for the {key.replace('_', ' ')}", param_hint="--option")
+    known = _option_names()
+    for key in options:
+        if key not in known:
+            raise click.BadParameter(f"unknown option {key!r}; expected one of {', '.join(known)}",
+                                     param_hint="--option")
     return options
+
+
+def _option_names() -> list[str]:
+    """The keyword arguments of :func:`kalmix.bank.make_params` that --option may set."""
+    import inspect
+
+    from ..bank import make_params
+
+    return [name for name, p in inspect.signature(make_params).parameters.items()
+            if p.kind == p.KEYWORD_ONLY and name not in ("seed", "length_unit")]
 
 
 _OPTION_HELP = ("A kalmix.bank.make_params argument of the mixture, KEY=VALUE (JSON value), repeatable, "
@@ -255,6 +271,10 @@ def predict(input_path, time_column, position_columns, id_column, horizon, outpu
                 if given is not None and given != have:
                     raise ValueError(f"{name}: the state file {state_path} was made with {have}, got {given}; "
                                      "use a new --state file to change it")
+        kind = bank_kind or (engine.config.bank if engine is not None else DEFAULT_BANK["kind"])
+        if kind == "kinematic" and (n_experts is not None or options):
+            raise ValueError(f"{'--experts' if n_experts is not None else '--option'}: sets the AKF family, "
+                             "and --bank kinematic has none (use --bank mixed or akf)")
         settings = dict(n_experts=40 if n_experts is None else n_experts, seed=0 if seed is None else seed,
                         horizon=horizon, max_gap=gap, max_gap_factor=math.inf if never else max_gap_factor,
                         options=options, time_unit=time_unit)
@@ -306,10 +326,13 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
     track tunes the CV/CA Kalman filters and the IMM (grid search, one-step RMS) and the
     length unit, and is not scored. Errors are per coordinate, in data units.
     """
+    import pandas as pd
+
     from ..experiments.evaluate import evaluate_table
 
     unit = _length_unit(length_unit)
     gap, never = _max_gap(max_gap)
+    options = _mixture_options(mixture_options)
     with _user_errors():
         if (input_path is None) == (dataset is None):
             raise ValueError("give either INPUT or --dataset NAME")
@@ -331,10 +354,16 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
             table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True)
             label = os.path.basename(input_path)
         wanted = [t.strip() for t in tracks.split(",")] if tracks else None
+        if plot_path and plot_track is not None:  # before the work, not after it
+            names = [str(t) for t in pd.unique(table["track_id"])]
+            names = [t for t in names if wanted is None or t in wanted]
+            if str(plot_track) not in names:
+                raise ValueError(f"--track: expected one of {names[:20]}{' ...' if len(names) > 20 else ''}, "
+                                 f"got {plot_track!r}")
         result = evaluate_table(table, horizon=horizon, n_experts=n_experts, seed=seed, length_unit=unit,
                                 tuning_fraction=tuning_fraction, max_gap=gap,
                                 max_gap_factor=math.inf if never else max_gap_factor, max_samples=max_samples,
-                                tracks=wanted, peers=peers, options=_mixture_options(mixture_options),
+                                tracks=wanted, peers=peers, options=options,
                                 log=lambda message: click.echo(f"kalmix: {message}", err=True))
         result.dataset = label
         click.echo(format_result(result, per_track=per_track))
@@ -368,9 +397,11 @@ def format_result(result, per_track=True) -> str:
     """The text tables printed by ``kalmix evaluate``."""
     streams = result.streams
     n_rows = int(streams.lengths.sum())
+    tuning = (f"first {result.tuning_fraction:.0%} of each track tunes the peers and is not scored"
+              if result.tuning_fraction > 0 else
+              "no tuning part (--tuning-fraction 0): the peers are tuned on the scored rows, in hindsight")
     lines = [f"{result.dataset}: {len(streams.track_ids)} track(s), {n_rows} samples in {len(streams.lengths)} "
-             f"segment(s); length unit {result.length_unit:.4g}; first {result.tuning_fraction:.0%} of each "
-             "track tunes the peers and is not scored; errors per coordinate, data units", ""]
+             f"segment(s); length unit {result.length_unit:.4g}; {tuning}; errors per coordinate, data units", ""]
     lines += _table("overall", result.overall, result.horizon)
     partial = {name: entry for name, entry in result.tuned.items()
                if isinstance(entry, dict) and "rows_evaluated" in entry and entry["rows_evaluated"] < entry["rows"]}

@@ -29,6 +29,7 @@ forecast is not finite, e.g. before its first measurement.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -38,7 +39,8 @@ from . import aggregators
 from . import screen as glitch
 from .families import akf, kinematic
 
-__all__ = ["Family", "Bank", "BankState", "EngineResult", "init_bank_state", "run", "FAMILY_KINDS"]
+__all__ = ["Family", "Bank", "BankState", "EngineResult", "init_bank_state", "run", "FAMILY_KINDS",
+           "check_run_arguments"]
 
 #: Family kinds: kinematic CV / CA in real time, and the paper's AKF (frame-based).
 FAMILY_KINDS = ("cv", "ca", "akf")
@@ -110,6 +112,64 @@ def init_bank_state(bank: Bank, n_targets: int) -> BankState:
                      glitch.init(n_targets, p))
 
 
+def check_run_arguments(bank: Bank, measurements, times, state, lengths):
+    """The arguments of :func:`run` (and the compiled one) as arrays; ``ValueError`` naming the bad one.
+
+    ``measurements (T, N, p)`` with ``p = bank.measurement_dim``; ``times`` broadcastable to
+    ``(T, N)``; ``lengths (N,)``; ``state`` a :class:`BankState` of this bank for N targets.
+    """
+    z = np.asarray(measurements, dtype=np.float64)
+    if z.ndim != 3:
+        raise ValueError(f"measurements: expected shape (T, N, p) (rows, targets, coordinates), got {z.shape}")
+    t_count, n, p = z.shape
+    if p != bank.measurement_dim:
+        raise ValueError(f"measurements: expected {bank.measurement_dim} coordinates per row (the bank's "
+                         f"measurement_dim), got {p}")
+    try:
+        times = np.broadcast_to(np.asarray(times, dtype=np.float64), (t_count, n))
+    except ValueError:
+        raise ValueError(f"times: expected shape (T, N) = {(t_count, n)} or one that broadcasts to it, "
+                         f"got {np.shape(times)}") from None
+    if lengths is not None:
+        lengths = np.asarray(lengths)
+        if lengths.shape != (n,):
+            raise ValueError(f"lengths: expected shape (N,) = ({n},), got {lengths.shape}")
+    if state is not None:
+        _check_state(bank, state, n)
+    return z, times, lengths
+
+
+#: Per bank, the shapes (after the target axis) of the first array of each part of its state.
+_STATE_SHAPES: "weakref.WeakKeyDictionary[Bank, list]" = weakref.WeakKeyDictionary()
+
+
+def _parts(state):
+    """``(name, first array)`` of each family's state, the rule's and the screen's."""
+    families, rule, screen = state
+    return ([(f"state.families[{i}].{part._fields[0]}", part[0]) for i, part in enumerate(families)]
+            + [(f"state.rule.{rule._fields[0]}", rule[0]), (f"state.screen.{screen._fields[0]}", screen[0])])
+
+
+def _check_state(bank: Bank, state, n: int) -> None:
+    """A state of another bank (other families, expert counts, rule) or of another number of targets
+    is refused by name (the first array of each part is enough to tell; states come from this module)."""
+    template = _STATE_SHAPES.get(bank)
+    if template is None:
+        template = _STATE_SHAPES[bank] = [np.shape(a)[1:] for _, a in _parts(init_bank_state(bank, 1))]
+    try:
+        given = _parts(state)
+    except (TypeError, ValueError, AttributeError, IndexError):
+        given = None
+    if given is None or len(given) != len(template):
+        raise ValueError(f"state: expected a BankState of this bank ({len(bank.families)} families, rule "
+                         f"{bank.rule!r}), got {type(state).__name__} "
+                         f"{'' if given is None else f'with {len(given) - 2} families'}".rstrip())
+    for (name, value), shape in zip(given, template):
+        if np.shape(value) != (n,) + shape:
+            raise ValueError(f"state: {name} has shape {np.shape(value)}, expected {(n,) + shape} for {n} "
+                             "targets of this bank (a state of another bank, or of other targets?)")
+
+
 def _family_forecast(family: Family, state, time, frames: int):
     if family.kind == "akf":
         means, _ = akf.forecast(family.params, state, frames)
@@ -168,9 +228,8 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
 def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
         ahead_times=None, ahead_frames: int = 1, record_experts: bool = False) -> EngineResult:
     """Reference loop over time (see the module docstring for the conventions)."""
-    z = np.asarray(measurements, dtype=np.float64)
+    z, times, lengths = check_run_arguments(bank, measurements, times, state, lengths)
     t_count, n, p = z.shape
-    times = np.broadcast_to(np.asarray(times, dtype=np.float64), (t_count, n))
     state = init_bank_state(bank, n) if state is None else state
     lengths = np.full(n, t_count) if lengths is None else np.asarray(lengths)
     forecasts = np.full((t_count, n, p), np.nan)

@@ -517,7 +517,8 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     predictions["no prediction"] = (carried, carried)
 
     for name, order, degree in (("CV Kalman", 2, 1), ("CA Kalman", 3, 2)):
-        log(f"{name}: tuning on the first {tuning_fraction:.0%} of each track")
+        log(f"{name}: tuning on the first {tuning_fraction:.0%} of each track" if tuning.any() else
+            f"{name}: tuning on the scored rows themselves (no tuning part: in hindsight)")
         best = _tune_fixed(order, degree, rule, values, tune_scored)
         tuned[name] = best
         params = make_params(p, 1, dynamics="fixed", order=order, prior_degree=degree, adapt_noise=False,

@@ -264,7 +264,8 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
         ids = raw[cols.track_id].reset_index(drop=True)
         if ids.isna().any():
             i = int(np.argmax(ids.isna().to_numpy()))
-            raise ValueError(f"Column {cols.track_id!r} (track id) must not be empty; row {offset + i} is")
+            raise ValueError(f"Column {cols.track_id!r} (track id) must not be empty; row {offset + i} (counted from "
+                             "0 after the header) has no id")
     out = pd.DataFrame({"track_id": ids})
     if cols.time is None:
         k = out.groupby("track_id", sort=False).cumcount().to_numpy(np.float64)
@@ -332,6 +333,19 @@ def _header(source: Any, fmt: str) -> list[str]:
         raise ValueError(f"The track file {os.fspath(source)!r} has no rows (it is empty)") from None
 
 
+def _check_unique(source: Any, fmt: str, cols: TrackColumns) -> None:
+    """``ValueError`` when a column used appears more than once in a CSV header (pandas would
+    silently rename the copies ``x.1``, ``x.2`` and read the first)."""
+    if fmt != "csv":
+        return
+    first = pd.read_csv(source, nrows=1, header=None, dtype=str, keep_default_na=False)
+    written = [str(v) for v in first.iloc[0]] if len(first) else []
+    for name in cols.names:
+        if written.count(name) > 1:
+            raise ValueError(f"Column {name!r} appears {written.count(name)} times in the header of "
+                             f"{os.fspath(source)!r}; rename the copies (pandas would read the first)")
+
+
 def _resolve(header: list[str], columns: TrackColumns | None) -> TrackColumns:
     if columns is None:
         return detect_columns(header)
@@ -375,6 +389,7 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
     is_path = isinstance(path_or_buffer, (str, os.PathLike))
     if is_path:
         cols = _resolve(_header(path_or_buffer, fmt), columns)
+        _check_unique(path_or_buffer, fmt, cols)
         if fmt == "parquet":
             import pyarrow.parquet as pq
             raw = pq.read_table(path_or_buffer, columns=cols.names).to_pandas()
@@ -432,6 +447,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         raise ValueError(f"Expected chunk_rows >= 1, got {chunk_rows}")
     fmt = _format_of(path, format)
     cols = _resolve(_header(path, fmt), columns)
+    _check_unique(path, fmt, cols)
     last: dict = {}
     counts: dict | None = {} if cols.time is None else None
     offset = 0

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine import Bank, BankState, EngineResult, init_bank_state
+from ..engine import Bank, BankState, EngineResult, check_run_arguments, init_bank_state
 from ..families import akf
 from ..families.kinematic import KinematicState
 from ..screen import ScreenState
@@ -99,9 +99,10 @@ def _akf_piece(params, state, z, learn, lengths, out, offset, ahead, ahead_frame
 
 def prepare(bank: Bank, measurements, times, state, lengths, learn):
     """Contiguous float inputs, a fresh state if none, lengths, and the rows to learn (present ones only)."""
-    z = np.ascontiguousarray(measurements, dtype=np.float64)
+    z, times, lengths = check_run_arguments(bank, measurements, times, state, lengths)
+    z = np.ascontiguousarray(z)
     t_count, n, _ = z.shape
-    times = np.ascontiguousarray(np.broadcast_to(np.asarray(times, dtype=np.float64), (t_count, n)))
+    times = np.ascontiguousarray(times)
     state = init_bank_state(bank, n) if state is None else state
     lengths = np.full(n, t_count, dtype=np.int64) if lengths is None else np.asarray(lengths, dtype=np.int64)
     present = np.isfinite(z).all(axis=-1) & (np.arange(t_count)[:, None] < lengths[None, :])

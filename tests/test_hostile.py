@@ -1,0 +1,183 @@
+"""A hostile pass over the new options and the engine API: each fix of what was not handled well.
+
+Every case here was found by feeding kalmix a bad input, option, or call: before the fix it gave
+a traceback-like message, a wrong silent result, or an error after all the work.
+"""
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from kalmix.bank import make_bank
+from kalmix.cli import build
+from kalmix.core import engine
+from kalmix.core.compiled import engine as ce
+from kalmix.streaming import StreamConfig, TrackPredictor
+
+FAST = ["--experts", "2", "--seed", "1", "--no-progress"]
+ENGINES = {"reference": engine.run, "compiled": ce.run}
+
+
+@pytest.fixture(scope="module")
+def cli():
+    return build()
+
+
+def _run(cli, args):
+    return CliRunner().invoke(cli, args, catch_exceptions=False)
+
+
+@pytest.fixture(scope="module")
+def tracks_csv(tmp_path_factory):
+    rng = np.random.default_rng(0)
+    rows = []
+    for track in ("a", "b"):
+        xy = np.cumsum(rng.normal(size=(40, 2)), axis=0)
+        rows += [(track, 0.1 * i, *xy[i]) for i in range(40)]
+    path = tmp_path_factory.mktemp("hostile") / "tracks.csv"
+    pd.DataFrame(rows, columns=["track_id", "time", "x", "y"]).to_csv(path, index=False)
+    return str(path)
+
+
+# ---------------------------------------------------------------------------------------- engine API
+def _data(n=2, p=2, t_count=30):
+    z = np.cumsum(np.random.default_rng(1).normal(size=(t_count, n, p)), axis=0)
+    return z, np.broadcast_to(np.arange(t_count, dtype=float)[:, None], (t_count, n)).copy()
+
+
+@pytest.mark.parametrize("run", ENGINES.values(), ids=ENGINES.keys())
+@pytest.mark.parametrize("call, message", [
+    (lambda run, bank, z, t: run(bank, z[:, :, 0], t), r"measurements: expected shape \(T, N, p\).*got \(30, 2\)"),
+    (lambda run, bank, z, t: run(bank, z[..., :1], t), "measurements: expected 2 coordinates per row"),
+    (lambda run, bank, z, t: run(bank, z, np.arange(31.0)), r"times: expected shape \(T, N\) = \(30, 2\)"),
+    (lambda run, bank, z, t: run(bank, z, t, lengths=np.array([3])), r"lengths: expected shape \(N,\) = \(2,\)"),
+    (lambda run, bank, z, t: run(bank, z, t, engine.init_bank_state(make_bank(2, "kinematic"), 2)),
+     "state: expected a BankState of this bank .* with 2 families"),
+    (lambda run, bank, z, t: run(bank, z, t, engine.init_bank_state(bank, 3)),
+     r"state: state.families\[0\].mean has shape \(3, "),
+])
+def test_engine_arguments_are_checked_by_name(run, call, message):
+    """Before: 'not enough values to unpack', a numpy broadcast error, a state of another bank
+    used silently by the reference (zip cut it short), data of the wrong dimension run silently."""
+    z, t = _data()
+    with pytest.raises(ValueError, match=message):
+        call(run, make_bank(2, "mixed", n_akf=2), z, t)
+
+
+@pytest.mark.parametrize("args, error, message", [
+    (("a", 0.0, ["1", "x"]), ValueError, r"z: expected numbers .*got \['1', 'x'\]"),
+    ((["a"], 0.0, [1.0, 2.0]), TypeError, r"track_id: expected a hashable id .*got list \['a'\]"),
+    (("a", "noon", [1.0, 2.0]), ValueError, "time: expected a number, got 'noon'"),
+])
+def test_step_row_names_a_bad_argument(args, error, message):
+    predictor = TrackPredictor(StreamConfig(bank="kinematic", length_unit=1.0))
+    with pytest.raises(error, match=message):
+        predictor.step_row(*args)
+    assert predictor.rows == 0 and not predictor.track_ids
+
+
+# ---------------------------------------------------------------------------------------- predict
+def test_a_duplicated_column_is_refused_not_read_silently(cli, tmp_path):
+    """pandas renames the copy 'x.1' and reads the first: the user would never know which one was used."""
+    path = tmp_path / "dup.csv"
+    path.write_text("track_id,time,x,x,y\n" + "".join(f"a,{i},{i},{-i},{i}\n" for i in range(20)))
+    for command in ("predict", "evaluate"):
+        result = _run(cli, [command, str(path), *FAST] if command == "predict" else
+                      [command, str(path), "--experts", "2", "--no-peers"])
+        assert result.exit_code == 1
+        assert "Column 'x' appears 2 times in the header" in result.output
+
+
+def test_an_unused_duplicated_column_is_fine(cli, tmp_path):
+    path = tmp_path / "dup.csv"
+    path.write_text("track_id,time,x,y,note,note\n" + "".join(f"a,{i},{i},{i},n,m\n" for i in range(20)))
+    result = _run(cli, ["predict", str(path), *FAST])
+    assert result.exit_code == 0 and sum(line.startswith("a,") for line in result.output.splitlines()) == 20
+
+
+@pytest.mark.parametrize("content, args, why", [
+    ("t,x,y\n" + "".join(f"{i},3,4\n" for i in range(30)), [], "second differences that are all 0"),
+    ("id,t,x,y\n" + "".join(f"{i},0,{i},{i}\n" for i in range(5)), [], "fewer than 3 samples of a track"),
+    (None, ["--chunk-rows", "1"], "fewer than 3 samples of a track"),
+])
+def test_the_length_unit_note_says_when_auto_could_not_estimate_it(cli, tmp_path, tracks_csv, content, args, why):
+    """Before: 'length unit 1 (auto; ...)', as if 1 had been estimated from the data."""
+    path = tracks_csv
+    if content is not None:
+        path = tmp_path / "in.csv"
+        path.write_text(content)
+    result = _run(cli, ["predict", str(path), *FAST, *args])
+    assert result.exit_code == 0
+    assert f"length unit 1 (auto could not estimate it: the first chunk has {why}" in result.output
+
+
+def test_values_near_the_largest_double_give_no_numpy_warning_and_finite_predictions(cli, tmp_path, tracks_csv):
+    """Before: 'kalmix: warning: overflow encountered in multiply' (from the length-unit rule)."""
+    table = pd.read_csv(tracks_csv)
+    table.loc[5, "x"], table.loc[6, "x"] = 1.7e308, -1.7e308
+    path = tmp_path / "max.csv"
+    table.to_csv(path, index=False)
+    out = tmp_path / "out.csv"
+    result = _run(cli, ["predict", str(path), *FAST, "-o", str(out)])
+    assert result.exit_code == 0 and "overflow" not in result.output
+    predictions = pd.read_csv(out)[["pred_x", "pred_y"]].to_numpy()
+    assert np.isfinite(predictions).all()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--bank", "kinematic", "--experts", "4"], "--experts: sets the AKF family, and --bank kinematic has none"),
+    (["--bank", "kinematic", "--option", "order=3"], "--option: sets the AKF family, and --bank kinematic has none"),
+])
+def test_akf_settings_with_a_kinematic_bank_are_refused(cli, tracks_csv, args, message):
+    """Before: silently ignored (the kinematic bank has no AKF family)."""
+    result = _run(cli, ["predict", tracks_csv, "--no-progress", *args])
+    assert result.exit_code == 1 and message in result.output and "pred_x" not in result.output
+
+
+def test_a_kinematic_state_resumed_with_experts_is_refused(cli, tracks_csv, tmp_path):
+    state = str(tmp_path / "s.npz")
+    assert _run(cli, ["predict", tracks_csv, "--no-progress", "--bank", "kinematic", "--state", state,
+                      "-o", str(tmp_path / "a.csv")]).exit_code == 0
+    result = _run(cli, ["predict", tracks_csv, "--no-progress", "--experts", "40", "--state", state,
+                        "-o", str(tmp_path / "b.csv")])
+    assert result.exit_code == 1 and "--bank kinematic has none" in result.output
+
+
+@pytest.mark.parametrize("option, message", [
+    ("bogus=1", "unknown option 'bogus'; expected one of dynamics, gating"),
+    ("seed=3", "use --seed for the seed"),
+])
+def test_unknown_options_are_named_with_the_known_ones(cli, tracks_csv, option, message):
+    """Before: "make_params() got an unexpected keyword argument 'bogus'"."""
+    result = _run(cli, ["predict", tracks_csv, *FAST, "--option", option])
+    assert result.exit_code == 2 and message in result.output
+
+
+def test_an_empty_track_id_is_reported_in_a_whole_sentence(cli, tmp_path):
+    path = tmp_path / "ids.csv"
+    path.write_text("track_id,time,x,y\n,0,1,2\na,1,2,3\n")
+    result = _run(cli, ["predict", str(path), *FAST])
+    assert result.exit_code == 1
+    assert "Column 'track_id' (track id) must not be empty; row 0 (counted from 0 after the header) has no id" \
+        in result.output
+
+
+# ---------------------------------------------------------------------------------------- evaluate
+def test_evaluate_refuses_an_unknown_plot_track_before_the_work(cli, tracks_csv, tmp_path):
+    """Before: every predictor ran, the tables were printed, and then the error came."""
+    result = _run(cli, ["evaluate", tracks_csv, "--experts", "2", "--no-peers", "--plot", str(tmp_path / "p.png"),
+                        "--track", "zz"])
+    assert result.exit_code == 1
+    assert "--track: expected one of ['a', 'b'], got 'zz'" in result.output
+    assert "overall" not in result.output and "tuning" not in result.output
+
+
+def test_evaluate_with_no_tuning_part_says_the_peers_are_tuned_in_hindsight(cli, tracks_csv):
+    """Before: 'first 0% of each track tunes the peers', while they were tuned on the scored rows."""
+    result = _run(cli, ["evaluate", tracks_csv, "--experts", "2", "--no-peers", "--tuning-fraction", "0",
+                        "--no-per-track"])
+    assert result.exit_code == 0
+    assert "no tuning part (--tuning-fraction 0): the peers are tuned on the scored rows, in hindsight" \
+        in result.output
+    assert "tuning on the scored rows themselves" in result.output and "first 0%" not in result.output
