@@ -99,7 +99,7 @@ class Run:
             raise SystemExit(1)
 
 
-def _check_resumed(engine, columns, state_path, text_ids):
+def _check_resumed(engine, columns):
     if engine is None:
         return
     if engine.position_names is not None and len(engine.position_names) != len(columns.positions):
@@ -157,7 +157,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
         raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {path!r}")
     in_fmt = "parquet" if _file_format(path) == "parquet" else "csv"
     columns = _columns(_header(path, in_fmt), time_column, position_columns, id_column)
-    _check_resumed(run.engine, columns, run.state_path, text_ids=in_fmt == "csv")
+    _check_resumed(run.engine, columns)
     run.open_output()
     show = sys.stderr.isatty() if progress is None else progress
     total = None
@@ -256,7 +256,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         header = next(csv.reader([first]))
         pending = []
     columns = _columns(header, time_column, position_columns, id_column)
-    _check_resumed(run.engine, columns, run.state_path, text_ids=not is_json)
+    _check_resumed(run.engine, columns)
     if run.engine is None:
         if unit is None:
             click.echo("kalmix: length unit 1 (stdin has no sample to estimate it from; pass --length-unit)",

@@ -21,6 +21,32 @@ _FACT = (1.0, 1.0, 2.0)
 
 
 @nb.njit(inline="always", **_JIT)
+def _sandwich(order, left, middle, out, work):
+    """``out = left @ middle @ left.T`` on the leading ``order x order`` block."""
+    for i in range(order):
+        for j in range(order):
+            acc = 0.0
+            for l in range(order):
+                acc += left[i, l] * middle[l, j]
+            work[i, j] = acc
+    for i in range(order):
+        for j in range(order):
+            acc = 0.0
+            for l in range(order):
+                acc += work[i, l] * left[j, l]
+            out[i, j] = acc
+
+
+@nb.njit(inline="always", **_JIT)
+def _symmetrise(order, matrix):
+    for i in range(order):
+        for j in range(i + 1, order):
+            s = 0.5 * (matrix[i, j] + matrix[j, i])
+            matrix[i, j] = s
+            matrix[j, i] = s
+
+
+@nb.njit(inline="always", **_JIT)
 def _extrapolate(order, delta, q, mean, cov, m_out, c_out, f, work):
     """``m_out = F mean``; ``c_out = F cov F^T + q Q(delta)`` (symmetrised), for one expert."""
     p = mean.shape[1]
@@ -38,26 +64,14 @@ def _extrapolate(order, delta, q, mean, cov, m_out, c_out, f, work):
             for j in range(order):
                 acc += f[i, j] * mean[j, c]
             m_out[i, c] = acc
+    _sandwich(order, f, cov, c_out, work)
     for i in range(order):
         for j in range(order):
-            acc = 0.0
-            for l in range(order):
-                acc += f[i, l] * cov[l, j]
-            work[i, j] = acc
-    for i in range(order):
-        for j in range(order):
-            acc = 0.0
-            for l in range(order):
-                acc += work[i, l] * f[j, l]
             a = order - 1 - i
             b = order - 1 - j
             m = a + b + 1
-            c_out[i, j] = acc + q * delta**m / (m * _FACT[a] * _FACT[b])
-    for i in range(order):
-        for j in range(i + 1, order):
-            s = 0.5 * (c_out[i, j] + c_out[j, i])
-            c_out[i, j] = s
-            c_out[j, i] = s
+            c_out[i, j] = c_out[i, j] + q * delta**m / (m * _FACT[a] * _FACT[b])
+    _symmetrise(order, c_out)
 
 
 @nb.njit(inline="always", **_JIT)
@@ -101,23 +115,11 @@ def _update(order, r, max_variance, z, mean_k, cov_k, m_pred, c_pred, work, gain
     for i in range(order):
         for j in range(order):
             a[i, j] = (1.0 if i == j else 0.0) - (gain[i] if j == 0 else 0.0)
+    _sandwich(order, a, c_pred, cov_k, work)
     for i in range(order):
         for j in range(order):
-            acc = 0.0
-            for l in range(order):
-                acc += a[i, l] * c_pred[l, j]
-            work[i, j] = acc
-    for i in range(order):
-        for j in range(order):
-            acc = 0.0
-            for l in range(order):
-                acc += work[i, l] * a[j, l]
-            cov_k[i, j] = acc + r * gain[i] * gain[j]
-    for i in range(order):
-        for j in range(i + 1, order):
-            s2 = 0.5 * (cov_k[i, j] + cov_k[j, i])
-            cov_k[i, j] = s2
-            cov_k[j, i] = s2
+            cov_k[i, j] = cov_k[i, j] + r * gain[i] * gain[j]
+    _symmetrise(order, cov_k)
     excess = cov_k[0, 0] / max_variance
     if excess > 1.0:
         for i in range(order):
