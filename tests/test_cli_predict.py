@@ -44,6 +44,15 @@ def _read(text):
     return pd.read_csv(io.StringIO(text))
 
 
+def _defined_alike(frame):
+    """Rows whose file pred_ (for the next row's time) is the stream's (one reference interval on): the next
+    row is one step (0.04) later; and not the stream's very first row (no interval known yet)."""
+    step = frame.groupby("object_id")["t"].diff().shift(-1).to_numpy()
+    alike = np.abs(step - 0.04) < 1e-9
+    first = frame["t"].to_numpy() == frame["t"].min()
+    return alike & ~(first & (frame["object_id"].to_numpy() == frame["object_id"].min()))
+
+
 def _sorted(frame):
     return frame.sort_values(["object_id", "t"], kind="stable").reset_index(drop=True)
 
@@ -53,7 +62,8 @@ def test_csv_round_trip_keeps_ids_and_times(cli, tmp_path):
     result = _run(cli, ["predict", _write_csv(data, tmp_path / "in.csv"), *FAST, "-H", "5"])
     assert result.exit_code == 0, result.output
     out = _read(result.stdout)
-    assert list(out.columns) == ["object_id", "t", "segment", "pred_px", "pred_py", "pred5_px", "pred5_py"]
+    assert list(out.columns) == ["object_id", "t", "segment", "pred_px", "pred_py", "std_px", "std_py",
+                                 "pred5_px", "pred5_py", "std5_px", "std5_py"]
     pd.testing.assert_frame_equal(out[["object_id", "t"]], _sorted(data)[["object_id", "t"]])
     assert out.groupby("object_id")["segment"].max().to_dict() == {100: 0, 101: 1, 102: 0}
     assert np.isfinite(out[["pred_px", "pred_py"]].to_numpy()).all()
@@ -69,7 +79,8 @@ def test_parquet_in_and_out_and_jsonl_out(cli, tmp_path):
     np.testing.assert_allclose(parquet_out[["pred_px", "pred_py"]], csv_out[["pred_px", "pred_py"]], rtol=0, atol=1e-12)
     result = _run(cli, ["predict", str(tmp_path / "in.csv"), *FAST, "-o", str(tmp_path / "out.jsonl")])
     records = [json.loads(line) for line in (tmp_path / "out.jsonl").read_text().splitlines()]
-    assert len(records) == len(data) and set(records[0]) == {"object_id", "t", "segment", "pred_px", "pred_py"}
+    assert len(records) == len(data) and set(records[0]) == {"object_id", "t", "segment", "pred_px", "pred_py",
+                                                             "std_px", "std_py"}
 
 
 def test_csv_gz_input(cli, tmp_path):
@@ -88,8 +99,13 @@ def test_stdin_csv_streaming_equals_batch(cli, tmp_path):
     assert stream.exit_code == 0, stream.output
     stream = _sorted(_read(stream.stdout))
     assert list(stream.columns) == list(batch.columns)
-    np.testing.assert_array_equal(stream[["object_id", "segment"]], batch[["object_id", "segment"]])
-    np.testing.assert_allclose(stream.drop(columns="object_id"), batch.drop(columns="object_id"), rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(stream[["object_id", "segment", "t"]], batch[["object_id", "segment", "t"]])
+    lead = ["pred3_px", "pred3_py", "std3_px", "std3_py"]   # defined alike everywhere
+    np.testing.assert_allclose(stream[lead], batch[lead], rtol=0, atol=1e-9)
+    alike = _defined_alike(batch)
+    assert alike.sum() >= 140
+    nxt = ["pred_px", "pred_py", "std_px", "std_py"]
+    np.testing.assert_allclose(stream.loc[alike, nxt], batch.loc[alike, nxt], rtol=0, atol=1e-9)
 
 
 def test_stdin_json_lines_equal_batch(cli, tmp_path):
@@ -101,7 +117,9 @@ def test_stdin_json_lines_equal_batch(cli, tmp_path):
     result = _run(cli, ["predict", "-", *FAST], input=lines + "\n")
     assert result.exit_code == 0, result.output
     out = _sorted(pd.DataFrame([json.loads(line) for line in result.stdout.splitlines()]))
-    np.testing.assert_allclose(out[["pred_px", "pred_py"]], batch[["pred_px", "pred_py"]], rtol=0, atol=1e-9)
+    alike = _defined_alike(batch)
+    np.testing.assert_allclose(out.loc[alike, ["pred_px", "pred_py", "std_px", "std_py"]],
+                               batch.loc[alike, ["pred_px", "pred_py", "std_px", "std_py"]], rtol=0, atol=1e-9)
 
 
 def test_stdin_prediction_is_written_as_each_line_arrives(tmp_path):
@@ -150,7 +168,14 @@ def test_state_resume_is_bit_for_bit_on_files(cli, tmp_path):
                         "--no-progress"])
     assert "skipped 10 row(s)" in second.stderr
     combined = _sorted(pd.concat([_read(first.stdout), _read(second.stdout)]))
-    assert combined.to_csv(index=False) == _read(whole).to_csv(index=False)
+    expected = _read(whole)
+    # a track's last row in a.csv was forecast one interval on (its next row was not in that file)
+    last = ordered.iloc[:90].groupby("object_id")["t"].max()
+    cut = combined["t"].to_numpy() == combined["object_id"].map(last).to_numpy()
+    assert cut.sum() == 3
+    assert combined[~cut].to_csv(index=False) == expected[~cut].to_csv(index=False)
+    same = ["object_id", "t", "segment"]
+    assert combined.loc[cut, same].to_csv(index=False) == expected.loc[cut, same].to_csv(index=False)
 
 
 def test_state_refuses_conflicting_settings(cli, tmp_path):
@@ -168,7 +193,8 @@ def test_explicit_column_names(cli, tmp_path):
     path = _write_csv(data, tmp_path / "in.csv")
     result = _run(cli, ["predict", path, *FAST, "--time", "clock", "--id", "boat", "--position", "east,north"])
     assert result.exit_code == 0, result.output
-    assert list(_read(result.stdout).columns) == ["boat", "clock", "segment", "pred_east", "pred_north"]
+    assert list(_read(result.stdout).columns) == ["boat", "clock", "segment", "pred_east", "pred_north", "std_east",
+                                                  "std_north"]
 
 
 @pytest.mark.parametrize("content, args, message", [

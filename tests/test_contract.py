@@ -32,6 +32,24 @@ def test_contract_adversarial(kind, rule):
     check_bank(_bank(kind, rule), z, t)
 
 
+def _gaps(shape, seed):
+    """Gap restarts at 4 % of the rows, half of them on missing rows."""
+    rng = np.random.default_rng(seed)
+    return rng.random(shape) < 0.04, rng.random(shape) < 0.5
+
+
+@pytest.mark.parametrize("rule", RULES)
+@pytest.mark.parametrize("data", ["benign", "adversarial"])
+def test_contract_with_a_lead_head_and_gap_restarts(data, rule):
+    """The lead head (delayed feedback) and gap restarts (warm starts) keep the contract, outputs and all."""
+    z, t = benign_tracks(seed=3) if data == "benign" else adversarial_tracks(seed=4, t_count=150)
+    restart, blank = _gaps(z.shape[:2], 5)
+    z = np.where((restart & blank)[..., None], np.nan, z)
+    bank = make_bank(2, "mixed", rule=rule, length_unit=0.3, n_akf=8, lead=3.0)
+    check_bank(bank, z, t, restart=restart)
+    check_bank(_bank("kinematic", rule), z, t, restart=restart)
+
+
 def test_fixed_scale_fixed_share_is_the_previous_rule():
     """fixed_share with a fixed scale is exponential weighting at rate 1/(2 sigma^2): check one step by hand."""
     from kalmix.core.aggregators import fixed_share

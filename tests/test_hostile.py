@@ -181,3 +181,24 @@ def test_evaluate_with_no_tuning_part_says_the_peers_are_tuned_in_hindsight(cli,
     assert "no tuning part (--tuning-fraction 0): the peers are tuned on the scored rows, in hindsight" \
         in result.output
     assert "tuning on the scored rows themselves" in result.output and "first 0%" not in result.output
+
+
+def test_an_all_empty_file_warns(cli, tmp_path):
+    path = tmp_path / "empty_positions.csv"
+    path.write_text("id,t,x,y\n1,0,,\n1,1,nan,nan\n2,0,,\n")
+    result = _run(cli, ["predict", str(path), *FAST, "--length-unit", "1"])
+    assert result.exit_code == 0
+    assert "none of the 3 input row(s) has a position" in result.stderr
+    stdin = CliRunner().invoke(cli, ["predict", "-", *FAST, "--length-unit", "1"], input=path.read_text(),
+                               catch_exceptions=False)
+    assert "none of the 3 input row(s) has a position" in stdin.stderr
+
+
+def test_a_state_resumed_with_renamed_positions_is_refused(cli, tracks_csv, tmp_path):
+    state = str(tmp_path / "s.npz")
+    assert _run(cli, ["predict", tracks_csv, *FAST, "--state", state]).exit_code == 0
+    renamed = tmp_path / "renamed.csv"
+    frame = pd.read_csv(tracks_csv)
+    frame.rename(columns={"x": "east", "y": "north"}).to_csv(renamed, index=False)
+    result = _run(cli, ["predict", str(renamed), "--state", state, "--no-progress", "--position", "east,north"])
+    assert result.exit_code == 1 and "the state file tracks the coordinates" in result.stderr

@@ -175,7 +175,7 @@ def test_a_signal_during_a_stdin_row_finishes_that_row(cli, feed_csv, reference,
 def test_engine_calls_are_all_or_nothing(monkeypatch):
     """An exception inside an engine call leaves trackers, counters and states as they were."""
     table = _feed(n_tracks=3, n=30).rename(columns={"id": "track_id", "t": "time"})
-    config = StreamConfig(n_experts=2, seed=1, horizon=2)
+    config = lambda: StreamConfig(n_experts=2, seed=1, horizon=2)  # noqa: E731  (each learns its time unit)
     real_run, calls, fail_at = TrackPredictor._run, [], [2]
 
     def failing(self, *args):
@@ -184,20 +184,21 @@ def test_engine_calls_are_all_or_nothing(monkeypatch):
             raise KeyboardInterrupt
         return real_run(self, *args)
 
-    expected = TrackPredictor(config).process_table(table)
-    engine = TrackPredictor(config)
-    monkeypatch.setattr(TrackPredictor, "_run", failing)   # the second call: after the first succeeded
+    expected = TrackPredictor(config()).process_table(table)
+    engine = TrackPredictor(config())
+    # the second call, after the first succeeded (rows before the time unit is learned run first)
+    monkeypatch.setattr(TrackPredictor, "_run", failing)
     with pytest.raises(KeyboardInterrupt):
         engine.process_table(table)
     assert (engine.rows, engine.skipped, engine.gaps, engine.states) == (0, 0, {}, {})
     monkeypatch.setattr(TrackPredictor, "_run", real_run)
     pd.testing.assert_frame_equal(engine.process_table(table), expected, check_exact=True)
 
-    clean, engine = TrackPredictor(config), TrackPredictor(config)
+    clean, engine = TrackPredictor(config()), TrackPredictor(config())
     rows = list(table.itertuples())
     expected = [clean.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows]
     calls.clear()
-    fail_at[0] = 14   # two calls a row (horizon 2): the second call of the seventh row
+    fail_at[0] = 14   # two calls a row (the row, then its forecast for the next one): the seventh row's second
     monkeypatch.setattr(TrackPredictor, "_run", failing)
     got = [engine.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows[:6]]
     before = (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, dict(engine.states))
@@ -432,6 +433,7 @@ def test_ids_are_text_as_written_in_files_and_on_stdin_and_a_bom_is_ignored(cli,
     file_rows, stdin_rows = (pd.read_csv(io.StringIO(out), dtype={"id": str}).sort_values(["id", "t"], kind="stable")
                              for out in (from_file.stdout, from_stdin.stdout))
     assert sorted(set(file_rows["id"])) == ["01", "1"]
+    # regular rows: the file's forecast for the next row's time is the stream's one interval on, same bits
     pd.testing.assert_frame_equal(file_rows.reset_index(drop=True), stdin_rows.reset_index(drop=True),
                                   check_exact=True)
 

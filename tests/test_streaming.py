@@ -32,20 +32,35 @@ CONFIG = dict(n_experts=6, seed=3, length_unit=0.01, horizon=3)
 
 
 def test_rows_equal_batched_table():
+    """stdin (step_row) and a file (process_table) agree wherever their definitions agree: the lead
+    (here the horizon of 3 time units) on every row, pred_/std_ where the next row comes one reference
+    interval later (a file forecasts the next row's time; a stream, which cannot know it, one interval on)."""
     table = _table()
     batch = TrackPredictor(StreamConfig(**CONFIG)).process_table(table)
     rows = _rows(TrackPredictor(StreamConfig(**CONFIG)), table)
     nxt = np.array([r.next for r in rows])
+    nxt_std = np.array([r.next_std for r in rows])
     ahead = np.array([r.ahead for r in rows])
-    np.testing.assert_allclose(nxt, batch[["pred_x", "pred_y"]].to_numpy(), atol=1e-9, rtol=0)
+    ahead_std = np.array([r.ahead_std for r in rows])
     np.testing.assert_allclose(ahead, batch[["pred3_x", "pred3_y"]].to_numpy(), atol=1e-9, rtol=0)
+    np.testing.assert_allclose(ahead_std, batch[["std3_x", "std3_y"]].to_numpy(), atol=1e-9, rtol=0)
+    step = table.groupby("track_id")["time"].diff().shift(-1).to_numpy()   # to the track's next row
+    regular = np.abs(step - 0.1) < 1e-9
+    last = np.isnan(step)
+    same = regular | last
+    same[0] = False   # the stream's first row: no interval known yet, a stream forecasts one time unit (1) on
+    assert regular.sum() > 100 and (~same).sum() == 2   # and the row before b's 5 s hole
+    np.testing.assert_allclose(nxt[same], batch[["pred_x", "pred_y"]].to_numpy()[same], atol=1e-9, rtol=0)
+    np.testing.assert_allclose(nxt_std[same], batch[["std_x", "std_y"]].to_numpy()[same], atol=1e-9, rtol=0)
+    assert np.all(np.isfinite(batch[["std_x", "std_y"]].to_numpy()[4:]))
     assert list(batch["segment"]) == [r.segment for r in rows]
     assert batch.groupby("track_id")["segment"].max().to_dict() == {"a": 0, "b": 1, "c": 0}
 
 
 @pytest.mark.parametrize("bank", ["kinematic", "mixed"])
 def test_track_equals_the_reference_engine_on_that_track(bank):
-    """A track's predictions equal the numpy reference engine run on that track alone (forecast one time unit on)."""
+    """A track's predictions equal the numpy reference engine run on that track alone: pred_ of a row is the
+    engine's forecast of the next row; the last row's is the forecast one reference interval on."""
     from kalmix.bank import make_bank
     from kalmix.core import engine
 
@@ -53,17 +68,25 @@ def test_track_equals_the_reference_engine_on_that_track(bank):
     batch = TrackPredictor(StreamConfig(**{**CONFIG, "horizon": 1, "bank": bank})).process_table(table)
     rows = table.track_id == "a"
     z, t = table.loc[rows, ["x", "y"]].to_numpy(), table.loc[rows, "time"].to_numpy()
-    unit = float(np.median(np.diff(t)))
+    unit = float(np.diff(t)[0])
     reference = make_bank(2, bank, length_unit=0.01, time_unit=unit, seed=3, n_akf=6)
-    expected = engine.run(reference, z[:, None], t[:, None], ahead_times=t[:, None] + unit).ahead[:, 0]
-    np.testing.assert_allclose(batch.loc[batch.track_id == "a", ["pred_x", "pred_y"]].to_numpy(), expected,
-                               atol=1e-9, rtol=0)
+    result = engine.run(reference, z[:, None], t[:, None])
+    mean, cov = engine.forecast(reference, result.state, [t[-1] + float(np.median(np.diff(t)[:16]))])
+    expected = np.concatenate([result.forecasts[1:, 0], mean])
+    expected_std = np.concatenate([result.std[1:, 0], np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))])
+    got = batch.loc[batch.track_id == "a"]
+    np.testing.assert_allclose(got[["pred_x", "pred_y"]].to_numpy(), expected, atol=1e-9, rtol=0)
+    np.testing.assert_allclose(got[["std_x", "std_y"]].to_numpy(), expected_std, atol=1e-9, rtol=1e-9)
 
 
-def test_chunks_equal_one_table_and_interleaved_order():
+@pytest.mark.parametrize("time_unit", [None, 0.1])
+def test_chunks_equal_one_table_and_interleaved_order(time_unit):
+    """Chunks and row order change nothing, with the time unit given or learned (in row order, from the
+    first time step: only first rows of tracks come before it, and nothing they leave depends on it)."""
     table = _table()
-    whole = TrackPredictor(StreamConfig(**CONFIG)).process_table(table)
-    engine = TrackPredictor(StreamConfig(**CONFIG))
+    config = {**CONFIG, "time_unit": time_unit}
+    whole = TrackPredictor(StreamConfig(**config)).process_table(table)
+    engine = TrackPredictor(StreamConfig(**config))
     interleaved = table.sort_values(["time", "track_id"], kind="stable")
     parts = [engine.process_table(interleaved.iloc[i:i + 23]) for i in range(0, len(interleaved), 23)]
     chunked = pd.concat(parts).sort_values(["track_id", "time"]).reset_index(drop=True)

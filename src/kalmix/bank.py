@@ -365,6 +365,8 @@ def make_bank(
     akf_options: dict | None = None,
     outlier_threshold: float = 1000.0,
     outlier_rejects: int = 3,
+    lead: float | None = None,
+    level: float = 0.95,
 ):
     """Build and validate a bank of expert families and its aggregation rule.
 
@@ -403,6 +405,14 @@ def make_bank(
         turns the screen off.
     outlier_rejects : int
         That many outliers in a row restart the track from the last of them (a relocation).
+    lead : float, optional
+        Give the bank a lead head (:mod:`kalmix.core.lead`): forecasts ``lead`` time-column
+        units after each row (``round(lead / time_unit)`` rows for frame-based experts),
+        with weights and intervals learned on their own, delayed errors; a row within half
+        a ``time_unit`` of a forecast's time scores it.
+    level : float
+        The central interval whose coverage the calibration aims at
+        (:mod:`kalmix.core.calibration`); intervals are ``±z(level) std``.
     """
     from .core import aggregators
     from .core.engine import Bank, Family
@@ -440,18 +450,33 @@ def make_bank(
     threshold = float(outlier_threshold)
     if not threshold > 1:
         raise ValueError(f"outlier_threshold: expected a number > 1 (inf: no screen), got {outlier_threshold!r}")
+    from .core.calibration import CalibrationParams
+    from .core.lead import LeadParams
     from .core.screen import ScreenParams
 
-    description = dict(kind=kind, rule=rule, outlier_threshold=threshold, outlier_rejects=int(outlier_rejects), length_unit=unit, time_unit=tunit, seed=seed, n_akf=n_akf,
+    level = float(level)
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level: expected a probability in (0, 1), got {level!r}")
+    lead_params = None
+    if lead is not None:
+        lead_time = _check_positive("lead", lead)
+        if lead_time / tunit > MAX_HORIZON:
+            raise ValueError(f"lead: expected at most {MAX_HORIZON} time units ({MAX_HORIZON * tunit:g}), "
+                             f"got {lead!r}")
+        lead_params = LeadParams(time=lead_time, frames=max(1, int(round(lead_time / tunit))), tolerance=0.5 * tunit)
+    description = dict(kind=kind, rule=rule, outlier_threshold=threshold, outlier_rejects=int(outlier_rejects),
+                       length_unit=unit, time_unit=tunit, seed=seed, n_akf=n_akf, lead=lead, level=level,
                        process_levels=[float(v) for v in process_levels],
                        measurement_levels=[float(v) for v in measurement_levels],
                        rule_options=options, akf_options=dict(akf_options or {}))
     return Bank(measurement_dim=p, families=tuple(families), rule=rule, rule_params=module.Params(**options),
                 description=description,
                 screen_params=ScreenParams(threshold=threshold,
-                                           max_rejects=_check_int("outlier_rejects", outlier_rejects, 1)))
+                                           max_rejects=_check_int("outlier_rejects", outlier_rejects, 1)),
+                calibration_params=CalibrationParams(initial_variance=unit * unit, level=level),
+                lead=lead_params)
 
 
-#: The default bank and rule of ``kalmix predict`` / ``evaluate`` / :class:`kalmix.BankPredictor`,
+#: The default bank and rule of ``kalmix predict`` / ``evaluate`` / :class:`kalmix.streaming.TrackPredictor`,
 #: chosen by the ablation on the shipped recordings (README, "Choosing the default").
 DEFAULT_BANK = {"kind": "mixed", "rule": "boa"}

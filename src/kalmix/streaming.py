@@ -12,17 +12,31 @@ is grouped, and the two paths agree to rounding (tested to 1e-9).
 
 Time gaps
 ---------
-The predictor is frame-based: within a segment, consecutive rows of a track are
-consecutive frames whatever their time stamps; a missing frame should be a row with
-NaN positions (predicted across, no learning). A time step larger than the *gap
-threshold* starts a new **segment**: the track's predictor is restarted from scratch
-(a halftime, a lost GPS fix, a camera cut: the motion before the gap says little about
-the motion after it, and predicting "the next frame" across it would be scored against
-a position seconds away). The threshold is ``max_gap`` (in the time column's units)
+The CV/CA experts run in real time (they predict across any time step); the paper's
+AKFs are frame-based (consecutive rows of a track are consecutive frames whatever their
+time stamps; a missing frame should be a row with NaN positions). A time step larger
+than the *gap threshold* starts a new **segment**: the track's experts start again from
+the row after the gap (a halftime, a lost GPS fix, a camera cut: the motion before it
+says little about the motion after it), while the aggregation rule and the calibration
+keep what they learned on the track (a warm start, :func:`kalmix.core.engine.run`'s
+``restart``). The threshold is ``max_gap`` (in the time column's units)
 when given, else ``max_gap_factor`` (3) times the track's *reference interval*: the
 median of the first (up to 16) positive time steps of the track that were not gaps.
 The rule is causal (it only looks at rows already seen), so a row-by-row stream and a
 whole file give the same segments, and it survives a ``--state`` save and resume.
+
+What is predicted
+-----------------
+After each row, ``pred_<pos>`` is the forecast for the time of the track's **next row**
+and ``std_<pos>`` its calibrated standard deviation (:mod:`kalmix.core.calibration`):
+in a table, the next row's time is known (:meth:`TrackPredictor.process_table` takes the
+times of the rows that follow the table, ``next_times``); for a track's last row, and
+always in :meth:`TrackPredictor.step_row` (which must answer before the next row exists),
+it is the time one reference interval later. With a ``lead`` L, ``lead_<pos>`` /
+``lead_std_<pos>`` forecast ``time + L`` with weights and intervals learned on lead-L
+errors (:mod:`kalmix.core.lead`); a ``horizon`` H > 1 is the lead of H time units
+(columns ``pred<H>_<pos>`` / ``std<H>_<pos>``).
+
 A row whose time is not after its track's previous time (out of order or a repeated
 timestamp) cannot be undone in a stream: it is skipped and counted in
 :attr:`TrackPredictor.skipped`. (File inputs are sorted and de-duplicated when read,
@@ -64,11 +78,13 @@ from .core.engine import Bank, BankState, init_bank_state
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Checkpoint", "auto_length_unit",
            "auto_time_unit", "STATE_FORMAT_VERSION"]
 
-#: 3: one state per track for a bank of expert families (kalmix.core.engine), gap trackers with
-#: the time-glitch bookkeeping, and the output the file belongs to (``kalmix predict -o``).
-#: Files of versions 1 and 2 held the previous single-mixture state and cannot be resumed.
-STATE_FORMAT_VERSION = 3
-_READABLE_VERSIONS = (3,)
+#: 4: one state per track for a bank of expert families (kalmix.core.engine) with its
+#: calibration and lead head, gap trackers with the time-glitch bookkeeping, and the output the
+#: file belongs to (``kalmix predict -o``). Version 3 files (no calibration yet) are resumed
+#: with a fresh calibration; files of versions 1 and 2 held the previous single-mixture state
+#: and cannot be resumed.
+STATE_FORMAT_VERSION = 4
+_READABLE_VERSIONS = (3, 4)
 _MAGIC = "kalmix-track-predictor"
 #: Number of first non-gap time steps whose median is a track's reference interval.
 REFERENCE_INTERVALS = 16
@@ -159,7 +175,8 @@ class StreamConfig:
     length_unit : float
         Measurement-noise size in data units (see :func:`auto_length_unit`).
     horizon : int
-        Besides the next frame, also predict ``horizon`` frames ahead (1 = only the next).
+        Besides the next row, also predict ``horizon`` time units ahead (``horizon`` frames
+        for frame-based experts; 1 = only the next row), with its own weights (a lead head).
     max_gap : float or None
         Absolute gap threshold (time units); ``None`` uses ``max_gap_factor``.
     max_gap_factor : float
@@ -188,9 +205,18 @@ class StreamConfig:
     bank: str = DEFAULT_BANK["kind"]
     rule: str = DEFAULT_BANK["rule"]
     time_unit: float | None = None
+    lead: float | None = None
 
     def __post_init__(self):
         self.horizon = check_horizon(self.horizon)
+        if self.lead is not None:
+            if isinstance(self.lead, bool) or not isinstance(self.lead, (int, float)) or not (
+                    math.isfinite(self.lead) and self.lead > 0):
+                raise ValueError(f"lead: expected a finite time > 0 (time-column units), got {self.lead!r}")
+            if self.horizon > 1:
+                raise ValueError(f"lead and horizon: give one of them (a horizon H is the lead of H time units), "
+                                 f"got lead={self.lead!r} and horizon={self.horizon!r}")
+            self.lead = float(self.lead)
         if self.max_gap is not None and not self.max_gap > 0:
             raise ValueError(f"max_gap: expected a time step > 0, got {self.max_gap!r}")
         if not self.max_gap_factor > 1:
@@ -203,7 +229,13 @@ class StreamConfig:
         # every bank argument is checked now, not at the first row
         make_params(1, self.n_experts, seed=self.seed, length_unit=self.length_unit, **self.options)
         make_bank(1, self.bank, rule=self.rule, length_unit=self.length_unit, time_unit=self.time_unit or 1.0,
-                  seed=self.seed, n_akf=self.n_experts, akf_options=self.options)
+                  seed=self.seed, n_akf=self.n_experts, akf_options=self.options, lead=self.lead_time())
+
+    def lead_time(self) -> float | None:
+        """The lead head's lead in time-column units: ``lead``, or ``horizon`` time units, or None."""
+        if self.lead is not None:
+            return self.lead
+        return self.horizon * (self.time_unit or 1.0) if self.horizon > 1 else None
 
 
 def _median(values) -> float:
@@ -286,13 +318,17 @@ class RowPrediction(NamedTuple):
     track_id: Any
     time: float
     segment: int
-    next: np.ndarray              # (p,) prediction of the track's next frame
-    ahead: np.ndarray | None      # (p,) prediction ``horizon`` frames ahead (None when horizon == 1)
+    next: np.ndarray              # (p,) prediction one reference interval ahead (the next row)
+    ahead: np.ndarray | None      # (p,) prediction ``lead`` (or ``horizon`` time units) ahead, else None
+    next_std: np.ndarray | None = None   # (p,) calibrated standard deviations of ``next``
+    ahead_std: np.ndarray | None = None  # (p,) of ``ahead``
 
 
 def _map(function, *trees):
-    """Apply ``function`` to the arrays of nested tuples / NamedTuples of the same structure."""
+    """Apply ``function`` to the arrays of nested tuples / NamedTuples of the same structure (None stays)."""
     first = trees[0]
+    if first is None:
+        return None
     if isinstance(first, tuple):
         mapped = [_map(function, *parts) for parts in zip(*trees)]
         return type(first)(*mapped) if hasattr(first, "_fields") else tuple(mapped)
@@ -300,7 +336,9 @@ def _map(function, *trees):
 
 
 def _leaves(tree, prefix="state"):
-    """``[(name, array)]`` of a state tree, names like ``state/families/0/mean``."""
+    """``[(name, array)]`` of a state tree, names like ``state/families/0/mean`` (None parts have none)."""
+    if tree is None:
+        return []
     if isinstance(tree, tuple):
         names = tree._fields if hasattr(tree, "_fields") else [str(i) for i in range(len(tree))]
         return [leaf for name, part in zip(names, tree) for leaf in _leaves(part, f"{prefix}/{name}")]
@@ -370,10 +408,15 @@ class TrackPredictor:
         c = self.config
         return make_bank(measurement_dim, c.bank, rule=c.rule, length_unit=c.length_unit,
                          time_unit=1.0 if c.time_unit is None else c.time_unit, seed=c.seed, n_akf=c.n_experts,
-                         akf_options=c.options)
+                         akf_options=c.options, lead=c.lead_time())
 
     def _learn_time_unit(self, value: float) -> None:
-        """Fix a learned time unit (the bank's parameters scale with it; states do not)."""
+        """Fix a learned time unit (the bank's parameters scale with it; states do not).
+
+        Only first rows of tracks come before it (a track's second row has a time step), and
+        nothing they leave in a state depends on the unit (the lead head keeps no forecast made
+        from a first row), so the order in which those first rows come changes nothing.
+        """
         if self.config.time_unit is None and math.isfinite(value) and value > 0:
             self.config.time_unit = float(value)
             if self.params is not None:
@@ -382,8 +425,8 @@ class TrackPredictor:
     def _fresh(self) -> BankState:
         return init_bank_state(self.params, 1)
 
-    def _run(self, values, times, lengths, state, ahead_steps):
-        """The compiled engine (numpy reference without numba); ahead at ``ahead_steps`` time units."""
+    def _run(self, values, times, lengths, state, restart):
+        """The compiled engine (the numpy reference without numba)."""
         from .core import engine
         from .core.compiled import numba_available
 
@@ -392,9 +435,25 @@ class TrackPredictor:
             from .core.compiled import engine as compiled
 
             run = compiled.run
-        unit = self.config.time_unit or 1.0
-        return run(self.params, values, times, state, lengths=lengths, ahead_times=times + ahead_steps * unit,
-                   ahead_frames=ahead_steps)
+        return run(self.params, values, times, state, lengths=lengths, restart=restart)
+
+    def _interval(self, gaps: "GapTracker") -> float:
+        """A track's reference interval (median of its first steps), else the time unit, else 1."""
+        if gaps.intervals:
+            return _median(gaps.intervals)
+        return self.config.time_unit or 1.0
+
+    def _forecast_next(self, state: BankState, times) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and standard deviation ``(N, p)`` at ``times (N,)`` from ``state``, nothing learned.
+
+        The engine's forecast of a missing row at those times, made before it: the same
+        computation as the forecast of a real next row, so a table's rows give the same bits
+        whether their next row is in the table or not (and a stream's, where times agree).
+        """
+        times = np.asarray(times, dtype=np.float64)
+        blank = np.full((1, len(times), self.params.measurement_dim), np.nan)
+        result = self._run(blank, times[None, :], None, state, None)
+        return result.forecasts[0], result.std[0]
 
     @property
     def track_ids(self) -> list:
@@ -461,20 +520,24 @@ class TrackPredictor:
         if self.config.time_unit is None and len(gaps.intervals):
             self._learn_time_unit(gaps.intervals[0])
             params = self.params
-        state = self._fresh() if new else self.states[track_id]
+        state = self.states.get(track_id)
+        fresh = state is None
+        state = self._fresh() if fresh else state
         values = z[None, None, :]
         times = np.array([[float(time)]])
-        result = self._run(values, times, None, state, 1)
-        ahead = None
-        if self.config.horizon > 1:
-            ahead = self._run(values, times, None, state, self.config.horizon).ahead[0, 0]
+        result = self._run(values, times, None, state, np.array([[bool(new) and not fresh]]))
+        nxt, nxt_std = self._forecast_next(result.state, [float(time) + self._interval(gaps)])
+        ahead = ahead_std = None
+        if result.lead is not None:   # none from a track's first row (a single position)
+            ahead, ahead_std = (np.full(z.shape, np.nan), np.full(z.shape, np.nan)) if fresh else (
+                result.lead[0, 0], result.lead_std[0, 0])
         self.gaps[track_id], self.states[track_id] = gaps, result.state
         self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
         self.rows += 1
-        return RowPrediction(track_id, float(time), gaps.segment, result.ahead[0, 0], ahead)
+        return RowPrediction(track_id, float(time), gaps.segment, nxt[0], ahead, nxt_std[0], ahead_std)
 
     # -- a table (or chunk) at once -----------------------------------------------------
-    def process_table(self, table, position_names=None):
+    def process_table(self, table, position_names=None, next_times=None):
         """Step every track of a track table through the batched core.
 
         All or nothing: an exception in the middle leaves the predictor as it was.
@@ -487,12 +550,17 @@ class TrackPredictor:
             Rows continue the tracks already seen (a chunk of a big file).
         position_names : sequence of str, optional
             Position columns; default all but ``track_id`` and ``time``.
+        next_times : mapping, optional
+            Track id -> time of the track's next row after this table (a later chunk). A
+            track's last row in the table is forecast for that time; without one, one
+            reference interval later (as :meth:`step_row`).
 
         Returns
         -------
         pandas.DataFrame
-            ``track_id, time, segment, pred_<pos>...`` (and ``pred<H>_<pos>`` for a
-            horizon H > 1), one row per input row that was not skipped, in table order.
+            ``track_id, time, segment, pred_<pos>..., std_<pos>...`` (and ``pred<H>_<pos>``,
+            ``std<H>_<pos>`` for a horizon H > 1, or ``lead_<pos>``, ``lead_std_<pos>`` with a
+            lead), one row per input row that was not skipped, in table order.
         """
         import pandas as pd
 
@@ -502,29 +570,49 @@ class TrackPredictor:
                              f"(columns: {list(table.columns)})")
         saved = self.checkpoint(pd.unique(table["track_id"]))
         try:
-            return self._process_table(table, position_names)
+            return self._process_table(table, position_names, next_times or {})
         except BaseException:
             self.rollback(saved)
             raise
 
-    def _process_table(self, table, position_names):
+    def _unit_row(self, ids, times) -> int | None:
+        """The row of a table at which the time unit would be learned (None: not in this table)."""
+        trackers: dict = {}
+        for i in range(len(ids)):
+            track = _id_to_json(ids[i])
+            if track not in trackers:
+                trackers[track] = self.gaps[track].copy() if track in self.gaps else GapTracker()
+            trackers[track].advance(float(times[i]), self.config)
+            if trackers[track].intervals:
+                return i
+        return None
+
+    def _process_table(self, table, position_names, next_times):
         import pandas as pd
 
+        if self.config.time_unit is None:
+            # rows before the time unit is known run with the bank of a unit of 1, as they would row by row
+            split = self._unit_row(table["track_id"].to_numpy(), table["time"].to_numpy(np.float64))
+            if split:
+                head, tail = table.iloc[:split], table.iloc[split:]
+                later = {**next_times, **tail.groupby("track_id", sort=False)["time"].first().to_dict()}
+                first = self._process_table(head, position_names, later)
+                return pd.concat([first, self._process_table(tail, position_names, next_times)], ignore_index=True)
         names = list(position_names or [c for c in table.columns if c not in ("track_id", "time")])
         if self.position_names is None:
             self.position_names = tuple(names)
         values = table[names].to_numpy(np.float64)
         times = table["time"].to_numpy(np.float64)
         ids = table["track_id"].to_numpy()
-        params = self._ensure_params(values.shape[1])
-        n_rows = len(table)
+        self._ensure_params(values.shape[1])
+        n_rows, p = values.shape
         self.rows += n_rows
 
-        # gap rule row by row (cheap), giving runs of rows that form one stream each
+        # gap rule row by row (cheap): one run of rows per track, restarts where a gap starts a segment
         keep = np.ones(n_rows, dtype=bool)
         segments = np.zeros(n_rows, dtype=np.int64)
-        runs: list[list] = []   # [track_id, first row, fresh start?, rows]
-        current = {}
+        gap_rows = np.zeros(n_rows, dtype=bool)
+        runs: dict = {}   # track id -> rows
         for i in range(n_rows):
             track = _id_to_json(ids[i])
             gaps = self.gaps.get(track)
@@ -538,39 +626,60 @@ class TrackPredictor:
                 self.skipped += 1
                 continue
             segments[i] = gaps.segment
-            if new or track not in current:
-                current[track] = [track, new, []]
-                runs.append(current[track])
-            current[track][2].append(i)
+            gap_rows[i] = bool(new) and (track in runs or track in self.states)
+            runs.setdefault(track, []).append(i)
 
-        params = self.params
-        horizon = self.config.horizon
-        next_pred = np.full((n_rows, values.shape[1]), np.nan)
-        ahead_pred = np.full((n_rows, values.shape[1]), np.nan) if horizon > 1 else None
+        shape = (n_rows, p)
+        out = {"pred": np.full(shape, np.nan), "std": np.full(shape, np.nan)}
+        lead = self.params.lead is not None
+        if lead:
+            out["lead"], out["lead_std"] = np.full(shape, np.nan), np.full(shape, np.nan)
         if runs:
-            lengths = np.array([len(run[2]) for run in runs])
-            state = _stack([self._fresh() if run[1] else self.states[run[0]] for run in runs])
-            rows = np.zeros((int(lengths.max()), len(runs)), dtype=np.int64)
+            tracks = list(runs)
+            lengths = np.array([len(runs[t]) for t in tracks])
+            state = _stack([self.states[t] if t in self.states else self._fresh() for t in tracks])
+            rows = np.zeros((int(lengths.max()), len(tracks)), dtype=np.int64)
             active = np.zeros(rows.shape, dtype=bool)
-            for c, run in enumerate(runs):
-                rows[:len(run[2]), c] = run[2]
-                active[:len(run[2]), c] = True
+            for c, track in enumerate(tracks):
+                rows[:lengths[c], c] = runs[track]
+                active[:lengths[c], c] = True
             dense = np.where(active[..., None], values[rows], np.nan)
             dense_times = np.where(active, times[rows], np.nan)
-            result = self._run(dense, dense_times, lengths, state, 1)
+            result = self._run(dense, dense_times, lengths, state, active & gap_rows[rows])
             self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
-            next_pred[rows[active]] = result.ahead[active]
-            if horizon > 1:
-                ahead_pred[rows[active]] = self._run(dense, dense_times, lengths, state, horizon).ahead[active]
-            for c in range(len(runs)):  # chronological: a track's last run wins
-                self.states[runs[c][0]] = _take(result.state, slice(c, c + 1))
-        out = pd.DataFrame({"track_id": ids[keep], "time": times[keep], "segment": segments[keep]})
-        for j, name in enumerate(names):
-            out[f"pred_{name}"] = next_pred[keep, j]
-        if horizon > 1:
+            # a row's next-row forecast is the forecast of the next row, made before it
+            inner = active.copy()
+            inner[lengths - 1, np.arange(len(tracks))] = False
+            out["pred"][rows[inner]] = result.forecasts[1:][inner[:-1]]
+            out["std"][rows[inner]] = result.std[1:][inner[:-1]]
+            # each track's last row: for the time of its next row (later), or one reference interval on
+            last = rows[lengths - 1, np.arange(len(tracks))]
+            when = np.array([next_times.get(t, np.nan) for t in tracks], dtype=np.float64)
+            guess = times[last] + np.array([self._interval(self.gaps[t]) for t in tracks])
+            when = np.where(np.isfinite(when) & (when > times[last]), when, guess)
+            out["pred"][last], out["std"][last] = self._forecast_next(result.state, when)
+            if lead:   # none from a track's first row (a single position)
+                out["lead"][rows[active]] = result.lead[active]
+                out["lead_std"][rows[active]] = result.lead_std[active]
+                first = rows[0, [c for c, track in enumerate(tracks) if track not in self.states]]
+                out["lead"][first] = out["lead_std"][first] = np.nan
+            for c, track in enumerate(tracks):
+                self.states[track] = _take(result.state, slice(c, c + 1))
+        frame = pd.DataFrame({"track_id": ids[keep], "time": times[keep], "segment": segments[keep]})
+        for key, prefix in self._columns().items():
             for j, name in enumerate(names):
-                out[f"pred{horizon}_{name}"] = ahead_pred[keep, j]
-        return out
+                frame[f"{prefix}{name}"] = out[key][keep, j]
+        return frame
+
+    def _columns(self) -> dict:
+        """Output key -> column prefix."""
+        columns = {"pred": "pred_", "std": "std_"}
+        if self.config.lead is not None:
+            columns.update(lead="lead_", lead_std="lead_std_")
+        elif self.config.horizon > 1:
+            h = self.config.horizon
+            columns.update(lead=f"pred{h}_", lead_std=f"std{h}_")
+        return columns
 
     # -- persistence ------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:
@@ -615,8 +724,10 @@ class TrackPredictor:
             stacked, template = None, None
             if count:
                 template = engine._fresh()
-                stacked = {name: archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name)
-                           for name, expected in _leaves(template)}
+                stacked = {name: (np.broadcast_to(expected, (count, *expected.shape[1:]))
+                                  if meta["format_version"] == 3 and name.startswith("state/calibration/")
+                                  else archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name))
+                           for name, expected in _leaves(template)}   # version 3: a fresh calibration
         index = 0
         for track, gaps, has_state in entries:
             engine.gaps[track] = gaps

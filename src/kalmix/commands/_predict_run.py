@@ -43,6 +43,7 @@ class Run:
         self.outliers0 = engine.outliers if engine is not None else 0
         self.stopped: Interrupted | None = None
         self.closed = False
+        self.measured = 0   # input rows of this run with every position present
         self.unit = "chunk"
 
     def open_output(self, fmt=None):
@@ -85,6 +86,9 @@ class Run:
         if engine is not None and engine.outliers > self.outliers0:
             click.echo(f"kalmix: {engine.outliers - self.outliers0} outlier row(s) not learned (glitches far from "
                        "their track's extrapolation; their predictions are still written)", err=True)
+        if self.rows and not self.measured and self.stopped is None:
+            click.echo(f"kalmix: warning: none of the {self.rows} input row(s) has a position (every value empty "
+                       "or NaN): nothing was learned and every prediction is empty", err=True)
         saved = (f"state saved to {self.state_path}: the same command resumes" if self.state_path
                  else "no --state, nothing to resume from")
         if self.stopped is not None:
@@ -102,9 +106,9 @@ class Run:
 def _check_resumed(engine, columns):
     if engine is None:
         return
-    if engine.position_names is not None and len(engine.position_names) != len(columns.positions):
-        raise ValueError(f"the state file tracks {len(engine.position_names)} coordinates "
-                         f"{list(engine.position_names)}, the input has {list(columns.positions)}")
+    if engine.position_names is not None and list(engine.position_names) != list(columns.positions):
+        raise ValueError(f"the state file tracks the coordinates {list(engine.position_names)}, the input has "
+                         f"{list(columns.positions)} (pass --position to name them, or use a new --state file)")
 
 
 def _new_engine(settings, unit, positions):
@@ -167,10 +171,16 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     elif show:
         total = count_rows(path)
     names = list(columns.positions)
+    if total is None:
+        total_rows = count_rows(path)
+    else:
+        total_rows = total
+    ahead = (_lookahead(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
+                                          ids_as_text=True)) if total_rows > chunk_rows else [])
     with tqdm(total=total, unit="rows", file=sys.stderr, disable=not show,
               desc="kalmix predict", smoothing=0.1) as bar:
-        for chunk in iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
-                                       ids_as_text=True):
+        for index, chunk in enumerate(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
+                                                        ids_as_text=True)):
             if run.engine is None:
                 chosen, why = (unit, None) if unit is not None else _length_unit_rule(to_arrays(chunk).values)
                 if unit is None and why is None:
@@ -184,8 +194,9 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
             committed = False
             try:
                 frames = []
-                for piece in pieces(chunk):
-                    frames.append(engine.process_table(piece, names))
+                parts = pieces(chunk)
+                for piece, later in zip(parts, _next_times(parts, ahead[index] if index < len(ahead) else {})):
+                    frames.append(engine.process_table(piece, names, later))
                     bar.update(len(piece))
                     run.guard.tick()
                 frame = _output_columns(merge(frames, chunk), columns, columns.positions)
@@ -193,12 +204,42 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                     run.sink.write_frame(frame)
                     committed = True
                     run.commit(len(chunk))
+                    run.measured += int(np.isfinite(chunk[names].to_numpy(np.float64)).all(axis=1).sum())
             except BaseException:
                 if not committed:
                     with run.guard.deferred(deliver=False):
                         engine.rollback(mark)
                 raise
             bar.update(chunk.attrs.get("file_rows", len(chunk)) - len(chunk))
+
+
+def _lookahead(chunks) -> list[dict]:
+    """For each chunk, track id -> time of the track's next row in a later chunk (tracks that have one).
+
+    A first pass over a file of several chunks, so that a track's last row in a chunk is
+    forecast for the time of its next row, as in one table. Memory: one entry per (chunk,
+    track) pair whose track goes on later.
+    """
+    found: list[dict] = []
+    seen: dict = {}   # track -> index of the chunk it was last seen in
+    for index, chunk in enumerate(chunks):
+        found.append({})
+        for track, first in chunk.groupby("track_id", sort=False)["time"].first().items():
+            if track in seen:
+                found[seen[track]][track] = float(first)
+            seen[track] = index
+    return found
+
+
+def _next_times(parts, after: dict) -> list[dict]:
+    """For each piece of a chunk, track id -> time of the track's next row after the piece."""
+    out = []
+    upcoming = dict(after)
+    for piece in reversed(parts):
+        out.append(dict(upcoming))
+        upcoming.update({track: float(t) for track, t in
+                         piece.groupby("track_id", sort=False)["time"].first().items()})
+    return out[::-1]
 
 
 # ------------------------------------------------------------------------------------------ stdin
@@ -314,8 +355,9 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
             try:
                 result = engine.step_row(track, time, z)
                 if result is not None:
-                    run.sink.write_record(_row_record(result, track, time, columns, engine.config.horizon))
+                    run.sink.write_record(_row_record(result, track, time, columns, engine._columns()))
                 committed = True
+                run.measured += bool(np.isfinite(np.asarray(z, dtype=np.float64)).all())
             except BaseException:
                 if not committed:
                     engine.rollback(mark)
@@ -330,17 +372,17 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
             run.guard.tick()
 
 
-def _row_record(result, track, time, columns, horizon):
+def _row_record(result, track, time, columns, prefixes):
+    """One output record of a stdin row (``prefixes``: :meth:`TrackPredictor._columns`)."""
     out = {}
     if columns.track_id is not None:
         out[columns.track_id] = track
     out[columns.time or "row"] = time
     out["segment"] = result.segment
-    for j, name in enumerate(columns.positions):
-        out[f"pred_{name}"] = float(result.next[j])
-    if result.ahead is not None:
+    values = {"pred": result.next, "std": result.next_std, "lead": result.ahead, "lead_std": result.ahead_std}
+    for key, prefix in prefixes.items():
         for j, name in enumerate(columns.positions):
-            out[f"pred{horizon}_{name}"] = float(result.ahead[j])
+            out[f"{prefix}{name}"] = float(values[key][j])
     return out
 
 

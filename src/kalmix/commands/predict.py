@@ -206,7 +206,10 @@ def _output_columns(frame, columns, names):
 @click.argument("input_path", metavar="INPUT")
 @_column_options
 @click.option("--horizon", "-H", default=1, show_default=True, type=click.IntRange(1, MAX_HORIZON),
-              help=f"Also predict H samples ahead (columns pred<H>_<pos>); at most {MAX_HORIZON}.")
+              help=f"Also predict H time units ahead (columns pred<H>_<pos>, std<H>_<pos>); at most {MAX_HORIZON}.")
+@click.option("--lead", default=None, type=click.FloatRange(min=0, min_open=True),
+              help="Also predict L time-column units after each row (columns lead_<pos>, lead_std_<pos>), with "
+                   "weights and intervals learned on lead-L errors. Not with --horizon.")
 @click.option("--output", "-o", default=None, type=click.Path(dir_okay=False),
               help="Output file: .csv, .parquet or .jsonl (default: CSV on stdout).")
 @click.option("--bank", "bank_kind", default=None, type=click.Choice(["mixed", "kinematic", "akf"]),
@@ -232,13 +235,17 @@ def _output_columns(frame, columns, names):
               help="Rows read at a time from a file (bounded memory).")
 @click.option("--progress/--no-progress", default=None, help="Progress bar on stderr [default: when a terminal].")
 @click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
-def predict(input_path, time_column, position_columns, id_column, horizon, output, bank_kind, rule, time_unit,
+def predict(input_path, time_column, position_columns, id_column, horizon, lead, output, bank_kind, rule, time_unit,
             n_experts, seed, length_unit, max_gap, max_gap_factor, state_path, save_every, chunk_rows, progress,
             mixture_options):
     """Predict the next position of every track in INPUT (CSV, Parquet, or - for stdin).
 
-    Output: the input's id and time columns, 'segment', and pred_<position> (the next sample
-    of the track); with --horizon H also pred<H>_<position>. A file is processed in chunks,
+    Output: the input's id and time columns, 'segment', pred_<position> and std_<position>:
+    the prediction for the time of the track's next row and its calibrated standard deviation
+    (pred +- 1.96 std is a 95 % interval). In a file the next row's time is known; on stdin,
+    which must answer first, and for a track's last row, it is one reference interval on.
+    --lead L adds lead_<position> / lead_std_<position> at time + L (--horizon H: pred<H>_ /
+    std<H>_ at H time units), the same in files and on stdin. A file is processed in chunks,
     all tracks at once through the batched core; '-' reads CSV rows (header first) or JSON
     lines from stdin and writes each prediction as soon as its measurement arrives.
 
@@ -265,6 +272,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, outpu
             for name, given, have in (("--experts", n_experts, stored.n_experts), ("--seed", seed, stored.seed),
                                       ("--length-unit", unit, stored.length_unit),
                                       ("--horizon", horizon if horizon != 1 else None, stored.horizon),
+                                      ("--lead", lead, stored.lead),
                                       ("--bank", bank_kind, stored.bank), ("--rule", rule, stored.rule),
                                       ("--time-unit", time_unit, stored.time_unit),
                                       ("--option", options or None, stored.options)):
@@ -275,8 +283,11 @@ def predict(input_path, time_column, position_columns, id_column, horizon, outpu
         if kind == "kinematic" and (n_experts is not None or options):
             raise ValueError(f"{'--experts' if n_experts is not None else '--option'}: sets the AKF family, "
                              "and --bank kinematic has none (use --bank mixed or akf)")
+        if lead is not None and horizon != 1:
+            raise ValueError(f"--lead and --horizon: give one of them (--horizon H is the lead of H time units), "
+                             f"got --lead {lead:g} and --horizon {horizon}")
         settings = dict(n_experts=40 if n_experts is None else n_experts, seed=0 if seed is None else seed,
-                        horizon=horizon, max_gap=gap, max_gap_factor=math.inf if never else max_gap_factor,
+                        horizon=horizon, lead=lead, max_gap=gap, max_gap_factor=math.inf if never else max_gap_factor,
                         options=options, time_unit=time_unit)
         if bank_kind is not None:
             settings["bank"] = bank_kind
@@ -314,11 +325,13 @@ def predict(input_path, time_column, position_columns, id_column, horizon, outpu
 @click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False), help="Write the results as JSON.")
 @click.option("--plot", "plot_path", default=None, type=click.Path(dir_okay=False),
               help="PNG of the one-step error over time for --track.")
+@click.option("--plot-intervals", "intervals_path", default=None, type=click.Path(dir_okay=False),
+              help="PNG of --track's positions, the mixture's one-step predictions and their 95 % ellipses.")
 @click.option("--track", "plot_track", default=None, help="Track id to plot (default: the first).")
 @click.option("--per-track/--no-per-track", default=True, show_default=True, help="Print the per-track tables.")
 @click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
 def evaluate(input_path, dataset, time_column, position_columns, id_column, horizon, n_experts, seed, length_unit,
-             tuning_fraction, max_gap, max_gap_factor, max_samples, tracks, peers, json_path, plot_path,
+             tuning_fraction, max_gap, max_gap_factor, max_samples, tracks, peers, json_path, plot_path, intervals_path,
              plot_track, per_track, mixture_options):
     """Compare the mixture's prediction errors with the predictors you would use instead.
 
@@ -336,9 +349,11 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
     with _user_errors():
         if (input_path is None) == (dataset is None):
             raise ValueError("give either INPUT or --dataset NAME")
-        _distinct_files(("INPUT", input_path), ("--json", json_path), ("--plot", plot_path))
+        _distinct_files(("INPUT", input_path), ("--json", json_path), ("--plot", plot_path),
+                        ("--plot-intervals", intervals_path))
         _directory_exists("--json", json_path)
         _directory_exists("--plot", plot_path)
+        _directory_exists("--plot-intervals", intervals_path)
         if dataset is not None:
             from ..io import load_dataset
             table = load_dataset(dataset)
@@ -354,7 +369,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
             table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True)
             label = os.path.basename(input_path)
         wanted = [t.strip() for t in tracks.split(",")] if tracks else None
-        if plot_path and plot_track is not None:  # before the work, not after it
+        if (plot_path or intervals_path) and plot_track is not None:  # before the work, not after it
             names = [str(t) for t in pd.unique(table["track_id"])]
             names = [t for t in names if wanted is None or t in wanted]
             if str(plot_track) not in names:
@@ -373,6 +388,9 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
         if plot_path:
             plot_errors(result, plot_path, plot_track)
             click.echo(f"wrote {plot_path}")
+        if intervals_path:
+            plot_intervals(result, intervals_path, plot_track)
+            click.echo(f"wrote {intervals_path}")
 
 
 def _table(title, summaries, horizon):
@@ -403,6 +421,13 @@ def format_result(result, per_track=True) -> str:
     lines = [f"{result.dataset}: {len(streams.track_ids)} track(s), {n_rows} samples in {len(streams.lengths)} "
              f"segment(s); length unit {result.length_unit:.4g}; {tuning}; errors per coordinate, data units", ""]
     lines += _table("overall", result.overall, result.horizon)
+    calibration = result.tuned.get("mixture", {}).get("calibration", {})
+    for which, entry in calibration.items():
+        label = "one-step" if which == "one_step" else f"{result.horizon}-step"
+        nees = f", mean NEES {entry['mean_nees']:.3g} (median {entry['median_nees']:.3g}; p = " \
+               f"{len(streams.position_names)} if Gaussian)" if "mean_nees" in entry else ""
+        lines.append(f"mixture {label} intervals: {entry['coverage_95']:.1%} of the scored values inside "
+                     f"pred ± 1.96 std (aim 95 %){nees}")
     partial = {name: entry for name, entry in result.tuned.items()
                if isinstance(entry, dict) and "rows_evaluated" in entry and entry["rows_evaluated"] < entry["rows"]}
     for name, entry in partial.items():
@@ -414,6 +439,60 @@ def format_result(result, per_track=True) -> str:
     return "\n".join(lines)
 
 
+def _track_columns(result, track):
+    streams = result.streams
+    names = [str(t) for t in streams.track_ids]
+    if track is None:
+        track = names[0]
+    if str(track) not in names:
+        raise ValueError(f"--track: expected one of {names[:20]}{' ...' if len(names) > 20 else ''}, got {track!r}")
+    return track, np.flatnonzero(streams.track_of == names.index(str(track)))
+
+
+def plot_intervals(result, path, track=None, rows: int = 30):
+    """PNG: ``rows`` scored samples of a track (the first two coordinates), the mixture's one-step
+    predictions and their 95 % ellipses (chi-square with 2 degrees of freedom on the calibrated covariance)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Ellipse
+
+    streams = result.streams
+    track, columns = _track_columns(result, track)
+    if streams.values.shape[2] < 2:
+        raise ValueError("--plot-intervals: needs two position coordinates, the data has one")
+    forecasts, covariance = result.intervals
+    j = max(columns, key=lambda c: streams.lengths[c])        # the track's longest segment
+    n = int(streams.lengths[j])
+    start = min(int(np.ceil(result.tuning_fraction * n)), max(0, n - rows))
+    part = slice(start, min(n, start + rows))
+    z, mean, cov = streams.values[part, j, :2], forecasts[part, j, :2], covariance[part, j, :2, :2]
+    inside = []
+    fig, ax = plt.subplots(figsize=(7.5, 6.5))
+    for m, c, actual in zip(mean, cov, z):
+        if not (np.isfinite(m).all() and np.isfinite(c).all() and np.isfinite(actual).all()):
+            continue
+        values, vectors = np.linalg.eigh(c)
+        width, height = 2 * np.sqrt(5.991464547107979 * np.maximum(values, 0))
+        angle = np.degrees(np.arctan2(vectors[1, 1], vectors[0, 1]))
+        ax.add_patch(Ellipse(m, width[()] if np.ndim(width) else width, height, angle=angle, fill=False, lw=0.6,
+                             color="tab:orange", alpha=0.7))
+        inside.append(float((actual - m) @ np.linalg.solve(c, actual - m)) <= 5.991464547107979)
+    names = streams.position_names
+    ax.plot(z[:, 0], z[:, 1], ".-", color="black", lw=0.8, ms=3, label="measurements")
+    ax.plot(mean[:, 0], mean[:, 1], "x", color="tab:blue", ms=4, label="one-step predictions")
+    ax.plot([], [], color="tab:orange", lw=0.8, label=f"95 % ellipses ({np.mean(inside):.0%} hold the measurement)")
+    ax.set_xlabel(names[0])
+    ax.set_ylabel(names[1])
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title(f"{result.dataset}: track {track}, samples {start}-{part.stop - 1} of a segment")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def plot_errors(result, path, track=None):
     """PNG of each predictor's one-step error norm over time (rolling median) for one track."""
     import matplotlib
@@ -422,12 +501,7 @@ def plot_errors(result, path, track=None):
     import matplotlib.pyplot as plt
 
     streams = result.streams
-    names = [str(t) for t in streams.track_ids]
-    if track is None:
-        track = names[0]
-    if str(track) not in names:
-        raise ValueError(f"--track: expected one of {names[:20]}{' ...' if len(names) > 20 else ''}, got {track!r}")
-    columns = np.flatnonzero(streams.track_of == names.index(str(track)))
+    track, columns = _track_columns(result, track)
     fig, ax = plt.subplots(figsize=(10, 4.5))
     for name, errors in result.errors.items():
         times, norms = [], []

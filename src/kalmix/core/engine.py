@@ -17,11 +17,21 @@ same numbers fast, and is what every command uses):
   still advances the frame-based families by one frame. Rows then pass the glitch screen
   (:mod:`kalmix.core.screen`): an outlier is not learned; a restart row starts the families
   again (the rule does not learn from it, and keeps what it learned before);
+- ``restart (T, N)``: rows where the caller starts the families again (a time gap), as
+  the screen's restarts: the row is forecast by the old state, the families start from
+  it (from the next present row if it is missing), the rule and the calibration keep
+  what they learned (a warm start);
 - output ``forecasts[t]`` is the mixture's forecast of row ``t`` made *before* seeing
-  it (so the one-step error is ``measurements[t] - forecasts[t]``); with ``ahead_times``
-  / ``ahead_frames``, ``ahead[t]`` is the forecast made *after* row ``t`` of the time
-  ``ahead_times[t]`` (time-based families) or ``ahead_frames`` frames later
-  (frame-based ones).
+  it (so the one-step error is ``measurements[t] - forecasts[t]``), ``std[t]`` its
+  calibrated standard deviation per coordinate (:mod:`kalmix.core.calibration`); with
+  ``ahead_times`` / ``ahead_frames``, ``ahead[t]`` is the forecast made *after* row
+  ``t`` of the time ``ahead_times[t]`` (time-based families) or ``ahead_frames`` frames
+  later (frame-based ones), with the one-step weights;
+- a bank with a lead (:mod:`kalmix.core.lead`) also gives ``lead[t]`` / ``lead_std[t]``,
+  the forecast made after row ``t`` for ``times[t] + lead`` (or ``ahead_times[t]`` when
+  given; ``lead.frames`` rows for frame-based families, whatever ``ahead_frames``) with the
+  weights and intervals learned on lead errors; ``ahead`` is then the same forecast with
+  the one-step weights.
 
 An expert sleeps (is left out of the weights and of the rule's learning) while its
 forecast is not finite, e.g. before its first measurement.
@@ -35,12 +45,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from . import aggregators
+from . import aggregators, calibration
+from . import lead as lead_head
 from . import screen as glitch
 from .families import akf, kinematic
 
-__all__ = ["Family", "Bank", "BankState", "EngineResult", "init_bank_state", "run", "FAMILY_KINDS",
-           "check_run_arguments"]
+__all__ = ["Family", "Bank", "BankState", "EngineResult", "StepOutput", "init_bank_state", "run", "step", "forecast",
+           "FAMILY_KINDS", "check_run_arguments"]
 
 #: Family kinds: kinematic CV / CA in real time, and the paper's AKF (frame-based).
 FAMILY_KINDS = ("cv", "ca", "akf")
@@ -72,6 +83,8 @@ class Bank:
     rule_params: Any
     description: dict | None = None
     screen_params: glitch.ScreenParams = glitch.ScreenParams()
+    calibration_params: calibration.CalibrationParams = calibration.CalibrationParams()
+    lead: lead_head.LeadParams | None = None   # the lead head (kalmix.core.lead), if any
 
     @property
     def n_experts(self) -> int:
@@ -94,6 +107,8 @@ class BankState(NamedTuple):
     families: tuple   # one state per family
     rule: Any         # the rule's state
     screen: glitch.ScreenState   # the glitch screen's (kalmix.core.screen)
+    calibration: calibration.CalibrationState   # of the one-step forecasts (kalmix.core.calibration)
+    lead: lead_head.LeadState | None = None     # the lead head's (kalmix.core.lead), if the bank has one
 
 
 class EngineResult(NamedTuple):
@@ -103,13 +118,21 @@ class EngineResult(NamedTuple):
     experts: np.ndarray | None = None  # (T, N, K, p) experts' forecasts of each row
     weights: np.ndarray | None = None  # (T, N, K) weights of each row's forecast
     expert_ahead: np.ndarray | None = None  # (T, N, K, p)
+    std: np.ndarray | None = None           # (T, N, p) calibrated standard deviation of ``forecasts``
+    ahead_std: np.ndarray | None = None     # (T, N, p) of ``ahead``
+    lead: np.ndarray | None = None          # (T, N, p) lead forecast made after row t (bank.lead)
+    lead_std: np.ndarray | None = None      # (T, N, p)
+    covariance: np.ndarray | None = None    # (T, N, p, p) of ``forecasts`` (record_covariance)
+    lead_covariance: np.ndarray | None = None  # (T, N, p, p) of ``lead`` (record_covariance)
 
 
 def init_bank_state(bank: Bank, n_targets: int) -> BankState:
     p = bank.measurement_dim
     return BankState(tuple(f.module.init_state(f.params, n_targets, p) for f in bank.families),
                      bank.rule_module.init(bank.rule_params, n_targets, bank.n_experts),
-                     glitch.init(n_targets, p))
+                     glitch.init(n_targets, p),
+                     calibration.init(bank.calibration_params, n_targets, bank.n_experts, p),
+                     None if bank.lead is None else lead_head.init(bank, n_targets))
 
 
 def check_run_arguments(bank: Bank, measurements, times, state, lengths):
@@ -144,10 +167,14 @@ _STATE_SHAPES: "weakref.WeakKeyDictionary[Bank, list]" = weakref.WeakKeyDictiona
 
 
 def _parts(state):
-    """``(name, first array)`` of each family's state, the rule's and the screen's."""
-    families, rule, screen = state
-    return ([(f"state.families[{i}].{part._fields[0]}", part[0]) for i, part in enumerate(families)]
-            + [(f"state.rule.{rule._fields[0]}", rule[0]), (f"state.screen.{screen._fields[0]}", screen[0])])
+    """``(name, first array)`` of each family's state, the rule's, the screen's, the calibration's, the lead's."""
+    families, rule, screen, cal, lead = state
+    parts = ([(f"state.families[{i}].{part._fields[0]}", part[0]) for i, part in enumerate(families)]
+             + [(f"state.rule.{rule._fields[0]}", rule[0]), (f"state.screen.{screen._fields[0]}", screen[0]),
+                (f"state.calibration.{cal._fields[0]}", cal[0])])
+    if lead is not None:
+        parts += [("state.lead.rule", lead.rule[0]), ("state.lead.pending", lead.pending)]
+    return parts
 
 
 def _check_state(bank: Bank, state, n: int) -> None:
@@ -163,7 +190,7 @@ def _check_state(bank: Bank, state, n: int) -> None:
     if given is None or len(given) != len(template):
         raise ValueError(f"state: expected a BankState of this bank ({len(bank.families)} families, rule "
                          f"{bank.rule!r}), got {type(state).__name__} "
-                         f"{'' if given is None else f'with {len(given) - 2} families'}".rstrip())
+                         f"{'' if given is None else f'with {len(state.families)} families'}".rstrip())
     for (name, value), shape in zip(given, template):
         if np.shape(value) != (n,) + shape:
             raise ValueError(f"state: {name} has shape {np.shape(value)}, expected {(n,) + shape} for {n} "
@@ -197,58 +224,148 @@ def expert_forecasts(bank: Bank, state: BankState, time, frames: int = 1) -> np.
                           axis=1)
 
 
-def mixture_forecast(bank: Bank, state: BankState, experts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The rule's weights ``(N, K)`` and the mixture ``(N, p)`` (NaN where no expert is awake)."""
-    awake = np.isfinite(experts).all(axis=-1)
-    w = bank.rule_module.weights(bank.rule_params, state.rule, awake)
-    mix = np.einsum("nk,nkp->np", w, np.where(awake[..., None], experts, 0.0))
-    return w, np.where(awake.any(axis=-1)[:, None], mix, np.nan)
+def forecast(bank: Bank, state: BankState, time, frames: int = 1, *, lead: bool = False):
+    """Predict without learning: the mixture's mean ``(N, p)`` and covariance ``(N, p, p)`` at ``time (N,)``.
+
+    Time-based families extrapolate to ``time``, frame-based ones ``frames`` rows ahead.
+    The one-step weights and calibration are used, or the lead head's (``lead=True``,
+    for a bank with a lead). The state is not changed.
+    """
+    n = len(state.screen.time)
+    time = np.broadcast_to(np.asarray(time, dtype=np.float64), (n,))
+    experts = expert_forecasts(bank, state, time, frames)
+    if lead:
+        if state.lead is None:
+            raise ValueError("lead=True: this bank has no lead head (make_bank(..., lead=...))")
+        _, mean, cov = lead_head.forecast(bank, state.lead, experts)
+    else:
+        _, mean, cov = _one_step_forecast(bank, state, experts)
+    return mean, cov
 
 
-def step(bank: Bank, state: BankState, measurement, time, learn=None, active=None):
-    """One row for every target: forecast it, then learn it. Returns ``(state, forecast, experts, weights)``."""
+class StepOutput(NamedTuple):
+    forecast: np.ndarray     # (N, p) of the row, made before it
+    covariance: np.ndarray   # (N, p, p)
+    experts: np.ndarray      # (N, K, p)
+    weights: np.ndarray      # (N, K)
+    ahead_experts: np.ndarray | None = None   # (N, K, p) after the row, for the lead (bank.lead) or ahead time
+    lead: np.ndarray | None = None            # (N, p) lead forecast (bank.lead)
+    lead_covariance: np.ndarray | None = None
+
+
+def step(bank: Bank, state: BankState, measurement, time, learn=None, active=None, ahead_time=None,
+         ahead_frames: int = 1, restart=None):
+    """One row for every target: forecast it, then learn it. Returns ``(state, StepOutput)``.
+
+    With a lead head, the forecasts after the row for ``time + lead`` (or ``ahead_time``:
+    e.g. the time of the row ``lead.frames`` later, known in a file) are made and the lead
+    head learns; else ``ahead_time`` asks for the experts' forecasts after the row at that
+    time (``ahead_frames`` for frame-based ones).
+    ``restart (N,)`` starts the families again at this row (see :func:`run`).
+    """
     z = np.asarray(measurement, dtype=np.float64)
     n = z.shape[0]
     time = np.broadcast_to(np.asarray(time, dtype=np.float64), (n,))
     active = np.ones(n, dtype=bool) if active is None else np.asarray(active, dtype=bool)
     present = np.isfinite(z).all(axis=-1) & active
     learn = present if learn is None else (np.asarray(learn, dtype=bool) & present)
+    gap = np.zeros(n, dtype=bool) if restart is None else (np.asarray(restart, dtype=bool) & active)
     screened, accept, restart = glitch.screen(bank.screen_params, state.screen, np.where(learn[:, None], z, 0.0),
-                                              time, learn)
+                                              time, learn, gap)
     learn = learn & accept
     experts = expert_forecasts(bank, state, time)
-    weights, mix = mixture_forecast(bank, state, experts)
     awake = np.isfinite(experts).all(axis=-1)
-    rule_state = bank.rule_module.update(bank.rule_params, state.rule, experts, z, awake, learn & ~restart)
+    weights = bank.rule_module.weights(bank.rule_params, state.rule, awake)
+    mix, cov = calibration.moments(bank.calibration_params, state.calibration, weights, experts, awake)
+    go = learn & ~restart
+    rule_state = bank.rule_module.update(bank.rule_params, state.rule, experts, z, awake, go)
+    cal_state = calibration.update(bank.calibration_params, state.calibration, weights, experts, awake, z, go)
     families = tuple(_family_update(f, s, z, time, learn, active, restart)
                      for f, s in zip(bank.families, state.families))
-    return BankState(families, rule_state, screened), mix, experts, weights
+    new = BankState(families, rule_state, screened, cal_state, state.lead)
+    out = StepOutput(mix, cov, experts, weights)
+    if bank.lead is not None:
+        target = time + bank.lead.time if ahead_time is None else np.broadcast_to(ahead_time, (n,))
+        head = lead_head.learn(bank, state.lead, z, time, go)
+        later = expert_forecasts(bank, new, target, bank.lead.frames)
+        _, lead_mix, lead_cov = lead_head.forecast(bank, head, later)
+        head = lead_head.push(bank, head, later, target, learn & (state.screen.points >= 1), restart)
+        new = new._replace(lead=head)
+        out = out._replace(ahead_experts=later, lead=lead_mix, lead_covariance=lead_cov)
+    elif ahead_time is not None:
+        out = out._replace(ahead_experts=expert_forecasts(bank, new, ahead_time, ahead_frames))
+    return new, out
 
 
 def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
-        ahead_times=None, ahead_frames: int = 1, record_experts: bool = False) -> EngineResult:
+        ahead_times=None, ahead_frames: int = 1, record_experts: bool = False,
+        record_covariance: bool = False, restart=None) -> EngineResult:
     """Reference loop over time (see the module docstring for the conventions)."""
     z, times, lengths = check_run_arguments(bank, measurements, times, state, lengths)
+    restart = check_restart(restart, z.shape[:2])
     t_count, n, p = z.shape
     state = init_bank_state(bank, n) if state is None else state
     lengths = np.full(n, t_count) if lengths is None else np.asarray(lengths)
-    forecasts = np.full((t_count, n, p), np.nan)
-    ahead = None if ahead_times is None else np.full((t_count, n, p), np.nan)
-    experts_out = np.full((t_count, n, bank.n_experts, p), np.nan) if record_experts else None
-    ahead_experts = np.full((t_count, n, bank.n_experts, p), np.nan) if record_experts and ahead is not None else None
-    weights_out = np.full((t_count, n, bank.n_experts), np.nan) if record_experts else None
+    nan = lambda *shape: np.full(shape, np.nan)  # noqa: E731
+    forecasts, std = nan(t_count, n, p), nan(t_count, n, p)
+    with_ahead = ahead_times is not None or bank.lead is not None
+    ahead = nan(t_count, n, p) if with_ahead else None
+    ahead_std = nan(t_count, n, p) if with_ahead else None
+    lead = nan(t_count, n, p) if bank.lead is not None else None
+    lead_std = nan(t_count, n, p) if bank.lead is not None else None
+    k = bank.n_experts
+    experts_out = nan(t_count, n, k, p) if record_experts else None
+    ahead_experts = nan(t_count, n, k, p) if record_experts and with_ahead else None
+    weights_out = nan(t_count, n, k) if record_experts else None
+    covariance = nan(t_count, n, p, p) if record_covariance else None
+    lead_covariance = nan(t_count, n, p, p) if record_covariance and lead is not None else None
     for t in range(t_count):
         active = t < lengths
         row_learn = None if learn is None else learn[t]
-        state, mix, experts, weights = step(bank, state, z[t], times[t], row_learn, active)
-        forecasts[t] = np.where(active[:, None], mix, np.nan)
+        state, out = step(bank, state, z[t], times[t], row_learn, active,
+                          None if ahead_times is None else ahead_times[t], ahead_frames,
+                          None if restart is None else restart[t])
+        on = active[:, None]
+        forecasts[t] = np.where(on, out.forecast, np.nan)
+        std[t] = np.where(on, _std(out.covariance), np.nan)
+        if record_covariance:
+            covariance[t] = np.where(on[..., None], out.covariance, np.nan)
         if record_experts:
-            experts_out[t] = np.where(active[:, None, None], experts, np.nan)
-            weights_out[t] = np.where(active[:, None], weights, np.nan)
-        if ahead is not None:
-            later = expert_forecasts(bank, state, ahead_times[t], ahead_frames)
-            _, mix_ahead = mixture_forecast(bank, state, later)
-            ahead[t] = np.where(active[:, None], mix_ahead, np.nan)
+            experts_out[t] = np.where(on[..., None], out.experts, np.nan)
+            weights_out[t] = np.where(on, out.weights, np.nan)
+        if with_ahead:
+            _, mean, cov = _one_step_forecast(bank, state, out.ahead_experts)
+            ahead[t] = np.where(on, mean, np.nan)
+            ahead_std[t] = np.where(on, _std(cov), np.nan)
             if ahead_experts is not None:
-                ahead_experts[t] = np.where(active[:, None, None], later, np.nan)
-    return EngineResult(forecasts, state, ahead, experts_out, weights_out, ahead_experts)
+                ahead_experts[t] = np.where(on[..., None], out.ahead_experts, np.nan)
+        if lead is not None:
+            lead[t] = np.where(on, out.lead, np.nan)
+            lead_std[t] = np.where(on, _std(out.lead_covariance), np.nan)
+            if lead_covariance is not None:
+                lead_covariance[t] = np.where(on[..., None], out.lead_covariance, np.nan)
+    return EngineResult(forecasts, state, ahead, experts_out, weights_out, ahead_experts, std, ahead_std, lead,
+                        lead_std, covariance, lead_covariance)
+
+
+def check_restart(restart, shape):
+    """``restart`` as a bool array of ``shape`` (T, N), or None; ``ValueError`` naming it."""
+    if restart is None:
+        return None
+    array = np.asarray(restart)
+    if array.shape != tuple(shape) or array.dtype != bool:
+        raise ValueError(f"restart: expected a bool array of shape (T, N) = {tuple(shape)}, got "
+                         f"{array.dtype} {array.shape}")
+    return array
+
+
+def _std(cov):
+    return np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
+
+
+def _one_step_forecast(bank, state, experts):
+    """Weights, mean and covariance of ``experts`` with the one-step head."""
+    awake = np.isfinite(experts).all(axis=-1)
+    w = bank.rule_module.weights(bank.rule_params, state.rule, awake)
+    mean, cov = calibration.moments(bank.calibration_params, state.calibration, w, experts, awake)
+    return w, mean, cov

@@ -48,8 +48,13 @@ def init(n_targets: int, measurement_dim: int) -> ScreenState:
                        np.zeros(n_targets), np.zeros(n_targets), np.zeros(n_targets))
 
 
-def screen(params: ScreenParams, state: ScreenState, z, time, present):
-    """Screen one row per target. Returns ``(state, accept (N,), restart (N,))``."""
+def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None):
+    """Screen one row per target. Returns ``(state, accept (N,), restart (N,))``.
+
+    ``gap (N,)`` asks for a restart at this row (a time gap): the row is not tested; if it
+    is missing, the screen (and the families) start again from the next present row.
+    """
+    gap = np.zeros(len(present), dtype=bool) if gap is None else np.asarray(gap, dtype=bool)
     started = state.points >= 1
     moving = state.points >= 2
     dt = np.where(started, time - state.time, 0.0)
@@ -57,11 +62,11 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present):
     with np.errstate(over="ignore", invalid="ignore"):
         guess = state.position + state.velocity * dt[:, None]
         distance = np.sqrt(np.sum((z - guess) ** 2, axis=-1))
-    checked = present & moving & (state.count >= params.warmup)
+    checked = present & moving & (state.count >= params.warmup) & ~gap
     with np.errstate(invalid="ignore"):
         wild = checked & ~(distance <= params.threshold * state.scale)
     rejects = np.where(wild, state.rejects + 1, 0.0)
-    restart = wild & (rejects >= params.max_rejects)
+    restart = (wild & (rejects >= params.max_rejects)) | gap
     outlier = wild & ~restart
     accept = present & ~outlier
     # accepted, not a restart: learn the distance and the velocity
@@ -78,8 +83,9 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present):
         time=np.where(accept, time, state.time),
         scale=scale,
         count=count,
-        rejects=np.where(present, np.where(restart, 0.0, rejects), state.rejects),
+        rejects=np.where(present | gap, np.where(restart, 0.0, rejects), state.rejects),
         outliers=state.outliers + outlier,
-        points=np.where(restart, 1.0, np.where(accept, np.minimum(state.points + 1, 2.0), state.points)),
+        points=np.where(restart, np.where(present, 1.0, 0.0),
+                        np.where(accept, np.minimum(state.points + 1, 2.0), state.points)),
     )
     return new, accept, restart

@@ -40,19 +40,47 @@ def adversarial_tracks(seed: int, t_count: int = 400, p: int = 2):
     return base, times
 
 
-def _close(a, b, rtol):
+def _close(a, b, rtol, size=None):
+    """``a`` and ``b`` agree to ``rtol`` relative to ``max(|a|, |b|, size, 1)``."""
     finite = np.isfinite(a) & np.isfinite(b)
     assert np.array_equal(np.isfinite(a), np.isfinite(b)), "finite in one, not in the other"
     scale = np.maximum(np.abs(a[finite]), np.abs(b[finite]))
+    if size is not None:
+        scale = np.maximum(scale, np.broadcast_to(size, a.shape)[finite])
     assert np.all(np.abs(a[finite] - b[finite]) <= rtol * np.maximum(scale, 1.0)), \
         f"max difference {np.max(np.abs(a[finite] - b[finite]), initial=0):.3g}"
 
 
-def check_bank(bank: Bank, measurements, times, *, rtol: float = 1e-9, compiled=True):
-    """Run every check of the module docstring on ``bank`` with ``measurements (T, N, p)``."""
+#: The outputs compared between runs (those the bank gives).
+OUTPUTS = ("forecasts", "std", "lead", "lead_std")
+
+
+def _outputs(result):
+    return [(name, getattr(result, name)) for name in OUTPUTS if getattr(result, name) is not None]
+
+
+def _same(a, b, what):
+    for (name, x), (_, y) in zip(_outputs(a), _outputs(b)):
+        assert np.array_equal(x, y, equal_nan=True), f"{what}: {name} differ"
+
+
+def _joined(first, second):
+    return type(first)(*[None if a is None or b is None or not hasattr(a, "ndim") or name == "state"
+                         else np.concatenate([a, b]) for name, a, b in zip(first._fields, first, second)])
+
+
+def check_bank(bank: Bank, measurements, times, *, rtol: float = 1e-9, compiled=True, restart=None):
+    """Run every check of the module docstring on ``bank`` with ``measurements (T, N, p)``.
+
+    ``restart (T, N)``: gap restarts to run with (:func:`kalmix.core.engine.run`). Every
+    output is checked: forecasts, their calibrated standard deviations and, for a bank with
+    a lead head, the lead forecasts and theirs (a standard deviation comes from differences
+    of positions, so its rounding is compared relative to the positions' size).
+    """
     z = np.asarray(measurements, dtype=float)
     t_count, n, _ = z.shape
-    reference = run(bank, z, times, record_experts=True)
+    gaps = (lambda rows: None) if restart is None else (lambda rows: restart[rows])  # noqa: E731
+    reference = run(bank, z, times, record_experts=True, restart=gaps(slice(None)))
     # weights valid
     w, experts = reference.weights, reference.experts
     awake = np.isfinite(experts).all(axis=-1)
@@ -61,22 +89,25 @@ def check_bank(bank: Bank, measurements, times, *, rtol: float = 1e-9, compiled=
     sums = w.sum(axis=-1)
     started = awake.any(axis=-1)
     assert np.allclose(sums[started], 1.0, atol=1e-9)
-    # finite once started (finite input)
+    # finite once started (finite input), standard deviations too
     assert np.all(np.isfinite(reference.forecasts[started])), "a forecast is not finite"
+    assert np.all(np.isfinite(reference.std[started])) and np.all(reference.std[started] >= 0), "a bad std"
     # batch == singles
     for j in range(n):
-        single = run(bank, z[:, j:j + 1], times[:, j:j + 1])
-        assert np.array_equal(single.forecasts[:, 0], reference.forecasts[:, j], equal_nan=True), "batch != single"
+        single = run(bank, z[:, j:j + 1], times[:, j:j + 1],
+                     restart=None if restart is None else restart[:, j:j + 1])
+        for (name, a), (_, b) in zip(_outputs(single), _outputs(reference)):
+            assert np.array_equal(a[:, 0], b[:, j], equal_nan=True), f"batch != single ({name})"
     # resume == uninterrupted, bit for bit
     cut = t_count // 3
-    first = run(bank, z[:cut], times[:cut])
-    second = run(bank, z[cut:], times[cut:], first.state)
-    assert np.array_equal(np.concatenate([first.forecasts, second.forecasts]), reference.forecasts, equal_nan=True)
-    # a NaN row learns nothing: the rule's state is unchanged
+    first = run(bank, z[:cut], times[:cut], restart=gaps(slice(None, cut)))
+    second = run(bank, z[cut:], times[cut:], first.state, restart=gaps(slice(cut, None)))
+    _same(_joined(first, second), reference, "resume")
+    # a NaN row learns nothing: the rule's and the calibration's states are unchanged
     missing = np.full_like(z[:1], np.nan)
     after = run(bank, missing, times[cut:cut + 1], first.state).state
-    for old, new in zip(first.state.rule, after.rule):
-        assert np.array_equal(old, new), "a missing row changed the rule's state"
+    for old, new in zip((*first.state.rule, *first.state.calibration), (*after.rule, *after.calibration)):
+        assert np.array_equal(old, new), "a missing row changed the rule's or the calibration's state"
     for family, old, new in zip(bank.families, first.state.families, after.families):
         if family.kind != "akf":
             for a, b in zip(old, new):
@@ -84,16 +115,19 @@ def check_bank(bank: Bank, measurements, times, *, rtol: float = 1e-9, compiled=
     if compiled:
         from .compiled import engine as ce
 
-        fast = ce.run(bank, z, times)
-        _close(fast.forecasts, reference.forecasts, rtol)
-        resumed = ce.run(bank, z[cut:], times[cut:], ce.run(bank, z[:cut], times[:cut]).state)
-        assert np.array_equal(np.concatenate([ce.run(bank, z[:cut], times[:cut]).forecasts, resumed.forecasts]),
-                              fast.forecasts, equal_nan=True), "compiled resume != uninterrupted"
+        fast = ce.run(bank, z, times, restart=gaps(slice(None)))
+        for (name, a), (_, b) in zip(_outputs(fast), _outputs(reference)):
+            mean = reference.lead if name == "lead_std" else reference.forecasts
+            size = np.abs(np.nan_to_num(mean, nan=0.0, posinf=0.0, neginf=0.0)) if "std" in name else None
+            _close(a, b, rtol, size)
+        head = ce.run(bank, z[:cut], times[:cut], restart=gaps(slice(None, cut)))
+        resumed = ce.run(bank, z[cut:], times[cut:], head.state, restart=gaps(slice(cut, None)))
+        _same(_joined(head, resumed), fast, "compiled resume")
         saved = ce.BUFFER_BYTES
         try:
             ce.BUFFER_BYTES = 1
-            blocked = ce.run(bank, z, times)
+            blocked = ce.run(bank, z, times, restart=gaps(slice(None)))
         finally:
             ce.BUFFER_BYTES = saved
-        assert np.array_equal(blocked.forecasts, fast.forecasts, equal_nan=True), "block size changed numbers"
+        _same(blocked, fast, "block size")
     return reference

@@ -167,31 +167,124 @@ def _shift(array, h, fill=np.nan):
     return out
 
 
-def _run_bank(bank, streams, horizon, scored):
+def track_layout(streams: Streams):
+    """Segments joined back into tracks (one column per track), with a restart at each segment start.
+
+    Returns ``(values (L, n, p), times (L, n), lengths (n,), restart (L, n), rows, columns)``:
+    segment-layout entry ``[t, j]`` is track-layout entry ``[rows[t, j], columns[j]]``
+    (``rows`` is the sample index, -1 on padding). This is how ``kalmix predict`` runs a
+    track: the families start again after a gap, the rule and the calibration go on.
+    """
+    n = len(streams.track_ids)
+    lengths = np.zeros(n, dtype=np.int64)
+    np.add.at(lengths, streams.track_of, streams.lengths)
+    p = streams.values.shape[2]
+    values, times = np.full((int(lengths.max()), n, p), np.nan), np.full((int(lengths.max()), n), np.nan)
+    restart = np.zeros(times.shape, dtype=bool)
+    present = streams.sample_index >= 0
+    t_seg, j_seg = np.nonzero(present)
+    rows, cols = streams.sample_index[t_seg, j_seg], streams.track_of[j_seg]
+    values[rows, cols], times[rows, cols] = streams.values[t_seg, j_seg], streams.times[t_seg, j_seg]
+    starts = streams.sample_index[0] > 0   # a segment that is not its track's first
+    restart[streams.sample_index[0, starts], streams.track_of[starts]] = True
+    return values, times, lengths, restart, streams.sample_index, streams.track_of
+
+
+def _to_segments(array, rows, columns, fill=np.nan):
+    """Track-layout ``(L, n, ...)`` back to the segment layout ``(T, S, ...)`` of ``rows, columns``."""
+    out = np.full(rows.shape + array.shape[2:], fill, dtype=array.dtype)
+    present = rows >= 0
+    t_seg, j_seg = np.nonzero(present)
+    out[t_seg, j_seg] = array[rows[t_seg, j_seg], columns[j_seg]]
+    return out
+
+
+def _to_tracks(array, rows, columns, shape, fill=False):
+    out = np.full(shape, fill, dtype=array.dtype)
+    present = rows >= 0
+    t_seg, j_seg = np.nonzero(present)
+    out[rows[t_seg, j_seg], columns[j_seg]] = array[t_seg, j_seg]
+    return out
+
+
+def _calibration(errors, std, covariance, scored):
+    """Coverage of mean ± 1.96 std per coordinate, and mean NEES, over the scored pairs."""
+    ok = scored & np.isfinite(errors).all(axis=-1) & np.isfinite(std).all(axis=-1)
+    if not ok.any():
+        return {"coverage_95": float("nan"), "mean_nees": float("nan"), "count": 0}
+    e, s = errors[ok], std[ok]
+    coverage = float(np.mean(np.abs(e) <= 1.959963984540054 * s))
+    out = {"coverage_95": coverage, "count": int(ok.sum())}
+    if covariance is not None:
+        c = covariance[ok]
+        with np.errstate(all="ignore"):
+            try:
+                nees = np.einsum("ni,ni->n", e, np.linalg.solve(c, e[..., None])[..., 0])
+            except np.linalg.LinAlgError:
+                nees = np.einsum("ni,ni->n", e, np.linalg.lstsq(c[0], e.T, rcond=None)[0].T)
+        out["mean_nees"] = float(np.nanmean(nees))
+        out["median_nees"] = float(np.nanmedian(nees))
+    return out
+
+
+def _run_bank(bank, streams, horizon, scored, warm=True, restart_gaps=True):
     """The bank's one-step and ``horizon``-step predictions in this module's convention, and the oracle.
 
     ``one[t]`` predicts row ``t + 1`` (the engine's forecast of that row), ``ahead[t]``
-    row ``t + horizon`` (made after row ``t`` for that row's time). The best expert in
-    hindsight is chosen per track from the engine's per-expert squared errors over the
-    reported rows, then rerun alone (experts do not depend on each other, so alone it
-    predicts what it predicted in the bank).
+    row ``t + horizon`` (made after row ``t`` for that row's time), with the weights of
+    the lead head (learned on ``horizon``-step errors) when the bank has one; ``plain``
+    is the same with the one-step weights. With ``warm``, a track's segments run as
+    ``kalmix predict`` runs them (:func:`track_layout`). The best expert in hindsight is
+    chosen per track from the engine's per-expert squared errors over the reported rows,
+    then rerun alone (experts do not depend on each other, so alone it predicts what it
+    predicted in the bank). ``calibration`` holds the coverage and NEES of the intervals.
+    ``restart_gaps=False`` (with ``warm``) bridges the gaps instead: the experts go on across them.
     """
     from ..core.compiled import numba_available
 
     values, times, lengths = streams.values, streams.times, streams.lengths
     run = _engine_run()
-    ahead_times = _shift(times, horizon)
-    result = run(bank, values, times, lengths=lengths, ahead_times=ahead_times, ahead_frames=horizon,
-                 **({"score": scored, "score_ahead": _shift(scored, horizon, False)} if numba_available() else
+    if warm:
+        tv, tt, tl, restart, rows, columns = track_layout(streams)
+        seg_ahead = _shift(times, horizon)   # the row `horizon` later in the same segment (NaN past its end)
+        t_ahead = _to_tracks(seg_ahead, rows, columns, tt.shape, np.nan)
+        t_scored = _to_tracks(scored, rows, columns, tt.shape)
+        t_scored_ahead = _to_tracks(_shift(scored, horizon, False), rows, columns, tt.shape)
+        back = lambda a: None if a is None else _to_segments(a, rows, columns)  # noqa: E731
+    else:
+        tv, tt, tl, restart, t_ahead = values, times, lengths, None, _shift(times, horizon)
+        t_scored, t_scored_ahead = scored, _shift(scored, horizon, False)
+        back = lambda a: a  # noqa: E731
+    result = run(bank, tv, tt, lengths=tl, ahead_times=t_ahead, ahead_frames=horizon,
+                 restart=restart if restart_gaps else None,
+                 record_covariance=True,
+                 **({"score": t_scored, "score_ahead": t_scored_ahead} if numba_available() else
                     {"record_experts": True}))
-    one = _shift(result.forecasts, 1)
-    ahead = result.ahead
+    forecasts, std, cov = back(result.forecasts), back(result.std), back(result.covariance)
+    one = _shift(forecasts, 1)
+    plain = back(result.ahead)
+    ahead = back(result.lead) if result.lead is not None else plain
+    ahead_std = back(result.lead_std) if result.lead is not None else back(result.ahead_std)
+    calibration = {"one_step": _calibration(values - forecasts, std, cov, scored)}
+    if horizon > 1:
+        calibration["horizon"] = _calibration(_shift(values, horizon) - ahead, ahead_std,
+                                              back(result.lead_covariance), _shift(scored, horizon, False))
     if numba_available():
         sums, counts = result.experts, result.weights
+        if warm:   # per track already: spread over the track's first segment column
+            first = np.unique(columns, return_index=True)[1]
+            sums_seg, counts_seg = np.zeros((len(columns), bank.n_experts)), np.zeros((len(columns), bank.n_experts))
+            sums_seg[first], counts_seg[first] = sums, counts
+            sums, counts = sums_seg, counts_seg
     else:
-        err = np.sum((result.experts - values[:, :, None, :]) ** 2, axis=-1)
-        ok = scored[..., None] & np.isfinite(err)
+        err = np.sum((result.experts - tv[:, :, None, :]) ** 2, axis=-1)
+        ok = t_scored[..., None] & np.isfinite(err)
         sums, counts = np.where(ok, err, 0.0).sum(axis=0), ok.sum(axis=0)
+        if warm:
+            first = np.unique(columns, return_index=True)[1]
+            sums_seg, counts_seg = np.zeros((len(columns), bank.n_experts)), np.zeros((len(columns), bank.n_experts))
+            sums_seg[first], counts_seg[first] = sums, counts
+            sums, counts = sums_seg, counts_seg
     n_tracks = len(streams.track_ids)
     per_track = np.zeros((n_tracks, bank.n_experts))
     per_count = np.zeros_like(per_track)
@@ -201,17 +294,20 @@ def _run_bank(bank, streams, horizon, scored):
     best = np.where(np.isfinite(mse).any(axis=1), np.argmin(mse, axis=1), 0)
     oracle_one, oracle_ahead = np.full_like(one, np.nan), np.full_like(one, np.nan)
     picks = {}
+    ahead_times = _shift(times, horizon)
     for expert in np.unique(best):
         tracks = np.flatnonzero(best == expert)
-        columns = np.flatnonzero(np.isin(streams.track_of, tracks))
+        chosen = np.flatnonzero(np.isin(streams.track_of, tracks))
         alone = _single_expert_bank(bank, int(expert))
-        sub = run(alone, values[:, columns], times[:, columns], lengths=lengths[columns],
-                  ahead_times=ahead_times[:, columns], ahead_frames=horizon)
-        oracle_one[:, columns] = _shift(sub.forecasts, 1)
-        oracle_ahead[:, columns] = sub.ahead
+        sub = run(alone, values[:, chosen], times[:, chosen], lengths=lengths[chosen],
+                  ahead_times=ahead_times[:, chosen], ahead_frames=horizon)
+        oracle_one[:, chosen] = _shift(sub.forecasts, 1)
+        oracle_ahead[:, chosen] = sub.ahead
         for i in tracks:
             picks[str(streams.track_ids[i])] = _expert_name(bank, int(expert))
-    return one, (ahead if horizon > 1 else one), picks, (oracle_one, oracle_ahead if horizon > 1 else oracle_one)
+    calibration["_arrays"] = (forecasts, cov)   # for the interval figure; not in the JSON
+    return (one, (ahead if horizon > 1 else one), picks, (oracle_one, oracle_ahead if horizon > 1 else oracle_one),
+            (one, plain), calibration)
 
 
 def _engine_run():
@@ -256,7 +352,7 @@ def _single_expert_bank(bank, expert):
         single = family.params._replace(process_noise=family.params.process_noise[i:i + 1],
                                         measurement_noise=family.params.measurement_noise[i:i + 1],
                                         initial_variance=family.params.initial_variance[i:i + 1])
-    return replace(bank, families=(Family(family.kind, single),))
+    return replace(bank, families=(Family(family.kind, single),), lead=None)
 
 
 #: Rows of the peers of :mod:`kalmix.peer_models`, by their registry name.
@@ -389,6 +485,7 @@ class EvaluationResult:
     streams: Streams = field(repr=False)
     errors: dict = field(repr=False)
     dataset: str | None = None
+    intervals: tuple | None = field(default=None, repr=False)   # mixture's forecasts (T, S, p), covariances
 
     def to_json(self) -> dict:
         """JSON-serialisable summary (no arrays)."""
@@ -498,13 +595,17 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         tuned["mixture_options"] = options
     predictions: dict[str, tuple] = {}
     time_unit = auto_time_unit(np.where(tuning, streams.times, np.nan) if tuning.any() else streams.times)
-    bank = make_bank(p, length_unit=rule, time_unit=time_unit, seed=seed, **dict(bank_options or DEFAULT_BANK))
+    bank = make_bank(p, length_unit=rule, time_unit=time_unit, seed=seed,
+                     lead=horizon * time_unit if horizon > 1 else None, **dict(bank_options or DEFAULT_BANK))
     tuned["mixture"] = {"bank": bank.description, "n_experts": bank.n_experts}
     log(f"mixture: {bank.description['kind']} bank of {bank.n_experts} experts, rule {bank.rule} "
         f"(length unit {rule:.4g}, time unit {time_unit:.4g})")
-    one, ahead, picks, oracle = _run_bank(bank, streams, horizon, scored)
+    one, ahead, picks, oracle, plain, calibration = _run_bank(bank, streams, horizon, scored)
     predictions["mixture"] = (one, ahead)
-
+    intervals = calibration.pop("_arrays")
+    tuned["mixture"]["calibration"] = calibration
+    if horizon > 1:
+        predictions["mixture, one-step weights"] = plain
     log(f"AKF mixture (previous default: K={n_experts}, fixed share, length unit {unit:.4g})")
     mix_params = make_params(p, n_experts, seed=seed, length_unit=unit, **options)
     predictions["AKF mixture (previous default)"] = _run(mix_params, values, horizon, lengths=streams.lengths)[:2]
@@ -570,4 +671,4 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
             per_track.setdefault(str(track), {})[name] = entry
     return EvaluationResult(horizon=int(horizon), length_unit=unit, tuning_fraction=tuning_fraction,
                             tuned=tuned, predictors=list(predictions), overall=overall, per_track=per_track,
-                            streams=streams, errors=errors_one)
+                            streams=streams, errors=errors_one, intervals=intervals)

@@ -12,6 +12,7 @@ _CORE = Path(__file__).resolve().parent.parent
 COMPILED_SOURCES = (
     "_numba_linalg.py", "_numba_kernels.py", "_numba_scalar.py",
     "compiled/kinematic.py", "compiled/rules.py", "compiled/screen.py", "compiled/_cache.py",
+    "compiled/calibration.py", "compiled/lead.py",
 )
 
 

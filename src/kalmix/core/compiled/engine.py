@@ -11,12 +11,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine import Bank, BankState, EngineResult, check_run_arguments, init_bank_state
+from ..calibration import CalibrationState
+from ..engine import Bank, BankState, EngineResult, check_restart, check_run_arguments, init_bank_state
 from ..families import akf
+from ..lead import LeadState
 from ..families.kinematic import KinematicState
 from ..screen import ScreenState
 from . import kinematic as ckin
+from . import lead as clead
 from . import rules as crules
+from .calibration import pack_params as pack_calibration
 from . import screen as cscreen
 
 __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
@@ -110,9 +114,13 @@ def prepare(bank: Bank, measurements, times, state, lengths, learn):
     return z, times, state, lengths, learn
 
 
+def _copy(state):
+    return type(state)(*(np.array(x, dtype=np.float64, copy=True, order="C") for x in state))
+
+
 def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
         ahead_times=None, ahead_frames: int = 1, record_experts: bool = False, score=None,
-        score_ahead=None) -> EngineResult:
+        score_ahead=None, record_covariance: bool = False, restart=None) -> EngineResult:
     """Same arguments and result as :func:`kalmix.core.engine.run`.
 
     With ``score (T, N)`` (and ``score_ahead``) bool masks, the result's ``experts`` is
@@ -122,7 +130,14 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     """
     z, times, state, lengths, learn = prepare(bank, measurements, times, state, lengths, learn)
     t_count, n, p = z.shape
+    gaps = check_restart(restart, (t_count, n))
+    if gaps is None:
+        gaps = np.zeros((t_count, n), dtype=bool)
     k = bank.n_experts
+    lead = bank.lead
+    if lead is not None:
+        ahead_times = times + lead.time if ahead_times is None else ahead_times
+        ahead_frames = lead.frames
     with_ahead = ahead_times is not None
     if with_ahead:
         ahead_times = np.ascontiguousarray(np.broadcast_to(np.asarray(ahead_times, dtype=np.float64), (t_count, n)))
@@ -135,17 +150,28 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
             families.append(KinematicState(*(np.array(a, copy=True, order="C") for a in fstate)))
     a, b, c, d, e = pack_rule(bank, state.rule, n)
     rule_args = _rule_scalars(bank)
+    cal_args = pack_calibration(bank.calibration_params)
+    cal = _copy(state.calibration)
+    if lead is not None:
+        lead_rule = pack_rule(bank, state.lead.rule, n)
+        lead_cal = _copy(state.lead.calibration)
+        due = np.array(state.lead.due, dtype=np.float64, copy=True, order="C")
+        pending = np.array(state.lead.pending, dtype=np.float64, copy=True, order="C")
     scr = ScreenState(*(np.array(x, dtype=np.float64, copy=True, order="C") for x in state.screen))
     sp = bank.screen_params
     screen_args = (float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window))
 
-    forecasts = np.full((t_count, n, p), np.nan)
-    ahead = np.full((t_count, n, p), np.nan) if with_ahead else None
+    nan = lambda *shape: np.full(shape, np.nan)  # noqa: E731
+    forecasts, std = nan(t_count, n, p), nan(t_count, n, p)
+    ahead, ahead_std = (nan(t_count, n, p), nan(t_count, n, p)) if with_ahead else (None, None)
+    lead_out, lead_std = (nan(t_count, n, p), nan(t_count, n, p)) if lead is not None else (None, None)
+    covariance = nan(t_count, n, p, p) if record_covariance else None
+    lead_covariance = nan(t_count, n, p, p) if record_covariance and lead is not None else None
     experts_out = weights_out = ahead_experts_out = None
     if record_experts:
-        experts_out = np.full((t_count, n, k, p), np.nan)
-        weights_out = np.full((t_count, n, k), np.nan)
-        ahead_experts_out = np.full((t_count, n, k, p), np.nan) if with_ahead else None
+        experts_out = nan(t_count, n, k, p)
+        weights_out = nan(t_count, n, k)
+        ahead_experts_out = nan(t_count, n, k, p) if with_ahead else None
     sums = [np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k))] if score is not None else None
 
     per_row = n * k * p * 8 * (2 if with_ahead else 1)
@@ -158,7 +184,9 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         zb, tb = z[begin:end], times[begin:end]
         accept = np.zeros((rows, n), dtype=bool)
         restart = np.zeros((rows, n), dtype=bool)
-        cscreen.screen_block(*screen_args, *scr, zb, tb, lens, learn[begin:end], accept, restart)
+        started = np.zeros((rows, n), dtype=bool)
+        cscreen.screen_block(*screen_args, *scr, zb, tb, lens, learn[begin:end], gaps[begin:end], accept, restart,
+                             started)
         lb = learn[begin:end] & accept
         buffer = np.full((rows, n, k, p), np.nan)
         ahead_buffer = np.full((rows, n, k, p), np.nan) if with_ahead else None
@@ -177,8 +205,15 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
                                ahead_buffer if with_ahead else empty4)
             offset += family.n_experts
         w_block = np.full((rows, n, k), np.nan) if record_experts else empty3
-        crules.run_block(*rule_args, a, b, c, d, e, buffer, zb, lens, lb & ~restart, forecasts[begin:end], w_block,
-                         ahead_buffer if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3)
+        crules.run_block(*rule_args, a, b, c, d, e, *cal_args, *cal, buffer, zb, lens, lb & ~restart,
+                         forecasts[begin:end], std[begin:end],
+                         covariance[begin:end] if record_covariance else empty4, w_block,
+                         ahead_buffer if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3,
+                         ahead_std[begin:end] if with_ahead else empty3)
+        if lead is not None:
+            clead.run_block(*rule_args, *lead_rule, *cal_args, *lead_cal, ahead_times[begin:end], float(lead.tolerance),
+                            due, pending, ahead_buffer, zb, tb, lens, lb, lb & started, restart, lead_out[begin:end],
+                            lead_std[begin:end], lead_covariance[begin:end] if record_covariance else empty4)
         if record_experts:
             experts_out[begin:end] = buffer
             weights_out[begin:end] = w_block
@@ -188,10 +223,14 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
             _accumulate(sums[0], sums[1], buffer, zb, score[begin:end])
             if with_ahead and score_ahead is not None:
                 _accumulate_ahead(sums[2], sums[3], ahead_buffer, z, begin, end, ahead_frames, score_ahead)
-    final = BankState(tuple(families), unpack_rule(bank, a, b, c, d, e), scr)
+    head = None
+    if lead is not None:
+        head = LeadState(unpack_rule(bank, *lead_rule), CalibrationState(*lead_cal), due, pending)
+    final = BankState(tuple(families), unpack_rule(bank, a, b, c, d, e), scr, CalibrationState(*cal), head)
     if sums is not None:
-        return EngineResult(forecasts, final, ahead, sums[0], sums[1], sums[2] if with_ahead else None)
-    return EngineResult(forecasts, final, ahead, experts_out, weights_out, ahead_experts_out)
+        experts_out, weights_out, ahead_experts_out = sums[0], sums[1], sums[2] if with_ahead else None
+    return EngineResult(forecasts, final, ahead, experts_out, weights_out, ahead_experts_out, std, ahead_std,
+                        lead_out, lead_std, covariance, lead_covariance)
 
 
 def _accumulate(total, count, buffer, z, score):

@@ -22,12 +22,15 @@ import os
 
 import numpy as np
 
+from ..calibration import CalibrationState
 from ..engine import Bank, BankState, EngineResult
 from ..families.kinematic import KinematicState
 from ..screen import ScreenState
 from . import kinematic as ckin
 from . import rules as crules
 from . import screen as cscreen
+from .calibration import calibrate_row, moments_row
+from .calibration import pack_params as pack_calibration
 
 if not hasattr(np, "row_stack"):  # numba-cuda 0.30 registers an overload of np.row_stack, gone from numpy 2.4+
     np.row_stack = np.vstack
@@ -56,7 +59,8 @@ def gpu_available() -> bool:
 def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
            rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
            threshold, max_rejects, warmup, window, position, velocity, seen, spread, count, rejects, outliers,
-           points, z, times, lengths, learn, out, ahead_times, out_ahead):
+           points, cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale, variance, n_errors,
+           log_scale, z, times, lengths, learn, out, out_std, ahead_times, out_ahead, out_ahead_std):
     n = cuda.grid(1)
     if n >= z.shape[1]:
         return
@@ -69,6 +73,7 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
     logw_all = cuda.local.array(MAX_EXPERTS, float64)
     r_all = cuda.local.array(MAX_EXPERTS, float64)
     mix_all = cuda.local.array(3, float64)
+    cov_all = cuda.local.array((3, 3), float64)
     m_pred = cuda.local.array((3, 3), float64)
     c_pred = cuda.local.array((3, 3), float64)
     f = cuda.local.array((3, 3), float64)
@@ -81,11 +86,15 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
     logw = logw_all[:k_count]
     rr = r_all[:k_count]
     mix = mix_all[:p]
+    sigma = cov_all[:p, :p]
     dn = d[n:n + 1]
     en = e[n:n + 1]
+    ls = log_scale[n:n + 1]
+    var_n = variance[:, :, n]
+    errors_n = n_errors[:, n]
     for t in range(lengths[n]):
         code = screen_row(threshold, max_rejects, warmup, window, position, velocity, seen, spread, count,
-                          rejects, outliers, points, n, z[t, n], times[t, n], learn[t, n])
+                          rejects, outliers, points, n, z[t, n], times[t, n], learn[t, n], False)
         # every expert's forecast of the row, and its learning from the same extrapolation
         learning = code != 0
         fresh = code == 2 or not initialised[n]
@@ -99,9 +108,13 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
         awake_count = awake_of(x, awake)
         weights_of(rule, forgetting, share, a[:, n], b[:, n], c[:, n], dn[0], awake, awake_count, w, logw)
         mix_of(x, w, awake, mix)
+        moments_row(x, w, awake, awake_count, mix, var_n, ls[0], cal_max_variance, sigma)
         for ci in range(p):
             out[t, n, ci] = mix[ci] if awake_count > 0 else math.nan
+            out_std[t, n, ci] = math.sqrt(sigma[ci, ci])
         if code == 1 and awake_count > 0:
+            calibrate_row(x, z[t, n], awake, awake_count, mix, sigma, var_n, errors_n, ls, cal_window, cal_rate,
+                          cal_level, z_level, cal_max_variance, max_log_scale)
             learn_rule(rule, forgetting, share, scale, scale_factor, a[:, n], b[:, n], c[:, n], dn, en, x, z[t, n],
                        awake, awake_count, w, mix, rr)
         if want_ahead:
@@ -116,8 +129,10 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
             awake_count = awake_of(x, awake)
             weights_of(rule, forgetting, share, a[:, n], b[:, n], c[:, n], dn[0], awake, awake_count, w, logw)
             mix_of(x, w, awake, mix)
+            moments_row(x, w, awake, awake_count, mix, var_n, ls[0], cal_max_variance, sigma)
             for ci in range(p):
                 out_ahead[t, n, ci] = mix[ci] if awake_count > 0 else math.nan
+                out_ahead_std[t, n, ci] = math.sqrt(sigma[ci, ci])
 
 
 def _kernel():
@@ -137,6 +152,8 @@ def check_bank(bank: Bank) -> None:
         raise ValueError(f"backend 'gpu': at most {MAX_EXPERTS} experts, got {bank.n_experts}")
     if bank.measurement_dim > 3:
         raise ValueError(f"backend 'gpu': 1 to 3 coordinates, got {bank.measurement_dim}")
+    if bank.lead is not None:
+        raise ValueError("backend 'gpu': banks with a lead head (make_bank(..., lead=...)) run on the CPU engine")
 
 
 def _pack_families(bank: Bank, states, n: int, p: int):
@@ -183,6 +200,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
      initialised) = _pack_families(bank, state.families, n, p)
     a, b, c, d, e = pack_rule(bank, state.rule, n)
     scr = [np.array(x, dtype=np.float64, copy=True, order="C") for x in state.screen]
+    cal = [np.array(x, dtype=np.float64, copy=True, order="C") for x in state.calibration]
     sp = bank.screen_params
     with_ahead = ahead_times is not None
     ahead_host = (np.ascontiguousarray(np.broadcast_to(np.asarray(ahead_times, dtype=np.float64), (t_count, n)))
@@ -192,10 +210,12 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     device = {name: cuda.to_device(value) for name, value in dict(
         orders=orders, q=q, r=r, initial=initial, tu=tu, mean=soa(mean), cov=soa(cov), last_time=last_time,
         initialised=initialised, a=soa(a), b=soa(b), c=soa(c), d=d, e=e, z=z, times=times, lengths=lengths,
-        learn=np.ascontiguousarray(learn), ahead_times=ahead_host).items()}
+        learn=np.ascontiguousarray(learn), ahead_times=ahead_host, variance=soa(cal[0]), n_errors=soa(cal[1]),
+        log_scale=cal[2]).items()}
     screen_dev = [cuda.to_device(x) for x in scr]
-    out = cuda.device_array((t_count, n, p))
+    out, out_std = cuda.device_array((t_count, n, p)), cuda.device_array((t_count, n, p))
     out_ahead = cuda.device_array((t_count, n, p) if with_ahead else (0, 0, 0))
+    out_ahead_std = cuda.device_array((t_count, n, p) if with_ahead else (0, 0, 0))
     blocks = max(1, math.ceil(n / threads_per_block))
     kernel = _kernel()
     cuda.synchronize()
@@ -205,16 +225,18 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         device["mean"], device["cov"], device["last_time"], device["initialised"],
         *_rule_scalars(bank), device["a"], device["b"], device["c"], device["d"], device["e"],
         float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window), *screen_dev,
-        device["z"], device["times"], device["lengths"], device["learn"], out, device["ahead_times"], out_ahead)
+        *pack_calibration(bank.calibration_params), device["variance"], device["n_errors"], device["log_scale"],
+        device["z"], device["times"], device["lengths"], device["learn"], out, out_std, device["ahead_times"],
+        out_ahead, out_ahead_std)
     cuda.synchronize()
     kernel_seconds = time.perf_counter() - launched
-    forecasts = out.copy_to_host()
     rows = np.arange(t_count)[:, None] < lengths[None, :]
-    forecasts[~rows] = np.nan
-    ahead = None
+    forecasts, std = out.copy_to_host(), out_std.copy_to_host()
+    forecasts[~rows] = std[~rows] = np.nan
+    ahead = ahead_std = None
     if with_ahead:
-        ahead = out_ahead.copy_to_host()
-        ahead[~rows] = np.nan
+        ahead, ahead_std = out_ahead.copy_to_host(), out_ahead_std.copy_to_host()
+        ahead[~rows] = ahead_std[~rows] = np.nan
     aos = lambda array: np.ascontiguousarray(np.moveaxis(array, -1, 0))  # noqa: E731
     mean, cov = aos(device["mean"].copy_to_host()), aos(device["cov"].copy_to_host())
     last_time, initialised = device["last_time"].copy_to_host(), device["initialised"].copy_to_host()
@@ -227,6 +249,9 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     rule_state = unpack_rule(bank, *(aos(device[k].copy_to_host()) for k in "abc"),
                              *(device[k].copy_to_host() for k in "de"))
     screen_state = ScreenState(*(x.copy_to_host() for x in screen_dev))
+    calibration = CalibrationState(aos(device["variance"].copy_to_host()), aos(device["n_errors"].copy_to_host()),
+                                   device["log_scale"].copy_to_host())
     if timings is not None:
         timings.update(kernel=kernel_seconds, total=time.perf_counter() - start)
-    return EngineResult(forecasts, BankState(tuple(families), rule_state, screen_state), ahead)
+    return EngineResult(forecasts, BankState(tuple(families), rule_state, screen_state, calibration), ahead,
+                        std=std, ahead_std=ahead_std)

@@ -180,6 +180,8 @@ def run_block(order, q, r, initial, time_unit, max_step, max_variance,
             if learning:
                 initialised[n] = True
                 last_time[n] = times[t, n]
+            elif restart[t, n]:  # a restart on a missing row: start from the next present one
+                initialised[n] = False
             # forecast made after this row, for a later time
             if want_ahead:
                 if initialised[n]:

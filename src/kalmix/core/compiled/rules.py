@@ -20,6 +20,7 @@ import numba as nb
 import numpy as np
 
 from ._cache import configure_cache
+from .calibration import calibrate_row, moments_row
 
 configure_cache()
 _JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
@@ -184,40 +185,66 @@ def _learn(rule, forgetting, share, scale, scale_factor, a, b, c, d, e, x, y, aw
                 a[k] = math.log((1.0 - share) * w[k] + share / count)
 
 
+@nb.njit(inline="always", **_JIT)
+def forecast_row(rule, forgetting, share, a, b, c, d, x, awake, w, logw, mix, variance, log_scale, max_variance,
+                 cov):
+    """Weights, mixture and covariance of one target's forecasts ``x (K, p)``; returns the awake count."""
+    count = _awake(x, awake)
+    _weights(rule, forgetting, share, a, b, c, d, awake, count, w, logw)
+    _mix(x, w, awake, mix)
+    moments_row(x, w, awake, count, mix, variance, log_scale, max_variance, cov)
+    return count
+
+
+@nb.njit(inline="always", **_JIT)
+def write_row(count, mix, cov, out, out_std, out_cov):
+    for ci in range(mix.shape[0]):
+        out[ci] = mix[ci] if count > 0 else np.nan
+        out_std[ci] = math.sqrt(cov[ci, ci])
+    if out_cov.shape[0] > 0:
+        for ci in range(mix.shape[0]):
+            for cj in range(mix.shape[0]):
+                out_cov[ci, cj] = cov[ci, cj]
+
+
 @nb.njit(parallel=True, **_JIT)
 def run_block(rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
-              experts, z, lengths, learn, out, out_weights, ahead_experts, out_ahead):
-    """Mixture forecast of every row (weights before the row), then learn the row where ``learn``."""
+              window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
+              experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
+              out_ahead_std):
+    """Mixture forecast of every row (weights before the row) and its covariance, then learn the row
+    where ``learn`` (the rule and the calibration); ``out_cov`` and the others are optional (size 0)."""
     n_targets = z.shape[1]
     k_count = experts.shape[2]
     p = z.shape[2]
     want_weights = out_weights.shape[0] > 0
     want_ahead = out_ahead.shape[0] > 0
+    want_cov = out_cov.shape[0] > 0
+    no_cov = np.empty((0, 0))
     for n in nb.prange(n_targets):
         awake = np.empty(k_count, dtype=np.bool_)
         w = np.empty(k_count)
         logw = np.empty(k_count)
         r = np.empty(k_count)
         mix = np.empty(p)
+        cov = np.empty((p, p))
         dn = d[n:n + 1]
         en = e[n:n + 1]
+        ls = log_scale[n:n + 1]
         for t in range(lengths[n]):
             x = experts[t, n]
-            count = _awake(x, awake)
-            _weights(rule, forgetting, share, a[n], b[n], c[n], dn[0], awake, count, w, logw)
-            _mix(x, w, awake, mix)
-            for ci in range(p):
-                out[t, n, ci] = mix[ci] if count > 0 else np.nan
+            count = forecast_row(rule, forgetting, share, a[n], b[n], c[n], dn[0], x, awake, w, logw, mix,
+                                 variance[n], ls[0], max_variance, cov)
+            write_row(count, mix, cov, out[t, n], out_std[t, n], out_cov[t, n] if want_cov else no_cov)
             if want_weights:
                 for k in range(k_count):
                     out_weights[t, n, k] = w[k]
             if learn[t, n] and count > 0:
+                calibrate_row(x, z[t, n], awake, count, mix, cov, variance[n], n_errors[n], ls, window, rate,
+                              level, z_level, max_variance, max_log_scale)
                 _learn(rule, forgetting, share, scale, scale_factor, a[n], b[n], c[n], dn, en,
                        x, z[t, n], awake, count, w, mix, r)
             if want_ahead:
-                xa = ahead_experts[t, n]
-                count_ahead = _awake(xa, awake)
-                _weights(rule, forgetting, share, a[n], b[n], c[n], dn[0], awake, count_ahead, w, logw)
-                _mix(xa, w, awake, mix)
-                for ci in range(p):
-                    out_ahead[t, n, ci] = mix[ci] if count_ahead > 0 else np.nan
+                count_ahead = forecast_row(rule, forgetting, share, a[n], b[n], c[n], dn[0], ahead_experts[t, n],
+                                           awake, w, logw, mix, variance[n], ls[0], max_variance, cov)
+                write_row(count_ahead, mix, cov, out_ahead[t, n], out_ahead_std[t, n], no_cov)

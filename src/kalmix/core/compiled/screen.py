@@ -15,17 +15,30 @@ from ._cache import configure_cache
 configure_cache()
 _JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 
-#: :func:`screen_row` results.
-SKIP, ACCEPT, RESTART = 0, 1, 2
+#: :func:`screen_row` results (GAP: a restart asked for on a missing row).
+SKIP, ACCEPT, RESTART, GAP = 0, 1, 2, 3
 
 
 @nb.njit(inline="always", **_JIT)
 def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
-               outliers, points, n, z, time, present):
-    """Screen target ``n``'s row ``z`` at ``time``: SKIP (missing or outlier), ACCEPT or RESTART."""
+               outliers, points, n, z, time, present, gap):
+    """Screen target ``n``'s row ``z`` at ``time``: SKIP (missing or outlier), ACCEPT, RESTART (the screen's or
+    a ``gap``), or GAP (a gap on a missing row: start again from the next row)."""
+    p = z.shape[0]
+    if gap:
+        for c in range(p):
+            velocity[n, c] = 0.0
+        rejects[n] = 0.0
+        if not present:
+            points[n] = 0.0
+            return GAP
+        points[n] = 1.0
+        for c in range(p):
+            position[n, c] = z[c]
+        last_time[n] = time
+        return RESTART
     if not present:
         return SKIP
-    p = z.shape[0]
     started = points[n] >= 1
     moving = points[n] >= 2
     dt = time - last_time[n] if started else 0.0
@@ -66,11 +79,13 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
 
 @nb.njit(parallel=True, **_JIT)
 def screen_block(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
-                 outliers, points, z, times, lengths, present, accept, restart):
+                 outliers, points, z, times, lengths, present, gaps, accept, restart, started):
+    """Every row of a block; ``started[t, n]``: target ``n`` had an accepted row (since a restart) before row t."""
     n_targets = z.shape[1]
     for n in nb.prange(n_targets):
         for t in range(lengths[n]):
+            started[t, n] = points[n] >= 1.0
             code = screen_row(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count,
-                              rejects, outliers, points, n, z[t, n], times[t, n], present[t, n])
-            accept[t, n] = code != SKIP
-            restart[t, n] = code == RESTART
+                              rejects, outliers, points, n, z[t, n], times[t, n], present[t, n], gaps[t, n])
+            accept[t, n] = code == ACCEPT or code == RESTART
+            restart[t, n] = code == RESTART or code == GAP

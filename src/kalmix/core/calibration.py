@@ -1,0 +1,99 @@
+"""How sure a mixture is: its predictive covariance, recalibrated online (reference).
+
+For the weights :math:`w_k` and the awake experts' forecasts :math:`y_k` of one target,
+
+.. math::
+
+    \\Sigma = s^2 \\sum_k w_k \\big(\\operatorname{diag}(V_k) + (y_k - \\bar y)(y_k - \\bar y)^\\top\\big),
+    \\qquad \\bar y = \\sum_k w_k y_k,
+
+where :math:`V_k` is expert :math:`k`'s running mean squared error per coordinate (over
+its last ~``window`` learned rows; ``initial_variance`` before the first) and :math:`s`
+a running scale. The variances are the experts' own errors, measured the same way for
+every family, so the covariance needs nothing from the experts but their forecasts.
+
+The scale keeps the intervals honest (adaptive conformal inference, Gibbs & Candès
+2021): after each learned row, with ``miss`` the fraction of coordinates outside
+:math:`\\bar y \\pm z_{level} \\sigma` (:math:`\\sigma` the square roots of the
+diagonal of :math:`\\Sigma`),
+
+.. math::  \\log s \\leftarrow \\log s + \\gamma\\, (\\text{miss} - (1 - \\text{level})),
+
+so the long-run share of coordinates outside the central ``level`` interval is
+``1 - level`` whatever the shape of the errors. Numbers are kept finite: an error
+whose square overflows teaches nothing, variances are capped at ``max_variance``,
+:math:`\\log s` stays within ``±max_log_scale``.
+"""
+
+from __future__ import annotations
+
+from statistics import NormalDist
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["CalibrationParams", "CalibrationState", "init", "moments", "update", "z_score"]
+
+
+class CalibrationParams(NamedTuple):
+    initial_variance: float = 1.0   # V before an expert's first error (length unit squared)
+    window: float = 100.0           # V is the mean of about the last ``window`` squared errors
+    rate: float = 0.05              # gamma: step of log s
+    level: float = 0.95             # the central interval whose coverage is calibrated
+    max_variance: float = 1e300
+    max_log_scale: float = 30.0
+
+
+class CalibrationState(NamedTuple):
+    variance: np.ndarray    # (N, K, p) V
+    count: np.ndarray       # (N, K) learned errors in V, capped at window
+    log_scale: np.ndarray   # (N,) log s
+
+
+def z_score(params: CalibrationParams) -> float:
+    """:math:`z` of the central ``level`` interval of a normal law (1.96 for 95 %)."""
+    return NormalDist().inv_cdf(0.5 + 0.5 * params.level)
+
+
+def init(params: CalibrationParams, n_targets: int, n_experts: int, measurement_dim: int) -> CalibrationState:
+    return CalibrationState(np.full((n_targets, n_experts, measurement_dim), float(params.initial_variance)),
+                            np.zeros((n_targets, n_experts)), np.zeros(n_targets))
+
+
+def moments(params: CalibrationParams, state: CalibrationState, weights, experts, awake):
+    """The mixture's mean ``(N, p)`` and covariance ``(N, p, p)`` (NaN where no expert is awake)."""
+    x = np.where(awake[..., None], experts, 0.0)
+    w = np.where(awake, weights, 0.0)
+    mean = np.einsum("nk,nkp->np", w, x)
+    with np.errstate(over="ignore", invalid="ignore"):
+        dev = np.where(awake[..., None], x - mean[:, None, :], 0.0)
+        cov = np.einsum("nk,nkp,nkq->npq", w, dev, dev)
+        diagonal = np.einsum("nk,nkp->np", w, np.where(awake[..., None], state.variance, 0.0))
+        cov = cov + diagonal[:, :, None] * np.eye(mean.shape[-1])
+        cov = np.exp(2.0 * state.log_scale)[:, None, None] * cov
+    cov = np.clip(np.nan_to_num(cov, nan=params.max_variance, posinf=params.max_variance,
+                                 neginf=-params.max_variance), -params.max_variance, params.max_variance)
+    some = awake.any(axis=-1)
+    return np.where(some[:, None], mean, np.nan), np.where(some[:, None, None], cov, np.nan)
+
+
+def update(params: CalibrationParams, state: CalibrationState, weights, experts, awake, measurement,
+           learn) -> CalibrationState:
+    """Learn a row where ``learn (N,)``: the scale from the mixture's miss, each awake expert's V."""
+    mean, cov = moments(params, state, weights, experts, awake)
+    z = np.where(learn[:, None], measurement, 0.0)
+    std = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
+    with np.errstate(invalid="ignore", over="ignore"):
+        miss = (np.abs(z - mean) > z_score(params) * std).mean(axis=-1)
+    go = learn & awake.any(axis=-1) & np.isfinite(z - mean).all(axis=-1)
+    log_scale = np.clip(state.log_scale + params.rate * (miss - (1.0 - params.level)),
+                        -params.max_log_scale, params.max_log_scale)
+    with np.errstate(over="ignore", invalid="ignore"):
+        squared = (z[:, None, :] - experts) ** 2
+    learn_k = go[:, None] & awake & np.isfinite(squared).all(axis=-1)
+    count = np.where(learn_k, np.minimum(state.count + 1.0, params.window), state.count)
+    step = 1.0 / np.maximum(count, 1.0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        variance = np.minimum(state.variance + step[..., None] * (squared - state.variance), params.max_variance)
+    return CalibrationState(np.where(learn_k[..., None], variance, state.variance), count,
+                            np.where(go, log_scale, state.log_scale))

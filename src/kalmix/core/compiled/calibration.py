@@ -1,0 +1,84 @@
+"""Compiled calibration (:mod:`kalmix.core.calibration`): per-row functions, one target at a time.
+
+Shared by the CPU driver (:func:`.rules.run_block`) and the GPU kernel; the arrays are one
+target's: forecasts ``x (K, p)``, weights ``w (K,)``, ``variance (K, p)``, ``count (K,)``;
+``log_scale`` is a length-1 view. ``cal`` packs the parameters:
+``(window, rate, level, z, max_variance, max_log_scale)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from ..calibration import CalibrationParams, z_score
+from ._cache import configure_cache
+
+configure_cache()
+_JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
+
+__all__ = ["pack_params", "moments_row", "calibrate_row"]
+
+
+def pack_params(params: CalibrationParams) -> tuple:
+    return (float(params.window), float(params.rate), float(params.level), float(z_score(params)),
+            float(params.max_variance), float(params.max_log_scale))
+
+
+@nb.njit(inline="always", **_JIT)
+def moments_row(x, w, awake, count, mix, variance, log_scale, max_variance, cov):
+    """``cov (p, p)`` of the mixture ``mix`` (already :func:`.rules._mix`); NaN if no expert is awake."""
+    p = x.shape[1]
+    factor = math.exp(2.0 * log_scale)
+    for i in range(p):
+        for j in range(p):
+            if count == 0:
+                cov[i, j] = np.nan
+                continue
+            acc = 0.0
+            for k in range(x.shape[0]):
+                if awake[k]:
+                    acc += w[k] * ((x[k, i] - mix[i]) * (x[k, j] - mix[j]))
+            if i == j:
+                diagonal = 0.0
+                for k in range(x.shape[0]):
+                    if awake[k]:
+                        diagonal += w[k] * variance[k, i]
+                acc = acc + diagonal
+            value = factor * acc
+            if math.isnan(value):
+                value = max_variance
+            cov[i, j] = min(max(value, -max_variance), max_variance)
+
+
+@nb.njit(inline="always", **_JIT)
+def calibrate_row(x, y, awake, count, mix, cov, variance, n_errors, log_scale, window, rate, level, z,
+                  max_variance, max_log_scale):
+    """Learn one row: ``log_scale[0]`` from the mixture's miss, each awake expert's variance."""
+    p = x.shape[1]
+    if count == 0:
+        return
+    misses = 0.0
+    for c in range(p):
+        e = y[c] - mix[c]
+        if not math.isfinite(e):
+            return
+        if abs(e) > z * math.sqrt(cov[c, c]):
+            misses += 1.0
+    value = log_scale[0] + rate * (misses / p - (1.0 - level))
+    log_scale[0] = min(max(value, -max_log_scale), max_log_scale)
+    for k in range(x.shape[0]):
+        if not awake[k]:
+            continue
+        ok = True
+        for c in range(p):
+            if not math.isfinite((y[c] - x[k, c]) ** 2):
+                ok = False
+        if not ok:
+            continue
+        n_errors[k] = min(n_errors[k] + 1.0, window)
+        step = 1.0 / max(n_errors[k], 1.0)
+        for c in range(p):
+            variance[k, c] = min(variance[k, c] + step * ((y[c] - x[k, c]) ** 2 - variance[k, c]), max_variance)

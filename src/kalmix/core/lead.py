@@ -1,0 +1,101 @@
+"""The lead head: weights and intervals for forecasts a lead time ahead, learned on their own errors.
+
+A forecast made after row ``t`` for the time ``t + lead`` can only be scored when a
+measurement at that time arrives: the feedback is delayed. The lead head keeps, per
+target, up to ``capacity`` pending forecasts (every expert's, with the time they are
+for). When a learned row comes at a time within ``tolerance`` of a pending forecast's
+time, the lead head's own aggregation rule and calibration (:mod:`.calibration`) learn
+from that forecast against the row; pending forecasts whose time has passed without such
+a row are dropped. So the weights of a lead-L forecast are those that did best at lead L,
+not at one step (reference; :mod:`kalmix.core.compiled` has the same numbers fast).
+
+Frame-based families forecast ``frames`` rows ahead; time-based ones to ``t + lead``.
+With a regular sampling interval ``u`` and ``lead = H u``, that is the H-step forecast
+and each pending forecast is scored by the row H later. With more than ``capacity``
+rows per lead, new forecasts wait for a free slot (learning from a subset of the rows;
+memory stays ``capacity x K x p`` per target). A restart (glitch screen, time gap) drops
+the pending forecasts: they were made before the jump. Forecasts made after a target's
+first row (or a restart row), from a single position, are not kept: they teach nothing
+about the lead, and this way nothing depends on a time unit learned later.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from . import calibration
+
+__all__ = ["LeadParams", "LeadState", "init", "learn", "forecast", "push"]
+
+
+class LeadParams(NamedTuple):
+    time: float          # lead, in the time column's units
+    frames: int          # the same lead in rows, for frame-based families
+    tolerance: float     # a row within this of a forecast's time scores it
+    capacity: int = 16   # pending forecasts kept per target
+
+
+class LeadState(NamedTuple):
+    rule: Any                                  # the lead head's rule state
+    calibration: calibration.CalibrationState  # and its calibration
+    due: np.ndarray                            # (N, C) times of the pending forecasts, NaN = free slot
+    pending: np.ndarray                        # (N, C, K, p) their experts' forecasts
+
+
+def init(bank, n_targets: int) -> LeadState:
+    k, p, c = bank.n_experts, bank.measurement_dim, bank.lead.capacity
+    return LeadState(bank.rule_module.init(bank.rule_params, n_targets, k),
+                     calibration.init(bank.calibration_params, n_targets, k, p),
+                     np.full((n_targets, c), np.nan), np.full((n_targets, c, k, p), np.nan))
+
+
+def learn(bank, state: LeadState, measurement, time, go) -> LeadState:
+    """Score the pending forecasts due at ``time (N,)`` against ``measurement`` where ``go``; drop the past ones."""
+    params = bank.lead
+    rule, cal = state.rule, state.calibration
+    due = state.due
+    with np.errstate(invalid="ignore"):
+        matched = go[:, None] & (np.abs(due - time[:, None]) <= params.tolerance)
+        done = go[:, None] & (due <= time[:, None] + params.tolerance)
+    for c in range(due.shape[1]):   # oldest first
+        if not matched[:, c].any():
+            continue
+        experts = state.pending[:, c]
+        awake = np.isfinite(experts).all(axis=-1)
+        w = bank.rule_module.weights(bank.rule_params, rule, awake)
+        cal = calibration.update(bank.calibration_params, cal, w, experts, awake, measurement, matched[:, c])
+        rule = bank.rule_module.update(bank.rule_params, rule, experts, measurement, awake, matched[:, c])
+    # keep the others in order
+    order = np.argsort(done, axis=1, kind="stable")
+    kept = np.take_along_axis(np.where(done, np.nan, due), order, axis=1)
+    pending = np.take_along_axis(state.pending, order[:, :, None, None], axis=1)
+    return LeadState(rule, cal, kept, np.where(np.isfinite(kept)[:, :, None, None], pending, np.nan))
+
+
+def forecast(bank, state: LeadState, experts):
+    """Weights ``(N, K)``, mean ``(N, p)`` and covariance ``(N, p, p)`` of the lead forecast from ``experts``."""
+    awake = np.isfinite(experts).all(axis=-1)
+    w = bank.rule_module.weights(bank.rule_params, state.rule, awake)
+    mean, cov = calibration.moments(bank.calibration_params, state.calibration, w, experts, awake)
+    return w, mean, cov
+
+
+def push(bank, state: LeadState, experts, due_time, go, restart) -> LeadState:
+    """After a learned row (``go``): keep ``experts (N, K, p)``, due at ``due_time (N,)``, if a slot is free.
+
+    A ``restart`` first drops every pending forecast and keeps none (nor does a target's first row:
+    see :func:`kalmix.core.engine.step`).
+    """
+    due = np.where(restart[:, None], np.nan, state.due)
+    pending = np.where(restart[:, None, None, None], np.nan, state.pending)
+    free = np.isnan(due)
+    slot = np.argmax(free, axis=1)
+    take = go & ~restart & free.any(axis=1) & np.isfinite(experts).all(axis=-1).any(axis=-1) & np.isfinite(due_time)
+    rows = np.flatnonzero(take)
+    due = due.copy()
+    pending = pending.copy()
+    due[rows, slot[rows]] = due_time[rows]
+    pending[rows, slot[rows]] = experts[rows]
+    return state._replace(due=due, pending=pending)
