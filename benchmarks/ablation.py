@@ -42,6 +42,13 @@ CONFIGS = {
     "kinematic28 boa, no glitch screen": dict(kind="kinematic", rule="boa", outlier_threshold=float("inf")),
     "mixed68 boa, screen 100, restart at 2": dict(kind="mixed", rule="boa", outlier_rejects=2),
     "mixed68 boa, screen 1000": dict(kind="mixed", rule="boa", outlier_threshold=1000.0),
+    "ar48 boa": dict(kind="ar", rule="boa"),
+    "kinematic28+ar48 boa": dict(kind="kinematic+ar", rule="boa"),
+    "mixed68+ar48 boa": dict(kind="mixed+ar", rule="boa"),
+    "kinematic28+ar24 (orders 1, 2) boa": dict(kind="kinematic+ar", rule="boa", ar_orders=(1, 2)),
+    "kinematic28+ar24 (ridge 1) boa": dict(kind="kinematic+ar", rule="boa", ar_ridge=(1.0,)),
+    "kinematic28+ar48 boa, no jump test": dict(kind="kinematic+ar", rule="boa",
+                                               ar_options={"jump_threshold": float("inf")}),
 }
 
 

@@ -23,7 +23,7 @@ def test_contract_benign(kind, rule):
 
 
 @pytest.mark.parametrize("rule", RULES)
-@pytest.mark.parametrize("kind", ["kinematic", "akf"])
+@pytest.mark.parametrize("kind", ["kinematic", "akf", "ar", "kinematic+ar"])
 def test_contract_adversarial(kind, rule):
     """Jumps of 1e8, a 200-row gap, constant input, values of 1e200: finite, and compiled == reference.
 
@@ -48,6 +48,7 @@ def test_contract_with_a_lead_head_and_gap_restarts(data, rule):
     bank = make_bank(2, "mixed", rule=rule, length_unit=0.3, n_akf=8, lead=3.0)
     check_bank(bank, z, t, restart=restart)
     check_bank(_bank("kinematic", rule), z, t, restart=restart)
+    check_bank(make_bank(2, "kinematic+ar", rule=rule, length_unit=0.3, lead=2.0), z, t, restart=restart)
 
 
 def test_fixed_scale_fixed_share_is_the_previous_rule():

@@ -17,7 +17,7 @@ from .core.mixture import DYNAMICS, GATINGS, MixtureParams
 
 __all__ = ["make_params", "noise_grid", "check_horizon", "check_length_unit", "MAX_HORIZON", "MAX_SEED",
            "LENGTH_UNIT_RANGE", "make_bank", "BANK_KINDS", "KINEMATIC_PROCESS_LEVELS",
-           "KINEMATIC_MEASUREMENT_LEVELS", "DEFAULT_BANK"]
+           "KINEMATIC_MEASUREMENT_LEVELS", "DEFAULT_BANK", "AR_ORDERS", "AR_FORGETTING", "AR_RIDGE"]
 
 #: Largest prediction horizon (frames ahead). A prediction H frames ahead costs H - 1
 #: matrix-vector products per expert and stream, so every call is bounded (about 30 ms for
@@ -328,7 +328,7 @@ def make_params(
 # Banks of expert families under an aggregation rule (kalmix.core.engine)
 
 #: Bank recipes of :func:`make_bank`.
-BANK_KINDS = ("mixed", "kinematic", "akf")
+BANK_KINDS = ("mixed", "kinematic", "akf", "ar", "kinematic+ar", "mixed+ar")
 #: Process-noise levels q of the kinematic experts, in length_unit^2 per time_unit^3 (CV).
 KINEMATIC_PROCESS_LEVELS = tuple(10.0**e for e in range(-3, 4))
 #: Measurement-noise levels r of the kinematic experts, in length_unit^2.
@@ -350,6 +350,50 @@ def _kinematic(order, unit, time_unit, process_levels, measurement_levels):
                            time_unit=float(time_unit))
 
 
+#: Orders of the AR families (previous velocities in the regressor).
+AR_ORDERS = (1, 2, 3, 5)
+#: Forgetting factors of each AR family's experts.
+AR_FORGETTING = (0.9, 0.95, 0.98, 0.99, 0.995, 0.999)
+#: Ridge strengths (typical samples the persistence prior weighs) of each AR family's experts.
+AR_RIDGE = (0.01, 1.0)
+
+
+def _ar(order, unit, time_unit, forgetting, ridge, **options):
+    from .core.families.ar import ARParams
+
+    lam = np.repeat(np.asarray(forgetting, float), len(ridge))
+    rho = np.tile(np.asarray(ridge, float), len(forgetting))
+    return ARParams(order=int(order), forgetting=lam, ridge=rho, length_unit=float(unit),
+                    time_unit=float(time_unit), **options)
+
+
+def _check_ar_options(options):
+    from .core.families.ar import ARParams
+
+    options = dict(options or {})
+    allowed = {"persistence", "bias", "initial_error", "jump_threshold", "window", "max_step", "max_velocity"}
+    unknown = set(options) - allowed
+    if unknown:
+        raise ValueError(f"ar_options: {sorted(unknown)} not options of the AR family (expected some of "
+                         f"{sorted(allowed)})")
+    for name, value in options.items():
+        if name == "bias":
+            if not isinstance(value, (bool, np.bool_)):
+                raise TypeError(f"ar_options['bias']: expected a bool, got {type(value).__name__} {value!r}")
+        elif name == "persistence":
+            _check_positive("ar_options['persistence']", value, allow_zero=True)
+        elif name == "jump_threshold":
+            if not (isinstance(value, numbers.Real) and value > 0 and not math.isnan(value)):
+                raise ValueError(f"ar_options['jump_threshold']: expected a number > 0 (inf: no jump test), "
+                                 f"got {value!r}")
+        else:
+            _check_positive(f"ar_options[{name!r}]", value)
+    defaults = ARParams._field_defaults
+    if options.get("window", defaults["window"]) < 1:
+        raise ValueError(f"ar_options['window']: expected a number >= 1, got {options['window']!r}")
+    return options
+
+
 def make_bank(
     measurement_dim: int,
     kind: str = "mixed",
@@ -367,6 +411,10 @@ def make_bank(
     outlier_rejects: int = 3,
     lead: float | None = None,
     level: float = 0.95,
+    ar_orders=AR_ORDERS,
+    ar_forgetting=AR_FORGETTING,
+    ar_ridge=AR_RIDGE,
+    ar_options: dict | None = None,
 ):
     """Build and validate a bank of expert families and its aggregation rule.
 
@@ -377,7 +425,11 @@ def make_bank(
       (process level q, measurement level r): 7 x 2 of each order, 28 experts;
     - ``"akf"``: ``n_akf`` of the paper's adaptive Kalman filters (the grid and seeded
       draws of :func:`make_params`, without the paper gate's Q/R feedback);
-    - ``"mixed"``: both (68 experts with the defaults).
+    - ``"mixed"``: both (68 experts with the defaults);
+    - ``"ar"``: adaptive autoregressive models of the velocity in real time
+      (:mod:`kalmix.core.families.ar`), one family per order in ``ar_orders``, one expert
+      per pair (forgetting, ridge): 4 x 6 x 2 = 48 experts;
+    - ``"kinematic+ar"``, ``"mixed+ar"``: those banks and the AR families (76, 116 experts).
 
     Parameters
     ----------
@@ -413,6 +465,13 @@ def make_bank(
     level : float
         The central interval whose coverage the calibration aims at
         (:mod:`kalmix.core.calibration`); intervals are ``±z(level) std``.
+    ar_orders : sequence of int
+        Orders of the AR families (previous velocities in the regressor), each >= 1.
+    ar_forgetting, ar_ridge : sequence of float
+        Each AR family's grid: forgetting factors in (0, 1] and ridge strengths > 0 (how many
+        typical samples the persistence prior weighs).
+    ar_options : dict, optional
+        Other :class:`kalmix.core.families.ar.ARParams` fields (``bias``, ``jump_threshold``, ...).
     """
     from .core import aggregators
     from .core.engine import Bank, Family
@@ -439,11 +498,22 @@ def make_bank(
         share = _check_positive("rule_options['share']", options["share"], allow_zero=True)
         if share >= 1:
             raise ValueError(f"rule_options['share']: expected a number in [0, 1), got {share!r}")
+    if kind in ("ar", "kinematic+ar", "mixed+ar"):
+        ar_orders = _check_levels("ar_orders", ar_orders)
+        for i, order in enumerate(ar_orders):
+            if order != int(order):
+                raise ValueError(f"ar_orders[{i}]: expected an integer >= 1, got {order!r}")
+        _check_levels("ar_forgetting", ar_forgetting, upper=1.0)
+        _check_levels("ar_ridge", ar_ridge)
+        ar_options = _check_ar_options(ar_options)
     families = []
-    if kind in ("kinematic", "mixed"):
+    if kind in ("kinematic", "mixed", "kinematic+ar", "mixed+ar"):
         families.append(Family("cv", _kinematic(2, unit, tunit, process_levels, measurement_levels)))
         families.append(Family("ca", _kinematic(3, unit, tunit, process_levels, measurement_levels)))
-    if kind in ("akf", "mixed"):
+    if kind in ("ar", "kinematic+ar", "mixed+ar"):
+        families.extend(Family("ar", _ar(order, unit, tunit, ar_forgetting, ar_ridge, **(ar_options or {})))
+                        for order in ar_orders)
+    if kind in ("akf", "mixed", "mixed+ar"):
         akf = make_params(p, _check_int("n_akf", n_akf, 1), seed=seed, length_unit=unit,
                           **{**(akf_options or {}), "adapt_noise": False})
         families.append(Family("akf", akf))
@@ -469,6 +539,9 @@ def make_bank(
                        process_levels=[float(v) for v in process_levels],
                        measurement_levels=[float(v) for v in measurement_levels],
                        rule_options=options, akf_options=dict(akf_options or {}))
+    if kind in ("ar", "kinematic+ar", "mixed+ar"):
+        description.update(ar_orders=[int(v) for v in ar_orders], ar_forgetting=[float(v) for v in ar_forgetting],
+                           ar_ridge=[float(v) for v in ar_ridge], ar_options=ar_options)
     return Bank(measurement_dim=p, families=tuple(families), rule=rule, rule_params=module.Params(**options),
                 description=description,
                 screen_params=ScreenParams(threshold=threshold,

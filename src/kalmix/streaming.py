@@ -184,7 +184,7 @@ class StreamConfig:
     options : dict
         Other arguments of :func:`kalmix.bank.make_params` (the AKF family).
     bank : str
-        Bank recipe of :func:`kalmix.bank.make_bank` (``kinematic``, ``mixed``, ``akf``);
+        Bank recipe of :func:`kalmix.bank.make_bank` (:data:`kalmix.bank.BANK_KINDS`);
         ``n_experts`` is the size of its AKF family.
     rule : str
         Aggregation rule (``boa``, ``mlpoly``, ``fixed_share``).

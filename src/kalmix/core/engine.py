@@ -48,13 +48,16 @@ import numpy as np
 from . import aggregators, calibration
 from . import lead as lead_head
 from . import screen as glitch
-from .families import akf, kinematic
+from .families import akf, ar, kinematic
 
 __all__ = ["Family", "Bank", "BankState", "EngineResult", "StepOutput", "init_bank_state", "run", "step", "forecast",
-           "FAMILY_KINDS", "check_run_arguments"]
+           "FAMILY_KINDS", "FAMILY_MODULES", "check_run_arguments"]
 
-#: Family kinds: kinematic CV / CA in real time, and the paper's AKF (frame-based).
-FAMILY_KINDS = ("cv", "ca", "akf")
+#: Family kinds: kinematic CV / CA and adaptive AR of the velocity in real time, and the paper's
+#: AKF (frame-based).
+FAMILY_KINDS = ("cv", "ca", "ar", "akf")
+#: Each kind's module (:mod:`kalmix.core.families`).
+FAMILY_MODULES = {"cv": kinematic, "ca": kinematic, "ar": ar, "akf": akf}
 
 
 @dataclass(frozen=True, eq=False)
@@ -62,7 +65,7 @@ class Family:
     """One family of a bank: ``kind`` in :data:`FAMILY_KINDS` and its parameters."""
 
     kind: str
-    params: Any   # KinematicParams for cv / ca, MixtureParams for akf
+    params: Any   # KinematicParams for cv / ca, ARParams for ar, MixtureParams for akf
 
     @property
     def n_experts(self) -> int:
@@ -70,7 +73,7 @@ class Family:
 
     @property
     def module(self):
-        return akf if self.kind == "akf" else kinematic
+        return FAMILY_MODULES[self.kind]
 
 
 @dataclass(frozen=True, eq=False)
@@ -201,7 +204,7 @@ def _family_forecast(family: Family, state, time, frames: int):
     if family.kind == "akf":
         means, _ = akf.forecast(family.params, state, frames)
         return np.where(state.initialised[:, None, None], means, np.nan)
-    means, _ = kinematic.forecast(family.params, state, time)
+    means, _ = family.module.forecast(family.params, state, time)   # time-based: cv, ca, ar
     return np.where(state.initialised[:, None, None], means, np.nan)
 
 
@@ -215,7 +218,7 @@ def _family_update(family: Family, state, z, time, learn, active, restart):
         return akf.update(family.params, state, z, learn, active)
     if restart.any():
         state = state._replace(initialised=state.initialised & ~restart)
-    return kinematic.update(family.params, state, z, time, learn)
+    return family.module.update(family.params, state, z, time, learn)
 
 
 def expert_forecasts(bank: Bank, state: BankState, time, frames: int = 1) -> np.ndarray:

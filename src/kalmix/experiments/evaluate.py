@@ -332,6 +332,9 @@ def _expert_name(bank, expert):
     family, i = _locate(bank, expert)
     if family.kind == "akf":
         return f"akf[{i}]"
+    if family.kind == "ar":
+        fp = family.params
+        return f"ar{fp.order}(forgetting={fp.forgetting[i]:.4g}, ridge={fp.ridge[i]:.3g})"
     return (f"{family.kind}(q={family.params.process_noise[i]:.3g}, r={family.params.measurement_noise[i]:.3g})")
 
 
@@ -348,6 +351,9 @@ def _single_expert_bank(bank, expert):
             "forgetting", "ridge", "process_noise", "measurement_noise", "initial_variance", "initial_velocity",
             "expert_scale")}
         single = replace(params, **per_expert)
+    elif family.kind == "ar":
+        single = family.params._replace(forgetting=family.params.forgetting[i:i + 1],
+                                        ridge=family.params.ridge[i:i + 1])
     else:
         single = family.params._replace(process_noise=family.params.process_noise[i:i + 1],
                                         measurement_noise=family.params.measurement_noise[i:i + 1],

@@ -15,8 +15,8 @@ from ..calibration import CalibrationState
 from ..engine import Bank, BankState, EngineResult, check_restart, check_run_arguments, init_bank_state
 from ..families import akf
 from ..lead import LeadState
-from ..families.kinematic import KinematicState
 from ..screen import ScreenState
+from . import ar as car
 from . import kinematic as ckin
 from . import lead as clead
 from . import rules as crules
@@ -147,7 +147,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         if family.kind == "akf":
             families.append(fstate)
         else:
-            families.append(KinematicState(*(np.array(a, copy=True, order="C") for a in fstate)))
+            families.append(type(fstate)(*(np.array(a, copy=True, order="C") for a in fstate)))
     a, b, c, d, e = pack_rule(bank, state.rule, n)
     rule_args = _rule_scalars(bank)
     cal_args = pack_calibration(bank.calibration_params)
@@ -195,6 +195,14 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
             if family.kind == "akf":
                 families[i] = _akf_block(family.params, families[i], zb, lb, restart, lens, buffer, offset,
                                          ahead_buffer, ahead_frames)
+            elif family.kind == "ar":
+                fp, fs = family.params, families[i]
+                car.run_block(fp.order, bool(fp.bias), fp.forgetting, fp.ridge, float(fp.length_unit),
+                              float(fp.time_unit), float(fp.persistence), float(fp.initial_error),
+                              float(fp.jump_threshold), float(fp.window), float(fp.max_step), float(fp.max_velocity),
+                              *fs, zb, tb, lens, lb, restart, buffer, empty3, offset,
+                              ahead_times[begin:end] if with_ahead else empty2,
+                              ahead_buffer if with_ahead else empty4)
             else:
                 fp, fs = family.params, families[i]
                 ckin.run_block(fp.order, fp.process_noise, fp.measurement_noise, fp.initial_variance,

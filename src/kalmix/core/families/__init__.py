@@ -2,11 +2,13 @@
 
 - :mod:`.kinematic`: constant-velocity and constant-acceleration Kalman filters with
   the real time step between samples;
+- :mod:`.ar`: adaptive autoregressive models of the velocity in real time (weighted least
+  squares with forgetting, a persistence prior and a jump test for relocations);
 - :mod:`.akf`: the paper's state-model adaptive Kalman filters (frame-based).
 
 The compiled versions are in :mod:`kalmix.core.compiled`.
 """
 
-from . import akf, kinematic
+from . import akf, ar, kinematic
 
-__all__ = ["akf", "kinematic"]
+__all__ = ["akf", "ar", "kinematic"]

@@ -1,0 +1,215 @@
+"""Compiled AR family (:mod:`kalmix.core.families.ar`): same formulas in the same order, one target per thread.
+
+:func:`run_block` advances every target through its rows of a block: at each row it
+writes every expert's forecast of the row (and its variance) into the bank's shared
+buffers at the family's column ``offset``, then learns the row (a ``restart`` row starts
+the experts again from it); with ``ahead_times`` it also writes the forecast made after
+the row for that time.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from ._cache import configure_cache
+
+configure_cache()
+_JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
+
+
+@nb.njit(inline="always", **_JIT)
+def _delta(time, last, time_unit, max_step):
+    delta = (time - last) / time_unit
+    if not math.isfinite(delta):
+        return 0.0
+    return min(max(delta, 0.0), max_step)
+
+
+@nb.njit(inline="always", **_JIT)
+def _clip(value, bound):
+    if math.isnan(value):
+        return 0.0
+    return min(max(value, -bound), bound)
+
+
+@nb.njit(inline="always", **_JIT)
+def _regressor(order, bias, history_kc, x):
+    for i in range(order):
+        x[i] = history_kc[i]
+    if bias:
+        x[order] = 1.0
+
+
+@nb.njit(inline="always", **_JIT)
+def _velocity(m, weights_kc, x, max_velocity):
+    """:math:`\\hat v` of one expert and coordinate (the regressor already in ``x``)."""
+    acc = weights_kc[0] * x[0]
+    for j in range(1, m):
+        acc = acc + weights_kc[j] * x[j]
+    return _clip(acc, max_velocity)
+
+
+@nb.njit(inline="always", **_JIT)
+def _forecast(order, bias, m, scale, max_velocity, weights_k, history_k, position_n, out, x):
+    """Expert ``k``'s forecast ``position + vhat * scale`` into ``out (p,)``."""
+    for c in range(out.shape[0]):
+        _regressor(order, bias, history_k[c], x)
+        out[c] = position_n[c] + _velocity(m, weights_k[c], x, max_velocity) * scale
+
+
+@nb.njit(inline="always", **_JIT)
+def _solve(m, a, b, low, y, out):
+    """``out = a^{-1} b`` by Cholesky (the spec's loops)."""
+    for i in range(m):
+        for j in range(i + 1):
+            acc = a[i, j]
+            for l in range(j):
+                acc = acc - low[i, l] * low[j, l]
+            if i == j:
+                low[i, i] = math.sqrt(max(acc, 0.0))
+            else:
+                low[i, j] = acc / low[j, j]
+    for i in range(m):
+        acc = b[i]
+        for l in range(i):
+            acc = acc - low[i, l] * y[l]
+        y[i] = acc / low[i, i]
+    for i in range(m - 1, -1, -1):
+        acc = y[i]
+        for l in range(i + 1, m):
+            acc = acc - low[l, i] * out[l]
+        out[i] = acc / low[i, i]
+
+
+@nb.njit(**_JIT)
+def _start(order, m, persistence, initial_error, weights_k, info_k, target_k, history_k, scale, weight, error,
+           count, jumps, n, k):
+    """Fresh expert: prior weights, zero statistics and history, the error's pseudo-sample."""
+    for c in range(weights_k.shape[0]):
+        for i in range(m):
+            weights_k[c, i] = persistence if i == 0 else 0.0
+            target_k[c, i] = 0.0
+            for j in range(m):
+                info_k[c, i, j] = 0.0
+        for i in range(order):
+            history_k[c, i] = 0.0
+    scale[n, k] = 0.0
+    weight[n, k] = 0.0
+    error[n, k] = initial_error
+    count[n, k] = 1.0
+    jumps[n, k] = 0.0
+
+
+@nb.njit(**_JIT)
+def _learn(order, bias, m, lam, rho, persistence, jump_threshold, window, max_velocity, v, weights_k, info_k,
+           target_k, history_k, scale, weight, error, count, jumps, n, k, x, a, rhs, low, y):
+    """Expert ``k`` of target ``n`` learns the velocity ``v (p,)``: the jump test, then the fit (or not).
+
+    (Not inlined: numba's inliner lost some of its stores.)"""
+    p = v.shape[0]
+    squared = 0.0
+    for c in range(p):
+        _regressor(order, bias, history_k[c], x)
+        err = v[c] - _velocity(m, weights_k[c], x, max_velocity)
+        squared = err * err if c == 0 else squared + err * err
+    squared = squared / p
+    wild = not (squared <= jump_threshold**2 * error[n, k])
+    jump = wild and jumps[n, k] < 1
+    jumps[n, k] = jumps[n, k] + 1.0 if jump else 0.0
+    if jump:
+        return
+    new_weight = lam * weight[n, k] + 1.0
+    vv = v[0] * v[0]
+    for c in range(1, p):
+        vv = vv + v[c] * v[c]
+    new_scale = scale[n, k] + (vv / p - scale[n, k]) / new_weight
+    for c in range(p):
+        _regressor(order, bias, history_k[c], x)
+        largest = 0.0
+        for i in range(m):
+            for j in range(m):
+                info_k[c, i, j] = lam * info_k[c, i, j] + x[i] * x[j]
+            target_k[c, i] = lam * target_k[c, i] + x[i] * v[c]
+            largest = info_k[c, i, i] if i == 0 else max(largest, info_k[c, i, i])
+        ridge = rho * new_scale + 1e-9 * largest + 1e-12
+        informative = False
+        for i in range(m):
+            for j in range(m):
+                a[i, j] = info_k[c, i, j] + (ridge if i == j else 0.0)
+            rhs[i] = target_k[c, i] + ridge * (persistence if i == 0 else 0.0)
+            informative = informative or x[i] != 0.0
+        if informative:  # a zero regressor keeps the weights exactly (the spec's note)
+            _solve(m, a, rhs, low, y, weights_k[c])
+        for i in range(order - 1, 0, -1):
+            history_k[c, i] = history_k[c, i - 1]
+        history_k[c, 0] = v[c]
+    scale[n, k] = new_scale
+    weight[n, k] = new_weight
+    new_count = min(count[n, k] + 1.0, window)
+    error[n, k] = error[n, k] + (squared - error[n, k]) / new_count
+    count[n, k] = new_count
+
+
+@nb.njit(parallel=True, **_JIT)
+def run_block(order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error, jump_threshold,
+              window, max_step, max_velocity,
+              weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
+              z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead):
+    n_targets = z.shape[1]
+    k_count = forgetting.shape[0]
+    p = z.shape[2]
+    m = order + (1 if bias else 0)
+    want_var = out_var.shape[0] > 0
+    want_ahead = out_ahead.shape[0] > 0
+    for n in nb.prange(n_targets):
+        x = np.empty(m)
+        a = np.empty((m, m))
+        rhs = np.empty(m)
+        low = np.zeros((m, m))
+        y = np.empty(m)
+        v = np.empty(p)
+        for t in range(lengths[n]):
+            # every expert's forecast of this row, then its learning (a restart row starts it again)
+            started = initialised[n]
+            delta = _delta(times[t, n], last_time[n], time_unit, max_step)
+            span = delta * length_unit
+            for k in range(k_count):
+                if started:
+                    _forecast(order, bias, m, span, max_velocity, weights[n, k], history[n, k], position[n],
+                              out[t, n, offset + k], x)
+                else:
+                    for c in range(p):
+                        out[t, n, offset + k, c] = np.nan
+                if want_var:
+                    out_var[t, n, offset + k] = error[n, k] * span * span if started else np.nan
+            if learn[t, n]:
+                if restart[t, n] or not started:
+                    for k in range(k_count):
+                        _start(order, m, persistence, initial_error, weights[n, k], info[n, k], target[n, k],
+                               history[n, k], scale, weight, error, count, jumps, n, k)
+                elif delta > 0:
+                    for c in range(p):
+                        v[c] = _clip((z[t, n, c] - position[n, c]) / delta / length_unit, max_velocity)
+                    for k in range(k_count):
+                        _learn(order, bias, m, forgetting[k], ridge[k], persistence, jump_threshold, window,
+                               max_velocity, v, weights[n, k], info[n, k], target[n, k], history[n, k], scale, weight, error,
+                               count, jumps, n, k, x, a, rhs, low, y)
+                for c in range(p):
+                    position[n, c] = z[t, n, c]
+                last_time[n] = times[t, n]
+                initialised[n] = True
+            elif restart[t, n]:  # a restart on a missing row: start from the next present one
+                initialised[n] = False
+            # forecast made after this row, for a later time
+            if want_ahead:
+                ahead_span = _delta(ahead_times[t, n], last_time[n], time_unit, max_step) * length_unit
+                for k in range(k_count):
+                    if initialised[n]:
+                        _forecast(order, bias, m, ahead_span, max_velocity, weights[n, k], history[n, k],
+                                  position[n], out_ahead[t, n, offset + k], x)
+                    else:
+                        for c in range(p):
+                            out_ahead[t, n, offset + k, c] = np.nan

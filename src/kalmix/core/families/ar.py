@@ -1,0 +1,248 @@
+"""Adaptive autoregressive experts on the velocity, in real time (weighted least squares with forgetting).
+
+Per target and coordinate, the velocity of the interval ending at a learned row is
+:math:`v = (z - z_{prev}) / \\Delta / u` (``z_prev`` the previous learned row, so a gap is one
+interval; :math:`\\Delta` in units of ``time_unit``, :math:`u` the ``length_unit``). Expert
+``k`` predicts it from its previous ``order`` velocities (and a constant 1 with ``bias``),
+:math:`\\hat v = w \\cdot x`, one weight vector per coordinate, by exponentially weighted
+least squares with its own forgetting factor :math:`\\lambda_k` and a ridge toward the
+persistence prior :math:`w_0 = (1, 0, \\dots)` (:math:`\\hat v` = the last velocity):
+
+.. math::
+
+    A \\leftarrow \\lambda A + x x^T,\\quad b \\leftarrow \\lambda b + x v,\\quad
+    (A + r I)\\, w = b + r\\, w_0,\\quad r = \\rho_k s^2,
+
+where :math:`s^2` is the weighted mean of :math:`v^2` (per coordinate, same forgetting): the
+prior weighs as much as :math:`\\rho_k` typical samples whatever the data's scale, so a
+regressor much smaller than its target (the first samples of a track, after a stop)
+cannot produce a wild slope. The solve is a Cholesky factorisation, ``m`` = ``order`` (+1)
+unknowns. The forecast of a time :math:`\\Delta` after the last learned row is
+:math:`z_{prev} + \\hat v\\, \\Delta\\, u` (before a second row: the last position).
+
+**Jumps.** A velocity whose squared error (mean over the coordinates) exceeds
+``jump_threshold**2`` times the expert's running mean squared error (about ``window``
+samples, starting from one pseudo-sample ``initial_error``) is a *jump*: the position
+moves there but the sample is neither fitted nor entered in the history, so a track that
+relocates (a broadcast identity switch) keeps its velocity instead of extrapolating the
+jump. A second wild sample in a row is a real change of motion and is fitted.
+
+Numbers stay finite for any finite input: velocities and :math:`\\hat v` are clipped to
+``max_velocity``, steps to ``max_step``, and the ridge has a floor relative to :math:`A`.
+The loops over the regressor are written in the compiled kernel's order
+(:mod:`kalmix.core.compiled.ar`), so both give the same numbers.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["ARParams", "ARState", "init_state", "forecast", "update"]
+
+
+class ARParams(NamedTuple):
+    """Constant parameters of one AR family (K experts of one order)."""
+
+    order: int                     # previous velocities in the regressor
+    forgetting: np.ndarray         # (K,) lambda in (0, 1]
+    length_unit: float             # u: velocities are in length units per time unit
+    time_unit: float               # the time step unit (the typical sampling interval)
+    ridge: np.ndarray              # (K,) rho: the prior weighs as much as rho typical samples
+    persistence: float = 1.0       # prior weight of the last velocity
+    bias: bool = False             # a constant regressor (a drift)
+    initial_error: float = 1.0     # prior of the running error (one pseudo-sample), (u / time unit)^2
+    jump_threshold: float = 10.0   # a velocity error this many RMS errors away is a jump
+    window: float = 50.0           # samples of the running error
+    max_step: float = 1e6          # longest step, in time units
+    max_velocity: float = 1e8      # velocity clip, length units per time unit
+
+    @property
+    def n_experts(self) -> int:
+        return int(self.forgetting.shape[0])
+
+    @property
+    def size(self) -> int:
+        return self.order + (1 if self.bias else 0)
+
+
+class ARState(NamedTuple):
+    weights: np.ndarray      # (N, K, p, m) the current fit
+    info: np.ndarray         # (N, K, p, m, m) A, the weighted regressors' Gram matrix
+    target: np.ndarray       # (N, K, p, m) b, the weighted regressors times the velocity
+    history: np.ndarray      # (N, K, p, order) previous velocities, most recent first
+    scale: np.ndarray        # (N, K) s2, weighted mean squared velocity (per coordinate)
+    weight: np.ndarray       # (N, K) c, the weights' sum in s2
+    error: np.ndarray        # (N, K) running mean squared velocity error (per coordinate)
+    count: np.ndarray        # (N, K) samples in the running error (capped at window)
+    jumps: np.ndarray        # (N, K) jumps in a row
+    position: np.ndarray     # (N, p) last learned measurement
+    last_time: np.ndarray    # (N,) its time (NaN before the first)
+    initialised: np.ndarray  # (N,) bool
+
+
+def prior_weights(params: ARParams) -> np.ndarray:
+    w0 = np.zeros(params.size)
+    w0[0] = params.persistence
+    return w0
+
+
+def init_state(params: ARParams, n_targets: int, measurement_dim: int) -> ARState:
+    k, o, p, m = params.n_experts, params.order, measurement_dim, params.size
+    w0 = prior_weights(params)
+    return ARState(
+        weights=np.broadcast_to(w0, (n_targets, k, p, m)).copy(),
+        info=np.zeros((n_targets, k, p, m, m)),
+        target=np.zeros((n_targets, k, p, m)),
+        scale=np.zeros((n_targets, k)),
+        weight=np.zeros((n_targets, k)),
+        history=np.zeros((n_targets, k, p, o)),
+        error=np.full((n_targets, k), params.initial_error),
+        count=np.ones((n_targets, k)),
+        jumps=np.zeros((n_targets, k)),
+        position=np.zeros((n_targets, p)),
+        last_time=np.full(n_targets, np.nan),
+        initialised=np.zeros(n_targets, dtype=bool),
+    )
+
+
+def _step(params: ARParams, state: ARState, time) -> np.ndarray:
+    """Steps from the last learned row to ``time`` in time units, ``(N,)``, clipped to [0, max_step]."""
+    delta = (np.asarray(time, dtype=np.float64) - state.last_time) / params.time_unit
+    return np.clip(np.where(np.isfinite(delta), delta, 0.0), 0.0, params.max_step)
+
+
+def _regressor(params: ARParams, state: ARState) -> np.ndarray:
+    """``x = [history, 1]``, ``(N, K, p, m)``."""
+    if not params.bias:
+        return state.history
+    return np.concatenate([state.history, np.ones(state.history.shape[:-1] + (1,))], axis=-1)
+
+
+def _dot(a, b):
+    """Sum over the last axis, term by term in order (the kernel's order)."""
+    acc = a[..., 0] * b[..., 0]
+    for j in range(1, a.shape[-1]):
+        acc = acc + a[..., j] * b[..., j]
+    return acc
+
+
+def _velocity_forecast(params: ARParams, state: ARState) -> np.ndarray:
+    """:math:`\\hat v`, ``(N, K, p)``, clipped to ``max_velocity``."""
+    v = _dot(state.weights, _regressor(params, state))
+    return np.clip(np.where(np.isnan(v), 0.0, v), -params.max_velocity, params.max_velocity)
+
+
+def forecast(params: ARParams, state: ARState, time) -> tuple[np.ndarray, np.ndarray]:
+    """Each expert's predicted measurement at ``time (N,)`` and its variance per coordinate.
+
+    Returns
+    -------
+    means : ndarray (N, K, p)
+    variances : ndarray (N, K) — the running mean squared velocity error times :math:`(\\Delta u)^2`.
+    """
+    delta = _step(params, state, time)
+    scale = (delta * params.length_unit)[:, None]                                    # (N, 1)
+    means = state.position[:, None, :] + _velocity_forecast(params, state) * scale[..., None]
+    return means, state.error * scale * scale
+
+
+def _solve(a, b):
+    """``a^{-1} b`` for symmetric positive definite ``a (..., m, m)`` by Cholesky, in the kernel's order."""
+    m = b.shape[-1]
+    low = np.zeros(a.shape)
+    for i in range(m):
+        for j in range(i + 1):
+            acc = a[..., i, j]
+            for l in range(j):
+                acc = acc - low[..., i, l] * low[..., j, l]
+            if i == j:
+                low[..., i, i] = np.sqrt(np.maximum(acc, 0.0))
+            else:
+                low[..., i, j] = acc / low[..., j, j]
+    y = np.zeros(b.shape)
+    for i in range(m):
+        acc = b[..., i]
+        for l in range(i):
+            acc = acc - low[..., i, l] * y[..., l]
+        y[..., i] = acc / low[..., i, i]
+    x = np.zeros(b.shape)
+    for i in range(m - 1, -1, -1):
+        acc = y[..., i]
+        for l in range(i + 1, m):
+            acc = acc - low[..., l, i] * x[..., l]
+        x[..., i] = acc / low[..., i, i]
+    return x
+
+
+def _fit(params: ARParams, state: ARState, x, v):
+    """Exponentially weighted least squares with a ridge toward the prior weights.
+
+    ``A <- lam A + x x^T``, ``b <- lam b + x v``, ``s2`` the weighted mean of ``v^2``; the
+    weights solve ``(A + r I) w = b + r w0`` with ``r = rho s2`` (plus a tiny relative floor).
+    """
+    m = x.shape[-1]
+    lam = params.forgetting[None, :]                                                 # (1, K)
+    rho = params.ridge[None, :, None]
+    info = lam[..., None, None, None] * state.info + x[..., :, None] * x[..., None, :]
+    target = lam[..., None, None] * state.target + x * v[..., None]
+    weight = lam * state.weight + 1.0
+    scale = state.scale + (_dot(v, v) / v.shape[-1] - state.scale) / weight
+    largest = np.max(np.diagonal(info, axis1=-2, axis2=-1), axis=-1)                # (N, K, p)
+    ridge = rho * scale[..., None] + 1e-9 * largest + 1e-12
+    weights = _solve(info + ridge[..., None, None] * np.eye(m), target + ridge[..., None] * prior_weights(params))
+    # a zero regressor (the first velocity of a track) says nothing about w: keep it exactly (the solve
+    # would return it up to rounding, and experts equal to rounding make the rules' regrets chaotic)
+    weights = np.where((x == 0.0).all(axis=-1)[..., None], state.weights, weights)
+    return info, target, scale, weight, weights
+
+
+def update(params: ARParams, state: ARState, measurement: np.ndarray, time, learn: np.ndarray) -> ARState:
+    """Learn ``measurement (N, p)`` at ``time (N,)`` for the targets where ``learn (N,)``.
+
+    A target not yet started starts at the measurement (prior weights, zero history).
+    Targets outside ``learn`` are unchanged.
+    """
+    time = np.asarray(time, dtype=np.float64)
+    z = np.where(learn[:, None], measurement, 0.0)
+    delta = _step(params, state, time)
+    moved = delta > 0                                                               # (N,)
+    with np.errstate(over="ignore", invalid="ignore"):
+        v = (z - state.position) / np.where(moved, delta, 1.0)[:, None] / params.length_unit
+    v = np.clip(np.where(np.isnan(v), 0.0, v), -params.max_velocity, params.max_velocity)   # (N, p)
+    x = _regressor(params, state)
+    v_k = np.broadcast_to(v[:, None, :], state.history.shape[:-1])                 # (N, K, p)
+    err = v_k - _velocity_forecast(params, state)
+    squared = _dot(err, err) / err.shape[-1]                                        # (N, K)
+    wild = ~(squared <= params.jump_threshold**2 * state.error)
+    jump = wild & (state.jumps < 1)
+    info, target, scale, weight, weights = _fit(params, state, x, v_k)
+    history = np.concatenate([v_k[..., None], state.history[..., :-1]], axis=-1)
+    count = np.minimum(state.count + 1.0, params.window)
+    error = state.error + (squared - state.error) / count
+
+    learned = (learn & state.initialised & moved)[:, None]                          # (N, 1)
+    go = learned & ~jump                                                            # (N, K)
+    start = learn & ~state.initialised
+    fresh = init_state(params, len(learn), z.shape[-1])
+
+    def pick(fresh_value, updated, old, mask_k):
+        shape = lambda a: a.shape[:2] + (1,) * (a.ndim - 2)  # noqa: E731
+        out = np.where(np.broadcast_to(mask_k, old.shape[:2]).reshape(shape(old)), updated, old)
+        return np.where(start.reshape((-1,) + (1,) * (old.ndim - 1)), fresh_value, out)
+
+    return ARState(
+        weights=pick(fresh.weights, weights, state.weights, go),
+        info=pick(fresh.info, info, state.info, go),
+        target=pick(fresh.target, target, state.target, go),
+        scale=pick(fresh.scale, scale, state.scale, go),
+        weight=pick(fresh.weight, weight, state.weight, go),
+        history=pick(fresh.history, history, state.history, go),
+        error=pick(fresh.error, error, state.error, go),
+        count=pick(fresh.count, count, state.count, go),
+        jumps=pick(fresh.jumps, np.where(jump, state.jumps + 1.0, 0.0), state.jumps, learned),
+        position=np.where(learn[:, None], z, state.position),
+        last_time=np.where(learn, time, state.last_time),
+        initialised=state.initialised | learn,
+    )

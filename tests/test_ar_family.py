@@ -1,0 +1,138 @@
+"""The AR family (kalmix.core.families.ar): what it learns, relocations, both engines, resume, checks."""
+
+import numpy as np
+import pandas as pd
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from kalmix.bank import make_bank
+from kalmix.core import engine
+from kalmix.core.compiled import engine as ce
+from kalmix.core.families import ar
+from kalmix.core.testing import _close, adversarial_tracks
+from kalmix.streaming import StreamConfig, TrackPredictor
+
+
+def _ar_bank(**kwargs):
+    return make_bank(2, "ar", length_unit=0.1, **{"ar_orders": (2,), "ar_forgetting": (0.95,), "ar_ridge": (1e-3,),
+                                                     "ar_options": {"jump_threshold": float("inf")}, **kwargs})
+
+
+def test_an_order_2_expert_learns_an_ar2_velocity():
+    """Velocity v_t = a1 v_{t-1} + a2 v_{t-2} (a slowly damped oscillation), irregular steps: once
+    learned, the one-step forecast is exact up to the prior's pull (ridge 1e-3 of 20 samples' weight); the
+    forgetting drops the first sample, whose regressor has a zero for the velocity before the track.
+
+    (Without the jump test: on noise-free data the running error shrinks to rounding, and then
+    any change is a "jump".)"""
+    rng = np.random.default_rng(0)
+    t_count = 200
+    v = np.zeros((t_count, 2))
+    v[0], v[1] = (1.0, -0.5), (0.8, 0.2)
+    for i in range(2, t_count):
+        v[i] = 2 * 0.99 * np.cos(0.3) * v[i - 1] - 0.99**2 * v[i - 2]
+    steps = rng.uniform(0.5, 1.5, t_count)
+    times = np.cumsum(steps)
+    z = np.cumsum(v * steps[:, None] * 0.1, axis=0)       # positions in length units of 0.1
+    result = engine.run(_ar_bank(), z[:, None], times[:, None], record_experts=True)
+    err = np.abs(result.experts[:, 0, 0] - z)
+    scale = np.abs(np.diff(z, axis=0)).max()
+    assert err[150:].max() < 1e-3 * scale and err[1:10].max() > 1e-2 * scale
+
+
+def test_a_relocation_moves_the_track_without_extrapolating_the_jump():
+    """A jump of 200 units in one row (under the glitch screen's threshold): the AR expert's next
+    forecast keeps the old velocity, the CV Kalman filter's extrapolates the jump."""
+    t_count = 120
+    times = np.arange(t_count, dtype=float)
+    z = np.column_stack([times * 0.5, np.zeros(t_count)]) + np.random.default_rng(1).normal(0, 0.1, (t_count, 2))
+    z[60:, 0] += 20.0
+    ar_bank = make_bank(2, "ar", length_unit=0.1, outlier_threshold=np.inf)
+    kin_bank = make_bank(2, "kinematic", length_unit=0.1, outlier_threshold=np.inf)
+    ar_next = np.abs(ce.run(ar_bank, z[:, None], times[:, None]).forecasts[61, 0] - z[61])
+    kin_next = np.abs(ce.run(kin_bank, z[:, None], times[:, None]).forecasts[61, 0] - z[61])
+    assert ar_next.max() < 1.0 and kin_next.max() > 5.0
+
+
+@pytest.mark.parametrize("rule", ["boa", "mlpoly", "fixed_share"])
+def test_spec_and_compiled_agree_with_bias_and_ahead_times(rule):
+    z, t = adversarial_tracks(seed=3, t_count=240)
+    bank = make_bank(2, "kinematic+ar", rule=rule, length_unit=0.3, ar_orders=(1, 3),
+                     ar_options={"bias": True})
+    ahead = t + 2.5
+    reference = engine.run(bank, z, t, ahead_times=ahead)
+    compiled = ce.run(bank, z, t, ahead_times=ahead)
+    assert np.isfinite(compiled.forecasts[1:]).all() and np.isfinite(compiled.ahead).all()
+    _close(compiled.forecasts, reference.forecasts, 1e-9)
+    _close(compiled.ahead, reference.ahead, 1e-9)
+
+
+@settings(max_examples=4, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**16), p=st.integers(1, 3))
+def test_ar_family_property_both_engines_on_adversarial_tracks(seed, p):
+    """Any seed and dimension: experts and mixture equal on both engines, every forecast finite."""
+    z, t = adversarial_tracks(seed=seed, t_count=240, p=p)
+    bank = make_bank(p, "ar", length_unit=0.3)
+    reference = engine.run(bank, z, t, record_experts=True)
+    compiled = ce.run(bank, z, t, record_experts=True)
+    assert np.isfinite(reference.forecasts[1:]).all() and np.isfinite(compiled.forecasts[1:]).all()
+    _close(compiled.experts, reference.experts, 1e-9)
+    _close(compiled.forecasts, reference.forecasts, 1e-9)
+
+
+@pytest.mark.parametrize("rule", ["boa", "mlpoly"])
+def test_mixture_of_the_ar_experts_is_the_same_on_both_engines(rule):
+    """At a track's third row every AR expert forecasts the same velocity: their weights must then be
+    equal bit for bit (a zero regressor keeps the prior exactly), since the scale-free rules are chaotic
+    on experts that equal the mixture to rounding (a regret of ~1e-17 in one engine, 0 in the other)."""
+    for p, seed in ((1, 0), (2, 1)):
+        z, t = adversarial_tracks(seed=seed, t_count=240, p=p)
+        bank = make_bank(p, "ar", rule=rule, length_unit=0.3)
+        _close(ce.run(bank, z, t).forecasts, engine.run(bank, z, t).forecasts, 1e-9)
+
+
+def test_forecast_variance_is_the_running_velocity_error_over_the_step():
+    bank = _ar_bank()
+    params = bank.families[0].params
+    state = ar.init_state(params, 1, 2)
+    for i, point in enumerate(([0.0, 0.0], [1.0, 0.0], [2.5, 0.5])):
+        state = ar.update(params, state, np.array([point]), np.array([float(i)]), np.array([True]))
+    _, variance = ar.forecast(params, state, np.array([4.0]))
+    np.testing.assert_allclose(variance, state.error * (2.0 * 0.1) ** 2)
+
+
+def test_track_predictor_with_the_ar_family_resumes_bit_for_bit(tmp_path):
+    rng = np.random.default_rng(2)
+    rows = [(track, i * 0.1, *xy) for track in ("a", "b")
+            for i, xy in enumerate(np.cumsum(rng.normal(0, 0.1, (60, 2)), axis=0))]
+    table = pd.DataFrame(rows, columns=["track_id", "time", "x", "y"]).sort_values("time", kind="stable")
+    config = StreamConfig(length_unit=0.1, bank="kinematic+ar")
+    whole = TrackPredictor(config).process_table(table)
+    first = TrackPredictor(config)
+    later = table.iloc[50:].groupby("track_id")["time"].first().to_dict()   # where each track goes on
+    head = first.process_table(table.iloc[:50], next_times=later)
+    first.save(tmp_path / "state.npz")
+    tail = TrackPredictor.load(tmp_path / "state.npz").process_table(table.iloc[50:])
+    resumed = pd.concat([head, tail], ignore_index=True)
+    np.testing.assert_array_equal(resumed[["pred_x", "pred_y"]].to_numpy(), whole[["pred_x", "pred_y"]].to_numpy())
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"ar_forgetting": (0.9, 1.5)}, "ar_forgetting"),
+    ({"ar_ridge": (0.0,)}, "ar_ridge"),
+    ({"ar_orders": (1.5,)}, "ar_orders"),
+    ({"ar_orders": ()}, "ar_orders"),
+    ({"ar_options": {"lag": 3}}, "ar_options"),
+    ({"ar_options": {"window": 0.5}}, "window"),
+    ({"ar_options": {"jump_threshold": float("nan")}}, "jump_threshold"),
+])
+def test_bad_ar_arguments_are_refused_by_name(kwargs, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        make_bank(2, "ar", **kwargs)
+
+
+def test_gpu_engine_refuses_the_ar_family_clearly():
+    from kalmix.core.compiled import gpu
+
+    with pytest.raises(ValueError, match="kinematic families"):
+        gpu.check_bank(make_bank(2, "kinematic+ar"))
