@@ -91,7 +91,8 @@ def archive_files(source: str) -> tuple[list[str], str]:
         if not files:
             raise ValueError(f"INPUT: the directory {source!r} holds no .parquet, .pq, .csv or .csv.gz file")
     else:
-        files = sorted(f for f in glob.glob(source, recursive=True) if os.path.isfile(f))
+        files = sorted(f for f in glob.glob(source, recursive=True)
+                       if os.path.isfile(f) and not os.path.basename(f).startswith((".", "_")))
         if not files:
             raise ValueError(f"INPUT: no file matches {source!r}")
         other = [f for f in files if _format_of(f) is None]
@@ -429,6 +430,8 @@ def predict_dask(frame, columns: TrackColumns | None = None, *, length_unit: flo
     -------
     dask.dataframe.DataFrame
     """
+    import dask
+
     from .streaming import StreamConfig
 
     chunk_rows, batch_tracks = int(chunk_rows), int(batch_tracks)
@@ -448,7 +451,7 @@ def predict_dask(frame, columns: TrackColumns | None = None, *, length_unit: flo
             f"length unit 1 (auto could not estimate it: the first chunk has {why}; pass --length-unit)")
     _check_length_unit(unit)
     settings = {**asdict(config), "length_unit": unit, "time_unit": time_unit}
-    meta = _meta(sample, columns, settings)
+    meta = dask.delayed(_meta)(sample, columns, settings).compute()  # on a worker, which loads the engine now
     shuffled = frame.shuffle(on="track_id", npartitions=int(partitions or frame.npartitions))
     return shuffled.map_partitions(_predict_partition, columns, settings, chunk_rows, batch_tracks,
                                    first_appearance, meta, meta=meta, enforce_metadata=False)

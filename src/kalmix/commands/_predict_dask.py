@@ -23,7 +23,7 @@ import click
 
 from ._durable import Interrupted
 
-#: A local cluster's default: one single-threaded worker process per core (the gap rule is Python).
+#: Shuffle partitions per worker thread at least (smaller tasks balance the load across workers).
 PARTITIONS_PER_WORKER = 4
 
 
@@ -67,7 +67,7 @@ def _partial_dir(output):
 def _client(scheduler, workers):
     from distributed import Client, LocalCluster
 
-    if scheduler:
+    if scheduler:  # its workers and their threads are the cluster's
         try:
             client = Client(scheduler, timeout="20s")
         except (OSError, TimeoutError) as error:
@@ -75,9 +75,13 @@ def _client(scheduler, workers):
         with client:
             yield client
         return
-    workers = workers or os.cpu_count() or 1
+    cores = os.cpu_count() or 1
+    workers = workers or cores
+    # the compiled engine runs a call's tracks on numba's threads: the workers share the cores, not each take all
+    threads = os.environ.get("NUMBA_NUM_THREADS") or str(max(1, cores // workers))
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                      silence_logs=logging.CRITICAL) as cluster, Client(cluster) as client:
+                      silence_logs=logging.CRITICAL, env={"NUMBA_NUM_THREADS": threads}) as cluster, \
+            Client(cluster) as client:
         yield client
 
 
@@ -99,10 +103,10 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
     from .predict import _positions
 
     started = time.perf_counter()
-    frame, columns, fmt = read_archive(input_path, time=time_column, positions=_positions(position_columns),
-                                       track_id=id_column)
     partial = _partial_dir(output)
     try:
+        frame, columns, fmt = read_archive(input_path, time=time_column, positions=_positions(position_columns),
+                                           track_id=id_column)
         with _client(scheduler, workers) as client:
             total = _compute(client, frame, columns, fmt, partial, settings, unit, chunk_rows, progress, scheduler,
                              partitions)
@@ -115,9 +119,10 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
         shutil.rmtree(partial, ignore_errors=True)
         raise
     written, files = _rows_written(partial)
-    if os.path.isdir(output):
-        os.rmdir(output)  # checked empty at start
-    os.rename(partial, output)
+    target = os.path.abspath(output)
+    if os.path.isdir(target):
+        os.rmdir(target)  # checked empty at start
+    os.rename(partial, target)
     dropped = total - written
     why = (f" ({dropped} dropped: a repeated timestamp of a track keeps the last row, a row without a time is "
            "dropped)" if dropped else "")
