@@ -8,7 +8,9 @@ reports by time), written as ``--files`` Parquet files (every track crosses ever
 one file for the single-machine run. Each run is the ``kalmix`` command in a fresh process, timed from
 start to exit (interpreter, cluster start, compiled-engine load included), default bank and settings,
 after one untimed run that fills the compiled engine's cache.
-Reports rows/s, the ratio to the single-machine run, the largest difference of the predictions
+Reports rows/s, the ratio to the single-machine run, the CPU seconds of all the run's processes
+(workers included; less sensitive than wall time to a shared machine), the cluster's share of a
+Dask run (after the cluster start and the first chunk), the largest difference of the predictions
 (expected 0), and the load average around each run (the machine may be shared).
 """
 
@@ -17,6 +19,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
+import resource
 import shutil
 import subprocess
 import sys
@@ -50,13 +54,23 @@ def make_archive(directory, rows, tracks, files, seed=0):
 
 
 def timed(command):
+    """Wall seconds, CPU seconds of the command and every process it started, load averages, stderr lines."""
     load = os.getloadavg()[0]
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True)
     seconds = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode:
         raise SystemExit(f"{' '.join(command)} failed:\n{done.stderr}")
-    return seconds, load, os.getloadavg()[0], done.stderr.strip().splitlines()
+    cpu = after.ru_utime + after.ru_stime - usage.ru_utime - usage.ru_stime
+    return seconds, cpu, load, os.getloadavg()[0], done.stderr.strip().splitlines()
+
+
+def cluster_seconds(log):
+    """The cluster's share of a Dask run, from its summary line."""
+    match = re.search(r"\(([0-9.]+) s of work on the cluster", log[-1]) if log else None
+    return float(match.group(1)) if match else None
 
 
 def largest_difference(reference, got):
@@ -95,27 +109,33 @@ def main(argv=None):
                 else:
                     command = [*kalmix, "predict", archive, "--engine", "dask", "--workers", str(workers),
                                "-o", out, "--no-progress"]
-                seconds, before, after, log = timed(command)
+                seconds, cpu, before, after, log = timed(command)
+                busy = cluster_seconds(log) if workers else None
                 results.append({"run": label, "workers": workers, "repeat": repeat, "seconds": seconds,
-                                "rows_per_s": n / seconds, "load_before": before, "load_after": after,
-                                "output": out, "log": log})
-                print(f"{label:>22}  {seconds:7.1f} s  {n / seconds:9.0f} rows/s  (load {before:.2f} -> "
-                      f"{after:.2f})", flush=True)
+                                "cpu_seconds": cpu, "cluster_seconds": busy, "rows_per_s": n / seconds,
+                                "load_before": before, "load_after": after, "output": out, "log": log})
+                print(f"{label:>22}  {seconds:7.1f} s  {n / seconds:9.0f} rows/s  CPU {cpu:6.1f} s"
+                      + (f"  cluster {busy:5.1f} s" if busy is not None else " " * 17)
+                      + f"  (load {before:.2f} -> {after:.2f})", flush=True)
         best = {}
         for r in results:
             if r["run"] not in best or r["seconds"] < best[r["run"]]["seconds"]:
                 best[r["run"]] = r
         single = best["single machine"]
         summary = []
-        print("\nbest of the repeats; ratio = single-machine time / this time (> 1: faster)")
+        print("\nbest of the repeats; ratio = single-machine time / this time (> 1: faster); "
+              "CPU = this run's CPU seconds / single-machine's")
         for label, workers in runs:
             r = best[label]
             difference = 0.0 if workers is None else largest_difference(single["output"], r["output"])
             entry = {"run": label, "workers": workers, "seconds": r["seconds"], "rows_per_s": r["rows_per_s"],
-                     "ratio_to_single": single["seconds"] / r["seconds"], "max_difference": difference}
+                     "cpu_seconds": r["cpu_seconds"], "cluster_seconds": r["cluster_seconds"],
+                     "ratio_to_single": single["seconds"] / r["seconds"],
+                     "cpu_ratio_to_single": r["cpu_seconds"] / single["cpu_seconds"], "max_difference": difference}
             summary.append(entry)
             print(f"{label:>22}  {r['seconds']:7.1f} s  {r['rows_per_s']:9.0f} rows/s  ratio "
-                  f"{entry['ratio_to_single']:.2f}  max |difference| {difference:.3g}")
+                  f"{entry['ratio_to_single']:.2f}  CPU x{entry['cpu_ratio_to_single']:.2f}  "
+                  f"max |difference| {difference:.3g}")
         if args.json:
             for r in results:
                 r.pop("output")

@@ -108,8 +108,8 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
         frame, columns, fmt = read_archive(input_path, time=time_column, positions=_positions(position_columns),
                                            track_id=id_column)
         with _client(scheduler, workers) as client:
-            total = _compute(client, frame, columns, fmt, partial, settings, unit, chunk_rows, progress, scheduler,
-                             partitions)
+            total, work = _compute(client, frame, columns, fmt, partial, settings, unit, chunk_rows, progress,
+                                   scheduler, partitions)
     except Interrupted as stop:
         shutil.rmtree(partial, ignore_errors=True)
         _note(f"stopped by {stop.name}; nothing was written to {output}: run the same command again "
@@ -127,7 +127,8 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
     why = (f" ({dropped} dropped: a repeated timestamp of a track keeps the last row, a row without a time is "
            "dropped)" if dropped else "")
     _note(f"{total} row(s) in, {written} prediction(s) written to {output} in {files} file(s){why}; "
-          f"{time.perf_counter() - started:.1f} s")
+          f"{time.perf_counter() - started:.1f} s ({work:.1f} s of work on the cluster after the start and "
+          "the first chunk)")
 
 
 def _note(text):
@@ -135,7 +136,7 @@ def _note(text):
 
 
 def _compute(client, frame, columns, fmt, partial, settings, unit, chunk_rows, progress, scheduler, partitions):
-    """Write the predictions into ``partial``; the number of input rows."""
+    """Write the predictions into ``partial``; the number of input rows and the seconds the cluster took."""
     from distributed import progress as progress_bar
 
     from ..dask_predict import predict_dask
@@ -151,11 +152,13 @@ def _compute(client, frame, columns, fmt, partial, settings, unit, chunk_rows, p
     _note(f"{frame.npartitions} input partition(s) -> {count} partition(s) by track, {threads} worker thread(s) "
           f"on {where}")
     futures = client.compute([write, rows_in])
+    submitted = time.perf_counter()
     try:
         if sys.stderr.isatty() if progress is None else progress:
             with contextlib.redirect_stdout(sys.stderr):  # the bar is drawn on stdout
                 progress_bar(futures)
             click.echo("", err=True)
-        return int(client.gather(futures)[1])
+        total = int(client.gather(futures)[1])
+        return total, time.perf_counter() - submitted
     finally:
         client.cancel(futures)
