@@ -26,14 +26,15 @@ of the whole archive in file order, a repeated timestamp keeps the last row, a r
 time is dropped, a time-less track counts its rows. (A single-machine run needs each track's
 rows in increasing time order across its chunks; here the whole archive is sorted.)
 
-Memory: a partition of the shuffle is held whole by one worker thread, about 200 bytes per
-row (its rows, the sort, the output); it is stepped in batches of at most ``batch_tracks``
-tracks (the bank states, 3-60 KB per track, are dropped after each batch), each batch in
-engine calls of at most ``chunk_rows`` cells of the dense (time step x segment) array: a
-track's k-th rows of a batch go together, so tracks of very different lengths do not pad
-each other. So a worker thread needs about ``200 B x rows per partition + 3 x batch_tracks x
-state size + 100 B x chunk_rows``; rows per partition is the archive's rows / ``partitions``
-(more for an unusually long track: a track is never split).
+Memory: a partition of the shuffle is held whole by one worker thread, about 300 bytes per
+row at its peak (its rows, the time sort, the output; measured with 2 positions); it is stepped
+in batches of at most ``batch_tracks`` tracks (the bank states, 3-60 KB per track, are dropped
+after each batch), each batch in engine calls of at most ``chunk_rows`` cells of the dense
+(time step x segment) array, about 420 bytes per cell at the default bank: a track's k-th rows
+of a batch go together, so tracks of very different lengths do not pad each other. So a worker
+thread needs about ``300 B x rows per partition + 420 B x chunk_rows + 3 x batch_tracks x state
+size``; rows per partition is the archive's rows / ``partitions`` (more for an unusually long
+track: a track is never split).
 
 Idempotent: the output is a function of the input rows and the settings alone (no state is
 carried between partitions), so a partition Dask computes again after losing a worker is
@@ -43,7 +44,6 @@ written again identically, and a stopped run is simply run again (no ``--state``
 from __future__ import annotations
 
 import glob
-import math
 import os
 import warnings
 from dataclasses import asdict
