@@ -139,6 +139,39 @@ def test_dask_equals_single_machine_on_unsorted_rows_with_repeats(cli, cluster, 
     _compare(reference, pd.read_parquet(tmp_path / "out"))
 
 
+def test_time_unit_learned_in_a_later_chunk_and_one_track_in_row_order(cli, cluster, tmp_path):
+    """Chunks of 12 rows: the first holds one row of each of the 12 tracks (all start at 0), so the
+    single-machine run learns the time unit in its second chunk, from a step across the two; and a
+    file of one track without an id or a time column (time = row number) spread over 7 files."""
+    rng = np.random.default_rng(9)
+    rows = []
+    for k in range(12):
+        n = int(rng.integers(50, 150))
+        t = np.round(np.concatenate([[0.0], np.cumsum(rng.uniform(0.5, 2.0, n - 1))]), 6)
+        xy = np.cumsum(rng.normal(size=(n, 2)), 0)
+        rows += [(f"v{k:02d}", t[i], *xy[i]) for i in range(n)]
+    data = pd.DataFrame(rows, columns=["vessel", "t", "x", "y"]).sort_values("t", kind="stable")
+    options = [*FAST, "--chunk-rows", "12"]
+    whole = _write(_split(data, 5), str(tmp_path / "archive"), "csv")
+    single = _run(cli, ["predict", whole, *options, "-o", str(tmp_path / "single.parquet")])
+    result = _run(cli, ["predict", str(tmp_path / "archive"), "--engine", "dask", "--scheduler",
+                        cluster.scheduler_address, *options, "-o", str(tmp_path / "out")])
+    assert single.exit_code == 0 and result.exit_code == 0, result.output
+    _compare(pd.read_parquet(tmp_path / "single.parquet"), pd.read_parquet(tmp_path / "out"))
+
+    one = pd.DataFrame({"east": np.cumsum(rng.normal(size=700)), "north": np.cumsum(rng.normal(size=700))})
+    whole = _write(_split(one, 7), str(tmp_path / "row-order"), "csv")
+    options = ["--experts", "4", "--seed", "1", "--no-progress", "--chunk-rows", "300"]
+    single = _run(cli, ["predict", whole, *options, "-o", str(tmp_path / "single-rows.parquet")])
+    result = _run(cli, ["predict", str(tmp_path / "row-order"), "--engine", "dask", "--scheduler",
+                        cluster.scheduler_address, *options, "-o", str(tmp_path / "out-rows")])
+    assert single.exit_code == 0 and result.exit_code == 0, result.output
+    a, b = pd.read_parquet(tmp_path / "single-rows.parquet"), pd.read_parquet(tmp_path / "out-rows")
+    assert list(a.columns) == list(b.columns) == ["row", "segment", "pred_east", "pred_north"]
+    assert np.array_equal(b["row"], np.arange(700)) and np.array_equal(a["segment"], b["segment"])
+    assert np.abs(a[["pred_east", "pred_north"]].to_numpy() - b[["pred_east", "pred_north"]].to_numpy()).max() <= TOL
+
+
 def test_python_api_on_a_dask_dataframe(cli, cluster, tmp_path):
     """predict_dask over a user's dask DataFrame (integer ids, other column names) = kalmix predict on its rows."""
     data = _reports(seed=5, n_tracks=6).rename(columns={"vessel": "ship", "t": "clock", "x": "east", "y": "north"})
@@ -320,6 +353,7 @@ def _archive(tmp_path, n_files=2):
     ("output_not_empty", "exists and is not empty"),
     ("output_a_file", "exists and is not a directory"),
     ("output_inside_input", "is inside INPUT"),
+    ("output_inside_glob", "is inside INPUT"),
     ("state", "--state: the Dask engine keeps no state file: its run is idempotent"),
     ("save_every", "--state: the Dask engine keeps no state file"),
     ("stdin", "--engine dask reads files (a directory or a glob), not stdin"),
@@ -343,6 +377,8 @@ def test_bad_input_is_one_line_before_any_work(cli, tmp_path, case, message):
         open(out, "w").close()
     elif case == "output_inside_input":
         out = os.path.join(archive, "predictions")
+    elif case == "output_inside_glob":
+        source, out = os.path.join(archive, "**", "*.parquet"), os.path.join(archive, "day=9")
     elif case == "state":
         extra = ["--state", str(tmp_path / "s.npz")]
     elif case == "save_every":

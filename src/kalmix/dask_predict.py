@@ -44,6 +44,7 @@ written again identically, and a stopped run is simply run again (no ``--state``
 from __future__ import annotations
 
 import glob
+import itertools
 import os
 import warnings
 from dataclasses import asdict
@@ -192,6 +193,12 @@ def _canonical(raw, columns: TrackColumns, base: int, where: str, offset: int = 
     return out
 
 
+def _check_partitions(count):
+    if count >= 1 << (63 - _ORDER_BITS):
+        raise ValueError(f"the input has {count} partitions; at most {(1 << (63 - _ORDER_BITS)) - 1} are supported "
+                         "(the file order of a row is kept in 63 bits): give larger partitions")
+
+
 def _read_piece(piece, fmt, track_columns):
     columns = track_columns
     index, path, groups, start = piece
@@ -223,7 +230,9 @@ def read_archive(source, *, time=None, positions=None, track_id=None, piece_rows
     columns = detect_columns(_header(files[0], fmt), time=time, positions=positions, track_id=track_id)
     _check_files(files, fmt, columns)
     meta = _canonical(_read_raw(files[0], fmt, columns, nrows=0), columns, 0, files[0])
-    frame = dd.from_map(_read_piece, _pieces(files, fmt, piece_rows), fmt=fmt, track_columns=columns, meta=meta,
+    pieces = _pieces(files, fmt, piece_rows)
+    _check_partitions(len(pieces))
+    frame = dd.from_map(_read_piece, pieces, fmt=fmt, track_columns=columns, meta=meta,
                         label="kalmix-read", enforce_metadata=False)
     return frame, columns, fmt
 
@@ -239,6 +248,7 @@ def prepare(frame, columns: TrackColumns):
     Row order is the frame's (partitions in order, rows in order): it decides which row a
     repeated timestamp keeps and, with no time column, each row's time.
     """
+    _check_partitions(frame.npartitions)
     meta = _canonical(frame._meta, columns, 0, "meta")
     return frame.map_partitions(_prepare_partition, columns, meta=meta, enforce_metadata=False)
 
@@ -304,22 +314,25 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
 
     canon = _engine_columns(columns)
     counts = {} if columns.time is None else None
-    unit, why, time_unit, sample = config.length_unit, None, config.time_unit, None
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # the single-machine run warns; here the units only
+
+    def chunks():  # normalised as a single-machine read normalises each of its chunks
         for raw in _first_chunks(prepared, chunk_rows):
-            chunk = _normalise(raw.drop(columns="_order"), canon, counts=counts, first_appearance=first_appearance)
-            if sample is None:
-                sample = chunk.iloc[:3]
-                if derive_length:
-                    unit, why = _length_unit_rule(to_arrays(chunk, columns.positions).values)
-            if time_unit is None:
-                time_unit = learned_time_unit(pieces(chunk), config)
-            if time_unit is not None:
-                break
-    if sample is None:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # the single-machine run warns; here the units only
+                yield _normalise(raw.drop(columns="_order"), canon, counts=counts, first_appearance=first_appearance)
+
+    read = chunks()
+    first = next(read, None)
+    if first is None:
         raise ValueError("The track files have no rows (only headers or nothing at all)")
-    return unit, why, time_unit, sample
+    unit, why = config.length_unit, None
+    if derive_length:
+        unit, why = _length_unit_rule(to_arrays(first, columns.positions).values)
+    time_unit = config.time_unit
+    if time_unit is None:  # one gap rule over the chunks' pieces in order, reading on only until it is learned
+        time_unit = learned_time_unit((piece for chunk in itertools.chain([first], read) for piece in pieces(chunk)),
+                                      config)
+    return unit, why, time_unit, first.iloc[:3]
 
 
 # --------------------------------------------------------------------------------- per partition

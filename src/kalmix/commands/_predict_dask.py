@@ -13,6 +13,7 @@ command starts again (there is no ``--state``: the run is idempotent).
 from __future__ import annotations
 
 import contextlib
+import fnmatch
 import logging
 import os
 import shutil
@@ -52,10 +53,16 @@ def check_options(input_path, output, state_path, given):
     parent = os.path.dirname(output)
     if not os.path.isdir(parent):
         raise ValueError(f"--output: the directory {parent!r} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise ValueError(f"--output: the directory {parent!r} is not writable")
+    inside = os.path.realpath(output)
     if os.path.isdir(input_path):
         source = os.path.realpath(input_path)
-        if os.path.realpath(output) == source or os.path.realpath(output).startswith(source + os.sep):
-            raise ValueError(f"--output: {output!r} is inside INPUT {input_path!r}; a later run would read it")
+        inside = inside == source or inside.startswith(source + os.sep)
+    else:  # a glob's '*' also matches '/' here: anything the pattern could match later is refused
+        inside = fnmatch.fnmatchcase(os.path.join(inside, "part.0.parquet"), os.path.abspath(input_path))
+    if inside:
+        raise ValueError(f"--output: {output!r} is inside INPUT {input_path!r}; a later run would read it")
 
 
 def _partial_dir(output):
@@ -99,6 +106,8 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
     A stop signal (the caller's :class:`._durable.SignalGuard`) cancels the work, removes what
     was written and exits with 128 + the signal number; nothing is left to resume from.
     """
+    from distributed import KilledWorker
+
     from ..dask_predict import read_archive
     from .predict import _positions
 
@@ -115,6 +124,11 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
         _note(f"stopped by {stop.name}; nothing was written to {output}: run the same command again "
               "(the Dask run is idempotent)")
         raise SystemExit(stop.exit_code) from None
+    except KilledWorker as error:  # one task took its worker down, again and again
+        shutil.rmtree(partial, ignore_errors=True)
+        raise ValueError(f"the task {error.task!r} killed its worker {error.allowed_failures + 1} times (out of "
+                         "memory? see 'Memory per worker' in the README: more --partitions, a smaller "
+                         "--chunk-rows)") from None
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
         raise
