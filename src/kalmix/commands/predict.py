@@ -247,7 +247,8 @@ def _local_only(given, output):
 @click.option("--save-every", default=10_000, show_default=True, type=click.IntRange(min=1),
               help="Rows between state saves.")
 @click.option("--chunk-rows", default=200_000, show_default=True, type=click.IntRange(min=1),
-              help="Rows read at a time from a file (bounded memory).")
+              help="Rows read at a time from a file (bounded memory); --engine dask: the first chunk "
+                   "(the units) and the cells of one engine call.")
 @click.option("--progress/--no-progress", default=None, help="Progress bar on stderr [default: when a terminal].")
 @click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
 @click.option("--engine", "engine_kind", default="local", show_default=True, type=click.Choice(["local", "dask"]),
