@@ -1,7 +1,7 @@
 """``kalmix predict --engine dask`` against single-machine ``kalmix predict``, same data, same run (issue 14).
 
 ``python -m benchmarks.dask_scaling [--rows 1000000] [--tracks 2000] [--files 20] [--workers 1 2 4]
-[--repeat 2] [--json out.json]``
+[--repeat 2] [--anatomy] [--json out.json]``
 
 The data: ``--tracks`` smooth noisy tracks sampled every second, all interleaved in time (an archive of
 reports by time), written as ``--files`` Parquet files (every track crosses every file boundary) and as
@@ -11,7 +11,9 @@ after one untimed run that fills the compiled engine's cache.
 Reports rows/s, the ratio to the single-machine run, the CPU seconds of all the run's processes
 (workers included; less sensitive than wall time to a shared machine), the cluster's share of a
 Dask run (after the cluster start and the first chunk), the largest difference of the predictions
-(expected 0), and the load average around each run (the machine may be shared).
+(expected 0), and the load average around each run (the machine may be shared). ``--anatomy``
+adds, per worker count, the task seconds by kind (read, shuffle, predict, write) and each
+worker's busy seconds against the wall time, from Dask's task stream.
 """
 
 from __future__ import annotations
@@ -82,6 +84,39 @@ def largest_difference(reference, got):
     return float(np.nanmax(np.abs(a[numbers].to_numpy() - b[numbers].to_numpy())))
 
 
+def anatomy(archive, workers, out):
+    """Where a Dask run's task time goes: seconds per task kind and each worker's busy seconds (in process)."""
+    import collections
+    import logging
+
+    from distributed import Client, LocalCluster, get_task_stream
+
+    from kalmix.dask_predict import predict_dask, read_archive
+
+    threads = str(max(1, (os.cpu_count() or 1) // workers))
+    with LocalCluster(n_workers=workers, threads_per_worker=1, dashboard_address=None, silence_logs=logging.CRITICAL,
+                      env={"NUMBA_NUM_THREADS": threads}) as cluster, Client(cluster) as client:
+        frame, columns, _ = read_archive(archive)
+        started = time.perf_counter()
+        result = predict_dask(frame, columns, prepared=True, partitions=max(frame.npartitions, 4 * workers))
+        units = time.perf_counter() - started
+        write = result.to_parquet(out, write_index=False, compute=False)
+        with get_task_stream(client) as stream:
+            started = time.perf_counter()
+            client.compute(write).result()
+            wall = time.perf_counter() - started
+    kinds, busy = collections.defaultdict(float), collections.defaultdict(float)
+    for task in stream.data:
+        seconds = sum(s["stop"] - s["start"] for s in task["startstops"] if s["action"] == "compute")
+        key = task["key"][0] if isinstance(task["key"], tuple) else task["key"]
+        kind = ("predict" if "predict_partition" in key else "read" if "kalmix-read" in key else
+                "write" if "parquet" in key else "shuffle" if "shuffle" in key else "other")
+        kinds[kind] += seconds
+        busy[task["worker"]] += seconds
+    return {"workers": workers, "units_and_meta_s": units, "wall_s": wall, "task_s": dict(kinds),
+            "busy_s_per_worker": sorted(busy.values())}
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rows", type=int, default=1_000_000)
@@ -90,6 +125,8 @@ def main(argv=None):
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2, 4])
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--json", default=None)
+    parser.add_argument("--anatomy", action="store_true",
+                        help="also, for each --workers, where the task time goes (in this process)")
     args = parser.parse_args(argv)
     kalmix = [sys.executable, "-m", "kalmix.cli"]
     work = tempfile.mkdtemp(prefix="kalmix-dask-bench-")
@@ -136,12 +173,23 @@ def main(argv=None):
             print(f"{label:>22}  {r['seconds']:7.1f} s  {r['rows_per_s']:9.0f} rows/s  ratio "
                   f"{entry['ratio_to_single']:.2f}  CPU x{entry['cpu_ratio_to_single']:.2f}  "
                   f"max |difference| {difference:.3g}")
+        parts = []
+        if args.anatomy:
+            print("\nwhere the task time goes (seconds of task time; each worker's busy seconds / wall)")
+            for workers in args.workers:
+                part = anatomy(archive, workers, os.path.join(work, f"anatomy-{workers}"))
+                parts.append(part)
+                kinds = ", ".join(f"{kind} {seconds:.1f}" for kind, seconds in
+                                  sorted(part["task_s"].items(), key=lambda item: -item[1]))
+                busy = ", ".join(f"{b:.1f}" for b in part["busy_s_per_worker"])
+                print(f"{workers} worker(s): units+meta {part['units_and_meta_s']:.1f} s; tasks: {kinds}; busy "
+                      f"{busy} of {part['wall_s']:.1f} s")
         if args.json:
             for r in results:
                 r.pop("output")
             with open(args.json, "w") as handle:
                 json.dump({"rows": n, "tracks": args.tracks, "files": args.files, "cores": os.cpu_count(),
-                           "runs": results, "best": summary}, handle, indent=2)
+                           "runs": results, "best": summary, "anatomy": parts}, handle, indent=2)
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

@@ -355,7 +355,7 @@ def _archive(tmp_path, n_files=2):
     ("output_inside_input", "is inside INPUT"),
     ("output_inside_glob", "is inside INPUT"),
     ("state", "--state: the Dask engine keeps no state file: its run is idempotent"),
-    ("save_every", "--state: the Dask engine keeps no state file"),
+    ("save_every", "--save-every: the Dask engine keeps no state file"),
     ("stdin", "--engine dask reads files (a directory or a glob), not stdin"),
     ("no_match", "INPUT: no file matches"),
     ("empty_dir", "holds no .parquet, .pq, .csv or .csv.gz file"),

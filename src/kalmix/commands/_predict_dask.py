@@ -6,7 +6,7 @@ and moves the finished dataset into place.
 
 The output is written to ``<OUTPUT_DIR>.kalmix-partial`` and renamed to OUTPUT_DIR when every
 partition is written: OUTPUT_DIR is complete or absent. A partition recomputed after a lost
-worker is written again with the same bytes; a stopped run leaves nothing and the same
+worker is written again with the same rows; a stopped run leaves nothing and the same
 command starts again (there is no ``--state``: the run is idempotent).
 """
 
@@ -37,8 +37,9 @@ def check_options(input_path, output, state_path, given):
         raise ImportError(f"--engine dask needs the 'dask' extra ({error.name} is missing): "
                           "pip install 'kalmix[dask]'") from None
     if state_path is not None or "save_every" in given:
-        raise ValueError("--state: the Dask engine keeps no state file: its run is idempotent (a lost worker's "
-                         "partitions are recomputed by Dask, a stopped run is run again); drop --state")
+        flag = "--state" if state_path is not None else "--save-every"
+        raise ValueError(f"{flag}: the Dask engine keeps no state file: its run is idempotent (a lost worker's "
+                         f"partitions are recomputed by Dask, a stopped run is run again); drop {flag}")
     if input_path == "-":
         raise ValueError("INPUT: --engine dask reads files (a directory or a glob), not stdin")
     if output is None:
