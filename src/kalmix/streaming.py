@@ -76,7 +76,7 @@ from .bank import DEFAULT_BANK, check_horizon, check_length_unit, make_bank, mak
 from .core.engine import Bank, BankState, init_bank_state
 
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Checkpoint", "auto_length_unit",
-           "auto_time_unit", "STATE_FORMAT_VERSION"]
+           "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
 
 #: 4: one state per track for a bank of expert families (kalmix.core.engine) with its
 #: calibration and lead head, gap trackers with the time-glitch bookkeeping, and the output the
@@ -422,6 +422,16 @@ class TrackPredictor:
             if self.params is not None:
                 self.params = self._build(self.params.measurement_dim)
 
+    def _advance(self, track, time: float) -> tuple[GapTracker, bool | None]:
+        """The gap rule for one row of a table (a new track gets a tracker); learns the time unit."""
+        gaps = self.gaps.get(track)
+        if gaps is None:
+            gaps = self.gaps[track] = GapTracker()
+        new = gaps.advance(time, self.config)
+        if self.config.time_unit is None and gaps.intervals:
+            self._learn_time_unit(gaps.intervals[0])
+        return gaps, new
+
     def _fresh(self) -> BankState:
         return init_bank_state(self.params, 1)
 
@@ -615,12 +625,7 @@ class TrackPredictor:
         runs: dict = {}   # track id -> rows
         for i in range(n_rows):
             track = _id_to_json(ids[i])
-            gaps = self.gaps.get(track)
-            if gaps is None:
-                gaps = self.gaps[track] = GapTracker()
-            new = gaps.advance(float(times[i]), self.config)
-            if self.config.time_unit is None and gaps.intervals:
-                self._learn_time_unit(gaps.intervals[0])
+            gaps, new = self._advance(track, float(times[i]))
             if new is None:
                 keep[i] = False
                 self.skipped += 1
@@ -736,6 +741,44 @@ class TrackPredictor:
                 engine.states[track] = _map(lambda _: next(leaves), template)
                 index += 1
         return engine
+
+
+def learned_time_unit(tables, config: StreamConfig) -> float | None:
+    """The time unit :meth:`TrackPredictor.process_table` learns from ``tables`` fed in this order.
+
+    Only the gap rule runs (no bank): the unit is the first interval a track's
+    :class:`GapTracker` keeps, in row order, exactly as in ``process_table`` (the bank's
+    parameters scale with it, so a run split over several machines fixes it in advance to
+    give the numbers of one run). ``None`` when no table has a positive step of a track.
+
+    Parameters
+    ----------
+    tables : iterable of pandas.DataFrame
+        ``track_id`` and ``time`` columns, in the order ``process_table`` would get them.
+    config : StreamConfig
+        The gap rule's settings (``max_gap``, ``max_gap_factor``); its ``time_unit`` is ignored.
+    """
+    from dataclasses import replace
+
+    scratch = TrackPredictor(replace(config, time_unit=None))
+    for table in tables:
+        for track, time in zip(table["track_id"].to_numpy(), table["time"].to_numpy(np.float64)):
+            scratch._advance(_id_to_json(track), float(time))
+            if scratch.config.time_unit is not None:
+                return scratch.config.time_unit
+    return None
+
+
+def next_row_times(parts, after: dict | None = None) -> list[dict]:
+    """For tables ``parts`` fed to :meth:`TrackPredictor.process_table` in this order, each one's
+    ``next_times``: track id -> time of the track's next row after that table (in a later part,
+    else ``after``, e.g. a later chunk of a file)."""
+    out = []
+    upcoming = dict(after or {})
+    for part in reversed(parts):
+        out.append(dict(upcoming))
+        upcoming.update({track: float(t) for track, t in part.groupby("track_id", sort=False)["time"].first().items()})
+    return out[::-1]
 
 
 class Checkpoint(NamedTuple):

@@ -153,7 +153,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     from tqdm import tqdm
 
     from ..io import iter_track_chunks, to_arrays
-    from ..streaming import _length_unit_rule
+    from ..streaming import _length_unit_rule, next_row_times
 
     if not os.path.exists(path):
         raise FileNotFoundError(f"INPUT: no such file {path!r}")
@@ -195,7 +195,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
             try:
                 frames = []
                 parts = pieces(chunk)
-                for piece, later in zip(parts, _next_times(parts, ahead[index] if index < len(ahead) else {})):
+                for piece, later in zip(parts, next_row_times(parts, ahead[index] if index < len(ahead) else {})):
                     frames.append(engine.process_table(piece, names, later))
                     bar.update(len(piece))
                     run.guard.tick()
@@ -229,17 +229,6 @@ def _lookahead(chunks) -> list[dict]:
                 found[seen[track]][track] = float(first)
             seen[track] = index
     return found
-
-
-def _next_times(parts, after: dict) -> list[dict]:
-    """For each piece of a chunk, track id -> time of the track's next row after the piece."""
-    out = []
-    upcoming = dict(after)
-    for piece in reversed(parts):
-        out.append(dict(upcoming))
-        upcoming.update({track: float(t) for track, t in
-                         piece.groupby("track_id", sort=False)["time"].first().items()})
-    return out[::-1]
 
 
 # ------------------------------------------------------------------------------------------ stdin

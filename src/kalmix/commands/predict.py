@@ -201,6 +201,23 @@ def _output_columns(frame, columns, names):
     return frame.rename(columns=renames)
 
 
+def _given(names):
+    """Which of the current command's parameters ``names`` were set on the command line (not defaults)."""
+    context = click.get_current_context()
+    return {name for name in names
+            if context.get_parameter_source(name) not in (None, click.core.ParameterSource.DEFAULT)}
+
+
+def _local_only(given, output):
+    """``click.BadParameter`` for the Dask engine's options without it, or a directory as a file output."""
+    for name in ("scheduler", "workers", "partitions"):
+        if name in given:
+            raise click.BadParameter("needs --engine dask", param_hint=f"--{name}")
+    if output is not None and os.path.isdir(output):
+        raise click.BadParameter(f"File {output!r} is a directory (a directory is --engine dask's output).",
+                                 param_hint="'--output' / '-o'")
+
+
 # --------------------------------------------------------------------------------------- predict
 @click.command()
 @click.argument("input_path", metavar="INPUT")
@@ -210,8 +227,9 @@ def _output_columns(frame, columns, names):
 @click.option("--lead", default=None, type=click.FloatRange(min=0, min_open=True),
               help="Also predict L time-column units after each row (columns lead_<pos>, lead_std_<pos>), with "
                    "weights and intervals learned on lead-L errors. Not with --horizon.")
-@click.option("--output", "-o", default=None, type=click.Path(dir_okay=False),
-              help="Output file: .csv, .parquet or .jsonl (default: CSV on stdout).")
+@click.option("--output", "-o", default=None, type=click.Path(),
+              help="Output file: .csv, .parquet or .jsonl (default: CSV on stdout); with --engine dask a "
+                   "new directory (a partitioned Parquet dataset).")
 @click.option("--bank", "bank_kind", default=None, type=click.Choice(list(BANK_KINDS)),
               help="Expert families: CV/CA Kalman filters in real time and the paper's AKFs (mixed), "
                    "one of them alone, or with adaptive AR models of the velocity (+ar, ar) [default: mixed].")
@@ -232,12 +250,24 @@ def _output_columns(frame, columns, names):
 @click.option("--save-every", default=10_000, show_default=True, type=click.IntRange(min=1),
               help="Rows between state saves.")
 @click.option("--chunk-rows", default=200_000, show_default=True, type=click.IntRange(min=1),
-              help="Rows read at a time from a file (bounded memory).")
+              help="Rows read at a time from a file (bounded memory); --engine dask: the first chunk "
+                   "(the units) and the cells of one engine call.")
 @click.option("--progress/--no-progress", default=None, help="Progress bar on stderr [default: when a terminal].")
 @click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
+@click.option("--engine", "engine_kind", default="local", show_default=True, type=click.Choice(["local", "dask"]),
+              help="local: this process, a file chunk by chunk or stdin; dask: INPUT a directory or glob of "
+                   "Parquet or CSV files, shuffled by track over a Dask cluster (the 'dask' extra), the same "
+                   "numbers; -o names the output directory.")
+@click.option("--scheduler", default=None, help="--engine dask: address of a Dask scheduler "
+              "(tcp://host:8786) [default: a local cluster on this machine's cores].")
+@click.option("--workers", default=None, type=click.IntRange(min=1),
+              help="--engine dask: worker processes of the local cluster [default: the cores].")
+@click.option("--partitions", default=None, type=click.IntRange(min=1),
+              help="--engine dask: partitions of the shuffle by track [default: the input's, at least "
+                   "4 per worker thread].")
 def predict(input_path, time_column, position_columns, id_column, horizon, lead, output, bank_kind, rule, time_unit,
             n_experts, seed, length_unit, max_gap, max_gap_factor, state_path, save_every, chunk_rows, progress,
-            mixture_options):
+            mixture_options, engine_kind, scheduler, workers, partitions):
     """Predict the next position of every track in INPUT (CSV, Parquet, or - for stdin).
 
     Output: the input's id and time columns, 'segment', pred_<position> and std_<position>:
@@ -252,6 +282,10 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
     Stopped by Ctrl-C, SIGTERM or SIGHUP, it saves the --state file to match what it wrote
     (a chunk in progress is rolled back, a stdin row in progress finished) and exits with
     128 + the signal number; the same command then continues (-o is continued, not rewritten).
+
+    With --engine dask, INPUT is a directory or glob of Parquet (or CSV) files, rows of a track
+    in any of them, and -o a new directory that receives a partitioned Parquet dataset with the
+    same rows and columns (see the README, 'Beyond one machine').
     """
     from ..streaming import TrackPredictor
     from ._durable import SignalGuard, StateLock
@@ -261,7 +295,13 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
     gap, never = _max_gap(max_gap)
     options = _mixture_options(mixture_options)
     out_fmt = _file_format(output) if output else "csv"
+    given = _given(("save_every", "scheduler", "workers", "partitions"))
     with _user_errors():
+        if engine_kind == "dask":
+            from ._predict_dask import check_options
+            check_options(input_path, output, state_path, given)
+        else:
+            _local_only(given, output)
         _distinct_files(("INPUT", input_path), ("--output", output), ("--state", state_path))
     with _user_errors(), SignalGuard() as guard, \
             (StateLock(state_path) if state_path else contextlib.nullcontext()):
@@ -296,6 +336,10 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
         if engine is None and options:
             from ..bank import make_params
             make_params(1, settings["n_experts"], **options)  # a bad option fails before any output
+        if engine_kind == "dask":
+            from ._predict_dask import run_dask
+            return run_dask(input_path, output, settings, unit, time_column, position_columns, id_column,
+                            chunk_rows, progress, scheduler, workers, partitions)
         if input_path == "-" and out_fmt == "parquet":
             raise ValueError("--output: streaming from stdin writes CSV or JSON lines, got a .parquet name")
         run_predict(guard, engine, settings, unit, input_path, state_path, save_every, output, out_fmt,
