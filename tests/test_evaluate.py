@@ -157,3 +157,29 @@ def test_per_track_numbers_equal_direct_runs_on_each_track():
         assert result.per_track[track]["mixture"]["one_step"]["rms"] == pytest.approx(
             error_summary(errors)["rms"], rel=1e-9)
     assert auto_time_unit(np.array([0.0, 0.5, 1.0])) == 0.5
+
+
+def test_the_intervals_are_calibrated_and_reported():
+    """On a long noisy random-acceleration track the 95 % intervals cover 93-97 % of the scored values, one-step
+    and 3-step (lead weights), and the NEES of Gaussian errors is near p = 2."""
+    rng = np.random.default_rng(4)
+    n = 3000
+    xy = np.cumsum(np.cumsum(rng.normal(0, 0.02, (n, 2)), 0), 0) + rng.normal(0, 0.1, (n, 2))
+    table = pd.DataFrame({"track_id": 0, "time": np.arange(n) * 0.1, "x": xy[:, 0], "y": xy[:, 1]})
+    result = evaluate_table(table, n_experts=4, horizon=3, peers=False)
+    calibration = result.tuned["mixture"]["calibration"]
+    for which in ("one_step", "horizon"):
+        assert 0.93 <= calibration[which]["coverage_95"] <= 0.97, calibration
+        assert 1.0 < calibration[which]["mean_nees"] < 4.0, calibration
+    assert calibration["one_step"]["count"] == int(0.8 * n)   # every scored row
+    assert "mixture, one-step weights" in result.overall
+
+
+def test_plot_intervals_writes_a_png(tmp_path):
+    path = tmp_path / "t.csv"
+    _turning_tracks().to_csv(path, index=False)
+    out = tmp_path / "intervals.png"
+    result = CliRunner().invoke(build(), ["evaluate", str(path), "--no-peers", "--experts", "4", "--no-per-track",
+                                          "--plot-intervals", str(out), "--track", "t1"], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    assert "intervals:" in result.output and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -217,11 +217,8 @@ def _calibration(errors, std, covariance, scored):
     out = {"coverage_95": coverage, "count": int(ok.sum())}
     if covariance is not None:
         c = covariance[ok]
-        with np.errstate(all="ignore"):
-            try:
-                nees = np.einsum("ni,ni->n", e, np.linalg.solve(c, e[..., None])[..., 0])
-            except np.linalg.LinAlgError:
-                nees = np.einsum("ni,ni->n", e, np.linalg.lstsq(c[0], e.T, rcond=None)[0].T)
+        with np.errstate(all="ignore"):   # a singular covariance (an exact forecast) gets its pseudo-inverse
+            nees = np.einsum("ni,nij,nj->n", e, np.linalg.pinv(c), e)
         out["mean_nees"] = float(np.nanmean(nees))
         out["median_nees"] = float(np.nanmedian(nees))
     return out
