@@ -95,10 +95,13 @@ def _compare(reference, got):
 # ------------------------------------------------------------------------------ same numbers
 @pytest.mark.parametrize("fmt", ["csv", "parquet"])
 def test_dask_equals_single_machine_predict_over_many_files(cli, cluster, tmp_path, fmt):
-    """~3000 rows in 11 files (3 folders), every track crossing file boundaries; the single-machine run
+    """~3,600 rows in 11 files (3 folders), every track crossing file boundaries; the single-machine run
     reads the same rows as one file in chunks of 500 rows (the length unit comes from the first one)."""
     data = _reports()
-    whole = _write(_split(data, 11), str(tmp_path / "archive"), fmt)
+    parts = _split(data, 11)
+    files_per_track = pd.concat([p.assign(file=i) for i, p in enumerate(parts)]).groupby("vessel")["file"].nunique()
+    assert len(files_per_track) == 15 and files_per_track.min() >= 2
+    whole = _write(parts, str(tmp_path / "archive"), fmt)
     options = [*FAST, "--chunk-rows", "500"]
     single = _run(cli, ["predict", whole, *options, "-o", str(tmp_path / "single.parquet")])
     assert single.exit_code == 0, single.output
