@@ -234,15 +234,11 @@ def forecast(bank: Bank, state: BankState, time, frames: int = 1, *, lead: bool 
     The one-step weights and calibration are used, or the lead head's (``lead=True``,
     for a bank with a lead). The state is not changed.
     """
+    if lead and state.lead is None:
+        raise ValueError("lead=True: this bank has no lead head (make_bank(..., lead=...))")
     n = len(state.screen.time)
-    time = np.broadcast_to(np.asarray(time, dtype=np.float64), (n,))
-    experts = expert_forecasts(bank, state, time, frames)
-    if lead:
-        if state.lead is None:
-            raise ValueError("lead=True: this bank has no lead head (make_bank(..., lead=...))")
-        _, mean, cov = lead_head.forecast(bank, state.lead, experts)
-    else:
-        _, mean, cov = _one_step_forecast(bank, state, experts)
+    experts = expert_forecasts(bank, state, np.broadcast_to(np.asarray(time, dtype=np.float64), (n,)), frames)
+    _, mean, cov = lead_head.forecast(bank, state.lead if lead else state, experts)
     return mean, cov
 
 
@@ -278,8 +274,7 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
     learn = learn & accept
     experts = expert_forecasts(bank, state, time)
     awake = np.isfinite(experts).all(axis=-1)
-    weights = bank.rule_module.weights(bank.rule_params, state.rule, awake)
-    mix, cov = calibration.moments(bank.calibration_params, state.calibration, weights, experts, awake)
+    weights, mix, cov = lead_head.forecast(bank, state, experts)
     go = learn & ~restart
     rule_state = bank.rule_module.update(bank.rule_params, state.rule, experts, z, awake, go)
     cal_state = calibration.update(bank.calibration_params, state.calibration, weights, experts, awake, z, go)
@@ -337,7 +332,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
             experts_out[t] = np.where(on[..., None], out.experts, np.nan)
             weights_out[t] = np.where(on, out.weights, np.nan)
         if with_ahead:
-            _, mean, cov = _one_step_forecast(bank, state, out.ahead_experts)
+            _, mean, cov = lead_head.forecast(bank, state, out.ahead_experts)
             ahead[t] = np.where(on, mean, np.nan)
             ahead_std[t] = np.where(on, _std(cov), np.nan)
             if ahead_experts is not None:
@@ -364,11 +359,3 @@ def check_restart(restart, shape):
 
 def _std(cov):
     return np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
-
-
-def _one_step_forecast(bank, state, experts):
-    """Weights, mean and covariance of ``experts`` with the one-step head."""
-    awake = np.isfinite(experts).all(axis=-1)
-    w = bank.rule_module.weights(bank.rule_params, state.rule, awake)
-    mean, cov = calibration.moments(bank.calibration_params, state.calibration, w, experts, awake)
-    return w, mean, cov

@@ -74,8 +74,10 @@ def learn(bank, state: LeadState, measurement, time, go) -> LeadState:
     return LeadState(rule, cal, kept, np.where(np.isfinite(kept)[:, :, None, None], pending, np.nan))
 
 
-def forecast(bank, state: LeadState, experts):
-    """Weights ``(N, K)``, mean ``(N, p)`` and covariance ``(N, p, p)`` of the lead forecast from ``experts``."""
+def forecast(bank, state, experts):
+    """Weights ``(N, K)``, mean ``(N, p)`` and covariance ``(N, p, p)`` of ``experts (N, K, p)`` under a head:
+    ``state`` has a ``rule`` and a ``calibration`` state (a :class:`LeadState`, or a bank's state for the
+    one-step forecasts)."""
     awake = np.isfinite(experts).all(axis=-1)
     w = bank.rule_module.weights(bank.rule_params, state.rule, awake)
     mean, cov = calibration.moments(bank.calibration_params, state.calibration, w, experts, awake)

@@ -268,20 +268,15 @@ def _run_bank(bank, streams, horizon, scored, warm=True, restart_gaps=True):
                                               back(result.lead_covariance), _shift(scored, horizon, False))
     if numba_available():
         sums, counts = result.experts, result.weights
-        if warm:   # per track already: spread over the track's first segment column
-            first = np.unique(columns, return_index=True)[1]
-            sums_seg, counts_seg = np.zeros((len(columns), bank.n_experts)), np.zeros((len(columns), bank.n_experts))
-            sums_seg[first], counts_seg[first] = sums, counts
-            sums, counts = sums_seg, counts_seg
     else:
         err = np.sum((result.experts - tv[:, :, None, :]) ** 2, axis=-1)
         ok = t_scored[..., None] & np.isfinite(err)
         sums, counts = np.where(ok, err, 0.0).sum(axis=0), ok.sum(axis=0)
-        if warm:
-            first = np.unique(columns, return_index=True)[1]
-            sums_seg, counts_seg = np.zeros((len(columns), bank.n_experts)), np.zeros((len(columns), bank.n_experts))
-            sums_seg[first], counts_seg[first] = sums, counts
-            sums, counts = sums_seg, counts_seg
+    if warm:   # per track already: put each on its track's first segment column
+        first = np.unique(columns, return_index=True)[1]
+        sums_seg, counts_seg = np.zeros((len(columns), bank.n_experts)), np.zeros((len(columns), bank.n_experts))
+        sums_seg[first], counts_seg[first] = sums, counts
+        sums, counts = sums_seg, counts_seg
     n_tracks = len(streams.track_ids)
     per_track = np.zeros((n_tracks, bank.n_experts))
     per_count = np.zeros_like(per_track)

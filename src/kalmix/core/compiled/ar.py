@@ -15,17 +15,10 @@ import numba as nb
 import numpy as np
 
 from ._cache import configure_cache
+from .kinematic import _delta   # the same clipped step in time units
 
 configure_cache()
 _JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
-
-
-@nb.njit(inline="always", **_JIT)
-def _delta(time, last, time_unit, max_step):
-    delta = (time - last) / time_unit
-    if not math.isfinite(delta):
-        return 0.0
-    return min(max(delta, 0.0), max_step)
 
 
 @nb.njit(inline="always", **_JIT)

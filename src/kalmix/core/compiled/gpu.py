@@ -29,7 +29,7 @@ from ..screen import ScreenState
 from . import kinematic as ckin
 from . import rules as crules
 from . import screen as cscreen
-from .calibration import calibrate_row, moments_row
+from .calibration import calibrate_row
 from .calibration import pack_params as pack_calibration
 
 if not hasattr(np, "row_stack"):  # numba-cuda 0.30 registers an overload of np.row_stack, gone from numpy 2.4+
@@ -46,7 +46,7 @@ THREADS_PER_BLOCK = 128
 _kernel_cache = {}
 forecast_expert, step_expert, delta_of = ckin.forecast_expert, ckin.step_expert, ckin._delta
 screen_row = cscreen.screen_row
-awake_of, weights_of, mix_of, learn_rule = crules._awake, crules._weights, crules._mix, crules._learn
+forecast_row, write_row, learn_rule = crules.forecast_row, crules.write_row, crules._learn
 
 
 def gpu_available() -> bool:
@@ -105,13 +105,9 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
         if learning:
             initialised[n] = True
             last_time[n] = times[t, n]
-        awake_count = awake_of(x, awake)
-        weights_of(rule, forgetting, share, a[:, n], b[:, n], c[:, n], dn[0], awake, awake_count, w, logw)
-        mix_of(x, w, awake, mix)
-        moments_row(x, w, awake, awake_count, mix, var_n, ls[0], cal_max_variance, sigma)
-        for ci in range(p):
-            out[t, n, ci] = mix[ci] if awake_count > 0 else math.nan
-            out_std[t, n, ci] = math.sqrt(sigma[ci, ci])
+        awake_count = forecast_row(rule, forgetting, share, a[:, n], b[:, n], c[:, n], dn[0], x, awake, w, logw,
+                                   mix, var_n, ls[0], cal_max_variance, sigma)
+        write_row(awake_count, mix, sigma, out[t, n], out_std[t, n])
         if code == 1 and awake_count > 0:
             calibrate_row(x, z[t, n], awake, awake_count, mix, sigma, var_n, errors_n, ls, cal_window, cal_rate,
                           cal_level, z_level, cal_max_variance, max_log_scale)
@@ -126,13 +122,9 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
                 else:
                     for ci in range(p):
                         x[k, ci] = math.nan
-            awake_count = awake_of(x, awake)
-            weights_of(rule, forgetting, share, a[:, n], b[:, n], c[:, n], dn[0], awake, awake_count, w, logw)
-            mix_of(x, w, awake, mix)
-            moments_row(x, w, awake, awake_count, mix, var_n, ls[0], cal_max_variance, sigma)
-            for ci in range(p):
-                out_ahead[t, n, ci] = mix[ci] if awake_count > 0 else math.nan
-                out_ahead_std[t, n, ci] = math.sqrt(sigma[ci, ci])
+            awake_count = forecast_row(rule, forgetting, share, a[:, n], b[:, n], c[:, n], dn[0], x, awake, w, logw,
+                                       mix, var_n, ls[0], cal_max_variance, sigma)
+            write_row(awake_count, mix, sigma, out_ahead[t, n], out_ahead_std[t, n])
 
 
 def _kernel():

@@ -30,7 +30,6 @@ def run_block(rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
     p = z.shape[2]
     slots = due.shape[1]
     want_cov = out_cov.shape[0] > 0
-    no_cov = np.empty((0, 0))
     for n in nb.prange(n_targets):
         awake = np.empty(k_count, dtype=np.bool_)
         w = np.empty(k_count)
@@ -69,7 +68,9 @@ def run_block(rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
             xa = ahead_experts[t, n]
             count = forecast_row(rule, forgetting, share, a[n], b[n], c[n], dn[0], xa, awake, w, logw, mix,
                                  variance[n], ls[0], max_variance, cov)
-            write_row(count, mix, cov, out[t, n], out_std[t, n], out_cov[t, n] if want_cov else no_cov)
+            write_row(count, mix, cov, out[t, n], out_std[t, n])
+            if want_cov:
+                out_cov[t, n] = cov
             if restart[t, n]:
                 for s in range(slots):
                     due[n, s] = np.nan

@@ -197,14 +197,11 @@ def forecast_row(rule, forgetting, share, a, b, c, d, x, awake, w, logw, mix, va
 
 
 @nb.njit(inline="always", **_JIT)
-def write_row(count, mix, cov, out, out_std, out_cov):
+def write_row(count, mix, cov, out, out_std):
+    """One target's forecast (NaN if no expert is awake) and its standard deviations."""
     for ci in range(mix.shape[0]):
         out[ci] = mix[ci] if count > 0 else np.nan
         out_std[ci] = math.sqrt(cov[ci, ci])
-    if out_cov.shape[0] > 0:
-        for ci in range(mix.shape[0]):
-            for cj in range(mix.shape[0]):
-                out_cov[ci, cj] = cov[ci, cj]
 
 
 @nb.njit(parallel=True, **_JIT)
@@ -220,7 +217,6 @@ def run_block(rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
     want_weights = out_weights.shape[0] > 0
     want_ahead = out_ahead.shape[0] > 0
     want_cov = out_cov.shape[0] > 0
-    no_cov = np.empty((0, 0))
     for n in nb.prange(n_targets):
         awake = np.empty(k_count, dtype=np.bool_)
         w = np.empty(k_count)
@@ -235,7 +231,9 @@ def run_block(rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
             x = experts[t, n]
             count = forecast_row(rule, forgetting, share, a[n], b[n], c[n], dn[0], x, awake, w, logw, mix,
                                  variance[n], ls[0], max_variance, cov)
-            write_row(count, mix, cov, out[t, n], out_std[t, n], out_cov[t, n] if want_cov else no_cov)
+            write_row(count, mix, cov, out[t, n], out_std[t, n])
+            if want_cov:
+                out_cov[t, n] = cov
             if want_weights:
                 for k in range(k_count):
                     out_weights[t, n, k] = w[k]
@@ -247,4 +245,4 @@ def run_block(rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
             if want_ahead:
                 count_ahead = forecast_row(rule, forgetting, share, a[n], b[n], c[n], dn[0], ahead_experts[t, n],
                                            awake, w, logw, mix, variance[n], ls[0], max_variance, cov)
-                write_row(count_ahead, mix, cov, out_ahead[t, n], out_ahead_std[t, n], no_cov)
+                write_row(count_ahead, mix, cov, out_ahead[t, n], out_ahead_std[t, n])

@@ -39,6 +39,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .kinematic import _step   # the same clipped step in time units (params.time_unit, max_step; state.last_time)
+
 __all__ = ["ARParams", "ARState", "init_state", "forecast", "update"]
 
 
@@ -105,12 +107,6 @@ def init_state(params: ARParams, n_targets: int, measurement_dim: int) -> ARStat
         last_time=np.full(n_targets, np.nan),
         initialised=np.zeros(n_targets, dtype=bool),
     )
-
-
-def _step(params: ARParams, state: ARState, time) -> np.ndarray:
-    """Steps from the last learned row to ``time`` in time units, ``(N,)``, clipped to [0, max_step]."""
-    delta = (np.asarray(time, dtype=np.float64) - state.last_time) / params.time_unit
-    return np.clip(np.where(np.isfinite(delta), delta, 0.0), 0.0, params.max_step)
 
 
 def _regressor(params: ARParams, state: ARState) -> np.ndarray:
