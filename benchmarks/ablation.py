@@ -1,10 +1,13 @@
 """Ablation of aggregation rules x banks on the shipped recordings (one-step RMS, last 80 % of each track).
 
-Run: python -m benchmarks.ablation [--datasets hawkeye_ball cycling skillcorner] [--json out.json]
+Run: python -m benchmarks.ablation [--datasets hawkeye_ball cycling skillcorner paper] [--json out.json]
+(``paper``: the paper's simulated stereo target, seeds 0-4 as five tracks of 1000 frames.)
 Every bank (with the glitch screen at its default threshold unless the row says otherwise)
 runs through the compiled engine on the segments ``kalmix predict`` makes
 (gap rule), with the length unit of :func:`kalmix.streaming.auto_length_unit` and the
 time unit :func:`kalmix.streaming.auto_time_unit`, both from the first 20 % of each track.
+Rows named "boa" run the original rule (``bound_forgetting`` 1.0, not the default 0.99); the
+rows with "bound forgetting .99" run the default's.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import numpy as np
 from kalmix.bank import make_bank
 from kalmix.core.compiled import engine as ce
 from kalmix.experiments.evaluate import split_streams
+from kalmix.experiments.table1 import paper_table
 from kalmix.io.datasets import load_dataset
 from kalmix.streaming import auto_length_unit, auto_time_unit
 
@@ -49,11 +53,20 @@ CONFIGS = {
     "kinematic28+ar24 (ridge 1) boa": dict(kind="kinematic+ar", rule="boa", ar_ridge=(1.0,)),
     "kinematic28+ar48 boa, no jump test": dict(kind="kinematic+ar", rule="boa",
                                                ar_options={"jump_threshold": float("inf")}),
+    "mixed68 boa, bound forgetting .99": dict(kind="mixed", rule="boa", rule_options={"bound_forgetting": 0.99}),
+    "kinematic28 boa, bound forgetting .99": dict(kind="kinematic", rule="boa",
+                                                  rule_options={"bound_forgetting": 0.99}),
+    "kinematic28+ar48 boa, bound forgetting .99": dict(kind="kinematic+ar", rule="boa",
+                                                       rule_options={"bound_forgetting": 0.99}),
+    "mixed68+ar48 boa, bound forgetting .99": dict(kind="mixed+ar", rule="boa",
+                                                   rule_options={"bound_forgetting": 0.99}),
+    "kinematic28+ar48 mlpoly": dict(kind="kinematic+ar", rule="mlpoly"),
+    "kinematic28+ar48 fixed_share(online)": dict(kind="kinematic+ar", rule="fixed_share"),
 }
 
 
 def run_dataset(name, configs, max_samples=None):
-    table = load_dataset(name)
+    table = paper_table() if name == "paper" else load_dataset(name)
     streams = split_streams(table, max_samples=max_samples)
     values, times = streams.values, streams.times
     track_lengths = np.bincount(streams.track_of, weights=streams.lengths).astype(int)
@@ -68,6 +81,8 @@ def run_dataset(name, configs, max_samples=None):
         cfg = dict(cfg)
         fixed = cfg.pop("fixed_scale", None)
         options = dict(cfg.pop("rule_options", {}))
+        if cfg.get("rule") == "boa":
+            options.setdefault("bound_forgetting", 1.0)   # "boa" rows: the original rule; the others say so
         if fixed is not None:
             options["scale"] = fixed * unit
         bank = make_bank(values.shape[2], length_unit=unit, time_unit=tunit, rule_options=options, **cfg)
@@ -102,7 +117,7 @@ def p_count(values, scored, result):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--datasets", nargs="+", default=["hawkeye_ball", "cycling", "skillcorner"])
+    parser.add_argument("--datasets", nargs="+", default=["hawkeye_ball", "cycling", "skillcorner", "paper"])
     parser.add_argument("--max-samples", type=int, default=None)
     parser.add_argument("--configs", nargs="+", default=None)
     parser.add_argument("--json", default=None)

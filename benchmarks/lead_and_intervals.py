@@ -24,23 +24,13 @@ import pandas as pd
 
 from kalmix.bank import DEFAULT_BANK, make_bank
 from kalmix.experiments import evaluate as ev
+from kalmix.experiments.table1 import paper_table
 from kalmix.io.datasets import load_dataset
 from kalmix.streaming import auto_length_unit, auto_time_unit
 
 
-def paper_table(seed: int = 0) -> pd.DataFrame:
-    """The paper's simulated target seen by the two cameras: features u_l, u_r, v at 25 Hz, one track."""
-    from kalmix.experiments.table1 import scenario_measurements
-
-    z = np.asarray(scenario_measurements(seed)[1], dtype=float).reshape(-1, 3)
-    frame = pd.DataFrame(z, columns=[f"f{i}" for i in range(z.shape[1])])
-    frame.insert(0, "time", np.arange(len(z)) / 25.0)
-    frame.insert(0, "track_id", 0)
-    return frame
-
-
 def table_of(name):
-    return paper_table() if name == "paper" else load_dataset(name)
+    return paper_table(seeds=(0,)) if name == "paper" else load_dataset(name)
 
 
 def warm_and_cold(table):

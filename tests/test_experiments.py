@@ -32,7 +32,7 @@ def test_table1_json_shape(tiny_table):
     assert 0.0 <= result["max_weight_above_0.8_fraction"] <= 1.0
     assert {claim["name"] for claim in result["claims"]} == {
         "ordering", "single_over_softmax_3x", "random_over_single_3x", "one_hot", "mixture_beats_peers",
-        "within_5pct_of_best_expert"}
+        "within_5pct_of_best_expert", "default_beats_peers_by_3pct", "default_within_5pct_of_best_expert"}
 
 
 def test_table1_numbers_are_means_over_seeds(tiny_table):

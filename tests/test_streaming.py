@@ -106,6 +106,31 @@ def test_save_and_resume_is_bit_for_bit(tmp_path):
     assert second.config == StreamConfig(**CONFIG, time_unit=0.1)  # learned from the first time step, kept
 
 
+def test_version_4_files_resume_as_they_ran(tmp_path):
+    """Version 4 state files were written when BOA's bound did not forget: resumed with bound_forgetting 1."""
+    import json
+
+    original = dict(CONFIG, rule_options={"bound_forgetting": 1.0})
+    table = _table()
+    whole = [r.next for r in _rows(TrackPredictor(StreamConfig(**original)), table)]
+    first = TrackPredictor(StreamConfig(**original))
+    part = [r.next for r in _rows(first, table.iloc[:70])]
+    first.save(tmp_path / "s.npz")
+    archive = dict(np.load(tmp_path / "s.npz"))
+    meta = json.loads(str(archive["meta"]))
+    assert meta["format_version"] == 5
+    meta["format_version"] = 4
+    del meta["config"]["rule_options"]
+    np.savez(tmp_path / "v4.npz", **{**archive, "meta": np.array(json.dumps(meta))})
+    second = TrackPredictor.load(tmp_path / "v4.npz")
+    assert second.config.rule_options == {"bound_forgetting": 1.0}
+    part += [r.next for r in _rows(second, table.iloc[70:])]
+    assert np.array_equal(np.array(part), np.array(whole), equal_nan=True)
+    # the default now forgets the bound, and that changes the forecasts
+    default = [r.next for r in _rows(TrackPredictor(StreamConfig(**CONFIG)), table)]
+    assert not np.array_equal(np.array(default), np.array(whole), equal_nan=True)
+
+
 def test_load_rejects_other_files(tmp_path):
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not a zip")

@@ -78,13 +78,14 @@ from .core.engine import Bank, BankState, init_bank_state
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Checkpoint", "auto_length_unit",
            "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
 
-#: 4: one state per track for a bank of expert families (kalmix.core.engine) with its
-#: calibration and lead head, gap trackers with the time-glitch bookkeeping, and the output the
-#: file belongs to (``kalmix predict -o``). Version 3 files (no calibration yet) are resumed
-#: with a fresh calibration; files of versions 1 and 2 held the previous single-mixture state
-#: and cannot be resumed.
-STATE_FORMAT_VERSION = 4
-_READABLE_VERSIONS = (3, 4)
+#: 5: one state per track for a bank of expert families (kalmix.core.engine) with its
+#: calibration and lead head, gap trackers with the time-glitch bookkeeping, the output the
+#: file belongs to (``kalmix predict -o``) and the rule's options. Version 4 files were written
+#: when BOA's range bound did not forget: they are resumed with ``bound_forgetting`` 1.0, as they
+#: ran. Version 3 files (no calibration yet) are resumed with a fresh calibration as well; files
+#: of versions 1 and 2 held the previous single-mixture state and cannot be resumed.
+STATE_FORMAT_VERSION = 5
+_READABLE_VERSIONS = (3, 4, 5)
 _MAGIC = "kalmix-track-predictor"
 #: Number of first non-gap time steps whose median is a track's reference interval.
 REFERENCE_INTERVALS = 16
@@ -188,6 +189,9 @@ class StreamConfig:
         ``n_experts`` is the size of its AKF family.
     rule : str
         Aggregation rule (``boa``, ``mlpoly``, ``fixed_share``).
+    rule_options : dict
+        The rule's parameters over :data:`kalmix.bank.DEFAULT_RULE_OPTIONS` (``rule_options`` of
+        :func:`kalmix.bank.make_bank`).
     time_unit : float or None
         The typical sampling interval (time-column units) that scales the kinematic
         experts' noise; ``None``: learned from the data, the first positive time step
@@ -205,6 +209,7 @@ class StreamConfig:
     bank: str = DEFAULT_BANK["kind"]
     rule: str = DEFAULT_BANK["rule"]
     time_unit: float | None = None
+    rule_options: dict = field(default_factory=dict)
     lead: float | None = None
 
     def __post_init__(self):
@@ -226,10 +231,13 @@ class StreamConfig:
             raise ValueError(f"time_unit: expected a finite number > 0, got {self.time_unit!r}")
         if not isinstance(self.options, dict):
             raise TypeError(f"options: expected a dict of make_params arguments, got {self.options!r}")
+        if not isinstance(self.rule_options, dict):
+            raise TypeError(f"rule_options: expected a dict of the rule's parameters, got {self.rule_options!r}")
         # every bank argument is checked now, not at the first row
         make_params(1, self.n_experts, seed=self.seed, length_unit=self.length_unit, **self.options)
         make_bank(1, self.bank, rule=self.rule, length_unit=self.length_unit, time_unit=self.time_unit or 1.0,
-                  seed=self.seed, n_akf=self.n_experts, akf_options=self.options, lead=self.lead_time())
+                  seed=self.seed, n_akf=self.n_experts, akf_options=self.options, lead=self.lead_time(),
+                  rule_options=self.rule_options)
 
     def lead_time(self) -> float | None:
         """The lead head's lead in time-column units: ``lead``, or ``horizon`` time units, or None."""
@@ -408,7 +416,7 @@ class TrackPredictor:
         c = self.config
         return make_bank(measurement_dim, c.bank, rule=c.rule, length_unit=c.length_unit,
                          time_unit=1.0 if c.time_unit is None else c.time_unit, seed=c.seed, n_akf=c.n_experts,
-                         akf_options=c.options, lead=c.lead_time())
+                         akf_options=c.options, lead=c.lead_time(), rule_options=c.rule_options)
 
     def _learn_time_unit(self, value: float) -> None:
         """Fix a learned time unit (the bank's parameters scale with it; states do not).
@@ -713,7 +721,10 @@ class TrackPredictor:
                           written_by="kalmix predict --state") as archive:
             meta = archive.meta
             try:
-                engine = cls(StreamConfig(**meta["config"]), meta.get("position_names"))
+                config = dict(meta["config"])
+                if meta["format_version"] < 5 and config.get("rule") == "boa":
+                    config["rule_options"] = {"bound_forgetting": 1.0, **config.get("rule_options", {})}
+                engine = cls(StreamConfig(**config), meta.get("position_names"))
                 engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
                 engine.outliers = int(meta.get("outliers", 0))
                 engine.output = meta.get("output")

@@ -18,10 +18,12 @@ _ROW_LABELS = {
     "single_akf": "single AKF",
     "mixture_softmax": "mixture, softmax gate",
     "mixture_random": "mixture, random gate",
+    "default_bank": "default bank (predict)",
     "imm_filterpy": "IMM CV+CA (filterpy)",
     "cv_kalman": "CV Kalman",
     "ca_kalman": "CA Kalman",
     "best_expert_hindsight": "best expert (hindsight)",
+    "default_best_expert": "  its best expert",
     "no_prediction": "no prediction",
 }
 _STATS = ("mean_abs", "std", "max", "rms")

@@ -5,15 +5,18 @@ Parameter-free in the scale of the data: with the linearised regret
 
 .. math::
 
-    V_k \\leftarrow \\rho V_k + r_k^2,\\quad B_k \\leftarrow \\max(\\rho B_k, |r_k|),\\quad
+    V_k \\leftarrow \\rho V_k + r_k^2,\\quad B_k \\leftarrow \\max(\\beta B_k, |r_k|),\\quad
     \\eta_k = \\min\\Big(\\frac{1}{2 B_k}, \\sqrt{\\frac{\\ln K}{V_k}}\\Big),
 
     \\tilde R_k \\leftarrow \\rho \\tilde R_k + r_k - \\eta_k r_k^2,\\qquad
     w_k \\propto \\pi_k\\, \\eta_k \\exp(\\eta_k \\tilde R_k),
 
 over the awake experts, then a fixed-share floor :math:`w \\leftarrow (1-\\alpha) w + \\alpha / K_{awake}`.
-:math:`\\rho = 1` (no forgetting) and :math:`\\alpha = 0` give the original rule, which
-competes with the best convex combination of the experts. An expert with no regret yet
+:math:`\\rho = \\beta = 1` (no forgetting) and :math:`\\alpha = 0` give the original rule, which
+competes with the best convex combination of the experts. :math:`\\beta < 1`
+(``bound_forgetting``) lets the range bound :math:`B_k` decay: one huge regret (a kick, a
+relocation) otherwise caps :math:`\\eta_k \\le 1/(2B_k)` for the rest of the track and the
+weights stay near uniform long after the event. An expert with no regret yet
 (:math:`V_k = 0`) takes the largest learning rate of the others (1 when none has one).
 """
 
@@ -32,6 +35,7 @@ __all__ = ["Params", "State", "init", "weights", "update", "learning_rates"]
 class Params(NamedTuple):
     forgetting: float = 1.0   # rho in (0, 1]
     share: float = 0.0        # alpha in [0, 1)
+    bound_forgetting: float = 1.0   # beta in (0, 1]
 
 
 class State(NamedTuple):
@@ -69,7 +73,7 @@ def update(params: Params, state: State, experts, measurement, awake, learn) -> 
     rho = params.forgetting
     with np.errstate(over="ignore"):
         variance = rho * state.variance + r * r
-    bound = np.maximum(rho * state.bound, np.abs(r))
+    bound = np.maximum(params.bound_forgetting * state.bound, np.abs(r))
     informed = variance > 0
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         eta = np.where(informed, np.minimum(1.0 / (2.0 * bound),

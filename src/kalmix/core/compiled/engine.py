@@ -55,7 +55,8 @@ def unpack_rule(bank: Bank, a, b, c, d, e):
 def _rule_scalars(bank: Bank):
     params = bank.rule_params
     return (crules.RULE_CODES[bank.rule], float(getattr(params, "forgetting", 1.0)), float(params.share),
-            float(getattr(params, "scale", 0.0)), float(getattr(params, "scale_factor", 0.0)))
+            float(getattr(params, "scale", 0.0)), float(getattr(params, "scale_factor", 0.0)),
+            float(getattr(params, "bound_forgetting", 1.0)))
 
 
 def _akf_block(params, state, z, learn, restart, lengths, out, offset, ahead, ahead_frames):

@@ -57,7 +57,7 @@ def gpu_available() -> bool:
 
 
 def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
-           rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
+           rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
            threshold, max_rejects, warmup, window, position, velocity, seen, spread, count, rejects, outliers,
            points, cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale, variance, n_errors,
            log_scale, z, times, lengths, learn, out, out_std, ahead_times, out_ahead, out_ahead_std):
@@ -111,8 +111,8 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
         if code == 1 and awake_count > 0:
             calibrate_row(x, z[t, n], awake, awake_count, mix, sigma, var_n, errors_n, ls, cal_window, cal_rate,
                           cal_level, z_level, cal_max_variance, max_log_scale)
-            learn_rule(rule, forgetting, share, scale, scale_factor, a[:, n], b[:, n], c[:, n], dn, en, x, z[t, n],
-                       awake, awake_count, w, mix, rr)
+            learn_rule(rule, forgetting, share, scale, scale_factor, bound_forgetting, a[:, n], b[:, n], c[:, n], dn,
+                       en, x, z[t, n], awake, awake_count, w, mix, rr)
         if want_ahead:
             for k in range(k_count):
                 if initialised[n]:

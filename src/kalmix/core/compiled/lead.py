@@ -18,7 +18,7 @@ __all__ = ["run_block"]
 
 
 @nb.njit(parallel=True, **_JIT)
-def run_block(rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
+def run_block(rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
               due_times, tolerance, due, pending, ahead_experts, z, times, lengths, learn, keep, restart,
               out, out_std, out_cov):
@@ -53,7 +53,7 @@ def run_block(rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
                         if count > 0:
                             calibrate_row(x, y, awake, count, mix, cov, variance[n], n_errors[n], ls, window, rate,
                                           level, z_level, max_variance, max_log_scale)
-                            _learn(rule, forgetting, share, scale, scale_factor, a[n], b[n], c[n], dn, en,
+                            _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, a[n], b[n], c[n], dn, en,
                                    x, y, awake, count, w, mix, r)
                 kept = 0
                 for s in range(slots):

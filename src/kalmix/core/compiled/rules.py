@@ -117,7 +117,8 @@ def _mix(x, w, awake, out):
 
 
 @nb.njit(**_JIT)
-def _learn(rule, forgetting, share, scale, scale_factor, a, b, c, d, e, x, y, awake, count, w, mix, r):
+def _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e, x, y, awake, count, w, mix,
+           r):
     k_count = w.shape[0]
     p = x.shape[1]
     if rule == 0 or rule == 1:
@@ -142,7 +143,7 @@ def _learn(rule, forgetting, share, scale, scale_factor, a, b, c, d, e, x, y, aw
             for k in range(k_count):
                 if awake[k]:
                     variance = rho * b[k] + r[k] * r[k]
-                    bound = max(rho * c[k], abs(r[k]))
+                    bound = max(bound_forgetting * c[k], abs(r[k]))
                     eta = min(1.0 / (2.0 * bound), math.sqrt(log_k / variance)) if variance > 0 else 0.0
                     a[k] = rho * a[k] + r[k] - eta * r[k] * r[k]
                     b[k] = variance
@@ -205,7 +206,7 @@ def write_row(count, mix, cov, out, out_std):
 
 
 @nb.njit(parallel=True, **_JIT)
-def run_block(rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
+def run_block(rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
               experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
               out_ahead_std):
@@ -240,7 +241,7 @@ def run_block(rule, forgetting, share, scale, scale_factor, a, b, c, d, e,
             if learn[t, n] and count > 0:
                 calibrate_row(x, z[t, n], awake, count, mix, cov, variance[n], n_errors[n], ls, window, rate,
                               level, z_level, max_variance, max_log_scale)
-                _learn(rule, forgetting, share, scale, scale_factor, a[n], b[n], c[n], dn, en,
+                _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, a[n], b[n], c[n], dn, en,
                        x, z[t, n], awake, count, w, mix, r)
             if want_ahead:
                 count_ahead = forecast_row(rule, forgetting, share, a[n], b[n], c[n], dn[0], ahead_experts[t, n],
