@@ -138,3 +138,43 @@ def test_compiled_cache_is_keyed_on_the_sources(tmp_path, monkeypatch):
     rules = tmp_path / "compiled/rules.py"
     rules.write_text(rules.read_text() + "\n# edited\n")
     assert _cache.source_hash() != before
+
+
+@pytest.mark.parametrize("scored", [False, True])
+def test_target_groups_equal_one_pass(monkeypatch, scored):
+    """Many targets run in groups (TARGET_GROUP) give the same bits as one pass: outputs, sums and state."""
+    from kalmix.core.compiled import engine as ce
+
+    z, t = adversarial_tracks(seed=6, t_count=120)
+    z = np.concatenate([z, benign_tracks(seed=7)[0][:120]], axis=1)
+    t = np.concatenate([t, benign_tracks(seed=7)[1][:120]], axis=1)
+    n = z.shape[1]
+    restart, blank = _gaps(z.shape[:2], 8)
+    z = np.where((restart & blank)[..., None], np.nan, z)
+    bank = make_bank(2, "mixed+ar", length_unit=0.3, n_akf=8, lead=2.0)
+    lengths = np.arange(n) % 5 + 116
+    score = np.random.default_rng(9).random(z.shape[:2]) < 0.7 if scored else None
+    kwargs = dict(lengths=lengths, restart=restart, record_covariance=True, record_experts=True, score=score,
+                  score_ahead=score)
+    first = ce.run(bank, z[:60], t[:60], lengths=np.minimum(lengths, 60), restart=restart[:60])
+    monkeypatch.setattr(ce, "TARGET_GROUP", 10 * n)
+    whole = ce.run(bank, z[60:], t[60:], first.state, **{**kwargs, "lengths": lengths - 60,
+                                                        "restart": restart[60:], "score": None if score is None
+                                                        else score[60:], "score_ahead": None if score is None
+                                                        else score[60:]})
+    monkeypatch.setattr(ce, "TARGET_GROUP", 3)
+    grouped = ce.run(bank, z[60:], t[60:], first.state, **{**kwargs, "lengths": lengths - 60,
+                                                          "restart": restart[60:], "score": None if score is None
+                                                          else score[60:], "score_ahead": None if score is None
+                                                          else score[60:]})
+    assert n > 3
+    for name in whole._fields:
+        a, b = getattr(whole, name), getattr(grouped, name)
+        if name == "state":
+            from kalmix.streaming import _leaves
+            for (key, x), (_, y) in zip(_leaves(a), _leaves(b)):
+                assert np.array_equal(x, y, equal_nan=True), key
+        elif a is None:
+            assert b is None, name
+        else:
+            assert a.shape == b.shape and np.array_equal(a, b, equal_nan=True), name

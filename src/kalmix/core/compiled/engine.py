@@ -27,6 +27,10 @@ __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
 
 #: Upper bound of the per-block expert buffer(s).
 BUFFER_BYTES = 64 * 2**20
+#: More targets than this are run in groups of this many, each through all its rows: a group's state
+#: (~0.2 MB a target for the default bank) stays in the caches from row to row. Measured on 10,000
+#: targets x 50 rows, default bank, 2 cores: 2.07e6 expert-steps/s in one group, 4.04e6 in groups of 256.
+TARGET_GROUP = 256
 
 
 def pack_rule(bank: Bank, state, n: int):
@@ -91,14 +95,16 @@ def _akf_piece(params, state, z, learn, lengths, out, offset, ahead, ahead_frame
     started = init0[None, :] | np.logical_or.accumulate(learn, axis=0)           # after each row
     recorded = np.where(started[..., None, None], result.expert_predictions, np.nan)
     out[0, :, offset:offset + k] = np.where((lengths > 0)[:, None, None], prior, np.nan)
-    out[1:, :, offset:offset + k] = recorded[:-1]
+    inside = (np.arange(1, len(z))[:, None] < lengths[None, :])[..., None, None]   # rows past a target's end: NaN
+    out[1:, :, offset:offset + k] = np.where(inside, recorded[:-1], np.nan)
     if ahead is not None:
+        within = (np.arange(len(z))[:, None] < lengths[None, :])[..., None, None]
         if ahead_frames == 1:
-            ahead[:, :, offset:offset + k] = recorded
+            ahead[:, :, offset:offset + k] = np.where(within, recorded, np.nan)
         else:
             later = run_fast(params, fed, state, expert_predictions=True, lengths=lengths,
                              horizon=ahead_frames).expert_predictions
-            ahead[:, :, offset:offset + k] = np.where(started[..., None, None], later, np.nan)
+            ahead[:, :, offset:offset + k] = np.where(started[..., None, None] & within, later, np.nan)
     return result.state
 
 
@@ -131,6 +137,9 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     """
     z, times, state, lengths, learn = prepare(bank, measurements, times, state, lengths, learn)
     t_count, n, p = z.shape
+    if n > TARGET_GROUP:
+        return _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames, record_experts, score,
+                           score_ahead, record_covariance, restart)
     gaps = check_restart(restart, (t_count, n))
     if gaps is None:
         gaps = np.zeros((t_count, n), dtype=bool)
@@ -240,6 +249,48 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         experts_out, weights_out, ahead_experts_out = sums[0], sums[1], sums[2] if with_ahead else None
     return EngineResult(forecasts, final, ahead, experts_out, weights_out, ahead_experts_out, std, ahead_std,
                         lead_out, lead_std, covariance, lead_covariance)
+
+
+def _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames, record_experts, score, score_ahead,
+                record_covariance, restart) -> EngineResult:
+    """:func:`run` over groups of :data:`TARGET_GROUP` targets, each through all its rows; the same numbers
+    (targets are independent), stitched back in target order."""
+    t_count, n, _ = z.shape
+    gaps = check_restart(restart, (t_count, n))
+    if ahead_times is not None:
+        ahead_times = np.broadcast_to(np.asarray(ahead_times, dtype=np.float64), (t_count, n))
+    rows = lambda a, g: None if a is None else np.ascontiguousarray(a[:, g])  # noqa: E731
+    parts = []
+    for begin in range(0, n, TARGET_GROUP):
+        g = slice(begin, min(begin + TARGET_GROUP, n))
+        sub = _tree_map(lambda a: a[g], state)
+        parts.append(run(bank, rows(z, g), rows(times, g), sub, lengths=lengths[g], learn=rows(learn, g),
+                         ahead_times=rows(ahead_times, g), ahead_frames=ahead_frames, record_experts=record_experts,
+                         score=rows(score, g), score_ahead=rows(score_ahead, g),
+                         record_covariance=record_covariance, restart=rows(gaps, g)))
+    summed = score is not None    # experts / weights / expert_ahead are (N, K) sums, not (T, N, ...) rows
+    fields = {}
+    for name in EngineResult._fields:
+        values = [getattr(part, name) for part in parts]
+        if name == "state":
+            fields[name] = _tree_map(lambda *a: np.concatenate(a, axis=0), *values)
+        elif values[0] is None:
+            fields[name] = None
+        else:
+            axis = 0 if summed and name in ("experts", "weights", "expert_ahead") else 1
+            fields[name] = np.concatenate(values, axis=axis)
+    return EngineResult(**fields)
+
+
+def _tree_map(function, *trees):
+    """``function`` over the arrays of nested (named) tuples of the same structure; None stays None."""
+    first = trees[0]
+    if first is None:
+        return None
+    if isinstance(first, tuple):
+        mapped = [_tree_map(function, *parts) for parts in zip(*trees)]
+        return type(first)(*mapped) if hasattr(first, "_fields") else tuple(mapped)
+    return function(*trees)
 
 
 def _accumulate(total, count, buffer, z, score):
