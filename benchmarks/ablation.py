@@ -61,6 +61,9 @@ CONFIGS = {
     "mixed68+ar48 boa, bound forgetting .99": dict(kind="mixed+ar", rule="boa",
                                                    rule_options={"bound_forgetting": 0.99}),
     "kinematic28+ar48 mlpoly": dict(kind="kinematic+ar", rule="mlpoly"),
+    "mixed68+ar48 mlpoly": dict(kind="mixed+ar", rule="mlpoly"),
+    "mixed68+ar48 fixed_share(online)": dict(kind="mixed+ar", rule="fixed_share"),
+    "mixed68+ar48 fixed_share(sigma=2u)": dict(kind="mixed+ar", rule="fixed_share", fixed_scale=2.0),
     "kinematic28+ar48 fixed_share(online)": dict(kind="kinematic+ar", rule="fixed_share"),
 }
 
