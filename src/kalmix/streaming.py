@@ -73,7 +73,7 @@ import numpy as np
 
 from .archive import open_archive, write_archive
 from .bank import DEFAULT_BANK, check_horizon, check_length_unit, make_bank, make_params
-from .core.engine import Bank, BankState, init_bank_state
+from .core.engine import Bank, BankState, init_bank_state, tree_map
 
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Checkpoint", "auto_length_unit",
            "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
@@ -332,17 +332,6 @@ class RowPrediction(NamedTuple):
     ahead_std: np.ndarray | None = None  # (p,) of ``ahead``
 
 
-def _map(function, *trees):
-    """Apply ``function`` to the arrays of nested tuples / NamedTuples of the same structure (None stays)."""
-    first = trees[0]
-    if first is None:
-        return None
-    if isinstance(first, tuple):
-        mapped = [_map(function, *parts) for parts in zip(*trees)]
-        return type(first)(*mapped) if hasattr(first, "_fields") else tuple(mapped)
-    return function(*trees)
-
-
 def _leaves(tree, prefix="state"):
     """``[(name, array)]`` of a state tree, names like ``state/families/0/mean`` (None parts have none)."""
     if tree is None:
@@ -354,11 +343,11 @@ def _leaves(tree, prefix="state"):
 
 
 def _stack(states: list) -> BankState:
-    return _map(lambda *arrays: np.concatenate(arrays, axis=0), *states)
+    return tree_map(lambda *arrays: np.concatenate(arrays, axis=0), *states)
 
 
 def _take(state, index):
-    return _map(lambda a: a[index], state)
+    return tree_map(lambda a: a[index], state)
 
 
 def _id_to_json(value):
@@ -749,7 +738,7 @@ class TrackPredictor:
             engine.gaps[track] = gaps
             if has_state:
                 leaves = iter([value[index:index + 1].copy() for value in stacked.values()])
-                engine.states[track] = _map(lambda _: next(leaves), template)
+                engine.states[track] = tree_map(lambda _: next(leaves), template)
                 index += 1
         return engine
 

@@ -129,6 +129,17 @@ class EngineResult(NamedTuple):
     lead_covariance: np.ndarray | None = None  # (T, N, p, p) of ``lead`` (record_covariance)
 
 
+def tree_map(function, *trees):
+    """``function`` over the arrays of nested (named) tuples of the same structure (a state); None stays None."""
+    first = trees[0]
+    if first is None:
+        return None
+    if isinstance(first, tuple):
+        mapped = [tree_map(function, *parts) for parts in zip(*trees)]
+        return type(first)(*mapped) if hasattr(first, "_fields") else tuple(mapped)
+    return function(*trees)
+
+
 def init_bank_state(bank: Bank, n_targets: int) -> BankState:
     p = bank.measurement_dim
     return BankState(tuple(f.module.init_state(f.params, n_targets, p) for f in bank.families),

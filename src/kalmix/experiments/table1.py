@@ -112,7 +112,7 @@ def paper_table(seeds: Iterable[int] = range(5)):
     for seed in seeds:
         z = np.asarray(scenario_measurements(seed)[1], dtype=float).reshape(-1, 3)
         frame = pd.DataFrame(z, columns=[f"f{i}" for i in range(z.shape[1])])
-        frame.insert(0, "time", np.arange(len(z)) / 25.0)
+        frame.insert(0, "time", np.arange(len(z)) / FRAME_RATE)
         frame.insert(0, "track_id", int(seed))
         frames.append(frame)
     return pd.concat(frames, ignore_index=True)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..calibration import CalibrationState
-from ..engine import Bank, BankState, EngineResult, check_restart, check_run_arguments, init_bank_state
+from ..engine import Bank, BankState, EngineResult, check_restart, check_run_arguments, init_bank_state, tree_map
 from ..families import akf
 from ..lead import LeadState
 from ..screen import ScreenState
@@ -29,7 +29,7 @@ __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
 BUFFER_BYTES = 64 * 2**20
 #: More targets than this are run in groups of this many, each through all its rows: a group's state
 #: (~0.2 MB a target for the default bank) stays in the caches from row to row. Measured on 10,000
-#: targets x 50 rows, default bank, 2 cores: 2.07e6 expert-steps/s in one group, 4.04e6 in groups of 256.
+#: targets x 50 rows, default bank, 2 cores: 2.07e6 expert-steps/s in one group, 3.5e6 in groups of 256.
 TARGET_GROUP = 256
 
 
@@ -263,7 +263,7 @@ def _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames
     parts = []
     for begin in range(0, n, TARGET_GROUP):
         g = slice(begin, min(begin + TARGET_GROUP, n))
-        sub = _tree_map(lambda a: a[g], state)
+        sub = tree_map(lambda a: a[g], state)
         parts.append(run(bank, rows(z, g), rows(times, g), sub, lengths=lengths[g], learn=rows(learn, g),
                          ahead_times=rows(ahead_times, g), ahead_frames=ahead_frames, record_experts=record_experts,
                          score=rows(score, g), score_ahead=rows(score_ahead, g),
@@ -273,24 +273,13 @@ def _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames
     for name in EngineResult._fields:
         values = [getattr(part, name) for part in parts]
         if name == "state":
-            fields[name] = _tree_map(lambda *a: np.concatenate(a, axis=0), *values)
+            fields[name] = tree_map(lambda *a: np.concatenate(a, axis=0), *values)
         elif values[0] is None:
             fields[name] = None
         else:
             axis = 0 if summed and name in ("experts", "weights", "expert_ahead") else 1
             fields[name] = np.concatenate(values, axis=axis)
     return EngineResult(**fields)
-
-
-def _tree_map(function, *trees):
-    """``function`` over the arrays of nested (named) tuples of the same structure; None stays None."""
-    first = trees[0]
-    if first is None:
-        return None
-    if isinstance(first, tuple):
-        mapped = [_tree_map(function, *parts) for parts in zip(*trees)]
-        return type(first)(*mapped) if hasattr(first, "_fields") else tuple(mapped)
-    return function(*trees)
 
 
 def _accumulate(total, count, buffer, z, score):

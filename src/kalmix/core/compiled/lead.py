@@ -53,8 +53,8 @@ def run_block(rule, forgetting, share, scale, scale_factor, bound_forgetting, a,
                         if count > 0:
                             calibrate_row(x, y, awake, count, mix, cov, variance[n], n_errors[n], ls, window, rate,
                                           level, z_level, max_variance, max_log_scale)
-                            _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, a[n], b[n], c[n], dn, en,
-                                   x, y, awake, count, w, mix, r)
+                            _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, a[n], b[n], c[n],
+                                   dn, en, x, y, awake, count, w, mix, r)
                 kept = 0
                 for s in range(slots):
                     if not due[n, s] <= now + tolerance:
