@@ -20,7 +20,6 @@ import json
 import time
 
 import numpy as np
-import pandas as pd
 
 from kalmix.bank import DEFAULT_BANK, make_bank
 from kalmix.experiments import evaluate as ev

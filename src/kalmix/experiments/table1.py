@@ -306,6 +306,19 @@ def _claim(name: str, source: str, statement: str, holds: bool, numbers: dict[st
             "numbers": {key: float(value) for key, value in numbers.items()}}
 
 
+#: The peer rows our claims compare against.
+_CLAIM_PEERS = ("imm_filterpy", "cv_kalman", "ca_kalman", "single_akf", "no_prediction")
+
+
+def _best_expert_claim(name, subject, oracle, row, best, tolerance) -> list[dict[str, Any]]:
+    """``[claim]`` that ``row``'s RMS <= (1 + tolerance) x ``best``'s, X and Y; ``[]`` without ``best``."""
+    if not best:
+        return []
+    numbers = {f"{axis}.ratio": row[axis]["rms"] / best[axis]["rms"] for axis in ("X", "Y")}
+    return [_claim(name, "ours", f"{subject} RMS <= {1 + tolerance:.2f} x {oracle} in hindsight, X and Y",
+                   all(v <= 1.0 + tolerance for v in numbers.values()), numbers)]
+
+
 def check_claims(rows: dict[str, Any], one_hot_fraction: float | None = None,
                  best_expert_tolerance: float = 0.05) -> list[dict[str, Any]]:
     """The paper's claims and ours, evaluated on one table of rows.
@@ -342,9 +355,8 @@ def check_claims(rows: dict[str, Any], one_hot_fraction: float | None = None,
         claims.append(_claim("one_hot", "paper", f"gating weights mostly near one-hot: largest weight > "
                              f"{ONE_HOT_THRESHOLD} on more than half of the steps", one_hot_fraction > 0.5,
                              {"fraction": one_hot_fraction}))
+    peers = [name for name in _CLAIM_PEERS if name in rows]
     if softmax:
-        peers = [name for name in ("imm_filterpy", "cv_kalman", "ca_kalman", "single_akf", "no_prediction")
-                 if name in rows]
         numbers, ok = {}, True
         for axis in ("X", "Y"):
             numbers[f"{axis}.softmax"] = softmax[axis]["rms"]
@@ -353,17 +365,10 @@ def check_claims(rows: dict[str, Any], one_hot_fraction: float | None = None,
                 ok &= softmax[axis]["rms"] <= rows[name][axis]["rms"]
         claims.append(_claim("mixture_beats_peers", "ours", "softmax-mixture RMS <= every peer row (" +
                              ", ".join(peers) + "), X and Y", ok, numbers))
-        best = rows.get("best_expert_hindsight")
-        if best:
-            numbers = {f"{axis}.ratio": softmax[axis]["rms"] / best[axis]["rms"] for axis in ("X", "Y")}
-            claims.append(_claim("within_5pct_of_best_expert", "ours",
-                                 f"softmax-mixture RMS <= {1 + best_expert_tolerance:.2f} x best single expert in "
-                                 "hindsight, X and Y", all(v <= 1.0 + best_expert_tolerance
-                                                           for v in numbers.values()), numbers))
+        claims += _best_expert_claim("within_5pct_of_best_expert", "softmax-mixture", "best single expert", softmax,
+                                     rows.get("best_expert_hindsight"), best_expert_tolerance)
     default = rows.get("default_bank")
     if default:
-        peers = [name for name in ("imm_filterpy", "cv_kalman", "ca_kalman", "single_akf", "no_prediction")
-                 if name in rows]
         numbers, ok = {}, True
         for axis in ("X", "Y"):
             numbers[f"{axis}.default"] = default[axis]["rms"]
@@ -372,11 +377,6 @@ def check_claims(rows: dict[str, Any], one_hot_fraction: float | None = None,
             ok &= default[axis]["rms"] <= 0.97 * best_peer
         claims.append(_claim("default_beats_peers_by_3pct", "ours", "default-bank RMS <= 0.97 x the best peer row (" +
                              ", ".join(peers) + "), X and Y", ok, numbers))
-        best = rows.get("default_best_expert")
-        if best:
-            numbers = {f"{axis}.ratio": default[axis]["rms"] / best[axis]["rms"] for axis in ("X", "Y")}
-            claims.append(_claim("default_within_5pct_of_best_expert", "ours",
-                                 f"default-bank RMS <= {1 + best_expert_tolerance:.2f} x its best single expert in "
-                                 "hindsight, X and Y", all(v <= 1.0 + best_expert_tolerance
-                                                           for v in numbers.values()), numbers))
+        claims += _best_expert_claim("default_within_5pct_of_best_expert", "default-bank", "its best single expert",
+                                     default, rows.get("default_best_expert"), best_expert_tolerance)
     return claims
