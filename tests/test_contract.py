@@ -178,3 +178,63 @@ def test_target_groups_equal_one_pass(monkeypatch, scored):
             assert b is None, name
         else:
             assert a.shape == b.shape and np.array_equal(a, b, equal_nan=True), name
+
+
+def test_target_ranges_cover_every_target_once(monkeypatch):
+    """over_targets hands out disjoint ranges that cover [0, n), on several threads, and re-raises errors."""
+    import threading
+    import time
+
+    from kalmix.core.compiled import _threads
+
+    monkeypatch.setattr(_threads, "_threads", lambda: 3)
+    seen, names = [], set()
+
+    def kernel(lo, hi, out):
+        seen.append((lo, hi))
+        names.add(threading.current_thread().name)
+        out[lo:hi] += 1
+        time.sleep(0.01)   # a kernel releases the GIL: the other threads take ranges meanwhile
+
+    out = np.zeros(1000)
+    _threads.over_targets(kernel, 1000, out)
+    assert np.all(out == 1) and len(seen) == 12 and len(names) > 1
+    seen.clear()
+    _threads.over_targets(kernel, 2 * _threads.MIN_CHUNK - 1, out[:31])   # few targets: one call, this thread
+    assert seen == [(0, 2 * _threads.MIN_CHUNK - 1)]
+
+    def broken(lo, hi):
+        if lo > 0:
+            raise ValueError("range failed")
+
+    with pytest.raises(ValueError, match="range failed"):
+        _threads.over_targets(broken, 1000)
+
+
+@pytest.mark.parametrize("threads", [1, 3])
+def test_targets_on_threads_equal_one_thread(monkeypatch, threads):
+    """The compiled engine over targets split across threads gives the bits of one thread (every family,
+    the rule, the lead head, the screen; adversarial and benign targets)."""
+    from kalmix.core.compiled import _threads
+    from kalmix.core.compiled import engine as ce
+    from kalmix.streaming import _leaves
+
+    z, t = adversarial_tracks(seed=6, t_count=120)
+    z = np.concatenate([z, benign_tracks(seed=7)[0][:120]], axis=1)
+    t = np.concatenate([t, benign_tracks(seed=7)[1][:120]], axis=1)
+    bank = make_bank(2, "mixed+ar", length_unit=0.3, n_akf=8, lead=2.0)
+    lengths = np.arange(z.shape[1]) % 5 + 116
+    monkeypatch.setattr(_threads, "_threads", lambda: 1)
+    one = ce.run(bank, z, t, lengths=lengths, record_experts=True, record_covariance=True)
+    monkeypatch.setattr(_threads, "_threads", lambda: threads)
+    monkeypatch.setattr(_threads, "MIN_CHUNK", 1)                  # 7 targets: ranges of 1-2 targets
+    split = ce.run(bank, z, t, lengths=lengths, record_experts=True, record_covariance=True)
+    for name in one._fields:
+        a, b = getattr(one, name), getattr(split, name)
+        if name == "state":
+            for (key, x), (_, y) in zip(_leaves(a), _leaves(b)):
+                assert np.array_equal(x, y, equal_nan=True), key
+        elif a is None:
+            assert b is None, name
+        else:
+            assert np.array_equal(a, b, equal_nan=True), name

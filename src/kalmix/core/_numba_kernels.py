@@ -2,8 +2,8 @@
 
 One compiled function advances one target through the whole time loop with the same
 operations as the numpy reference (:func:`kalmix.core.mixture.step`); :func:`run_targets`
-runs the targets in parallel (``prange``). Every target is independent, so the threads
-never synchronise.
+advances targets ``lo .. hi - 1``; :func:`kalmix.core.compiled._threads.over_targets` runs ranges
+of targets on threads. Every target is independent, so the threads never synchronise.
 
 Within a target, all K experts advance together: their state is copied once per call
 into arrays with the expert index last (``cov[r, c, k]``), so that every inner loop of
@@ -896,9 +896,8 @@ def _extrapolate(mu, trans, off, steps, ahead, scratch, acc):
                 ahead[a, k] = scratch[a, k]
 
 
-@nb.njit(parallel=True, **_JIT)
-def run_targets(measurements, lengths, horizon, params, state, records):
-    """Advance every target ``j`` through its first ``lengths[j]`` steps (targets in parallel)."""
-    n_targets = measurements.shape[1]
-    for j in nb.prange(n_targets):
+@nb.njit(**_JIT)
+def run_targets(lo, hi, measurements, lengths, horizon, params, state, records):
+    """Advance targets ``lo .. hi - 1`` (each ``j`` through its first ``lengths[j]`` steps)."""
+    for j in range(lo, hi):
         _advance_target(j, measurements, lengths, horizon, *params, *state, *records)

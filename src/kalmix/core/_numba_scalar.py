@@ -619,9 +619,8 @@ def _restart_target(j, n, p, prior, process_init, measurement_init, initialised,
         responsibilities[j, k] = 1.0 / k_count
 
 
-@nb.njit(parallel=True, **_JIT)
-def run_targets(measurements, lengths, horizon, params, state, records):
-    """Advance every target ``j`` through its first ``lengths[j]`` steps (targets in parallel)."""
-    n_targets = measurements.shape[1]
-    for j in nb.prange(n_targets):
+@nb.njit(**_JIT)
+def run_targets(lo, hi, measurements, lengths, horizon, params, state, records):
+    """Advance targets ``lo .. hi - 1`` (each ``j`` through its first ``lengths[j]`` steps)."""
+    for j in range(lo, hi):
         _advance_target(j, measurements, lengths, horizon, *params, *state, *records)

@@ -5,7 +5,7 @@ compiled: each target is advanced through all its steps by one numba function th
 does, for every expert, exactly the operations of :func:`kalmix.core.mixture.step`
 (same formulas, same order: Joseph-form update, Cholesky inverses with the same
 jitter, scipy's log-sum-exp, the splitmix64 random gate). Targets are independent, so
-they run in parallel (``prange``) without synchronisation. Results agree with the
+they run on threads, in ranges, without synchronisation. Results agree with the
 numpy reference to rounding (tested at 1e-9 relative).
 
 Two kernels, chosen by the bank size: from ``VECTOR_MIN_EXPERTS`` experts on, the
@@ -34,6 +34,7 @@ import numpy as np
 from . import dynamics as dyn
 from .mixture import DYNAMICS, GATINGS, MixtureParams, MixtureState, StepOutput, init_state
 from .compiled._cache import numba_available
+from .compiled._threads import over_targets
 from .run import RunResult
 
 __all__ = ["numba_available", "run_fast", "step_fast"]
@@ -163,8 +164,8 @@ def run_fast(
             records = (predictions[begin:end], bool(diagnostics), weights[begin:end], eta[begin:end],
                        q_record[begin:end], r_record[begin:end], bool(expert_predictions), experts[begin:end])
             remaining = np.clip(lengths - begin, 0, end - begin)
-            kernels.run_targets(measurements[begin:end], remaining, int(horizon), packed_params, packed_state,
-                                records)
+            over_targets(kernels.run_targets, n, measurements[begin:end], remaining, int(horizon), packed_params,
+                         packed_state, records)
             if progress is not None:
                 progress(end)
     finally:

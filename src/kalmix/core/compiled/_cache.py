@@ -8,6 +8,12 @@ import os
 from pathlib import Path
 
 _CORE = Path(__file__).resolve().parent.parent
+#: numba options of every compiled-engine function.
+JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
+#: The drivers over targets (``_run_block``): no reference counting. They allocate nothing (their scratch
+#: comes from the caller), and without it the array views of their inner loops cost nothing: the kinematic
+#: family's driver ran 2.5x faster on one thread (10,000 targets x 50 rows).
+KERNEL_JIT = dict(JIT, _nrt=False)
 #: Every file whose code ends up in a compiled kernel.
 COMPILED_SOURCES = (
     "_numba_linalg.py", "_numba_kernels.py", "_numba_scalar.py",

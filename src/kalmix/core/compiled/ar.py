@@ -1,4 +1,4 @@
-"""Compiled AR family (:mod:`kalmix.core.families.ar`): same formulas in the same order, one target per thread.
+"""Compiled AR family (:mod:`kalmix.core.families.ar`): same formulas in the same order, targets in ranges on threads.
 
 :func:`run_block` advances every target through its rows of a block: at each row it
 writes every expert's forecast of the row (and its variance) into the bank's shared
@@ -14,11 +14,11 @@ import math
 import numba as nb
 import numpy as np
 
-from ._cache import configure_cache
+from ._cache import JIT as _JIT
+from ._cache import KERNEL_JIT, configure_cache
 from .kinematic import _delta   # the same clipped step in time units
 
 configure_cache()
-_JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 
 
 @nb.njit(inline="always", **_JIT)
@@ -146,24 +146,30 @@ def _learn(order, bias, m, lam, rho, persistence, jump_threshold, window, max_ve
     count[n, k] = new_count
 
 
-@nb.njit(parallel=True, **_JIT)
-def run_block(order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error, jump_threshold,
-              window, max_step, max_velocity,
+def run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
+              jump_threshold, window, max_step, max_velocity,
               weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead):
-    n_targets = z.shape[1]
+    """Targets ``lo .. hi - 1`` through their rows of the block (scratch allocated here, once a call)."""
+    m = order + (1 if bias else 0)
+    _run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
+               jump_threshold, window, max_step, max_velocity,
+               weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
+               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
+               np.empty(m), np.empty((m, m)), np.empty(m), np.zeros((m, m)), np.empty(m), np.empty(z.shape[2]))
+
+
+@nb.njit(**KERNEL_JIT)
+def _run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
+               jump_threshold, window, max_step, max_velocity,
+               weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
+               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead, x, a, rhs, low, y, v):
     k_count = forgetting.shape[0]
     p = z.shape[2]
     m = order + (1 if bias else 0)
     want_var = out_var.shape[0] > 0
     want_ahead = out_ahead.shape[0] > 0
-    for n in nb.prange(n_targets):
-        x = np.empty(m)
-        a = np.empty((m, m))
-        rhs = np.empty(m)
-        low = np.zeros((m, m))
-        y = np.empty(m)
-        v = np.empty(p)
+    for n in range(lo, hi):
         for t in range(lengths[n]):
             # every expert's forecast of this row, then its learning (a restart row starts it again)
             started = initialised[n]

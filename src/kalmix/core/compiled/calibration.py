@@ -14,10 +14,10 @@ import numba as nb
 import numpy as np
 
 from ..calibration import CalibrationParams, z_score
+from ._cache import JIT as _JIT
 from ._cache import configure_cache
 
 configure_cache()
-_JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 
 __all__ = ["pack_params", "moments_row", "calibrate_row"]
 

@@ -22,6 +22,7 @@ from . import lead as clead
 from . import rules as crules
 from .calibration import pack_params as pack_calibration
 from . import screen as cscreen
+from ._threads import over_targets
 
 __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
 
@@ -195,43 +196,39 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         accept = np.zeros((rows, n), dtype=bool)
         restart = np.zeros((rows, n), dtype=bool)
         started = np.zeros((rows, n), dtype=bool)
-        cscreen.screen_block(*screen_args, *scr, zb, tb, lens, learn[begin:end], gaps[begin:end], accept, restart,
-                             started)
+        over_targets(cscreen.screen_block, n, *screen_args, *scr, zb, tb, lens, learn[begin:end], gaps[begin:end],
+                     accept, restart, started)
         lb = learn[begin:end] & accept
         buffer = np.full((rows, n, k, p), np.nan)
         ahead_buffer = np.full((rows, n, k, p), np.nan) if with_ahead else None
+        ahead_b = ahead_times[begin:end] if with_ahead else empty2
         offset = 0
         for i, family in enumerate(bank.families):
+            fp, fs = family.params, families[i]
             if family.kind == "akf":
-                families[i] = _akf_block(family.params, families[i], zb, lb, restart, lens, buffer, offset,
-                                         ahead_buffer, ahead_frames)
+                families[i] = _akf_block(fp, fs, zb, lb, restart, lens, buffer, offset, ahead_buffer, ahead_frames)
             elif family.kind == "ar":
-                fp, fs = family.params, families[i]
-                car.run_block(fp.order, bool(fp.bias), fp.forgetting, fp.ridge, float(fp.length_unit),
-                              float(fp.time_unit), float(fp.persistence), float(fp.initial_error),
-                              float(fp.jump_threshold), float(fp.window), float(fp.max_step), float(fp.max_velocity),
-                              *fs, zb, tb, lens, lb, restart, buffer, empty3, offset,
-                              ahead_times[begin:end] if with_ahead else empty2,
-                              ahead_buffer if with_ahead else empty4)
+                over_targets(car.run_block, n, fp.order, bool(fp.bias), fp.forgetting, fp.ridge, float(fp.length_unit),
+                             float(fp.time_unit), float(fp.persistence), float(fp.initial_error),
+                             float(fp.jump_threshold), float(fp.window), float(fp.max_step), float(fp.max_velocity),
+                             *fs, zb, tb, lens, lb, restart, buffer, empty3, offset, ahead_b,
+                             ahead_buffer if with_ahead else empty4)
             else:
-                fp, fs = family.params, families[i]
-                ckin.run_block(fp.order, fp.process_noise, fp.measurement_noise, fp.initial_variance,
-                               float(fp.time_unit), float(fp.max_step), float(fp.max_variance),
-                               fs.mean, fs.cov, fs.last_time, fs.initialised, zb, tb, lens, lb, restart, buffer,
-                               empty3,
-                               offset, ahead_times[begin:end] if with_ahead else empty2,
-                               ahead_buffer if with_ahead else empty4)
+                over_targets(ckin.run_block, n, fp.order, fp.process_noise, fp.measurement_noise, fp.initial_variance,
+                             float(fp.time_unit), float(fp.max_step), float(fp.max_variance),
+                             fs.mean, fs.cov, fs.last_time, fs.initialised, zb, tb, lens, lb, restart, buffer, empty3,
+                             offset, ahead_b, ahead_buffer if with_ahead else empty4)
             offset += family.n_experts
         w_block = np.full((rows, n, k), np.nan) if record_experts else empty3
-        crules.run_block(*rule_args, a, b, c, d, e, *cal_args, *cal, buffer, zb, lens, lb & ~restart,
-                         forecasts[begin:end], std[begin:end],
-                         covariance[begin:end] if record_covariance else empty4, w_block,
-                         ahead_buffer if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3,
-                         ahead_std[begin:end] if with_ahead else empty3)
+        over_targets(crules.run_block, n, *rule_args, a, b, c, d, e, *cal_args, *cal, buffer, zb, lens, lb & ~restart,
+                     forecasts[begin:end], std[begin:end], covariance[begin:end] if record_covariance else empty4,
+                     w_block, ahead_buffer if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3,
+                     ahead_std[begin:end] if with_ahead else empty3)
         if lead is not None:
-            clead.run_block(*rule_args, *lead_rule, *cal_args, *lead_cal, ahead_times[begin:end], float(lead.tolerance),
-                            due, pending, ahead_buffer, zb, tb, lens, lb, lb & started, restart, lead_out[begin:end],
-                            lead_std[begin:end], lead_covariance[begin:end] if record_covariance else empty4)
+            over_targets(clead.run_block, n, *rule_args, *lead_rule, *cal_args, *lead_cal, ahead_b,
+                         float(lead.tolerance), due, pending, ahead_buffer, zb, tb, lens, lb, lb & started, restart,
+                         lead_out[begin:end], lead_std[begin:end],
+                         lead_covariance[begin:end] if record_covariance else empty4)
         if record_experts:
             experts_out[begin:end] = buffer
             weights_out[begin:end] = w_block

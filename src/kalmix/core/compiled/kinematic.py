@@ -1,4 +1,4 @@
-"""Compiled kinematic family (:mod:`kalmix.core.families.kinematic`): same formulas, one target per thread.
+"""Compiled kinematic family (:mod:`kalmix.core.families.kinematic`): same formulas, targets in ranges on threads.
 
 :func:`run_block` advances every target through its rows of a block: at each row it
 writes every expert's forecast of the row (and its variance) into the bank's shared
@@ -13,10 +13,10 @@ import math
 import numba as nb
 import numpy as np
 
-from ._cache import configure_cache
+from ._cache import JIT as _JIT
+from ._cache import KERNEL_JIT, configure_cache
 
 configure_cache()
-_JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 _FACT = (1.0, 1.0, 2.0)
 
 
@@ -150,22 +150,26 @@ def step_expert(order, delta, q, r, initial_k, max_variance, started, learn, fre
     return variance
 
 
-@nb.njit(parallel=True, **_JIT)
-def run_block(order, q, r, initial, time_unit, max_step, max_variance,
-              mean, cov, last_time, initialised,
+def run_block(lo, hi, order, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead):
-    n_targets = z.shape[1]
+    """Targets ``lo .. hi - 1`` through their rows of the block (scratch allocated here, once a call)."""
+    p = z.shape[2]
+    square = lambda: np.empty((order, order))  # noqa: E731
+    _run_block(lo, hi, order, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
+               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
+               np.empty((order, p)), square(), square(), square(), np.empty(order), square())
+
+
+@nb.njit(**KERNEL_JIT)
+def _run_block(lo, hi, order, q, r, initial, time_unit, max_step, max_variance,
+               mean, cov, last_time, initialised,
+               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
+               m_pred, c_pred, f, work, gain, a):
     k_count = q.shape[0]
     p = z.shape[2]
     want_var = out_var.shape[0] > 0
     want_ahead = out_ahead.shape[0] > 0
-    for n in nb.prange(n_targets):
-        m_pred = np.empty((order, p))
-        c_pred = np.empty((order, order))
-        f = np.empty((order, order))
-        work = np.empty((order, order))
-        gain = np.empty(order)
-        a = np.empty((order, order))
+    for n in range(lo, hi):
         for t in range(lengths[n]):
             # every expert's forecast of this row, then its learning (a restart row starts it again)
             learning = learn[t, n]

@@ -1,4 +1,4 @@
-"""Compiled lead head (:mod:`kalmix.core.lead`): same rule, same numbers, one target per thread."""
+"""Compiled lead head (:mod:`kalmix.core.lead`): same rule, same numbers, targets in ranges on threads."""
 
 from __future__ import annotations
 
@@ -7,36 +7,39 @@ import math
 import numba as nb
 import numpy as np
 
-from ._cache import configure_cache
+from ._cache import JIT as _JIT
+from ._cache import KERNEL_JIT, configure_cache
 from .calibration import calibrate_row
-from .rules import _learn, forecast_row, write_row
+from .rules import _copy_matrix, _learn, forecast_row, scratch, write_row
 
 configure_cache()
-_JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 
 __all__ = ["run_block"]
 
 
-@nb.njit(parallel=True, **_JIT)
-def run_block(rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
+def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
               due_times, tolerance, due, pending, ahead_experts, z, times, lengths, learn, keep, restart,
               out, out_std, out_cov):
     """For every row: score the pending forecasts due at its time (``learn & ~restart`` rows), forecast
     ``due_times`` from ``ahead_experts`` with the lead weights, keep that forecast if a slot is free
-    (``keep & ~restart`` rows: learned, not a target's first)."""
-    n_targets = z.shape[1]
+    (``keep & ~restart`` rows: learned, not a target's first). Targets ``lo .. hi - 1``."""
+    _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
+               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
+               due_times, tolerance, due, pending, ahead_experts, z, times, lengths, learn, keep, restart,
+               out, out_std, out_cov, *scratch(ahead_experts.shape[2], z.shape[2]))
+
+
+@nb.njit(**KERNEL_JIT)
+def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
+               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
+               due_times, tolerance, due, pending, ahead_experts, z, times, lengths, learn, keep, restart,
+               out, out_std, out_cov, awake, w, logw, r, mix, cov):
     k_count = ahead_experts.shape[2]
     p = z.shape[2]
     slots = due.shape[1]
     want_cov = out_cov.shape[0] > 0
-    for n in nb.prange(n_targets):
-        awake = np.empty(k_count, dtype=np.bool_)
-        w = np.empty(k_count)
-        logw = np.empty(k_count)
-        r = np.empty(k_count)
-        mix = np.empty(p)
-        cov = np.empty((p, p))
+    for n in range(lo, hi):
         dn = d[n:n + 1]
         en = e[n:n + 1]
         ls = log_scale[n:n + 1]
@@ -60,7 +63,7 @@ def run_block(rule, forgetting, share, scale, scale_factor, bound_forgetting, a,
                     if not due[n, s] <= now + tolerance:
                         if kept != s:
                             due[n, kept] = due[n, s]
-                            pending[n, kept] = pending[n, s]
+                            _copy_matrix(pending[n, s], pending[n, kept])
                         kept += 1
                 for s in range(kept, slots):
                     due[n, s] = np.nan
@@ -70,7 +73,7 @@ def run_block(rule, forgetting, share, scale, scale_factor, bound_forgetting, a,
                                  variance[n], ls[0], max_variance, cov)
             write_row(count, mix, cov, out[t, n], out_std[t, n])
             if want_cov:
-                out_cov[t, n] = cov
+                _copy_matrix(cov, out_cov[t, n])
             if restart[t, n]:
                 for s in range(slots):
                     due[n, s] = np.nan
@@ -79,5 +82,5 @@ def run_block(rule, forgetting, share, scale, scale_factor, bound_forgetting, a,
                 for s in range(slots):
                     if math.isnan(due[n, s]):
                         due[n, s] = due_times[t, n]
-                        pending[n, s] = xa
+                        _copy_matrix(xa, pending[n, s])
                         break

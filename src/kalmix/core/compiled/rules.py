@@ -1,4 +1,4 @@
-"""Compiled aggregation rules (:mod:`kalmix.core.aggregators`): same formulas, one target per thread.
+"""Compiled aggregation rules (:mod:`kalmix.core.aggregators`): same formulas, targets in ranges on threads.
 
 Every rule's state is packed into the same five arrays (``a, b, c`` of shape ``(N, K)``,
 ``d, e`` of shape ``(N,)``) so that one driver, :func:`run_block`, serves them all:
@@ -19,11 +19,12 @@ import math
 import numba as nb
 import numpy as np
 
-from ._cache import configure_cache
+from ._cache import JIT as _JIT
+from ._cache import KERNEL_JIT, configure_cache
 from .calibration import calibrate_row, moments_row
 
+
 configure_cache()
-_JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 
 #: Rule codes of the driver, in the order of :data:`kalmix.core.aggregators.RULES`.
 RULE_CODES = {"boa": 0, "mlpoly": 1, "fixed_share": 2}
@@ -198,6 +199,14 @@ def forecast_row(rule, forgetting, share, a, b, c, d, x, awake, w, logw, mix, va
 
 
 @nb.njit(inline="always", **_JIT)
+def _copy_matrix(source, out):
+    """``out[:] = source`` without a temporary (the drivers run without the runtime that allocates one)."""
+    for i in range(source.shape[0]):
+        for j in range(source.shape[1]):
+            out[i, j] = source[i, j]
+
+
+@nb.njit(inline="always", **_JIT)
 def write_row(count, mix, cov, out, out_std):
     """One target's forecast (NaN if no expert is awake) and its standard deviations."""
     for ci in range(mix.shape[0]):
@@ -205,26 +214,36 @@ def write_row(count, mix, cov, out, out_std):
         out_std[ci] = math.sqrt(cov[ci, ci])
 
 
-@nb.njit(parallel=True, **_JIT)
-def run_block(rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
+def scratch(k_count: int, p: int):
+    """A target's scratch of :func:`forecast_row` and :func:`_learn`: awake, w, logw, r, mix, cov."""
+    return (np.empty(k_count, dtype=np.bool_), np.empty(k_count), np.empty(k_count), np.empty(k_count),
+            np.empty(p), np.empty((p, p)))
+
+
+def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
               experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
               out_ahead_std):
     """Mixture forecast of every row (weights before the row) and its covariance, then learn the row
-    where ``learn`` (the rule and the calibration); ``out_cov`` and the others are optional (size 0)."""
-    n_targets = z.shape[1]
+    where ``learn`` (the rule and the calibration); ``out_cov`` and the others are optional (size 0).
+    Targets ``lo .. hi - 1``."""
+    _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
+               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
+               experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
+               out_ahead_std, *scratch(experts.shape[2], z.shape[2]))
+
+
+@nb.njit(**KERNEL_JIT)
+def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
+               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
+               experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
+               out_ahead_std, awake, w, logw, r, mix, cov):
     k_count = experts.shape[2]
     p = z.shape[2]
     want_weights = out_weights.shape[0] > 0
     want_ahead = out_ahead.shape[0] > 0
     want_cov = out_cov.shape[0] > 0
-    for n in nb.prange(n_targets):
-        awake = np.empty(k_count, dtype=np.bool_)
-        w = np.empty(k_count)
-        logw = np.empty(k_count)
-        r = np.empty(k_count)
-        mix = np.empty(p)
-        cov = np.empty((p, p))
+    for n in range(lo, hi):
         dn = d[n:n + 1]
         en = e[n:n + 1]
         ls = log_scale[n:n + 1]
@@ -234,7 +253,7 @@ def run_block(rule, forgetting, share, scale, scale_factor, bound_forgetting, a,
                                  variance[n], ls[0], max_variance, cov)
             write_row(count, mix, cov, out[t, n], out_std[t, n])
             if want_cov:
-                out_cov[t, n] = cov
+                _copy_matrix(cov, out_cov[t, n])
             if want_weights:
                 for k in range(k_count):
                     out_weights[t, n, k] = w[k]

@@ -1,4 +1,4 @@
-"""Compiled glitch screen (:mod:`kalmix.core.screen`): same formulas, one target per thread.
+"""Compiled glitch screen (:mod:`kalmix.core.screen`): same formulas, targets in ranges on threads.
 
 :func:`screen_row` is the whole test for one target and one row; the CPU driver
 :func:`screen_block` and the GPU kernel (:mod:`.gpu`) both call it.
@@ -10,10 +10,10 @@ import math
 
 import numba as nb
 
-from ._cache import configure_cache
+from ._cache import JIT as _JIT
+from ._cache import KERNEL_JIT, configure_cache
 
 configure_cache()
-_JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 
 #: :func:`screen_row` results (GAP: a restart asked for on a missing row).
 SKIP, ACCEPT, RESTART, GAP = 0, 1, 2, 3
@@ -77,12 +77,11 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
     return RESTART if is_restart else ACCEPT
 
 
-@nb.njit(parallel=True, **_JIT)
-def screen_block(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
+@nb.njit(**KERNEL_JIT)
+def screen_block(lo, hi, threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
                  outliers, points, z, times, lengths, present, gaps, accept, restart, started):
     """Every row of a block; ``started[t, n]``: target ``n`` had an accepted row (since a restart) before row t."""
-    n_targets = z.shape[1]
-    for n in nb.prange(n_targets):
+    for n in range(lo, hi):
         for t in range(lengths[n]):
             started[t, n] = points[n] >= 1.0
             code = screen_row(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count,
