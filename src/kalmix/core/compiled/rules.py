@@ -23,7 +23,6 @@ from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
 from .calibration import calibrate_row, moments_row
 
-
 configure_cache()
 
 #: Rule codes of the driver, in the order of :data:`kalmix.core.aggregators.RULES`.
