@@ -17,12 +17,13 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["over_targets", "MIN_CHUNK"]
+__all__ = ["over_targets", "over_groups", "MIN_CHUNK"]
 
 #: Fewest targets a thread is given: below twice this, the kernel runs in the calling thread.
 MIN_CHUNK = 16
 _pool: ThreadPoolExecutor | None = None
 _lock = threading.Lock()
+_local = threading.local()   # ``inline``: this thread runs one group of targets; its kernels stay on it
 
 
 def _threads() -> int:
@@ -45,7 +46,7 @@ def _executor() -> ThreadPoolExecutor:
 def over_targets(kernel, n_targets: int, *args) -> None:
     """``kernel(lo, hi, *args)`` over ``[0, n_targets)`` in contiguous ranges, on up to numba's thread count."""
     threads = _threads()
-    if threads == 1 or n_targets < 2 * MIN_CHUNK:
+    if threads == 1 or n_targets < 2 * MIN_CHUNK or getattr(_local, "inline", False):
         kernel(0, n_targets, *args)
         return
     # a few ranges per thread, taken in turn, so that targets of unequal lengths still share the work;
@@ -69,3 +70,25 @@ def over_targets(kernel, n_targets: int, *args) -> None:
     finally:
         for future in futures:
             future.result()
+
+
+def over_groups(function, groups) -> list:
+    """``[function(g) for g in groups]``, the groups on up to numba's thread count of threads at once.
+
+    Each group runs whole on one thread (its kernels do not split it further), so a group's
+    Python work (masks, copies) overlaps with the other groups' kernels. Results are in the
+    order of ``groups``.
+    """
+    groups = list(groups)
+    threads = min(_threads(), len(groups))
+    if threads <= 1 or getattr(_local, "inline", False):
+        return [function(group) for group in groups]
+
+    def one(group):
+        _local.inline = True
+        try:
+            return function(group)
+        finally:
+            _local.inline = False
+
+    return list(_executor().map(one, groups))

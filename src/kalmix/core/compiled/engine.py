@@ -9,6 +9,8 @@ not depend on the block size.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from ..calibration import CalibrationState
@@ -22,7 +24,7 @@ from . import lead as clead
 from . import rules as crules
 from .calibration import pack_params as pack_calibration
 from . import screen as cscreen
-from ._threads import over_targets
+from ._threads import over_groups, over_targets
 
 __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
 
@@ -30,7 +32,9 @@ __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
 BUFFER_BYTES = 64 * 2**20
 #: More targets than this are run in groups of this many, each through all its rows: a group's state
 #: (~0.2 MB a target for the default bank) stays in the caches from row to row. Measured on 10,000
-#: targets x 50 rows, default bank, 2 cores: 2.07e6 expert-steps/s in one group, 3.5e6 in groups of 256.
+#: targets x 50 rows, default bank, 2 cores: 2.07e6 expert-steps/s in one group, 3.5e6 in groups of 256,
+#: 4.3-4.7e6 with the groups on threads (each whole on one thread, so its Python work overlaps with the
+#: others' kernels; 128, 256 and 512 targets a group measure the same within the noise).
 TARGET_GROUP = 256
 
 
@@ -257,25 +261,36 @@ def _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames
     if ahead_times is not None:
         ahead_times = np.broadcast_to(np.asarray(ahead_times, dtype=np.float64), (t_count, n))
     rows = lambda a, g: None if a is None else np.ascontiguousarray(a[:, g])  # noqa: E731
-    parts = []
-    for begin in range(0, n, TARGET_GROUP):
-        g = slice(begin, min(begin + TARGET_GROUP, n))
-        sub = tree_map(lambda a: a[g], state)
-        parts.append(run(bank, rows(z, g), rows(times, g), sub, lengths=lengths[g], learn=rows(learn, g),
-                         ahead_times=rows(ahead_times, g), ahead_frames=ahead_frames, record_experts=record_experts,
-                         score=rows(score, g), score_ahead=rows(score_ahead, g),
-                         record_covariance=record_covariance, restart=rows(gaps, g)))
+
     summed = score is not None    # experts / weights / expert_ahead are (N, K) sums, not (T, N, ...) rows
+    axes = {name: 0 if name == "state" or (summed and name in ("experts", "weights", "expert_ahead")) else 1
+            for name in EngineResult._fields}
     fields = {}
-    for name in EngineResult._fields:
-        values = [getattr(part, name) for part in parts]
-        if name == "state":
-            fields[name] = tree_map(lambda *a: np.concatenate(a, axis=0), *values)
-        elif values[0] is None:
-            fields[name] = None
-        else:
-            axis = 0 if summed and name in ("experts", "weights", "expert_ahead") else 1
-            fields[name] = np.concatenate(values, axis=axis)
+    allocate = threading.Lock()
+
+    def place(axis, g):
+        def put(out, part):
+            out[(slice(None),) * axis + (g,)] = part
+        return put
+
+    def group(g):
+        sub = tree_map(lambda a: a[g], state)
+        part = run(bank, rows(z, g), rows(times, g), sub, lengths=lengths[g], learn=rows(learn, g),
+                   ahead_times=rows(ahead_times, g), ahead_frames=ahead_frames, record_experts=record_experts,
+                   score=rows(score, g), score_ahead=rows(score_ahead, g),
+                   record_covariance=record_covariance, restart=rows(gaps, g))
+        # each group writes its part of the result from its own thread (the copies overlap with other groups)
+        with allocate:
+            if not fields:
+                for name in EngineResult._fields:
+                    axis = axes[name]
+                    fields[name] = tree_map(
+                        lambda a: np.empty(a.shape[:axis] + (n,) + a.shape[axis + 1:], a.dtype),
+                        getattr(part, name))
+        for name in EngineResult._fields:
+            tree_map(place(axes[name], g), fields[name], getattr(part, name))
+
+    over_groups(group, [slice(begin, min(begin + TARGET_GROUP, n)) for begin in range(0, n, TARGET_GROUP)])
     return EngineResult(**fields)
 
 
