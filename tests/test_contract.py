@@ -211,6 +211,31 @@ def test_target_ranges_cover_every_target_once(monkeypatch):
         _threads.over_targets(broken, 1000)
 
 
+def test_groups_run_in_order_on_at_most_numba_threads(monkeypatch):
+    """over_groups returns results in the groups' order, runs at most numba's thread count at once, and a
+    group's kernels stay on its thread (over_targets inside runs one call)."""
+    import threading
+    import time
+
+    from kalmix.core.compiled import _threads
+
+    monkeypatch.setattr(_threads, "_threads", lambda: 3)
+    running, peak, lock, calls = [0], [0], threading.Lock(), []
+
+    def group(g):
+        with lock:
+            running[0] += 1
+            peak[0] = max(peak[0], running[0])
+        _threads.over_targets(lambda lo, hi: calls.append((lo, hi)), 1000)
+        time.sleep(0.01)
+        with lock:
+            running[0] -= 1
+        return g * g
+
+    assert _threads.over_groups(group, range(10)) == [g * g for g in range(10)]
+    assert 1 < peak[0] <= 3 and sorted(calls) == [(0, 1000)] * 10
+
+
 @pytest.mark.parametrize("threads", [1, 3])
 def test_targets_on_threads_equal_one_thread(monkeypatch, threads):
     """The compiled engine over targets split across threads gives the bits of one thread (every family,

@@ -49,27 +49,11 @@ def over_targets(kernel, n_targets: int, *args) -> None:
     if threads == 1 or n_targets < 2 * MIN_CHUNK or getattr(_local, "inline", False):
         kernel(0, n_targets, *args)
         return
-    # a few ranges per thread, taken in turn, so that targets of unequal lengths still share the work;
-    # ``threads`` workers (the calling thread is one) drain one queue of ranges
+    # a few ranges per thread, taken in turn, so that targets of unequal lengths still share the work
     pieces = min(4 * threads, math.ceil(n_targets / MIN_CHUNK))
     edges = [round(i * n_targets / pieces) for i in range(pieces + 1)]
-    ranges = iter([(lo, hi) for lo, hi in zip(edges[:-1], edges[1:]) if hi > lo])
-    take = threading.Lock()
-
-    def drain():
-        while True:
-            with take:
-                piece = next(ranges, None)
-            if piece is None:
-                return
-            kernel(piece[0], piece[1], *args)
-
-    futures = [_executor().submit(drain) for _ in range(min(threads, pieces) - 1)]
-    try:
-        drain()
-    finally:
-        for future in futures:
-            future.result()
+    _drain([(lo, hi) for lo, hi in zip(edges[:-1], edges[1:]) if hi > lo], lambda r: kernel(r[0], r[1], *args),
+           threads)
 
 
 def over_groups(function, groups) -> list:
@@ -83,12 +67,37 @@ def over_groups(function, groups) -> list:
     threads = min(_threads(), len(groups))
     if threads <= 1 or getattr(_local, "inline", False):
         return [function(group) for group in groups]
+    results = [None] * len(groups)
 
-    def one(group):
-        _local.inline = True
+    def one(item):
+        results[item[0]] = function(item[1])
+
+    _drain(list(enumerate(groups)), one, threads, inline=True)
+    return results
+
+
+def _drain(items, work, threads: int, inline: bool = False) -> None:
+    """``work(item)`` for every item, taken in turn by ``threads`` workers, the calling thread one of them;
+    with ``inline``, the workers' own kernels stay on their thread. Re-raises the first error."""
+    queue = iter(items)
+    take = threading.Lock()
+
+    def worker():
+        before = getattr(_local, "inline", False)
+        _local.inline = inline or before
         try:
-            return function(group)
+            while True:
+                with take:
+                    item = next(queue, None)
+                if item is None:
+                    return
+                work(item)
         finally:
-            _local.inline = False
+            _local.inline = before
 
-    return list(_executor().map(one, groups))
+    futures = [_executor().submit(worker) for _ in range(min(threads, len(items)) - 1)]
+    try:
+        worker()
+    finally:
+        for future in futures:
+            future.result()
