@@ -65,6 +65,20 @@ CONFIGS = {
     "mixed68+ar48 fixed_share(online)": dict(kind="mixed+ar", rule="fixed_share"),
     "mixed68+ar48 fixed_share(sigma=2u)": dict(kind="mixed+ar", rule="fixed_share", fixed_scale=2.0),
     "kinematic28+ar48 fixed_share(online)": dict(kind="kinematic+ar", rule="fixed_share"),
+    "turn3 boa, bound forgetting .99": dict(kind="turn", rule="boa", rule_options={"bound_forgetting": 0.99}),
+    "kinematic28+ar48+turn3 boa, bound forgetting .99": dict(kind="kinematic+ar+turn", rule="boa",
+                                                             rule_options={"bound_forgetting": 0.99}),
+    "mixed68+ar48+turn3 boa": dict(kind="mixed+ar+turn", rule="boa"),
+    "mixed68+ar48+turn3 boa, bound forgetting .99": dict(kind="mixed+ar+turn", rule="boa",
+                                                         rule_options={"bound_forgetting": 0.99}),
+    "mixed68+ar48+turn3 mlpoly": dict(kind="mixed+ar+turn", rule="mlpoly"),
+    "mixed68+ar48+turn3 fixed_share(online)": dict(kind="mixed+ar+turn", rule="fixed_share"),
+    "mixed68+ar48+turn1 (gain 1) boa, bound forgetting .99": dict(kind="mixed+ar+turn", rule="boa",
+                                                                  turn_gains=(1.0,),
+                                                                  rule_options={"bound_forgetting": 0.99}),
+    "mixed68+ar48+turn5 (gains .5-2.5) boa, bound forgetting .99": dict(
+        kind="mixed+ar+turn", rule="boa", turn_gains=(0.5, 1.0, 1.5, 2.0, 2.5),
+        rule_options={"bound_forgetting": 0.99}),
 }
 
 

@@ -23,7 +23,7 @@ def test_contract_benign(kind, rule):
 
 
 @pytest.mark.parametrize("rule", RULES)
-@pytest.mark.parametrize("kind", ["kinematic", "akf", "ar", "kinematic+ar"])
+@pytest.mark.parametrize("kind", ["kinematic", "akf", "ar", "kinematic+ar", "turn", "kinematic+ar+turn"])
 def test_contract_adversarial(kind, rule):
     """Jumps of 1e8, a 200-row gap, constant input, values of 1e200: finite, and compiled == reference.
 

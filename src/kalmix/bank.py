@@ -93,10 +93,10 @@ def _check_pair(name, pair):
     return low, high
 
 
-def _check_levels(name, levels, upper=None):
+def _check_levels(name, levels, upper=None, allow_zero=False):
     if isinstance(levels, (str, bytes)) or not hasattr(levels, "__iter__"):
-        raise ValueError(f"{name}: expected a sequence of numbers > 0, got {levels!r}")
-    values = [_check_positive(f"{name}[{i}]", v, upper=upper) for i, v in enumerate(levels)]
+        raise ValueError(f"{name}: expected a sequence of numbers {'>=' if allow_zero else '>'} 0, got {levels!r}")
+    values = [_check_positive(f"{name}[{i}]", v, upper=upper, allow_zero=allow_zero) for i, v in enumerate(levels)]
     if not values:
         raise ValueError(f"{name}: expected at least one value, got none")
     return values
@@ -328,7 +328,8 @@ def make_params(
 # Banks of expert families under an aggregation rule (kalmix.core.engine)
 
 #: Bank recipes of :func:`make_bank`.
-BANK_KINDS = ("mixed", "kinematic", "akf", "ar", "kinematic+ar", "mixed+ar")
+BANK_KINDS = ("mixed", "kinematic", "akf", "ar", "kinematic+ar", "mixed+ar", "turn", "kinematic+ar+turn",
+              "mixed+ar+turn")
 #: Options of each rule that :func:`make_bank` uses unless ``rule_options`` says otherwise. BOA's range
 #: bound forgets at 0.99 a row: with the original rule (1.0) one kick of hawkeye_ball's ball capped every
 #: learning rate for the rest of the track (RMS 0.02007 against 0.01956; neutral on the other recordings).
@@ -369,6 +370,19 @@ def _ar(order, unit, time_unit, forgetting, ridge, **options):
     rho = np.tile(np.asarray(ridge, float), len(forgetting))
     return ARParams(order=int(order), forgetting=lam, ridge=rho, length_unit=float(unit),
                     time_unit=float(time_unit), **options)
+
+
+#: Gains of the coordinated-turn experts (the fraction of the last turn rate carried forward). The rules'
+#: weights are convex, so gains on both sides of 1 let the mixture reach any fraction of the turn.
+TURN_GAINS = (0.5, 1.0, 1.5)
+
+
+def _parts(kind: str) -> set:
+    """The families of a recipe: ``"mixed"`` is the kinematic and AKF families."""
+    parts = set(kind.split("+"))
+    if "mixed" in parts:
+        parts = (parts - {"mixed"}) | {"kinematic", "akf"}
+    return parts
 
 
 def _check_ar_options(options):
@@ -419,6 +433,7 @@ def make_bank(
     ar_forgetting=AR_FORGETTING,
     ar_ridge=AR_RIDGE,
     ar_options: dict | None = None,
+    turn_gains=TURN_GAINS,
 ):
     """Build and validate a bank of expert families and its aggregation rule.
 
@@ -433,7 +448,11 @@ def make_bank(
     - ``"ar"``: adaptive autoregressive models of the velocity in real time
       (:mod:`kalmix.core.families.ar`), one family per order in ``ar_orders``, one expert
       per pair (forgetting, ridge): 4 x 6 x 2 = 48 experts;
-    - ``"kinematic+ar"``, ``"mixed+ar"``: those banks and the AR families (76, 116 experts).
+    - ``"kinematic+ar"``, ``"mixed+ar"``: those banks and the AR families (76, 116 experts);
+    - ``"turn"``: coordinated-turn experts (:mod:`kalmix.core.families.turn`), one per gain
+      in ``turn_gains`` (3 experts);
+    - ``"kinematic+ar+turn"``, ``"mixed+ar+turn"``: those banks and the turn family
+      (79, 119 experts; ``"mixed+ar+turn"`` is the default, :data:`DEFAULT_BANK`).
 
     Parameters
     ----------
@@ -478,6 +497,8 @@ def make_bank(
         typical samples the persistence prior weighs).
     ar_options : dict, optional
         Other :class:`kalmix.core.families.ar.ARParams` fields (``bias``, ``jump_threshold``, ...).
+    turn_gains : sequence of float
+        The turn family's experts: fractions >= 0 of the last turn rate carried forward.
     """
     from .core import aggregators
     from .core.engine import Bank, Family
@@ -505,7 +526,8 @@ def make_bank(
         share = _check_positive("rule_options['share']", options["share"], allow_zero=True)
         if share >= 1:
             raise ValueError(f"rule_options['share']: expected a number in [0, 1), got {share!r}")
-    if kind in ("ar", "kinematic+ar", "mixed+ar"):
+    parts = _parts(kind)
+    if "ar" in parts:
         ar_orders = _check_levels("ar_orders", ar_orders)
         for i, order in enumerate(ar_orders):
             if order != int(order):
@@ -513,14 +535,21 @@ def make_bank(
         _check_levels("ar_forgetting", ar_forgetting, upper=1.0)
         _check_levels("ar_ridge", ar_ridge)
         ar_options = _check_ar_options(ar_options)
+    if "turn" in parts:
+        turn_gains = _check_levels("turn_gains", turn_gains, allow_zero=True)
     families = []
-    if kind in ("kinematic", "mixed", "kinematic+ar", "mixed+ar"):
+    if "kinematic" in parts:
         families.append(Family("cv", _kinematic(2, unit, tunit, process_levels, measurement_levels)))
         families.append(Family("ca", _kinematic(3, unit, tunit, process_levels, measurement_levels)))
-    if kind in ("ar", "kinematic+ar", "mixed+ar"):
+    if "ar" in parts:
         families.extend(Family("ar", _ar(order, unit, tunit, ar_forgetting, ar_ridge, **(ar_options or {})))
                         for order in ar_orders)
-    if kind in ("akf", "mixed", "mixed+ar"):
+    if "turn" in parts:
+        from .core.families.turn import TurnParams
+
+        families.append(Family("turn", TurnParams(gain=np.asarray(turn_gains, float), length_unit=unit,
+                                                  time_unit=tunit)))
+    if "akf" in parts:
         akf = make_params(p, _check_int("n_akf", n_akf, 1), seed=seed, length_unit=unit,
                           **{**(akf_options or {}), "adapt_noise": False})
         families.append(Family("akf", akf))
@@ -546,7 +575,9 @@ def make_bank(
                        process_levels=[float(v) for v in process_levels],
                        measurement_levels=[float(v) for v in measurement_levels],
                        rule_options=options, akf_options=dict(akf_options or {}))
-    if kind in ("ar", "kinematic+ar", "mixed+ar"):
+    if "turn" in parts:
+        description.update(turn_gains=[float(v) for v in turn_gains])
+    if "ar" in parts:
         description.update(ar_orders=[int(v) for v in ar_orders], ar_forgetting=[float(v) for v in ar_forgetting],
                            ar_ridge=[float(v) for v in ar_ridge], ar_options=ar_options)
     return Bank(measurement_dim=p, families=tuple(families), rule=rule, rule_params=module.Params(**options),

@@ -17,6 +17,7 @@ import click
 import numpy as np
 
 from ..bank import BANK_KINDS, DEFAULT_BANK, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED
+from ..bank import _parts as _bank_parts
 
 _LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres). "
                      "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
@@ -232,7 +233,8 @@ def _local_only(given, output):
                    "new directory (a partitioned Parquet dataset).")
 @click.option("--bank", "bank_kind", default=None, type=click.Choice(list(BANK_KINDS)),
               help="Expert families: CV/CA Kalman filters in real time and the paper's AKFs (mixed), "
-                   "one of them alone, or with adaptive AR models of the velocity (+ar, ar) [default: mixed].")
+                   "one of them alone, with adaptive AR models of the velocity (+ar, ar) and coordinated-turn "
+                   f"experts (+turn, turn) [default: {DEFAULT_BANK['kind']}].")
 @click.option("--rule", default=None, type=click.Choice(["boa", "mlpoly", "fixed_share"]),
               help="Aggregation rule [default: boa].")
 @click.option("--time-unit", default=None, type=click.FloatRange(min=0, min_open=True),
@@ -320,9 +322,9 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
                     raise ValueError(f"{name}: the state file {state_path} was made with {have}, got {given}; "
                                      "use a new --state file to change it")
         kind = bank_kind or (engine.config.bank if engine is not None else DEFAULT_BANK["kind"])
-        if kind in ("kinematic", "ar", "kinematic+ar") and (n_experts is not None or options):
+        if "akf" not in _bank_parts(kind) and (n_experts is not None or options):
             raise ValueError(f"{'--experts' if n_experts is not None else '--option'}: sets the AKF family, "
-                             f"and --bank {kind} has none (use --bank mixed, mixed+ar or akf)")
+                             f"and --bank {kind} has none (use --bank mixed, mixed+ar, mixed+ar+turn or akf)")
         if lead is not None and horizon != 1:
             raise ValueError(f"--lead and --horizon: give one of them (--horizon H is the lead of H time units), "
                              f"got --lead {lead:g} and --horizon {horizon}")

@@ -48,16 +48,16 @@ import numpy as np
 from . import aggregators, calibration
 from . import lead as lead_head
 from . import screen as glitch
-from .families import akf, ar, kinematic
+from .families import akf, ar, kinematic, turn
 
 __all__ = ["Family", "Bank", "BankState", "EngineResult", "StepOutput", "init_bank_state", "run", "step", "forecast",
            "FAMILY_KINDS", "FAMILY_MODULES", "check_run_arguments"]
 
-#: Family kinds: kinematic CV / CA and adaptive AR of the velocity in real time, and the paper's
-#: AKF (frame-based).
-FAMILY_KINDS = ("cv", "ca", "ar", "akf")
+#: Family kinds: kinematic CV / CA, adaptive AR of the velocity and coordinated turns in real time,
+#: and the paper's AKF (frame-based).
+FAMILY_KINDS = ("cv", "ca", "ar", "turn", "akf")
 #: Each kind's module (:mod:`kalmix.core.families`).
-FAMILY_MODULES = {"cv": kinematic, "ca": kinematic, "ar": ar, "akf": akf}
+FAMILY_MODULES = {"cv": kinematic, "ca": kinematic, "ar": ar, "turn": turn, "akf": akf}
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,7 +65,7 @@ class Family:
     """One family of a bank: ``kind`` in :data:`FAMILY_KINDS` and its parameters."""
 
     kind: str
-    params: Any   # KinematicParams for cv / ca, ARParams for ar, MixtureParams for akf
+    params: Any   # KinematicParams for cv / ca, ARParams for ar, TurnParams for turn, MixtureParams for akf
 
     @property
     def n_experts(self) -> int:
@@ -215,7 +215,7 @@ def _family_forecast(family: Family, state, time, frames: int):
     if family.kind == "akf":
         means, _ = akf.forecast(family.params, state, frames)
         return np.where(state.initialised[:, None, None], means, np.nan)
-    means, _ = family.module.forecast(family.params, state, time)   # time-based: cv, ca, ar
+    means, _ = family.module.forecast(family.params, state, time)   # time-based: cv, ca, ar, turn
     return np.where(state.initialised[:, None, None], means, np.nan)
 
 

@@ -327,6 +327,8 @@ def _expert_name(bank, expert):
     if family.kind == "ar":
         fp = family.params
         return f"ar{fp.order}(forgetting={fp.forgetting[i]:.4g}, ridge={fp.ridge[i]:.3g})"
+    if family.kind == "turn":
+        return f"turn(gain={family.params.gain[i]:.3g})"
     return (f"{family.kind}(q={family.params.process_noise[i]:.3g}, r={family.params.measurement_noise[i]:.3g})")
 
 
@@ -346,6 +348,8 @@ def _single_expert_bank(bank, expert):
     elif family.kind == "ar":
         single = family.params._replace(forgetting=family.params.forgetting[i:i + 1],
                                         ridge=family.params.ridge[i:i + 1])
+    elif family.kind == "turn":
+        single = family.params._replace(gain=family.params.gain[i:i + 1])
     else:
         single = family.params._replace(process_noise=family.params.process_noise[i:i + 1],
                                         measurement_noise=family.params.measurement_noise[i:i + 1],

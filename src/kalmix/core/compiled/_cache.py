@@ -17,7 +17,7 @@ KERNEL_JIT = dict(JIT, _nrt=False)
 #: Every file whose code ends up in a compiled kernel.
 COMPILED_SOURCES = (
     "_numba_linalg.py", "_numba_kernels.py", "_numba_scalar.py",
-    "compiled/kinematic.py", "compiled/ar.py", "compiled/rules.py", "compiled/screen.py", "compiled/_cache.py",
+    "compiled/kinematic.py", "compiled/ar.py", "compiled/turn.py", "compiled/rules.py", "compiled/screen.py", "compiled/_cache.py",
     "compiled/calibration.py", "compiled/lead.py",
 )
 

@@ -22,6 +22,7 @@ from . import ar as car
 from . import kinematic as ckin
 from . import lead as clead
 from . import rules as crules
+from . import turn as cturn
 from .calibration import pack_params as pack_calibration
 from . import screen as cscreen
 from ._threads import over_groups, over_targets
@@ -217,6 +218,10 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
                              float(fp.jump_threshold), float(fp.window), float(fp.max_step), float(fp.max_velocity),
                              *fs, zb, tb, lens, lb, restart, buffer, empty3, offset, ahead_b,
                              ahead_buffer if with_ahead else empty4)
+            elif family.kind == "turn":
+                over_targets(cturn.run_block, n, fp.gain, float(fp.length_unit), float(fp.time_unit), float(fp.window),
+                             float(fp.max_step), float(fp.max_velocity), *fs, zb, tb, lens, lb, restart, buffer, empty3,
+                             offset, ahead_b, ahead_buffer if with_ahead else empty4)
             else:
                 over_targets(ckin.run_block, n, fp.order, fp.process_noise, fp.measurement_noise, fp.initial_variance,
                              float(fp.time_unit), float(fp.max_step), float(fp.max_variance),
