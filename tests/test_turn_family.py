@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from kalmix.bank import make_bank
+from kalmix.bank import DEFAULT_BANK, make_bank
 from kalmix.core import engine
 from kalmix.core.compiled import engine as ce
 from kalmix.core.families import turn
@@ -61,6 +61,13 @@ def test_gain_zero_goes_straight_on_at_the_arc_speed_and_gain_one_follows_the_ci
     np.testing.assert_allclose(means[0, 0], z[-1] + 2.0 * arc_speed * (z[-1] - z[-2]), atol=1e-12)
     np.testing.assert_allclose(means[0, 1], _circle(np.array([t[-1] + 2.0]), omega=0.4)[0], atol=1e-9)
     assert np.all(variances > 0) and variances.shape == (1, 2)
+
+
+def test_the_default_bank_has_the_turn_family():
+    bank = make_bank(2, **DEFAULT_BANK)
+    kinds = [f.kind for f in bank.families]
+    assert "turn" in kinds and "ar" in kinds and "akf" in kinds and "cv" in kinds
+    assert bank.n_experts == 119
 
 
 def test_turn_gains_are_checked():

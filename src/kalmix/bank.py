@@ -590,4 +590,4 @@ def make_bank(
 
 #: The default bank and rule of ``kalmix predict`` / ``evaluate`` / :class:`kalmix.streaming.TrackPredictor`,
 #: chosen by the ablation on the shipped recordings and the paper scenario (README, "Choosing the default").
-DEFAULT_BANK = {"kind": "mixed+ar", "rule": "boa"}
+DEFAULT_BANK = {"kind": "mixed+ar+turn", "rule": "boa"}

@@ -139,7 +139,7 @@ def check_bank(bank: Bank) -> None:
     kinds = [f.kind for f in bank.families]
     if any(kind not in ("cv", "ca") for kind in kinds):
         raise ValueError(f"backend 'gpu': runs banks of kinematic families (cv, ca) only, got families {kinds}; "
-                         "use make_bank(p, 'kinematic') or the CPU engine for the AR and AKF families")
+                         "use make_bank(p, 'kinematic') or the CPU engine for the AR, turn and AKF families")
     if bank.n_experts > MAX_EXPERTS:
         raise ValueError(f"backend 'gpu': at most {MAX_EXPERTS} experts, got {bank.n_experts}")
     if bank.measurement_dim > 3:

@@ -16,16 +16,10 @@ import numpy as np
 
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
+from .ar import _clip   # NaN -> 0, then clipped to +-bound
 from .kinematic import _delta   # the same clipped step in time units
 
 configure_cache()
-
-
-@nb.njit(inline="always", **_JIT)
-def _clip(value, bound):
-    if math.isnan(value):
-        return 0.0
-    return min(max(value, -bound), bound)
 
 
 @nb.njit(inline="always", **_JIT)

@@ -45,6 +45,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .ar import _dot   # a sum over the last axis in the kernel's order
 from .kinematic import _step   # the same clipped step in time units (params.time_unit, max_step; state.last_time)
 
 __all__ = ["TurnParams", "TurnState", "init_state", "forecast", "update", "turn_geometry"]
@@ -92,14 +93,6 @@ def init_state(params: TurnParams, n_targets: int, measurement_dim: int) -> Turn
         last_time=np.full(n_targets, np.nan),
         initialised=np.zeros(n_targets, dtype=bool),
     )
-
-
-def _dot(a, b):
-    """Sum over the last axis, term by term in order (the kernel's order)."""
-    acc = a[..., 0] * b[..., 0]
-    for j in range(1, a.shape[-1]):
-        acc = acc + a[..., j] * b[..., j]
-    return acc
 
 
 def turn_geometry(state: TurnState):
