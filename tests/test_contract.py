@@ -32,6 +32,21 @@ def test_contract_adversarial(kind, rule):
     check_bank(_bank(kind, rule), z, t)
 
 
+def _assert_identical(one, other):
+    """Two engine results have the same bits in every output and every state leaf (shapes included)."""
+    from kalmix.streaming import _leaves
+
+    for name in one._fields:
+        a, b = getattr(one, name), getattr(other, name)
+        if name == "state":
+            for (key, x), (_, y) in zip(_leaves(a), _leaves(b)):
+                assert np.array_equal(x, y, equal_nan=True), key
+        elif a is None:
+            assert b is None, name
+        else:
+            assert np.array_equal(a, b, equal_nan=True), name
+
+
 def _gaps(shape, seed):
     """Gap restarts at 4 % of the rows, half of them on missing rows."""
     rng = np.random.default_rng(seed)
@@ -168,16 +183,7 @@ def test_target_groups_equal_one_pass(monkeypatch, scored):
                                                           else score[60:], "score_ahead": None if score is None
                                                           else score[60:]})
     assert n > 3
-    for name in whole._fields:
-        a, b = getattr(whole, name), getattr(grouped, name)
-        if name == "state":
-            from kalmix.streaming import _leaves
-            for (key, x), (_, y) in zip(_leaves(a), _leaves(b)):
-                assert np.array_equal(x, y, equal_nan=True), key
-        elif a is None:
-            assert b is None, name
-        else:
-            assert a.shape == b.shape and np.array_equal(a, b, equal_nan=True), name
+    _assert_identical(whole, grouped)
 
 
 def test_target_ranges_cover_every_target_once(monkeypatch):
@@ -242,7 +248,6 @@ def test_targets_on_threads_equal_one_thread(monkeypatch, threads):
     the rule, the lead head, the screen; adversarial and benign targets)."""
     from kalmix.core.compiled import _threads
     from kalmix.core.compiled import engine as ce
-    from kalmix.streaming import _leaves
 
     z, t = adversarial_tracks(seed=6, t_count=120)
     z = np.concatenate([z, benign_tracks(seed=7)[0][:120]], axis=1)
@@ -254,12 +259,4 @@ def test_targets_on_threads_equal_one_thread(monkeypatch, threads):
     monkeypatch.setattr(_threads, "_threads", lambda: threads)
     monkeypatch.setattr(_threads, "MIN_CHUNK", 1)                  # 7 targets: ranges of 1-2 targets
     split = ce.run(bank, z, t, lengths=lengths, record_experts=True, record_covariance=True)
-    for name in one._fields:
-        a, b = getattr(one, name), getattr(split, name)
-        if name == "state":
-            for (key, x), (_, y) in zip(_leaves(a), _leaves(b)):
-                assert np.array_equal(x, y, equal_nan=True), key
-        elif a is None:
-            assert b is None, name
-        else:
-            assert np.array_equal(a, b, equal_nan=True), name
+    _assert_identical(one, split)

@@ -7,6 +7,7 @@ from kalmix.bank import DEFAULT_BANK, make_bank
 from kalmix.core import engine
 from kalmix.core.compiled import engine as ce
 from kalmix.core.families import turn
+from kalmix.core.testing import check_bank
 
 
 def _run(z, t, gains=(0.0, 0.5, 1.0, 1.5), compiled=True):
@@ -75,3 +76,22 @@ def test_turn_gains_are_checked():
         make_bank(2, "turn", turn_gains=(1.0, -1.0))
     with pytest.raises(ValueError, match="turn_gains: expected at least one value"):
         make_bank(2, "mixed+ar+turn", turn_gains=())
+
+
+def test_compiled_equals_reference_after_huge_jumps_values_and_a_5000_row_gap():
+    """1e8 jumps, 1e200 values, a 5,000-row NaN gap and constant input on a turning track: the
+    contract (compiled == spec to 1e-9, resume, batch == single streams) and finite forecasts after it."""
+    rng = np.random.default_rng(3)
+    t = np.arange(6000.0)
+    z = np.column_stack([np.cos(t / 30) * 20, np.sin(t / 30) * 20]) + rng.normal(0, 0.1, (6000, 2))
+    z[150] += 1e8                       # a glitch
+    z[300:] += np.array([1e8, -1e8])    # a relocation
+    z[400] = 1e200                      # an absurd value
+    z[500:5500] = np.nan                # a 5,000-row gap
+    z[5800:] = z[5799]                  # constant input
+    z = np.stack([z, np.column_stack([t * 0.5, -t])], axis=1)   # and a straight track beside it
+    times = np.broadcast_to(t[:, None], z.shape[:2]).copy()
+    bank = make_bank(2, "turn", length_unit=0.3)
+    check_bank(bank, z, times)
+    result = ce.run(bank, z, times)
+    assert np.isfinite(result.forecasts[5600:]).all()

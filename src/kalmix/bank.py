@@ -17,7 +17,8 @@ from .core.mixture import DYNAMICS, GATINGS, MixtureParams
 
 __all__ = ["make_params", "noise_grid", "check_horizon", "check_length_unit", "MAX_HORIZON", "MAX_SEED",
            "LENGTH_UNIT_RANGE", "make_bank", "BANK_KINDS", "KINEMATIC_PROCESS_LEVELS",
-           "KINEMATIC_MEASUREMENT_LEVELS", "DEFAULT_BANK", "AR_ORDERS", "AR_FORGETTING", "AR_RIDGE"]
+           "KINEMATIC_MEASUREMENT_LEVELS", "DEFAULT_BANK", "AR_ORDERS", "AR_FORGETTING", "AR_RIDGE",
+           "TURN_GAINS", "recipe_parts"]
 
 #: Largest prediction horizon (frames ahead). A prediction H frames ahead costs H - 1
 #: matrix-vector products per expert and stream, so every call is bounded (about 30 ms for
@@ -377,7 +378,7 @@ def _ar(order, unit, time_unit, forgetting, ridge, **options):
 TURN_GAINS = (0.5, 1.0, 1.5)
 
 
-def _parts(kind: str) -> set:
+def recipe_parts(kind: str) -> set:
     """The families of a recipe: ``"mixed"`` is the kinematic and AKF families."""
     parts = set(kind.split("+"))
     if "mixed" in parts:
@@ -526,7 +527,7 @@ def make_bank(
         share = _check_positive("rule_options['share']", options["share"], allow_zero=True)
         if share >= 1:
             raise ValueError(f"rule_options['share']: expected a number in [0, 1), got {share!r}")
-    parts = _parts(kind)
+    parts = recipe_parts(kind)
     if "ar" in parts:
         ar_orders = _check_levels("ar_orders", ar_orders)
         for i, order in enumerate(ar_orders):

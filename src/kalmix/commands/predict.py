@@ -16,8 +16,7 @@ import warnings
 import click
 import numpy as np
 
-from ..bank import BANK_KINDS, DEFAULT_BANK, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED
-from ..bank import _parts as _bank_parts
+from ..bank import BANK_KINDS, DEFAULT_BANK, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED, recipe_parts
 
 _LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres). "
                      "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
@@ -322,7 +321,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
                     raise ValueError(f"{name}: the state file {state_path} was made with {have}, got {given}; "
                                      "use a new --state file to change it")
         kind = bank_kind or (engine.config.bank if engine is not None else DEFAULT_BANK["kind"])
-        if "akf" not in _bank_parts(kind) and (n_experts is not None or options):
+        if "akf" not in recipe_parts(kind) and (n_experts is not None or options):
             raise ValueError(f"{'--experts' if n_experts is not None else '--option'}: sets the AKF family, "
                              f"and --bank {kind} has none (use --bank mixed, mixed+ar, mixed+ar+turn or akf)")
         if lead is not None and horizon != 1:

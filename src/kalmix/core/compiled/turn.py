@@ -119,16 +119,16 @@ def _run_block(lo, hi, gain, length_unit, time_unit, window, max_step, max_veloc
                     known[n] = 0.0
                     for k in range(k_count):
                         error[n, k] = length_unit * length_unit
-                        count[n, k] = 1.0
+                    count[n] = 1.0
                 elif delta > 0:
+                    new_count = min(count[n] + 1.0, window)
                     for k in range(k_count):   # the velocity error of the forecast just written
                         squared = 0.0
                         for i in range(p):
                             e = _clip((z[t, n, i] - out[t, n, offset + k, i]) / delta, bound)
                             squared = e * e if i == 0 else squared + e * e
-                        new_count = min(count[n, k] + 1.0, window)
                         error[n, k] = error[n, k] + (squared / p - error[n, k]) / new_count
-                        count[n, k] = new_count
+                    count[n] = new_count
                     for i in range(p):
                         v[i] = _clip((z[t, n, i] - position[n, i]) / delta, bound)
                         previous[n, i] = velocity[n, i]

@@ -73,7 +73,7 @@ class TurnState(NamedTuple):
     previous_span: np.ndarray  # (N,) Delta_1
     known: np.ndarray        # (N,) intervals known since the start: 0, 1 or 2
     error: np.ndarray        # (N, K) running mean squared velocity error (per coordinate)
-    count: np.ndarray        # (N, K) samples in it (capped at window)
+    count: np.ndarray        # (N,) samples in it (capped at window; the same for every expert)
     position: np.ndarray     # (N, p) last learned measurement
     last_time: np.ndarray    # (N,) its time (NaN before the first)
     initialised: np.ndarray  # (N,) bool
@@ -88,7 +88,7 @@ def init_state(params: TurnParams, n_targets: int, measurement_dim: int) -> Turn
         previous_span=np.zeros(n_targets),
         known=np.zeros(n_targets),
         error=np.full((n_targets, k), params.length_unit**2),
-        count=np.ones((n_targets, k)),
+        count=np.ones(n_targets),
         position=np.zeros((n_targets, p)),
         last_time=np.full(n_targets, np.nan),
         initialised=np.zeros(n_targets, dtype=bool),
@@ -168,7 +168,7 @@ def update(params: TurnParams, state: TurnState, measurement: np.ndarray, time, 
     err = np.clip(np.where(np.isnan(err), 0.0, err), -bound, bound)
     squared = _dot(err, err) / err.shape[-1]                                        # (N, K)
     count = np.minimum(state.count + 1.0, params.window)
-    error = state.error + (squared - state.error) / count
+    error = state.error + (squared - state.error) / count[:, None]
 
     learned = learn & state.initialised & moved                                     # (N,)
     start = learn & ~state.initialised
