@@ -66,6 +66,35 @@ def test_contract_with_a_lead_head_and_gap_restarts(data, rule):
     check_bank(make_bank(2, "kinematic+ar", rule=rule, length_unit=0.3, lead=2.0), z, t, restart=restart)
 
 
+def test_the_lead_calibration_learns_the_miss_of_the_interval_it_issued():
+    """Delayed feedback: a lead forecast is scored against the interval issued with it, not today's.
+
+    The measurement is outside the narrow interval issued (std 0.1) and inside today's (std ~1):
+    the scale must grow by rate x (1 - 0.05). An old pending forecast without its interval (NaN,
+    a version-5 state file) falls back to today's, a cover: the scale shrinks by rate x 0.05.
+    The compiled head gives the same numbers."""
+    from kalmix.core import engine, lead
+    from kalmix.core.compiled import engine as compiled
+
+    bank = make_bank(2, "kinematic", length_unit=1.0, lead=1.0)
+    rate = bank.calibration_params.rate
+    for interval, expected in ((0.1, rate * 0.95), (np.nan, -rate * 0.05)):
+        state = engine.init_bank_state(bank, 1)
+        head = state.lead
+        due, pending, issued = head.due.copy(), head.pending.copy(), head.issued.copy()
+        due[0, 0], pending[0, 0], issued[0, 0, 0], issued[0, 0, 1] = 1.0, 0.0, 0.0, interval
+        head = head._replace(due=due, pending=pending, issued=issued)
+        learned = lead.learn(bank, head, np.array([[0.5, 0.5]]), np.array([1.0]), np.array([True]))
+        np.testing.assert_allclose(learned.calibration.log_scale, [expected], rtol=1e-12)
+        assert np.isnan(learned.issued).all() and np.isnan(learned.due).all()   # scored, then dropped
+        # the compiled head, through a one-row run at that time (a target's first row keeps no forecast)
+        z, t = np.array([[[0.5, 0.5]]]), np.array([[1.0]])
+        reference = engine.run(bank, z, t, state._replace(lead=head))
+        fast = compiled.run(bank, z, t, state._replace(lead=head))
+        np.testing.assert_allclose(fast.state.lead.calibration.log_scale, [expected], rtol=1e-12)
+        np.testing.assert_allclose(reference.state.lead.calibration.log_scale, [expected], rtol=1e-12)
+
+
 def test_fixed_scale_fixed_share_is_the_previous_rule():
     """fixed_share with a fixed scale is exponential weighting at rate 1/(2 sigma^2): check one step by hand."""
     from kalmix.core.aggregators import fixed_share

@@ -118,8 +118,9 @@ def test_version_4_files_resume_as_they_ran(tmp_path):
     first.save(tmp_path / "s.npz")
     archive = dict(np.load(tmp_path / "s.npz"))
     meta = json.loads(str(archive["meta"]))
-    assert meta["format_version"] == 5
+    assert meta["format_version"] == 6
     meta["format_version"] = 4
+    del archive["state/lead/issued"]
     del meta["config"]["rule_options"]
     np.savez(tmp_path / "v4.npz", **{**archive, "meta": np.array(json.dumps(meta))})
     second = TrackPredictor.load(tmp_path / "v4.npz")
@@ -129,6 +130,36 @@ def test_version_4_files_resume_as_they_ran(tmp_path):
     # the default now forgets the bound, and that changes the forecasts
     default = [r.next for r in _rows(TrackPredictor(StreamConfig(**CONFIG)), table)]
     assert not np.array_equal(np.array(default), np.array(whole), equal_nan=True)
+
+
+def test_version_5_files_resume_without_issued_intervals(tmp_path):
+    """Version 5 state files kept no issued interval with a pending lead forecast: they resume (those
+    forecasts are scored against today's interval, as they were then), the one-step forecasts as they ran."""
+    import json
+
+    table = _table()
+    whole = _rows(TrackPredictor(StreamConfig(**CONFIG)), table)
+    first = TrackPredictor(StreamConfig(**CONFIG))
+    part = _rows(first, table.iloc[:70])
+    first.save(tmp_path / "s.npz")
+    archive = dict(np.load(tmp_path / "s.npz"))
+    assert np.isfinite(archive["state/lead/issued"]).any()   # forecasts were pending at the save
+    meta = json.loads(str(archive["meta"]))
+    meta["format_version"] = 5
+    del archive["state/lead/issued"]
+    np.savez(tmp_path / "v5.npz", **{**archive, "meta": np.array(json.dumps(meta))})
+    second = TrackPredictor.load(tmp_path / "v5.npz")
+    assert second.loaded_version == 5
+    part += _rows(second, table.iloc[70:])
+    for field in ("next", "next_std", "ahead"):   # the lead's weights do not depend on the intervals
+        assert np.array_equal(np.array([getattr(r, field) for r in part]),
+                              np.array([getattr(r, field) for r in whole]), equal_nan=True), field
+    resumed, uninterrupted = (np.array([r.ahead_std for r in rows]) for rows in (part, whole))
+    assert np.array_equal(np.isnan(resumed), np.isnan(uninterrupted))
+    # each forecast pending at the save moves log s by at most the rate either way
+    bound = np.exp(second.params.calibration_params.rate * second.params.lead.capacity)
+    ok = np.isfinite(resumed)
+    assert np.all(resumed[ok] <= bound * uninterrupted[ok]) and np.all(resumed[ok] >= uninterrupted[ok] / bound)
 
 
 def test_load_rejects_other_files(tmp_path):

@@ -78,14 +78,17 @@ from .core.engine import Bank, BankState, init_bank_state, tree_map
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Checkpoint", "auto_length_unit",
            "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
 
-#: 5: one state per track for a bank of expert families (kalmix.core.engine) with its
-#: calibration and lead head, gap trackers with the time-glitch bookkeeping, the output the
-#: file belongs to (``kalmix predict -o``) and the rule's options. Version 4 files were written
-#: when BOA's range bound did not forget: they are resumed with ``bound_forgetting`` 1.0, as they
-#: ran. Version 3 files (no calibration yet) are resumed with a fresh calibration as well; files
-#: of versions 1 and 2 held the previous single-mixture state and cannot be resumed.
-STATE_FORMAT_VERSION = 5
-_READABLE_VERSIONS = (3, 4, 5)
+#: 6: one state per track for a bank of expert families (kalmix.core.engine) with its
+#: calibration and lead head (whose pending forecasts keep the interval they were issued with),
+#: gap trackers with the time-glitch bookkeeping, the output the file belongs to (``kalmix
+#: predict -o``) and the rule's options. Version 5 files (no issued intervals yet) are resumed
+#: with none: a lead forecast pending at the save is scored against today's interval, as then.
+#: Version 4 files were written when BOA's range bound did not forget: they are resumed with
+#: ``bound_forgetting`` 1.0, as they ran. Version 3 files (no calibration yet) are resumed with a
+#: fresh calibration as well; files of versions 1 and 2 held the previous single-mixture state and
+#: cannot be resumed.
+STATE_FORMAT_VERSION = 6
+_READABLE_VERSIONS = (3, 4, 5, 6)
 _MAGIC = "kalmix-track-predictor"
 #: Number of first non-gap time steps whose median is a track's reference interval.
 REFERENCE_INTERVALS = 16
@@ -729,10 +732,12 @@ class TrackPredictor:
             stacked, template = None, None
             if count:
                 template = engine._fresh()
-                stacked = {name: (np.broadcast_to(expected, (count, *expected.shape[1:]))
-                                  if meta["format_version"] == 3 and name.startswith("state/calibration/")
+                version = meta["format_version"]
+                fresh = lambda name: ((version == 3 and name.startswith("state/calibration/"))  # noqa: E731
+                                      or (version <= 5 and name == "state/lead/issued"))
+                stacked = {name: (np.broadcast_to(expected, (count, *expected.shape[1:])) if fresh(name)
                                   else archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name))
-                           for name, expected in _leaves(template)}   # version 3: a fresh calibration
+                           for name, expected in _leaves(template)}
         index = 0
         for track, gaps, has_state in entries:
             engine.gaps[track] = gaps

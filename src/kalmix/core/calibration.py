@@ -78,13 +78,22 @@ def moments(params: CalibrationParams, state: CalibrationState, weights, experts
 
 
 def update(params: CalibrationParams, state: CalibrationState, weights, experts, awake, measurement,
-           learn) -> CalibrationState:
-    """Learn a row where ``learn (N,)``: the scale from the mixture's miss, each awake expert's V."""
+           learn, issued=None) -> CalibrationState:
+    """Learn a row where ``learn (N,)``: the scale from the mixture's miss, each awake expert's V.
+
+    ``issued (N, 2, p)``, for forecasts made rows earlier (the lead head), is the interval then
+    issued (its mean and standard deviations): the miss is that interval's, as adaptive conformal
+    inference with delayed feedback asks (today's interval where it is NaN).
+    """
     mean, cov = moments(params, state, weights, experts, awake)
     z = np.where(learn[:, None], measurement, 0.0)
     std = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
+    center, spread = mean, std
+    if issued is not None:
+        then = ~np.isnan(issued[:, 0])
+        center, spread = np.where(then, issued[:, 0], mean), np.where(then, issued[:, 1], std)
     with np.errstate(invalid="ignore", over="ignore"):
-        miss = (np.abs(z - mean) > z_score(params) * std).mean(axis=-1)
+        miss = (np.abs(z - center) > z_score(params) * spread).mean(axis=-1)
     go = learn & awake.any(axis=-1) & np.isfinite(z - mean).all(axis=-1)
     log_scale = np.clip(state.log_scale + params.rate * (miss - (1.0 - params.level)),
                         -params.max_log_scale, params.max_log_scale)

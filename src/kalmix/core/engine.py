@@ -298,7 +298,8 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
         head = lead_head.learn(bank, state.lead, z, time, go)
         later = expert_forecasts(bank, new, target, bank.lead.frames)
         _, lead_mix, lead_cov = lead_head.forecast(bank, head, later)
-        head = lead_head.push(bank, head, later, target, learn & (state.screen.points >= 1), restart)
+        head = lead_head.push(bank, head, later, target, learn & (state.screen.points >= 1), restart, lead_mix,
+                              _std(lead_cov))
         new = new._replace(lead=head)
         out = out._replace(ahead_experts=later, lead=lead_mix, lead_covariance=lead_cov)
     elif ahead_time is not None:

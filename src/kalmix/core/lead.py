@@ -42,13 +42,15 @@ class LeadState(NamedTuple):
     calibration: calibration.CalibrationState  # and its calibration
     due: np.ndarray                            # (N, C) times of the pending forecasts, NaN = free slot
     pending: np.ndarray                        # (N, C, K, p) their experts' forecasts
+    issued: np.ndarray                         # (N, C, 2, p) the intervals issued with them: mean, std
 
 
 def init(bank, n_targets: int) -> LeadState:
     k, p, c = bank.n_experts, bank.measurement_dim, bank.lead.capacity
     return LeadState(bank.rule_module.init(bank.rule_params, n_targets, k),
                      calibration.init(bank.calibration_params, n_targets, k, p),
-                     np.full((n_targets, c), np.nan), np.full((n_targets, c, k, p), np.nan))
+                     np.full((n_targets, c), np.nan), np.full((n_targets, c, k, p), np.nan),
+                     np.full((n_targets, c, 2, p), np.nan))
 
 
 def learn(bank, state: LeadState, measurement, time, go) -> LeadState:
@@ -65,13 +67,16 @@ def learn(bank, state: LeadState, measurement, time, go) -> LeadState:
         experts = state.pending[:, c]
         awake = np.isfinite(experts).all(axis=-1)
         w = bank.rule_module.weights(bank.rule_params, rule, awake)
-        cal = calibration.update(bank.calibration_params, cal, w, experts, awake, measurement, matched[:, c])
+        cal = calibration.update(bank.calibration_params, cal, w, experts, awake, measurement, matched[:, c],
+                                 state.issued[:, c])
         rule = bank.rule_module.update(bank.rule_params, rule, experts, measurement, awake, matched[:, c])
     # keep the others in order
     order = np.argsort(done, axis=1, kind="stable")
     kept = np.take_along_axis(np.where(done, np.nan, due), order, axis=1)
     pending = np.take_along_axis(state.pending, order[:, :, None, None], axis=1)
-    return LeadState(rule, cal, kept, np.where(np.isfinite(kept)[:, :, None, None], pending, np.nan))
+    issued = np.take_along_axis(state.issued, order[:, :, None, None], axis=1)
+    free = ~np.isfinite(kept)[:, :, None, None]
+    return LeadState(rule, cal, kept, np.where(free, np.nan, pending), np.where(free, np.nan, issued))
 
 
 def forecast(bank, state, experts):
@@ -84,20 +89,25 @@ def forecast(bank, state, experts):
     return w, mean, cov
 
 
-def push(bank, state: LeadState, experts, due_time, go, restart) -> LeadState:
-    """After a learned row (``go``): keep ``experts (N, K, p)``, due at ``due_time (N,)``, if a slot is free.
+def push(bank, state: LeadState, experts, due_time, go, restart, mean, std) -> LeadState:
+    """After a learned row (``go``): keep ``experts (N, K, p)``, due at ``due_time (N,)``, if a slot is free,
+    with the interval issued for them (``mean``, ``std``: ``(N, p)``).
 
     A ``restart`` first drops every pending forecast and keeps none (nor does a target's first row:
     see :func:`kalmix.core.engine.step`).
     """
     due = np.where(restart[:, None], np.nan, state.due)
     pending = np.where(restart[:, None, None, None], np.nan, state.pending)
+    issued = np.where(restart[:, None, None, None], np.nan, state.issued)
     free = np.isnan(due)
     slot = np.argmax(free, axis=1)
     take = go & ~restart & free.any(axis=1) & np.isfinite(experts).all(axis=-1).any(axis=-1) & np.isfinite(due_time)
     rows = np.flatnonzero(take)
     due = due.copy()
     pending = pending.copy()
+    issued = issued.copy()
     due[rows, slot[rows]] = due_time[rows]
     pending[rows, slot[rows]] = experts[rows]
-    return state._replace(due=due, pending=pending)
+    issued[rows, slot[rows], 0] = mean[rows]
+    issued[rows, slot[rows], 1] = std[rows]
+    return state._replace(due=due, pending=pending, issued=issued)

@@ -19,7 +19,7 @@ from ._cache import configure_cache
 
 configure_cache()
 
-__all__ = ["pack_params", "moments_row", "calibrate_row"]
+__all__ = ["pack_params", "moments_row", "calibrate_row", "calibrate_issued_row"]
 
 
 def pack_params(params: CalibrationParams) -> tuple:
@@ -67,8 +67,42 @@ def calibrate_row(x, y, awake, count, mix, cov, variance, n_errors, log_scale, w
             return
         if abs(e) > z * math.sqrt(cov[c, c]):
             misses += 1.0
-    value = log_scale[0] + rate * (misses / p - (1.0 - level))
+    _learn_scale(log_scale, misses / p, rate, level, max_log_scale)
+    _learn_variances(x, y, awake, variance, n_errors, window, max_variance)
+
+
+@nb.njit(inline="always", **_JIT)
+def calibrate_issued_row(x, y, awake, count, mix, cov, issued, variance, n_errors, log_scale, window, rate, level,
+                         z, max_variance, max_log_scale):
+    """:func:`calibrate_row` for a forecast issued rows ago (the lead head): the miss is that of the
+    interval then issued, ``issued[0] ± z issued[1]`` (its mean and standard deviations), as adaptive
+    conformal inference with delayed feedback asks; ``mix`` and ``cov`` (today's) where it is NaN."""
+    p = x.shape[1]
+    if count == 0:
+        return
+    misses = 0.0
+    for c in range(p):
+        e = y[c] - mix[c]
+        if not math.isfinite(e):
+            return
+        if math.isnan(issued[0, c]):
+            if abs(e) > z * math.sqrt(cov[c, c]):
+                misses += 1.0
+        elif abs(y[c] - issued[0, c]) > z * issued[1, c]:
+            misses += 1.0
+    _learn_scale(log_scale, misses / p, rate, level, max_log_scale)
+    _learn_variances(x, y, awake, variance, n_errors, window, max_variance)
+
+
+@nb.njit(inline="always", **_JIT)
+def _learn_scale(log_scale, miss, rate, level, max_log_scale):
+    value = log_scale[0] + rate * (miss - (1.0 - level))
     log_scale[0] = min(max(value, -max_log_scale), max_log_scale)
+
+
+@nb.njit(inline="always", **_JIT)
+def _learn_variances(x, y, awake, variance, n_errors, window, max_variance):
+    p = x.shape[1]
     for k in range(x.shape[0]):
         if not awake[k]:
             continue

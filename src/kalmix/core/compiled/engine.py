@@ -173,6 +173,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         lead_cal = _copy(state.lead.calibration)
         due = np.array(state.lead.due, dtype=np.float64, copy=True, order="C")
         pending = np.array(state.lead.pending, dtype=np.float64, copy=True, order="C")
+        issued = np.array(state.lead.issued, dtype=np.float64, copy=True, order="C")
     scr = ScreenState(*(np.array(x, dtype=np.float64, copy=True, order="C") for x in state.screen))
     sp = bank.screen_params
     screen_args = (float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window))
@@ -235,7 +236,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
                      ahead_std[begin:end] if with_ahead else empty3)
         if lead is not None:
             over_targets(clead.run_block, n, *rule_args, *lead_rule, *cal_args, *lead_cal, ahead_b,
-                         float(lead.tolerance), due, pending, ahead_buffer, zb, tb, lens, lb, lb & started, restart,
+                         float(lead.tolerance), due, pending, issued, ahead_buffer, zb, tb, lens, lb, lb & started, restart,
                          lead_out[begin:end], lead_std[begin:end],
                          lead_covariance[begin:end] if record_covariance else empty4)
         if record_experts:
@@ -249,7 +250,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
                 _accumulate_ahead(sums[2], sums[3], ahead_buffer, z, begin, end, ahead_frames, score_ahead)
     head = None
     if lead is not None:
-        head = LeadState(unpack_rule(bank, *lead_rule), CalibrationState(*lead_cal), due, pending)
+        head = LeadState(unpack_rule(bank, *lead_rule), CalibrationState(*lead_cal), due, pending, issued)
     final = BankState(tuple(families), unpack_rule(bank, a, b, c, d, e), scr, CalibrationState(*cal), head)
     if sums is not None:
         experts_out, weights_out, ahead_experts_out = sums[0], sums[1], sums[2] if with_ahead else None

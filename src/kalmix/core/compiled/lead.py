@@ -9,7 +9,7 @@ import numpy as np
 
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
-from .calibration import calibrate_row
+from .calibration import calibrate_issued_row
 from .rules import _copy_matrix, _learn, forecast_row, scratch, write_row
 
 configure_cache()
@@ -19,21 +19,23 @@ __all__ = ["run_block"]
 
 def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
-              due_times, tolerance, due, pending, ahead_experts, z, times, lengths, learn, keep, restart,
+              due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep, restart,
               out, out_std, out_cov):
     """For every row: score the pending forecasts due at its time (``learn & ~restart`` rows), forecast
     ``due_times`` from ``ahead_experts`` with the lead weights, keep that forecast if a slot is free
-    (``keep & ~restart`` rows: learned, not a target's first). Targets ``lo .. hi - 1``."""
+    (``keep & ~restart`` rows: learned, not a target's first) with the interval it was issued with
+    (``issued``: its mean and standard deviations, the miss the calibration learns from). Targets
+    ``lo .. hi - 1``."""
     _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
-               due_times, tolerance, due, pending, ahead_experts, z, times, lengths, learn, keep, restart,
+               due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep, restart,
                out, out_std, out_cov, *scratch(ahead_experts.shape[2], z.shape[2]))
 
 
 @nb.njit(**KERNEL_JIT)
 def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
-               due_times, tolerance, due, pending, ahead_experts, z, times, lengths, learn, keep, restart,
+               due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep, restart,
                out, out_std, out_cov, awake, w, logw, r, mix, cov):
     k_count = ahead_experts.shape[2]
     p = z.shape[2]
@@ -54,8 +56,9 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
                         count = forecast_row(rule, forgetting, share, a[n], b[n], c[n], dn[0], x, awake, w, logw,
                                              mix, variance[n], ls[0], max_variance, cov)
                         if count > 0:
-                            calibrate_row(x, y, awake, count, mix, cov, variance[n], n_errors[n], ls, window, rate,
-                                          level, z_level, max_variance, max_log_scale)
+                            calibrate_issued_row(x, y, awake, count, mix, cov, issued[n, s], variance[n],
+                                                 n_errors[n], ls, window, rate, level, z_level, max_variance,
+                                                 max_log_scale)
                             _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, a[n], b[n], c[n],
                                    dn, en, x, y, awake, count, w, mix, r)
                 kept = 0
@@ -64,10 +67,12 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
                         if kept != s:
                             due[n, kept] = due[n, s]
                             _copy_matrix(pending[n, s], pending[n, kept])
+                            _copy_matrix(issued[n, s], issued[n, kept])
                         kept += 1
                 for s in range(kept, slots):
                     due[n, s] = np.nan
                     pending[n, s] = np.nan
+                    issued[n, s] = np.nan
             xa = ahead_experts[t, n]
             count = forecast_row(rule, forgetting, share, a[n], b[n], c[n], dn[0], xa, awake, w, logw, mix,
                                  variance[n], ls[0], max_variance, cov)
@@ -78,9 +83,13 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
                 for s in range(slots):
                     due[n, s] = np.nan
                     pending[n, s] = np.nan
+                    issued[n, s] = np.nan
             if keep[t, n] and not restart[t, n] and count > 0 and math.isfinite(due_times[t, n]):
                 for s in range(slots):
                     if math.isnan(due[n, s]):
                         due[n, s] = due_times[t, n]
                         _copy_matrix(xa, pending[n, s])
+                        for ci in range(p):
+                            issued[n, s, 0, ci] = out[t, n, ci]
+                            issued[n, s, 1, ci] = out_std[t, n, ci]
                         break
