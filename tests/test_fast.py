@@ -195,3 +195,70 @@ def test_kernel_is_chosen_by_bank_size():
     assert fast._kernels(fast.VECTOR_MIN_EXPERTS - 1) is _numba_scalar
     assert fast._kernels(fast.VECTOR_MIN_EXPERTS) is _numba_kernels
     assert fast._kernels(40) is _numba_kernels
+
+
+def test_compile_ahead_runs_the_akf_kernel_in_a_child_and_changes_no_number(monkeypatch):
+    """On a fresh cache the engine's first run starts a child process for the AKF kernel, compiles the bank's
+    other kernels meanwhile and waits. Here the kernels are cached already (the child only loads them) and
+    the cache is declared empty: the child must exit 0, only once per process, and the numbers stay."""
+    from kalmix.bank import make_bank
+    from kalmix.core import _numba_kernels
+    from kalmix.core.compiled import _warm, engine
+    from kalmix.core.testing import benign_tracks
+
+    bank = make_bank(2, "mixed", n_akf=8, length_unit=0.3)
+    z, t = benign_tracks(seed=1)
+    before = engine.run(bank, z, t)
+    assert _warm.kernel_cached(_numba_kernels.run_targets)   # the run above left it in the cache
+    monkeypatch.setattr(_warm, "kernel_cached", lambda dispatcher: False)
+    monkeypatch.setattr(_warm, "_cores", lambda: 2)
+    monkeypatch.delenv("KALMIX_BACKGROUND_COMPILE", raising=False)
+    done = _warm._done
+    _warm._reset()
+    try:
+        assert _warm.compile_ahead(bank) == 0
+        assert _warm.compile_ahead(bank) is None   # once per process
+    finally:
+        _warm._done = done
+    after = engine.run(bank, z, t)
+    for name in ("forecasts", "std"):
+        assert np.array_equal(getattr(before, name), getattr(after, name), equal_nan=True), name
+
+
+def test_compile_ahead_only_when_it_helps(monkeypatch):
+    """No child without an AKF family, for an AKF-only bank (nothing to overlap), on one core, or when
+    switched off."""
+    from kalmix.bank import make_bank
+    from kalmix.core.compiled import _warm
+
+    monkeypatch.setattr(_warm, "kernel_cached", lambda dispatcher: False)
+    monkeypatch.setattr(_warm, "_cores", lambda: 2)
+    monkeypatch.delenv("KALMIX_BACKGROUND_COMPILE", raising=False)
+    mixed = make_bank(2, "mixed", n_akf=8)
+    assert _warm._eligible(mixed) is next(f for f in mixed.families if f.kind == "akf")
+    assert _warm._eligible(make_bank(2, "kinematic")) is None
+    assert _warm._eligible(make_bank(2, "akf", n_akf=8)) is None
+    monkeypatch.setenv("KALMIX_BACKGROUND_COMPILE", "0")
+    assert _warm._eligible(mixed) is None
+    monkeypatch.delenv("KALMIX_BACKGROUND_COMPILE")
+    monkeypatch.setattr(_warm, "_cores", lambda: 1)
+    assert _warm._eligible(mixed) is None
+
+
+def test_read_only_inputs_compile_no_second_kernel():
+    """A read-only time column (a broadcast) and a writable one reach the kernels with one type."""
+    from kalmix.bank import make_bank
+    from kalmix.core.compiled import engine
+    from kalmix.core.compiled import kinematic
+    from kalmix.core.testing import benign_tracks
+
+    bank = make_bank(2, "kinematic", length_unit=0.3)
+    z, t = benign_tracks(seed=1)
+    engine.run(bank, z, t)
+    count = len(kinematic._run_block.signatures)
+    readonly = np.broadcast_to(t[:, :1], t.shape)
+    zr = z.copy()
+    zr.flags.writeable = False
+    engine.run(bank, zr, readonly, ahead_times=readonly + 1.0)
+    engine.run(bank, z, np.array(t), ahead_times=t + 1.0)
+    assert len(kinematic._run_block.signatures) == count

@@ -633,7 +633,9 @@ def _normalise_log(log_joint, out):
 
 
 # ---------------------------------------------------------------- one target, all steps
-@jit
+# Inlined into its one caller (run_targets): numba re-optimises a callee inside each caller's module, so this
+# saves a pass over the largest function (AKF kernel compiled alone: 32-33 s instead of 39-41 s).
+@nb.njit(inline="always", **_JIT)
 def _advance_target(j, measurements, lengths, horizon, params, state, records):
     """Target ``j`` through its steps; ``params``, ``state`` (mutated in place) and ``records`` are the
     tuples of :func:`kalmix.core.fast.run_fast` (unpacked here: one call with three tuples compiles much

@@ -26,6 +26,7 @@ from . import turn as cturn
 from .calibration import pack_params as pack_calibration
 from . import screen as cscreen
 from ._threads import over_groups, over_targets
+from ._warm import compile_ahead
 
 __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
 
@@ -117,14 +118,21 @@ def _akf_piece(params, state, z, learn, lengths, out, offset, ahead, ahead_frame
 def prepare(bank: Bank, measurements, times, state, lengths, learn):
     """Contiguous float inputs, a fresh state if none, lengths, and the rows to learn (present ones only)."""
     z, times, lengths = check_run_arguments(bank, measurements, times, state, lengths)
-    z = np.ascontiguousarray(z)
+    z = _kernel_array(z)
     t_count, n, _ = z.shape
-    times = np.ascontiguousarray(times)
+    times = _kernel_array(times)
     state = init_bank_state(bank, n) if state is None else state
-    lengths = np.full(n, t_count, dtype=np.int64) if lengths is None else np.asarray(lengths, dtype=np.int64)
+    lengths = (np.full(n, t_count, dtype=np.int64) if lengths is None
+               else _kernel_array(np.asarray(lengths, dtype=np.int64)))
     present = np.isfinite(z).all(axis=-1) & (np.arange(t_count)[:, None] < lengths[None, :])
     learn = present if learn is None else (np.asarray(learn, dtype=bool) & present)
     return z, times, state, lengths, learn
+
+
+def _kernel_array(a):
+    """``a`` C-contiguous and writable (copied if not): a read-only array (a broadcast time column) is another
+    type for numba, and would compile every kernel it reaches a second time."""
+    return np.require(a, requirements=["C", "W"])
 
 
 def _copy(state):
@@ -142,6 +150,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     best-expert-in-hindsight needs), ``expert_ahead`` likewise for the ahead forecasts.
     """
     z, times, state, lengths, learn = prepare(bank, measurements, times, state, lengths, learn)
+    compile_ahead(bank)   # a fresh install: the AKF kernel compiles in a second process meanwhile
     t_count, n, p = z.shape
     if n > TARGET_GROUP:
         return _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames, record_experts, score,
@@ -156,7 +165,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         ahead_frames = lead.frames
     with_ahead = ahead_times is not None
     if with_ahead:
-        ahead_times = np.ascontiguousarray(np.broadcast_to(np.asarray(ahead_times, dtype=np.float64), (t_count, n)))
+        ahead_times = _kernel_array(np.broadcast_to(np.asarray(ahead_times, dtype=np.float64), (t_count, n)))
 
     families = []
     for family, fstate in zip(bank.families, state.families):

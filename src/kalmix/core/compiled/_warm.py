@@ -1,0 +1,134 @@
+"""A fresh install's first run: the AKF kernel compiles in a second process while this one compiles the rest.
+
+numba compiles a kernel the first time it is called, one kernel after another, in one
+process; a fresh install (or a new kalmix version, whose sources key a new cache) pays
+all of it on its first run. The AKF family's kernel (:mod:`kalmix.core._numba_kernels`,
+or :mod:`kalmix.core._numba_scalar` for fewer than 8 experts) is two thirds of that for the
+default bank (compile events, 2 cores: 31 of 46 s; the rule driver 6 s, kinematic 3.5 s, AR
+2.8 s, turn 1.7 s). numba holds a lock while it compiles, so threads cannot share the work;
+processes can, through the cache: they write the same cache directory.
+
+:func:`compile_ahead`, called by :func:`kalmix.core.compiled.engine.run`, does this once per
+process when a bank has an AKF family whose kernel is not in the cache yet and the machine
+has at least two cores: a child process compiles the AKF kernel (on one tiny track, with the
+family's parameters) while this process compiles the other kernels of the bank (one tiny run
+of the bank without its AKF family); then this process waits for the child and loads the
+AKF kernel from the cache. Every kernel is compiled once; the numbers are the same (the
+cache holds the same machine code). If the child fails, this process compiles the kernel
+itself, as before. ``KALMIX_BACKGROUND_COMPILE=0`` switches it off.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pickle
+import subprocess
+import sys
+import threading
+
+import numpy as np
+
+__all__ = ["compile_ahead", "kernel_cached"]
+
+#: Longest wait for the child (seconds); past it this process compiles the kernel itself.
+WAIT_SECONDS = 600.0
+
+_done = False
+_lock = threading.RLock()   # the tiny run below calls the engine, which calls compile_ahead again
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:   # not on Linux
+        return os.cpu_count() or 1
+
+
+def _akf_kernel(family):
+    from ..fast import _kernels
+
+    return _kernels(family.n_experts).run_targets
+
+
+def kernel_cached(dispatcher) -> bool:
+    """True when numba's cache holds an index for this dispatcher (or when that cannot be told)."""
+    try:
+        index = dispatcher._cache._cache_file._index_path
+    except AttributeError:   # numba without a cache for it, or other internals: do nothing
+        return True
+    return os.path.exists(index)
+
+
+def _eligible(bank):
+    """The bank's AKF family, if its kernel should be compiled in a child process; else None."""
+    if os.environ.get("KALMIX_BACKGROUND_COMPILE", "1") == "0" or os.environ.get("NUMBA_DISABLE_JIT") == "1":
+        return None
+    akf = [f for f in bank.families if f.kind == "akf"]
+    if not akf or len(bank.families) < 2 or _cores() < 2:
+        return None
+    return None if kernel_cached(_akf_kernel(akf[0])) else akf[0]
+
+
+def compile_ahead(bank) -> int | None:
+    """Once per process: compile the AKF kernel in a child while this process compiles the others.
+
+    Returns the child's exit status (0: the kernel is in the cache), or None when no child ran.
+    """
+    global _done
+    with _lock:
+        if _done:
+            return None
+        _done = True
+        family = _eligible(bank)
+        if family is None:
+            return None
+        try:
+            child = subprocess.Popen([sys.executable, "-c", "from kalmix.core.compiled._warm import _child; _child()"],
+                                     stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            child.stdin.write(pickle.dumps((family.params, bank.measurement_dim)))
+            child.stdin.close()
+        except (OSError, pickle.PicklingError):
+            return None
+        try:
+            _tiny_run(dataclasses.replace(bank, families=tuple(f for f in bank.families if f.kind != "akf")))
+        finally:
+            try:
+                status = child.wait(timeout=WAIT_SECONDS)
+            except subprocess.TimeoutExpired:
+                child.kill()
+                status = child.wait()
+        return status
+
+
+def _reset() -> None:
+    """Forget that :func:`compile_ahead` ran in this process (tests)."""
+    global _done
+    with _lock:
+        _done = False
+
+
+def _tiny_track(p: int, rows: int = 4):
+    z = np.cumsum(np.random.default_rng(0).normal(size=(rows, 1, p)), axis=0)
+    return z, np.arange(float(rows))[:, None]
+
+
+def _tiny_run(bank) -> None:
+    """The bank on a 4-row track: compiles its kernels (the engine's argument types do not depend on sizes)."""
+    from .engine import run
+
+    z, t = _tiny_track(bank.measurement_dim)
+    run(bank, z, t, ahead_times=None if bank.lead is not None else t + 1.0)
+
+
+def _child() -> None:
+    """The child process: the AKF family (pickled on stdin) through the compiled engine's AKF block."""
+    from ..families import akf
+    from .engine import _akf_block
+
+    params, p = pickle.loads(sys.stdin.buffer.read())
+    z, _ = _tiny_track(p)
+    rows, k = len(z), params.n_experts
+    _akf_block(params, akf.init_state(params, 1, p), z, np.ones((rows, 1), dtype=bool),
+               np.zeros((rows, 1), dtype=bool), np.array([rows], dtype=np.int64), np.full((rows, 1, k, p), np.nan), 0,
+               None, 1)
