@@ -289,3 +289,23 @@ def test_targets_on_threads_equal_one_thread(monkeypatch, threads):
     monkeypatch.setattr(_threads, "MIN_CHUNK", 1)                  # 7 targets: ranges of 1-2 targets
     split = ce.run(bank, z, t, lengths=lengths, record_experts=True, record_covariance=True)
     _assert_identical(one, split)
+
+
+def test_families_side_by_side_equal_one_after_another(monkeypatch):
+    """Few targets: the families run side by side on the threads; the same bits as one after another,
+    on adversarial input with gaps and a lead head (the families write disjoint columns)."""
+    from kalmix.core.compiled import engine as ce
+
+    z, t = adversarial_tracks(seed=11, t_count=150)
+    restart, blank = _gaps(z.shape[:2], 12)
+    z = np.where((restart & blank)[..., None], np.nan, z)
+    bank = make_bank(2, "mixed+ar+turn", length_unit=0.3, n_akf=8, lead=2.0)
+    calls = []
+    real = ce.over_groups
+    monkeypatch.setattr(ce, "over_groups", lambda function, groups: calls.append(len(groups)) or real(function, groups))
+    monkeypatch.setattr(ce, "families_in_parallel", lambda n: True)
+    side = ce.run(bank, z, t, restart=restart, record_experts=True, record_covariance=True)
+    assert calls and calls[0] == len(bank.families)
+    monkeypatch.setattr(ce, "families_in_parallel", lambda n: False)
+    serial = ce.run(bank, z, t, restart=restart, record_experts=True, record_covariance=True)
+    _assert_identical(side, serial)

@@ -17,7 +17,7 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["over_targets", "over_groups", "MIN_CHUNK"]
+__all__ = ["over_targets", "over_groups", "families_in_parallel", "MIN_CHUNK"]
 
 #: Fewest targets a thread is given: below twice this, the kernel runs in the calling thread.
 MIN_CHUNK = 16
@@ -54,6 +54,12 @@ def over_targets(kernel, n_targets: int, *args) -> None:
     edges = [round(i * n_targets / pieces) for i in range(pieces + 1)]
     _drain([(lo, hi) for lo, hi in zip(edges[:-1], edges[1:]) if hi > lo], lambda r: kernel(r[0], r[1], *args),
            threads)
+
+
+def families_in_parallel(n_targets: int) -> bool:
+    """True when :func:`over_targets` would leave threads idle (too few targets to split) and this thread
+    is not already one group of several: then a bank's families run side by side instead."""
+    return _threads() > 1 and n_targets < 2 * MIN_CHUNK and not getattr(_local, "inline", False)
 
 
 def over_groups(function, groups) -> list:

@@ -25,7 +25,7 @@ from . import rules as crules
 from . import turn as cturn
 from .calibration import pack_params as pack_calibration
 from . import screen as cscreen
-from ._threads import over_groups, over_targets
+from ._threads import families_in_parallel, over_groups, over_targets
 from ._warm import compile_ahead
 
 __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
@@ -135,6 +135,12 @@ def _kernel_array(a):
     return np.require(a, requirements=["C", "W"])
 
 
+def _family_cost(family) -> float:
+    """Rough cost of a family's row (relative), to hand the costliest to a thread first."""
+    per_expert = {"akf": 4.0, "ar": 2.0}.get(family.kind, 1.0)
+    return per_expert * family.n_experts
+
+
 def _copy(state):
     return type(state)(*(np.array(x, dtype=np.float64, copy=True, order="C") for x in state))
 
@@ -217,8 +223,10 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         buffer = np.full((rows, n, k, p), np.nan)
         ahead_buffer = np.full((rows, n, k, p), np.nan) if with_ahead else None
         ahead_b = ahead_times[begin:end] if with_ahead else empty2
-        offset = 0
-        for i, family in enumerate(bank.families):
+        offsets = np.cumsum([0] + [f.n_experts for f in bank.families])
+
+        def run_family(i):
+            family, offset = bank.families[i], int(offsets[i])
             fp, fs = family.params, families[i]
             if family.kind == "akf":
                 families[i] = _akf_block(fp, fs, zb, lb, restart, lens, buffer, offset, ahead_buffer, ahead_frames)
@@ -237,7 +245,15 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
                              float(fp.time_unit), float(fp.max_step), float(fp.max_variance),
                              fs.mean, fs.cov, fs.last_time, fs.initialised, zb, tb, lens, lb, restart, buffer, empty3,
                              offset, ahead_b, ahead_buffer if with_ahead else empty4)
-            offset += family.n_experts
+
+        # Families are independent and write their own columns of the buffers: with too few targets to split
+        # (one stream), they run side by side on the threads instead, the costliest first.
+        order = sorted(range(len(bank.families)), key=lambda i: -_family_cost(bank.families[i]))
+        if families_in_parallel(n):
+            over_groups(run_family, order)
+        else:
+            for i in range(len(bank.families)):
+                run_family(i)
         w_block = np.full((rows, n, k), np.nan) if record_experts else empty3
         over_targets(crules.run_block, n, *rule_args, a, b, c, d, e, *cal_args, *cal, buffer, zb, lens, lb & ~restart,
                      forecasts[begin:end], std[begin:end], covariance[begin:end] if record_covariance else empty4,
