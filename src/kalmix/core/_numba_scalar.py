@@ -189,22 +189,19 @@ def _radius_le(theta, transition, p, n, bound, power, product, coef, work, saved
 
 # ---------------------------------------------------------------- one target, all steps
 @jit
-def _advance_target(
-    j, measurements, lengths, horizon,
-    # parameters
-    dynamics, gating, gating_input, p, order, kappa, velocity_scale, forgetting, ridge, prior,
-    bound, process_init, measurement_init, initial_variance, initial_velocity, expert_scale,
-    temperature, share, eta_initial, eta_minimum, eta_decay, eta_sensitivity, adapt,
-    q_shrink, r_shrink, floor, reinflation, seed, state_jitter, guard_gammas, max_variance, fast_guard,
-    feature_limit, miss_limit,
-    # state (mutated in place)
-    steps, valid_steps, initialised, stream_ids, origin, history, mean, cov, gram, cross,
-    transition, offset, process_noise, measurement_noise, gate_weights, gate_input, weights,
-    responsibilities, expert_predictions, eta,
-    # records
-    out_predictions, record_diagnostics, out_weights, out_eta, out_q, out_r,
-    record_experts, out_experts,
-):
+def _advance_target(j, measurements, lengths, horizon, params, state, records):
+    """Target ``j`` through its steps; ``params``, ``state`` (mutated in place) and ``records`` are the
+    tuples of :func:`kalmix.core.fast.run_fast`, unpacked here as in :mod:`._numba_kernels`."""
+    (dynamics, gating, gating_input, p, order, kappa, velocity_scale, forgetting, ridge, prior,
+     bound, process_init, measurement_init, initial_variance, initial_velocity, expert_scale,
+     temperature, share, eta_initial, eta_minimum, eta_decay, eta_sensitivity, adapt,
+     q_shrink, r_shrink, floor, reinflation, seed, state_jitter, guard_gammas, max_variance, fast_guard,
+     feature_limit, miss_limit) = params
+    (steps, valid_steps, initialised, stream_ids, origin, history, mean, cov, gram, cross,
+     transition, offset, process_noise, measurement_noise, gate_weights, gate_input, weights,
+     responsibilities, expert_predictions, eta) = state
+    (out_predictions, record_diagnostics, out_weights, out_eta, out_q, out_r,
+     record_experts, out_experts) = records
     t_count = min(measurements.shape[0], lengths[j])
     k_count = weights.shape[1]
     n = order * p
@@ -623,4 +620,4 @@ def _restart_target(j, n, p, prior, process_init, measurement_init, initialised,
 def run_targets(lo, hi, measurements, lengths, horizon, params, state, records):
     """Advance targets ``lo .. hi - 1`` (each ``j`` through its first ``lengths[j]`` steps)."""
     for j in range(lo, hi):
-        _advance_target(j, measurements, lengths, horizon, *params, *state, *records)
+        _advance_target(j, measurements, lengths, horizon, params, state, records)
