@@ -262,3 +262,23 @@ def test_read_only_inputs_compile_no_second_kernel():
     engine.run(bank, zr, readonly, ahead_times=readonly + 1.0)
     engine.run(bank, z, np.array(t), ahead_times=t + 1.0)
     assert len(kinematic._run_block.signatures) == count
+
+
+def test_a_failing_warm_up_does_not_break_the_run(monkeypatch):
+    """The tiny run is only a warm-up: if it raises, compile_ahead still waits for its child and returns."""
+    from kalmix.bank import make_bank
+    from kalmix.core.compiled import _warm
+
+    def broken(bank):
+        raise RuntimeError("warm-up failed")
+
+    monkeypatch.setattr(_warm, "_tiny_run", broken)
+    monkeypatch.setattr(_warm, "kernel_cached", lambda dispatcher: False)
+    monkeypatch.setattr(_warm, "_cores", lambda: 2)
+    monkeypatch.delenv("KALMIX_BACKGROUND_COMPILE", raising=False)
+    done = _warm._done
+    _warm._reset()
+    try:
+        assert _warm.compile_ahead(make_bank(2, "mixed", n_akf=8, length_unit=0.3)) == 0
+    finally:
+        _warm._done = done
