@@ -52,12 +52,23 @@ def warm_and_cold(table):
     return out
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__)
+def arguments(description, argv):
+    """``--datasets``, ``--horizons``, ``--json`` (shared with :mod:`benchmarks.lead_vs_peers`)."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--datasets", nargs="+", default=["hawkeye_ball", "cycling", "skillcorner", "paper"])
     parser.add_argument("--horizons", nargs="+", type=int, default=[2, 5, 10])
     parser.add_argument("--json", default=None)
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
+
+
+def save(report, path) -> None:
+    if path:
+        with open(path, "w") as fh:
+            json.dump(report, fh, indent=1)
+
+
+def main(argv=None):
+    args = arguments(__doc__, argv)
     report = {}
     for name in args.datasets:
         table = table_of(name)
@@ -79,9 +90,7 @@ def main(argv=None):
                   f"(NEES {cal['horizon']['mean_nees']:.3g}); {entry['seconds']:.0f}s", flush=True)
         if name in ("skillcorner", "cycling", "hawkeye_ball"):
             report[name]["warm_start"] = warm_and_cold(table)
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(report, fh, indent=1)
+    save(report, args.json)
 
 
 if __name__ == "__main__":

@@ -12,24 +12,18 @@ of them and the ratio; target <= 0.97.
 
 from __future__ import annotations
 
-import argparse
-import json
 import time
 
 from kalmix.experiments import evaluate as ev
 
-from .lead_and_intervals import table_of
+from .lead_and_intervals import arguments, save, table_of
 
 #: Rows of ``evaluate`` that are not peers: the mixture itself, its parts and the references.
 NOT_PEERS = ("mixture", "AKF mixture", "best expert", "no prediction", "single AKF")
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--datasets", nargs="+", default=["hawkeye_ball", "cycling", "skillcorner", "paper"])
-    parser.add_argument("--horizons", nargs="+", type=int, default=[2, 5, 10])
-    parser.add_argument("--json", default=None)
-    args = parser.parse_args(argv)
+    args = arguments(__doc__, argv)
     report = {}
     for name in args.datasets:
         table = table_of(name)
@@ -46,9 +40,7 @@ def main(argv=None):
             report[name][f"H={h}"] = entry
             print(f"{name} H={h}: mixture {mixture:.5g}, best peer {best} {peers[best]:.5g}, "
                   f"ratio {entry['ratio']:.3f} ({entry['seconds']:.0f}s)", flush=True)
-    if args.json:
-        with open(args.json, "w") as handle:
-            json.dump(report, handle, indent=1)
+    save(report, args.json)
     return report
 
 

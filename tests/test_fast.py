@@ -10,6 +10,8 @@ from kalmix.core import dynamics as dyn
 
 pytest.importorskip("numba")
 
+from kalmix.core.compiled._warm import kernel_cached as _REAL_KERNEL_CACHED  # noqa: E402 (before any patch)
+
 RTOL = 1e-9
 # banks small enough for the scalar kernel and large enough for the experts-last one
 SIZES = (fast.VECTOR_MIN_EXPERTS - 2, fast.VECTOR_MIN_EXPERTS + 1)
@@ -197,43 +199,47 @@ def test_kernel_is_chosen_by_bank_size():
     assert fast._kernels(40) is _numba_kernels
 
 
-def test_compile_ahead_runs_the_akf_kernel_in_a_child_and_changes_no_number(monkeypatch):
-    """On a fresh cache the engine's first run starts a child process for the AKF kernel, compiles the bank's
-    other kernels meanwhile and waits. Here the kernels are cached already (the child only loads them) and
-    the cache is declared empty: the child must exit 0, only once per process, and the numbers stay."""
-    from kalmix.bank import make_bank
-    from kalmix.core import _numba_kernels
-    from kalmix.core.compiled import _warm, engine
-    from kalmix.core.testing import benign_tracks
-
-    bank = make_bank(2, "mixed", n_akf=8, length_unit=0.3)
-    z, t = benign_tracks(seed=1)
-    before = engine.run(bank, z, t)
-    assert _warm.kernel_cached(_numba_kernels.run_targets)   # the run above left it in the cache
-    monkeypatch.setattr(_warm, "kernel_cached", lambda dispatcher: False)
-    monkeypatch.setattr(_warm, "_cores", lambda: 2)
-    monkeypatch.delenv("KALMIX_BACKGROUND_COMPILE", raising=False)
-    done = _warm._done
-    _warm._reset()
-    try:
-        assert _warm.compile_ahead(bank) == 0
-        assert _warm.compile_ahead(bank) is None   # once per process
-    finally:
-        _warm._done = done
-    after = engine.run(bank, z, t)
-    for name in ("forecasts", "std"):
-        assert np.array_equal(getattr(before, name), getattr(after, name), equal_nan=True), name
-
-
-def test_compile_ahead_only_when_it_helps(monkeypatch):
-    """No child without an AKF family, for an AKF-only bank (nothing to overlap), on one core, or when
-    switched off."""
-    from kalmix.bank import make_bank
+@pytest.fixture
+def cold_cache(monkeypatch):
+    """compile_ahead as on a fresh install with two cores (the cache declared empty), once more in this process."""
     from kalmix.core.compiled import _warm
 
     monkeypatch.setattr(_warm, "kernel_cached", lambda dispatcher: False)
     monkeypatch.setattr(_warm, "_cores", lambda: 2)
     monkeypatch.delenv("KALMIX_BACKGROUND_COMPILE", raising=False)
+    done = _warm._done
+    _warm._reset()
+    yield _warm
+    _warm._done = done
+
+
+def test_compile_ahead_runs_the_akf_kernel_in_a_child_and_changes_no_number(cold_cache):
+    """On a fresh cache the engine's first run starts a child process for the AKF kernel, compiles the bank's
+    other kernels meanwhile and waits. Here the kernels are cached already (the child only loads them) and
+    the cache is declared empty: the child must exit 0, only once per process, and the numbers stay."""
+    from kalmix.bank import make_bank
+    from kalmix.core import _numba_kernels
+    from kalmix.core.compiled import engine
+    from kalmix.core.testing import benign_tracks
+
+    bank = make_bank(2, "mixed", n_akf=8, length_unit=0.3)
+    z, t = benign_tracks(seed=1)
+    before = engine.run(bank, z, t)
+    assert _REAL_KERNEL_CACHED(_numba_kernels.run_targets)   # the run above left it in the cache
+    cold_cache._reset()   # that run (under the fixture) took this process's turn
+    assert cold_cache.compile_ahead(bank) == 0
+    assert cold_cache.compile_ahead(bank) is None   # once per process
+    after = engine.run(bank, z, t)
+    for name in ("forecasts", "std"):
+        assert np.array_equal(getattr(before, name), getattr(after, name), equal_nan=True), name
+
+
+def test_compile_ahead_only_when_it_helps(monkeypatch, cold_cache):
+    """No child without an AKF family, for an AKF-only bank (nothing to overlap), on one core, or when
+    switched off."""
+    from kalmix.bank import make_bank
+
+    _warm = cold_cache
     mixed = make_bank(2, "mixed", n_akf=8)
     assert _warm._eligible(mixed) is next(f for f in mixed.families if f.kind == "akf")
     assert _warm._eligible(make_bank(2, "kinematic")) is None
@@ -264,21 +270,12 @@ def test_read_only_inputs_compile_no_second_kernel():
     assert len(kinematic._run_block.signatures) == count
 
 
-def test_a_failing_warm_up_does_not_break_the_run(monkeypatch):
+def test_a_failing_warm_up_does_not_break_the_run(monkeypatch, cold_cache):
     """The tiny run is only a warm-up: if it raises, compile_ahead still waits for its child and returns."""
     from kalmix.bank import make_bank
-    from kalmix.core.compiled import _warm
 
     def broken(bank):
         raise RuntimeError("warm-up failed")
 
-    monkeypatch.setattr(_warm, "_tiny_run", broken)
-    monkeypatch.setattr(_warm, "kernel_cached", lambda dispatcher: False)
-    monkeypatch.setattr(_warm, "_cores", lambda: 2)
-    monkeypatch.delenv("KALMIX_BACKGROUND_COMPILE", raising=False)
-    done = _warm._done
-    _warm._reset()
-    try:
-        assert _warm.compile_ahead(make_bank(2, "mixed", n_akf=8, length_unit=0.3)) == 0
-    finally:
-        _warm._done = done
+    monkeypatch.setattr(cold_cache, "_tiny_run", broken)
+    assert cold_cache.compile_ahead(make_bank(2, "mixed", n_akf=8, length_unit=0.3)) == 0

@@ -57,18 +57,8 @@ def moments_row(x, w, awake, count, mix, variance, log_scale, max_variance, cov)
 def calibrate_row(x, y, awake, count, mix, cov, variance, n_errors, log_scale, window, rate, level, z,
                   max_variance, max_log_scale):
     """Learn one row: ``log_scale[0]`` from the mixture's miss, each awake expert's variance."""
-    p = x.shape[1]
-    if count == 0:
-        return
-    misses = 0.0
-    for c in range(p):
-        e = y[c] - mix[c]
-        if not math.isfinite(e):
-            return
-        if abs(e) > z * math.sqrt(cov[c, c]):
-            misses += 1.0
-    _learn_scale(log_scale, misses / p, rate, level, max_log_scale)
-    _learn_variances(x, y, awake, variance, n_errors, window, max_variance)
+    _calibrate(x, y, awake, count, mix, cov, cov, False, variance, n_errors, log_scale, window, rate, level, z,
+               max_variance, max_log_scale)
 
 
 @nb.njit(inline="always", **_JIT)
@@ -77,6 +67,13 @@ def calibrate_issued_row(x, y, awake, count, mix, cov, issued, variance, n_error
     """:func:`calibrate_row` for a forecast issued rows ago (the lead head): the miss is that of the
     interval then issued, ``issued[0] ± z issued[1]`` (its mean and standard deviations), as adaptive
     conformal inference with delayed feedback asks; ``mix`` and ``cov`` (today's) where it is NaN."""
+    _calibrate(x, y, awake, count, mix, cov, issued, True, variance, n_errors, log_scale, window, rate, level, z,
+               max_variance, max_log_scale)
+
+
+@nb.njit(inline="always", **_JIT)
+def _calibrate(x, y, awake, count, mix, cov, issued, use_issued, variance, n_errors, log_scale, window, rate, level,
+               z, max_variance, max_log_scale):
     p = x.shape[1]
     if count == 0:
         return
@@ -85,24 +82,14 @@ def calibrate_issued_row(x, y, awake, count, mix, cov, issued, variance, n_error
         e = y[c] - mix[c]
         if not math.isfinite(e):
             return
-        if math.isnan(issued[0, c]):
-            if abs(e) > z * math.sqrt(cov[c, c]):
-                misses += 1.0
-        elif abs(y[c] - issued[0, c]) > z * issued[1, c]:
+        if use_issued and not math.isnan(issued[0, c]):
+            miss = abs(y[c] - issued[0, c]) > z * issued[1, c]
+        else:
+            miss = abs(e) > z * math.sqrt(cov[c, c])
+        if miss:
             misses += 1.0
-    _learn_scale(log_scale, misses / p, rate, level, max_log_scale)
-    _learn_variances(x, y, awake, variance, n_errors, window, max_variance)
-
-
-@nb.njit(inline="always", **_JIT)
-def _learn_scale(log_scale, miss, rate, level, max_log_scale):
-    value = log_scale[0] + rate * (miss - (1.0 - level))
+    value = log_scale[0] + rate * (misses / p - (1.0 - level))
     log_scale[0] = min(max(value, -max_log_scale), max_log_scale)
-
-
-@nb.njit(inline="always", **_JIT)
-def _learn_variances(x, y, awake, variance, n_errors, window, max_variance):
-    p = x.shape[1]
     for k in range(x.shape[0]):
         if not awake[k]:
             continue

@@ -206,6 +206,9 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         ahead_experts_out = nan(t_count, n, k, p) if with_ahead else None
     sums = [np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k))] if score is not None else None
 
+    offsets = np.cumsum([0] + [f.n_experts for f in bank.families])
+    costliest_first = sorted(range(len(bank.families)), key=lambda i: -_family_cost(bank.families[i]))
+    side_by_side = families_in_parallel(n)
     per_row = n * k * p * 8 * (2 if with_ahead else 1)
     block = int(max(1, min(t_count, BUFFER_BYTES // max(per_row, 1))))
     empty4, empty3, empty2 = np.empty((0, 0, 0, 0)), np.empty((0, 0, 0)), np.empty((0, 0))
@@ -223,7 +226,6 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         buffer = np.full((rows, n, k, p), np.nan)
         ahead_buffer = np.full((rows, n, k, p), np.nan) if with_ahead else None
         ahead_b = ahead_times[begin:end] if with_ahead else empty2
-        offsets = np.cumsum([0] + [f.n_experts for f in bank.families])
 
         def run_family(i):
             family, offset = bank.families[i], int(offsets[i])
@@ -248,9 +250,8 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
 
         # Families are independent and write their own columns of the buffers: with too few targets to split
         # (one stream), they run side by side on the threads instead, the costliest first.
-        order = sorted(range(len(bank.families)), key=lambda i: -_family_cost(bank.families[i]))
-        if families_in_parallel(n):
-            over_groups(run_family, order)
+        if side_by_side:
+            over_groups(run_family, costliest_first)
         else:
             for i in range(len(bank.families)):
                 run_family(i)
