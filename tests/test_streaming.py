@@ -199,6 +199,74 @@ def test_gap_rule():
     assert not any([gaps.advance(t, never) for t in (0.0, 1.0, 1000.0)][1:])
 
 
+def _adversarial_times(rng, n):
+    """Regular steps with jitter, long gaps, repeats, steps back (glitches), wrong jumps ahead, NaN."""
+    t = np.cumsum(rng.choice([1.0, 1.0, 1.0, 0.5, 2.0], size=n))
+    kinds = rng.random(n)
+    t[kinds < 0.05] += rng.choice([50.0, 500.0])           # a gap (the rest of the track moves on)
+    t = np.cumsum(np.diff(t, prepend=0.0) * (kinds > 0.02))  # repeats
+    wrong = kinds > 0.97
+    t[wrong] = t[wrong] + rng.choice([-3.0, 40.0, 1e6], size=wrong.sum())   # single rows back or far ahead
+    t[rng.random(n) < 0.01] = np.nan
+    return t
+
+
+@pytest.mark.parametrize("config", [StreamConfig(), StreamConfig(max_gap=1.5), StreamConfig(max_gap_factor=math.inf),
+                                    StreamConfig(max_gap_factor=1.2)])
+def test_gap_rule_in_bulk_equals_row_by_row(config):
+    """advance_many (stretches of regular rows at once) gives the answers and the state of advance row by
+    row, on steps that are regular, repeated, back in time, far ahead, or NaN, from any state."""
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        times = _adversarial_times(rng, int(rng.integers(1, 300)))
+        split = int(rng.integers(0, len(times) + 1))
+        one, bulk = GapTracker(), GapTracker()
+        for part in (times[:split], times[split:]):
+            expected = [one.advance(float(t), config) for t in part]
+            codes, segments = bulk.advance_many(part, config)
+            assert [None if c < 0 else bool(c) for c in codes] == expected
+            assert bulk.to_json() == one.to_json()
+        check = GapTracker()
+        for t, c, s in zip(times, *GapTracker().advance_many(times, config)):
+            check.advance(float(t), config)
+            assert s == check.segment
+
+
+def test_table_gap_rule_equals_rows():
+    """A table's gap rule (track by track once the time unit is known) keeps the rows, segments, restarts,
+    runs and trackers of the rule applied row by row in table order, the time unit learned at the same row."""
+    rng = np.random.default_rng(5)
+    ids, times = [], []
+    for track in range(7):
+        t = _adversarial_times(rng, int(rng.integers(1, 120)))
+        ids += [f"t{track}"] * len(t)
+        times += list(t)
+    ids, times = np.array(ids, dtype=object), np.array(times)
+    order = np.argsort(np.nan_to_num(times, nan=0.0), kind="stable")   # interleave the tracks
+    ids, times = ids[order], times[order]
+    for time_unit in (None, 1.0):
+        engine = TrackPredictor(StreamConfig(time_unit=time_unit))
+        engine.states["t3"] = None   # a track seen in an earlier table
+        tracks, runs, segments, gap_rows, keep = engine._gap_rule(ids, times)
+        reference = TrackPredictor(StreamConfig(time_unit=time_unit))
+        expected_runs: dict = {}
+        skipped = 0
+        for i in range(len(ids)):
+            gaps, new = reference._advance(ids[i], float(times[i]))
+            skipped += new is None
+            assert keep[i] == (new is not None)
+            if new is not None:
+                assert segments[i] == gaps.segment
+                assert gap_rows[i] == (bool(new) and (ids[i] in expected_runs or ids[i] == "t3"))
+                expected_runs.setdefault(ids[i], []).append(i)
+        assert tracks == list(expected_runs)
+        assert [list(run) for run in runs] == list(expected_runs.values())
+        assert engine.skipped == skipped == int((~keep).sum()) > 0
+        assert engine.config.time_unit == reference.config.time_unit
+        assert {k: g.to_json() for k, g in engine.gaps.items()} == {k: g.to_json() for k, g in reference.gaps.items()}
+        assert list(engine.gaps) == list(reference.gaps)
+
+
 def test_config_validation():
     with pytest.raises(ValueError, match="horizon"):
         StreamConfig(horizon=0)

@@ -318,6 +318,41 @@ class GapTracker:
         self.last_time = time
         return gap
 
+    def advance_many(self, times: np.ndarray, config: StreamConfig) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`advance` over ``times`` in order: codes ``(n,)`` int8 (1 a new segment, 0 continues,
+        -1 skipped) and each row's segment ``(n,)``.
+
+        The same state and answers as calling :meth:`advance` row by row, faster: once a track's
+        reference intervals are complete its threshold is fixed, so a stretch of rows whose
+        steps are positive and within it changes nothing but the clock, and is taken at once;
+        every other row (a gap, a row out of order, the rows before the reference is complete)
+        goes through :meth:`advance`.
+        """
+        n = len(times)
+        codes = np.zeros(n, dtype=np.int8)
+        segments = np.empty(n, dtype=np.int64)
+        stops = threshold = None
+        i = 0
+        while i < n:
+            if self.jumped_from is None and self.last_time is not None and len(self.intervals) >= REFERENCE_INTERVALS:
+                if stops is None:   # complete intervals stay complete: the threshold no longer moves
+                    threshold = self.threshold(config)
+                    steps = np.diff(times, prepend=np.nan)
+                    stops = np.flatnonzero(~((steps > 0) & (steps <= threshold)))
+                step = float(times[i]) - self.last_time
+                if step > 0 and step <= threshold:
+                    k = np.searchsorted(stops, i, side="right")
+                    end = int(stops[k]) if k < len(stops) else n
+                    segments[i:end] = self.segment
+                    self.last_time, self.jump_counted = float(times[end - 1]), False
+                    i = end
+                    continue
+            new = self.advance(float(times[i]), config)
+            codes[i] = -1 if new is None else int(new)
+            segments[i] = self.segment
+            i += 1
+        return codes, segments
+
     def to_json(self) -> dict:
         return {"last_time": self.last_time, "intervals": self.intervals, "segment": self.segment,
                 "jumped_from": self.jumped_from, "jump_counted": self.jump_counted, "glitches": self.glitches}
@@ -351,6 +386,14 @@ def _stack(states: list) -> BankState:
 
 def _take(state, index):
     return tree_map(lambda a: a[index], state)
+
+
+def pd_factorize(values) -> tuple[np.ndarray, np.ndarray]:
+    """Codes (in order of first appearance) and the distinct values of ``values``."""
+    import pandas as pd
+
+    codes, uniques = pd.factorize(values, use_na_sentinel=False)
+    return np.asarray(codes, dtype=np.int64), np.asarray(uniques, dtype=object)
 
 
 def _id_to_json(value):
@@ -618,21 +661,7 @@ class TrackPredictor:
         n_rows, p = values.shape
         self.rows += n_rows
 
-        # gap rule row by row (cheap): one run of rows per track, restarts where a gap starts a segment
-        keep = np.ones(n_rows, dtype=bool)
-        segments = np.zeros(n_rows, dtype=np.int64)
-        gap_rows = np.zeros(n_rows, dtype=bool)
-        runs: dict = {}   # track id -> rows
-        for i in range(n_rows):
-            track = _id_to_json(ids[i])
-            gaps, new = self._advance(track, float(times[i]))
-            if new is None:
-                keep[i] = False
-                self.skipped += 1
-                continue
-            segments[i] = gaps.segment
-            gap_rows[i] = bool(new) and (track in runs or track in self.states)
-            runs.setdefault(track, []).append(i)
+        tracks, runs, segments, gap_rows, keep = self._gap_rule(ids, times)
 
         shape = (n_rows, p)
         out = {"pred": np.full(shape, np.nan), "std": np.full(shape, np.nan)}
@@ -640,13 +669,12 @@ class TrackPredictor:
         if lead:
             out["lead"], out["lead_std"] = np.full(shape, np.nan), np.full(shape, np.nan)
         if runs:
-            tracks = list(runs)
-            lengths = np.array([len(runs[t]) for t in tracks])
+            lengths = np.array([len(run) for run in runs])
             state = _stack([self.states[t] if t in self.states else self._fresh() for t in tracks])
             rows = np.zeros((int(lengths.max()), len(tracks)), dtype=np.int64)
             active = np.zeros(rows.shape, dtype=bool)
-            for c, track in enumerate(tracks):
-                rows[:lengths[c], c] = runs[track]
+            for c, run in enumerate(runs):
+                rows[:lengths[c], c] = run
                 active[:lengths[c], c] = True
             dense = np.where(active[..., None], values[rows], np.nan)
             dense_times = np.where(active, times[rows], np.nan)
@@ -675,6 +703,49 @@ class TrackPredictor:
             for j, name in enumerate(names):
                 frame[f"{prefix}{name}"] = out[key][keep, j]
         return frame
+
+    def _gap_rule(self, ids, times):
+        """The gap rule over a table's rows, in row order as :meth:`_advance` row by row.
+
+        Returns the tracks with kept rows (in the order of their first kept row), each one's
+        kept rows, every row's segment, which rows start a new segment of a track already
+        running (a restart), and which rows are kept (not out of order).
+        """
+        n_rows = len(ids)
+        codes = np.empty(n_rows, dtype=np.int8)
+        segments = np.zeros(n_rows, dtype=np.int64)
+        index, uniques = pd_factorize(ids)
+        keys = [_id_to_json(u) for u in uniques]
+        had_state = np.array([key in self.states for key in keys], dtype=bool)
+        start = 0
+        while start < n_rows and self.config.time_unit is None:   # until a step fixes the time unit
+            gaps, new = self._advance(keys[index[start]], float(times[start]))
+            codes[start], segments[start] = -1 if new is None else int(new), gaps.segment
+            start += 1
+        # then track by track (tracks are independent once the unit is known)
+        order = start + np.argsort(index[start:], kind="stable")
+        bounds = np.concatenate([[0], np.cumsum(np.bincount(index[start:], minlength=len(keys)))])
+        for u, key in enumerate(keys):
+            rows = order[bounds[u]:bounds[u + 1]]
+            if len(rows):
+                gaps = self.gaps.get(key)
+                if gaps is None:
+                    gaps = self.gaps[key] = GapTracker()
+                codes[rows], segments[rows] = gaps.advance_many(times[rows], self.config)
+        keep = codes >= 0
+        self.skipped += int(n_rows - keep.sum())
+        kept = np.flatnonzero(keep)
+        kept_order = kept[np.argsort(index[kept], kind="stable")]
+        counts = np.bincount(index[kept], minlength=len(keys))
+        firsts = np.full(len(keys), n_rows)
+        np.minimum.at(firsts, index[kept], kept)
+        gap_rows = codes == 1
+        first_kept = firsts[counts > 0]
+        gap_rows[first_kept] &= had_state[index[first_kept]]
+        edges = np.concatenate([[0], np.cumsum(counts)])
+        present = sorted(np.flatnonzero(counts), key=lambda u: firsts[u])
+        return ([keys[u] for u in present], [kept_order[edges[u]:edges[u + 1]] for u in present],
+                segments, gap_rows, keep)
 
     def _columns(self) -> dict:
         """Output key -> column prefix."""
