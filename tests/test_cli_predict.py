@@ -287,3 +287,22 @@ def test_mixture_options_pass_through_and_are_validated(cli, tmp_path):
     assert bad.exit_code == 1 and "temperature" in bad.stderr
     bad = _run(cli, ["predict", path, *FAST, "--option", "nonsense"])
     assert bad.exit_code == 2 and "KEY=VALUE" in bad.output
+
+
+def test_csv_output_round_trips_every_value_and_quotes_what_needs_it():
+    """The Arrow writer: floats round-trip exactly, integral floats keep their ".0" (read back as floats, not
+    integers), NaN is an empty field; ids or names with a comma, a quote or a line end are quoted (pandas)."""
+    from kalmix.commands._durable import csv_text
+
+    values = [1.0, 0.1, 1e-7, np.nan, 1e20, -0.0, 123456789.12345679, 2.5e-310, 1.7e9, 1e15, -3.0]
+    frame = pd.DataFrame({"track_id": [f"t{i}" for i in range(len(values))], "time": values,
+                          "segment": np.arange(len(values)), "pred_x": np.random.default_rng(0).normal(size=len(values))})
+    text = csv_text(frame, header=True)
+    assert text.splitlines()[0] == "track_id,time,segment,pred_x" and ",1.0," in text and ",-3.0," in text
+    back = pd.read_csv(io.StringIO(text), dtype={"track_id": str})
+    pd.testing.assert_frame_equal(back, frame, check_exact=True)
+    assert np.signbit(back["time"][5])
+    assert csv_text(frame.iloc[:2], header=False).count("\n") == 2
+    odd = frame.assign(track_id=['a,b', 'say "hi"', 'two\nlines'] + list(frame["track_id"][3:]))
+    back = pd.read_csv(io.StringIO(csv_text(odd, header=True)), dtype={"track_id": str})
+    pd.testing.assert_frame_equal(back, odd, check_exact=True)
