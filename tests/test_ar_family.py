@@ -91,6 +91,66 @@ def test_mixture_of_the_ar_experts_is_the_same_on_both_engines(rule):
         _close(ce.run(bank, z, t).forecasts, engine.run(bank, z, t).forecasts, 1e-9)
 
 
+def _hand_state(params, weights, history, position=(1.0, -2.0)):
+    state = ar.init_state(params, 1, 2)
+    return state._replace(weights=np.broadcast_to(weights, state.weights.shape).copy(),
+                          history=np.broadcast_to(history, state.history.shape).copy(),
+                          position=np.array([position]), last_time=np.array([0.0]), initialised=np.array([True]))
+
+
+def test_a_forecast_iterates_the_fitted_recursion_once_per_row_ahead():
+    """Delta < 1.5 time units: the next row, position + v1 * delta * u (as a one-step forecast always was).
+    Further: n = round(delta) rows of delta / n, each predicted velocity fed back into the regressor."""
+    params = _ar_bank().families[0].params                       # order 2, length unit 0.1
+    w, history = np.array([[0.5, 0.25], [1.0, -0.5]]), np.array([[2.0, 4.0], [1.0, 2.0]])
+    state = _hand_state(params, w, history)
+
+    def by_hand(delta):
+        rows = max(1, int(np.floor(delta + 0.5)))
+        step, h, position = delta / rows * 0.1, history.copy(), np.array([1.0, -2.0])
+        for _ in range(rows):
+            v = (w * h).sum(axis=1)
+            position = position + v * step
+            h = np.column_stack([v, h[:, 0]])
+        return position
+
+    for delta in (0.0, 0.4, 1.0, 1.49, 1.5, 2.4, 3.0, 7.7):
+        means, _ = ar.forecast(params, state, np.array([delta]))
+        np.testing.assert_allclose(means[0, 0], by_hand(delta), rtol=1e-12, atol=1e-15)
+    # one row ahead: exactly the straight line of the first velocity
+    means, _ = ar.forecast(params, state, np.array([1.2]))
+    np.testing.assert_array_equal(means[0, 0], np.array([1.0, -2.0]) + np.array([2.0, 0.0]) * (1.2 * 0.1))
+
+
+def test_an_unstable_fit_cannot_explode_over_a_long_lead():
+    """w = (3, 0): the recursion triples the velocity each row. Iterated velocities are clipped to the largest of
+    v1 and the regressor's velocities, so 64 rows ahead the forecast moves at most 64 x that speed."""
+    params = _ar_bank().families[0].params
+    state = _hand_state(params, np.array([[3.0, 0.0], [3.0, 0.0]]), np.array([[1.0, 0.5], [-1.0, 2.0]]))
+    means, _ = ar.forecast(params, state, np.array([64.0]))
+    # v1 = 3 (coordinate 0), -3 (coordinate 1): then clipped to 3 in magnitude, 64 rows of 0.1
+    np.testing.assert_allclose(means[0, 0], np.array([1.0, -2.0]) + np.array([3.0, -3.0]) * 64 * 0.1, rtol=1e-12)
+    far, _ = ar.forecast(params, state, np.array([1e5]))        # more than ITERATED_STEPS rows: 64 longer steps
+    np.testing.assert_allclose(far[0, 0], np.array([1.0, -2.0]) + np.array([3.0, -3.0]) * 1e5 * 0.1, rtol=1e-12)
+
+
+def test_iterated_forecasts_are_the_same_on_both_engines_at_any_lead():
+    """Leads across the rounding edges (0.5, 1.5, 2.5 rows), long ones and beyond ITERATED_STEPS rows, with a
+    bias, on adversarial tracks (gaps, jumps, constant stretches): compiled == spec."""
+    from kalmix.core.compiled import ar as compiled_ar
+
+    assert compiled_ar.ITERATED_STEPS == ar.ITERATED_STEPS
+    z, t = adversarial_tracks(seed=5, t_count=200)
+    bank = make_bank(2, "ar", length_unit=0.3, ar_orders=(1, 2, 5), ar_options={"bias": True})
+    for lead in (0.49, 0.5, 1.49, 1.5, 2.5, 9.3, 63.6, 500.0):
+        ahead = t + lead
+        reference = engine.run(bank, z, t, ahead_times=ahead, record_experts=True)
+        compiled = ce.run(bank, z, t, ahead_times=ahead, record_experts=True)
+        assert np.isfinite(compiled.ahead[np.isfinite(z).all(axis=-1)]).all()
+        _close(compiled.ahead, reference.ahead, 1e-9)
+        _close(compiled.experts, reference.experts, 1e-9)
+
+
 def test_forecast_variance_is_the_running_velocity_error_over_the_step():
     bank = _ar_bank()
     params = bank.families[0].params

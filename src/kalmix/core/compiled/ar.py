@@ -45,12 +45,33 @@ def _velocity(m, weights_kc, x, max_velocity):
     return _clip(acc, max_velocity)
 
 
+#: Most rows of an iterated forecast (the spec's ``ITERATED_STEPS``; a test keeps them equal).
+ITERATED_STEPS = 64
+
+
 @nb.njit(inline="always", **_JIT)
-def _forecast(order, bias, m, scale, max_velocity, weights_k, history_k, position_n, out, x):
-    """Expert ``k``'s forecast ``position + vhat * scale`` into ``out (p,)``."""
+def _forecast(order, bias, m, delta, length_unit, max_velocity, weights_k, history_k, position_n, out, x, h):
+    """Expert ``k``'s forecast ``delta`` time units ahead into ``out (p,)``: ``n`` rows of ``delta / n`` (``n``
+    the rows in ``delta``), the model iterated (each velocity fed back, clipped to the largest one seen)."""
+    rows = int(min(max(math.floor(delta + 0.5), 1.0), ITERATED_STEPS))
+    step = delta / rows * length_unit
     for c in range(out.shape[0]):
         _regressor(order, bias, history_k[c], x)
-        out[c] = position_n[c] + _velocity(m, weights_k[c], x, max_velocity) * scale
+        v = _velocity(m, weights_k[c], x, max_velocity)
+        position = position_n[c] + v * step
+        if rows > 1:
+            bound = abs(v)
+            for i in range(order):
+                h[i] = history_k[c, i]
+                bound = max(bound, abs(h[i]))
+            for j in range(1, rows):
+                for i in range(order - 1, 0, -1):
+                    h[i] = h[i - 1]
+                h[0] = v
+                _regressor(order, bias, h, x)
+                v = min(max(_velocity(m, weights_k[c], x, max_velocity), -bound), bound)
+                position = position + v * step
+        out[c] = position
 
 
 @nb.njit(inline="always", **_JIT)
@@ -156,14 +177,16 @@ def run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, pe
                jump_threshold, window, max_step, max_velocity,
                weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
                z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
-               np.empty(m), np.empty((m, m)), np.empty(m), np.zeros((m, m)), np.empty(m), np.empty(z.shape[2]))
+               np.empty(m), np.empty((m, m)), np.empty(m), np.zeros((m, m)), np.empty(m), np.empty(z.shape[2]),
+               np.empty(order))
 
 
 @nb.njit(**KERNEL_JIT)
 def _run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
                jump_threshold, window, max_step, max_velocity,
                weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
-               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead, x, a, rhs, low, y, v):
+               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead, x, a, rhs, low, y, v,
+               h):
     k_count = forgetting.shape[0]
     p = z.shape[2]
     m = order + (1 if bias else 0)
@@ -177,8 +200,8 @@ def _run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, p
             span = delta * length_unit
             for k in range(k_count):
                 if started:
-                    _forecast(order, bias, m, span, max_velocity, weights[n, k], history[n, k], position[n],
-                              out[t, n, offset + k], x)
+                    _forecast(order, bias, m, delta, length_unit, max_velocity, weights[n, k], history[n, k],
+                              position[n], out[t, n, offset + k], x, h)
                 else:
                     for c in range(p):
                         out[t, n, offset + k, c] = np.nan
@@ -204,11 +227,11 @@ def _run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, p
                 initialised[n] = False
             # forecast made after this row, for a later time
             if want_ahead:
-                ahead_span = _delta(ahead_times[t, n], last_time[n], time_unit, max_step) * length_unit
+                ahead_delta = _delta(ahead_times[t, n], last_time[n], time_unit, max_step)
                 for k in range(k_count):
                     if initialised[n]:
-                        _forecast(order, bias, m, ahead_span, max_velocity, weights[n, k], history[n, k],
-                                  position[n], out_ahead[t, n, offset + k], x)
+                        _forecast(order, bias, m, ahead_delta, length_unit, max_velocity, weights[n, k],
+                                  history[n, k], position[n], out_ahead[t, n, offset + k], x, h)
                     else:
                         for c in range(p):
                             out_ahead[t, n, offset + k, c] = np.nan

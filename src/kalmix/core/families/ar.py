@@ -17,8 +17,19 @@ where :math:`s^2` is the weighted mean of :math:`v^2` (per coordinate, same forg
 prior weighs as much as :math:`\\rho_k` typical samples whatever the data's scale, so a
 regressor much smaller than its target (the first samples of a track, after a stop)
 cannot produce a wild slope. The solve is a Cholesky factorisation, ``m`` = ``order`` (+1)
-unknowns. The forecast of a time :math:`\\Delta` after the last learned row is
-:math:`z_{prev} + \\hat v\\, \\Delta\\, u` (before a second row: the last position).
+unknowns.
+
+**Forecasts.** The model predicts the velocity of the next row, so a forecast :math:`\\Delta`
+time units ahead takes :math:`n = \\max(1, \\lfloor \\Delta + 1/2 \\rfloor)` rows of
+:math:`s = \\Delta / n` each (at most :data:`ITERATED_STEPS`): the position moves by
+:math:`\\hat v_j s u` for :math:`j = 1 \\dots n`, each predicted velocity entering the regressor
+of the next, :math:`\\hat v_{j+1} = w \\cdot [\\hat v_j, \\hat v_{j-1}, \\dots]`. The next row
+(:math:`\\Delta < 1.5`) is :math:`z_{prev} + \\hat v_1 \\Delta u`; before a second row, the last
+position. So an expert that learned that the motion turns or slows keeps turning or slowing
+over a lead of several rows instead of carrying its first velocity in a straight line. An
+iterated velocity is clipped (per coordinate) to the largest magnitude of :math:`\\hat v_1`
+and the velocities in the regressor: a fit whose recursion is unstable cannot explode over
+a long lead. The variance stays the running velocity error times :math:`(\\Delta u)^2`.
 
 **Jumps.** A velocity whose squared error (mean over the coordinates) exceeds
 ``jump_threshold**2`` times the expert's running mean squared error (about ``window``
@@ -41,7 +52,10 @@ import numpy as np
 
 from .kinematic import _step   # the same clipped step in time units (params.time_unit, max_step; state.last_time)
 
-__all__ = ["ARParams", "ARState", "init_state", "forecast", "update"]
+__all__ = ["ARParams", "ARState", "init_state", "forecast", "update", "ITERATED_STEPS"]
+
+#: Most rows of an iterated forecast (a longer time ahead is cut into this many equal steps).
+ITERATED_STEPS = 64
 
 
 class ARParams(NamedTuple):
@@ -139,8 +153,20 @@ def forecast(params: ARParams, state: ARState, time) -> tuple[np.ndarray, np.nda
     variances : ndarray (N, K) — the running mean squared velocity error times :math:`(\\Delta u)^2`.
     """
     delta = _step(params, state, time)
-    scale = (delta * params.length_unit)[:, None]                                    # (N, 1)
-    means = state.position[:, None, :] + _velocity_forecast(params, state) * scale[..., None]
+    u = params.length_unit
+    v = _velocity_forecast(params, state)                                            # (N, K, p)
+    rows = np.clip(np.floor(delta + 0.5), 1.0, ITERATED_STEPS)                       # (N,)
+    step = (delta / rows * u)[:, None, None]
+    means = state.position[:, None, :] + v * step
+    if (rows > 1).any():
+        bound = np.maximum(np.abs(v), np.max(np.abs(state.history), axis=-1))
+        history = state.history
+        for j in range(1, int(rows.max())):
+            going = (rows > j)[:, None, None]
+            history = np.concatenate([v[..., None], history[..., :-1]], axis=-1)
+            v = np.clip(_velocity_forecast(params, state._replace(history=history)), -bound, bound)
+            means = np.where(going, means + v * step, means)
+    scale = (delta * u)[:, None]                                                     # (N, 1)
     return means, state.error * scale * scale
 
 
