@@ -7,7 +7,6 @@ second to last for gate parameters) indexes the K experts.
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import logsumexp, softmax
 
 __all__ = [
     "gating_features",
@@ -64,6 +63,8 @@ def softmax_gate(gate_weights: np.ndarray, inputs: np.ndarray, temperature: floa
     temperature : float
     """
     logits = np.einsum("...km,...m->...k", gate_weights, inputs)
+    from scipy.special import softmax   # here: scipy.special takes 0.2 s to import, and most runs never get here
+
     return softmax(logits / temperature, axis=-1)
 
 
@@ -101,6 +102,8 @@ def posterior(weights: np.ndarray, log_likelihood: np.ndarray) -> np.ndarray:
     """
     log_joint = np.maximum(np.log(np.maximum(weights, 1e-300)) + log_likelihood, LOG_FLOOR)
     log_joint = log_joint - log_joint.max(axis=-1, keepdims=True)
+    from scipy.special import logsumexp
+
     return np.exp(log_joint - logsumexp(log_joint, axis=-1, keepdims=True))
 
 
