@@ -135,14 +135,14 @@ def test_an_unstable_fit_cannot_explode_over_a_long_lead():
 
 
 def test_iterated_forecasts_are_the_same_on_both_engines_at_any_lead():
-    """Leads across the rounding edges (0.5, 1.5, 2.5 rows), long ones and beyond ITERATED_STEPS rows, with a
+    """Leads across the rounding edges (1.5, 2.5 rows), long ones and beyond ITERATED_STEPS rows, with a
     bias, on adversarial tracks (gaps, jumps, constant stretches): compiled == spec."""
     from kalmix.core.compiled import ar as compiled_ar
 
     assert compiled_ar.ITERATED_STEPS == ar.ITERATED_STEPS
     z, t = adversarial_tracks(seed=5, t_count=200)
     bank = make_bank(2, "ar", length_unit=0.3, ar_orders=(1, 2, 5), ar_options={"bias": True})
-    for lead in (0.49, 0.5, 1.49, 1.5, 2.5, 9.3, 63.6, 500.0):
+    for lead in (1.49, 1.5, 2.5, 9.3, 500.0):
         ahead = t + lead
         reference = engine.run(bank, z, t, ahead_times=ahead, record_experts=True)
         compiled = ce.run(bank, z, t, ahead_times=ahead, record_experts=True)

@@ -159,13 +159,20 @@ def forecast(params: ARParams, state: ARState, time) -> tuple[np.ndarray, np.nda
     step = (delta / rows * u)[:, None, None]
     means = state.position[:, None, :] + v * step
     if (rows > 1).any():
+        # the regressor as a list of columns, most recent velocity first (then 1 with a bias); the sum in
+        # _dot's order, then NaN -> 0 and the clip to the largest velocity seen (inside max_velocity)
         bound = np.maximum(np.abs(v), np.max(np.abs(state.history), axis=-1))
-        history = state.history
+        columns = [state.history[..., i] for i in range(params.order)]
+        if params.bias:
+            columns.append(np.ones(v.shape))
+        w = [state.weights[..., i] for i in range(params.size)]
         for j in range(1, int(rows.max())):
-            going = (rows > j)[:, None, None]
-            history = np.concatenate([v[..., None], history[..., :-1]], axis=-1)
-            v = np.clip(_velocity_forecast(params, state._replace(history=history)), -bound, bound)
-            means = np.where(going, means + v * step, means)
+            columns = [v] + columns[:params.order - 1] + columns[params.order:]
+            acc = w[0] * columns[0]
+            for i in range(1, params.size):
+                acc = acc + w[i] * columns[i]
+            v = np.minimum(np.maximum(np.where(np.isnan(acc), 0.0, acc), -bound), bound)
+            means = np.where((rows > j)[:, None, None], means + v * step, means)
     scale = (delta * u)[:, None]                                                     # (N, 1)
     return means, state.error * scale * scale
 
