@@ -160,8 +160,9 @@ def forecast(params: ARParams, state: ARState, time) -> tuple[np.ndarray, np.nda
     means = state.position[:, None, :] + v * step
     if (rows > 1).any():
         # the regressor as a list of columns, most recent velocity first (then 1 with a bias); the sum in
-        # _dot's order, then NaN -> 0 and the clip to the largest velocity seen (inside max_velocity)
-        bound = np.maximum(np.abs(v), np.max(np.abs(state.history), axis=-1))
+        # _dot's order, then NaN -> 0 and one clip: to max_velocity then to the largest velocity seen is
+        # the clip to the smaller of the two (the largest velocity seen is inside max_velocity anyway)
+        bound = np.minimum(np.maximum(np.abs(v), np.max(np.abs(state.history), axis=-1)), params.max_velocity)
         columns = [state.history[..., i] for i in range(params.order)]
         if params.bias:
             columns.append(np.ones(v.shape))
