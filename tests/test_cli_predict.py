@@ -306,3 +306,20 @@ def test_csv_output_round_trips_every_value_and_quotes_what_needs_it():
     odd = frame.assign(track_id=['a,b', 'say "hi"', 'two\nlines'] + list(frame["track_id"][3:]))
     back = pd.read_csv(io.StringIO(csv_text(odd, header=True)), dtype={"track_id": str})
     pd.testing.assert_frame_equal(back, odd, check_exact=True)
+
+
+@pytest.mark.parametrize("frame", [
+    pd.DataFrame({"a": [1.5, np.nan, 2.5]}),                                             # one column: a blank line
+    pd.DataFrame({"a": np.array([1.0, 2.0], dtype=object), "b": ["p", "q"]}),            # floats as objects
+    pd.DataFrame({"track_id": pd.to_datetime(["2020-01-01", "2020-01-02"]), "x": [1.0, 2.0]}),  # Parquet ids
+    pd.DataFrame({"track_id": [b"ab", b"cd"], "x": [1.0, 2.0]}),
+    pd.DataFrame({"a": np.array([0.1, 0.2], dtype=np.float16), "b": [1.0, 2.0]}),
+    pd.DataFrame({"a": np.array([2**70, 1], dtype=object), "b": [1.0, 2.0]}),
+    pd.DataFrame({"a": pd.array(["x", pd.NA], dtype="string"), "b": [1.0, np.nan]}),
+])
+def test_csv_output_reads_back_as_pandas_own_for_any_column_type(frame):
+    """Columns Arrow would write otherwise (dates, bytes, objects, float16, a lone column) go through pandas."""
+    from kalmix.commands._durable import csv_text
+
+    ours = pd.read_csv(io.StringIO(csv_text(frame, header=True)))
+    pd.testing.assert_frame_equal(ours, pd.read_csv(io.StringIO(frame.to_csv(index=False))), check_exact=True)

@@ -267,6 +267,17 @@ def test_table_gap_rule_equals_rows():
         assert list(engine.gaps) == list(reference.gaps)
 
 
+@pytest.mark.parametrize("missing", [None, np.nan, pd.NA])
+def test_a_row_without_a_track_id_is_refused_and_changes_nothing(missing):
+    table = pd.DataFrame({"track_id": ["a", "a", missing, "a"], "time": [0.0, 1.0, 2.0, 3.0], "x": [0.0, 1.0, 2.0, 3.0]})
+    engine = TrackPredictor(StreamConfig(n_experts=2, bank="kinematic"))
+    engine.process_table(table.iloc[:2])
+    before = {k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, engine.config.time_unit
+    with pytest.raises(ValueError, match=r"expected a track id in every row, got a missing value .* in row 0"):
+        engine.process_table(table.iloc[2:].reset_index(drop=True))
+    assert ({k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, engine.config.time_unit) == before
+
+
 def test_config_validation():
     with pytest.raises(ValueError, match="horizon"):
         StreamConfig(horizon=0)

@@ -396,6 +396,13 @@ def pd_factorize(values) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(codes, dtype=np.int64), np.asarray(uniques, dtype=object)
 
 
+def _is_missing(values) -> np.ndarray:
+    """Which of ``values`` are None, NaN, NaT or pandas' NA (no track id)."""
+    import pandas as pd
+
+    return np.asarray(pd.isna(np.asarray(values, dtype=object)), dtype=bool)
+
+
 def _id_to_json(value):
     if isinstance(value, (np.integer,)):
         return int(value)
@@ -715,6 +722,11 @@ class TrackPredictor:
         codes = np.empty(n_rows, dtype=np.int8)
         segments = np.zeros(n_rows, dtype=np.int64)
         index, uniques = pd_factorize(ids)
+        missing = np.flatnonzero(_is_missing(uniques))
+        if len(missing):
+            row = int(np.flatnonzero(index == missing[0])[0])
+            raise ValueError(f"table: expected a track id in every row, got a missing value "
+                             f"({uniques[missing[0]]!r}) in row {row} (counted from 0)")
         keys = [_id_to_json(u) for u in uniques]
         had_state = np.array([key in self.states for key in keys], dtype=bool)
         start = 0

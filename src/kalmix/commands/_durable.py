@@ -64,13 +64,34 @@ def csv_value(value) -> str:
     return text
 
 
+def _arrow_writes_as_pandas(frame) -> bool:
+    """True when Arrow's CSV text of ``frame`` reads back as pandas' would: two columns or more (a lone
+    empty field would be a blank line), each float64, integer, bool or text (not dates, bytes, objects)."""
+    from pandas.api.types import infer_dtype
+
+    if frame.shape[1] < 2:
+        return False
+    for name in frame.columns:
+        kind = frame[name].dtype.kind
+        if kind in "iub" or frame[name].dtype == np.float64:
+            continue
+        if kind in "OU" or str(frame[name].dtype).startswith("string"):
+            if infer_dtype(frame[name], skipna=True) in ("string", "empty"):
+                continue
+        return False
+    return True
+
+
 def csv_text(frame, header: bool) -> str:
     """``frame`` as CSV lines (``header`` first): Arrow's writer (ten times pandas' ``to_csv``), floats
-    round-tripping, NaN as an empty field; pandas' writer when a value or name needs quotes."""
+    round-tripping, NaN as an empty field; pandas' writer when a value or name needs quotes, or for
+    columns Arrow writes otherwise (dates, bytes, other objects)."""
     import pyarrow as pa
     import pyarrow.compute as pa_compute
     import pyarrow.csv as pa_csv
 
+    if not _arrow_writes_as_pandas(frame):
+        return frame.to_csv(None, index=False, header=header, lineterminator="\n")
     head = ",".join(csv_value(name) for name in frame.columns) + "\n" if header else ""
     try:
         columns = []
