@@ -134,6 +134,23 @@ def test_an_unstable_fit_cannot_explode_over_a_long_lead():
     np.testing.assert_allclose(far[0, 0], np.array([1.0, -2.0]) + np.array([3.0, -3.0]) * 1e5 * 0.1, rtol=1e-12)
 
 
+@pytest.mark.parametrize("history", [[2.0, 1.0], [2.0, np.nan], [np.nan, 1e9]])
+def test_the_kernels_forecast_equals_the_specs_on_a_hand_made_state(history):
+    """The compiled per-expert forecast against the spec on one state, a NaN in the history included (the
+    engines never store one, a hand-made or loaded state might): bit for bit at every lead."""
+    from kalmix.core.compiled import ar as compiled_ar
+
+    params = _ar_bank().families[0].params
+    state = _hand_state(params, np.array([[0.5, 0.25], [1.2, -0.5]]), np.array([history, [1.0, -1.0]]))
+    for delta in (0.7, 1.5, 3.0, 70.0):
+        spec, _ = ar.forecast(params, state, np.array([delta]))
+        out = np.empty(2)
+        compiled_ar._forecast(params.order, params.bias, params.size, delta, params.length_unit, params.max_velocity,
+                              state.weights[0, 0], state.history[0, 0], state.position[0], out, np.empty(2),
+                              np.empty(2))
+        np.testing.assert_array_equal(out, spec[0, 0])
+
+
 def test_iterated_forecasts_are_the_same_on_both_engines_at_any_lead():
     """Leads across the rounding edges (1.5, 2.5 rows), long ones and beyond ITERATED_STEPS rows, with a
     bias, on adversarial tracks (gaps, jumps, constant stretches): compiled == spec."""

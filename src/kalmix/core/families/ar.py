@@ -162,7 +162,8 @@ def forecast(params: ARParams, state: ARState, time) -> tuple[np.ndarray, np.nda
         # the regressor as a list of columns, most recent velocity first (then 1 with a bias); the sum in
         # _dot's order, then NaN -> 0 and one clip: to max_velocity then to the largest velocity seen is
         # the clip to the smaller of the two (the largest velocity seen is inside max_velocity anyway)
-        bound = np.minimum(np.maximum(np.abs(v), np.max(np.abs(state.history), axis=-1)), params.max_velocity)
+        # (fmax: a NaN in a hand-made history is skipped, as the kernel's max does; the engines store none)
+        bound = np.minimum(np.fmax(np.abs(v), np.fmax.reduce(np.abs(state.history), axis=-1)), params.max_velocity)
         columns = [state.history[..., i] for i in range(params.order)]
         if params.bias:
             columns.append(np.ones(v.shape))
