@@ -67,30 +67,48 @@ def save(report, path) -> None:
             json.dump(report, fh, indent=1)
 
 
-def main(argv=None):
-    args = arguments(__doc__, argv)
+def over_datasets(args, measure, after=None) -> dict:
+    """``report[name]["H=h"] = measure(name, table, h)`` (plus its ``seconds``) for every dataset and horizon
+    of ``args``, printed as it comes; ``after(name, table)`` adds the dataset's other entries. Saved to
+    ``args.json``."""
     report = {}
     for name in args.datasets:
         table = table_of(name)
         report[name] = {}
         for h in args.horizons:
             start = time.perf_counter()
-            result = ev.evaluate_table(table, horizon=h, peers=False, log=lambda *_: None)
-            o = result.overall
-            cal = result.tuned["mixture"]["calibration"]
-            entry = {"one_step_rms": o["mixture"]["one_step"]["rms"],
-                     "lead_weights_rms": o["mixture"]["horizon"]["rms"],
-                     "one_step_weights_rms": o["mixture, one-step weights"]["horizon"]["rms"],
-                     "best_expert_rms": o["best expert (hindsight)"]["horizon"]["rms"],
-                     "calibration": cal, "seconds": time.perf_counter() - start}
+            entry, line = measure(name, table, h)
+            entry["seconds"] = time.perf_counter() - start
             report[name][f"H={h}"] = entry
-            print(f"{name} H={h}: H-step RMS lead weights {entry['lead_weights_rms']:.5g} vs one-step weights "
-                  f"{entry['one_step_weights_rms']:.5g}; coverage one-step {cal['one_step']['coverage_95']:.4f} "
-                  f"(NEES {cal['one_step']['mean_nees']:.3g}), H-step {cal['horizon']['coverage_95']:.4f} "
-                  f"(NEES {cal['horizon']['mean_nees']:.3g}); {entry['seconds']:.0f}s", flush=True)
-        if name in ("skillcorner", "cycling", "hawkeye_ball"):
-            report[name]["warm_start"] = warm_and_cold(table)
+            print(f"{name} H={h}: {line}; {entry['seconds']:.0f}s", flush=True)
+        if after is not None:
+            report[name].update(after(name, table))
     save(report, args.json)
+    return report
+
+
+def _lead_and_coverage(name, table, h):
+    result = ev.evaluate_table(table, horizon=h, peers=False, log=lambda *_: None)
+    o = result.overall
+    cal = result.tuned["mixture"]["calibration"]
+    entry = {"one_step_rms": o["mixture"]["one_step"]["rms"],
+             "lead_weights_rms": o["mixture"]["horizon"]["rms"],
+             "one_step_weights_rms": o["mixture, one-step weights"]["horizon"]["rms"],
+             "best_expert_rms": o["best expert (hindsight)"]["horizon"]["rms"],
+             "calibration": cal}
+    line = (f"H-step RMS lead weights {entry['lead_weights_rms']:.5g} vs one-step weights "
+            f"{entry['one_step_weights_rms']:.5g}; coverage one-step {cal['one_step']['coverage_95']:.4f} "
+            f"(NEES {cal['one_step']['mean_nees']:.3g}), H-step {cal['horizon']['coverage_95']:.4f} "
+            f"(NEES {cal['horizon']['mean_nees']:.3g})")
+    return entry, line
+
+
+def _warm_start(name, table):
+    return {"warm_start": warm_and_cold(table)} if name in ("skillcorner", "cycling", "hawkeye_ball") else {}
+
+
+def main(argv=None):
+    return over_datasets(arguments(__doc__, argv), _lead_and_coverage, _warm_start)
 
 
 if __name__ == "__main__":

@@ -12,36 +12,27 @@ of them and the ratio; target <= 0.97.
 
 from __future__ import annotations
 
-import time
-
 from kalmix.experiments import evaluate as ev
 
-from .lead_and_intervals import arguments, save, table_of
+from .lead_and_intervals import arguments, over_datasets
 
 #: Rows of ``evaluate`` that are not peers: the mixture itself, its parts and the references.
 NOT_PEERS = ("mixture", "AKF mixture", "best expert", "no prediction", "single AKF")
 
 
+def _against_peers(name, table, h):
+    overall = ev.evaluate_table(table, horizon=h, log=lambda *_: None).overall
+    peers = {row: scores["horizon"]["rms"] for row, scores in overall.items()
+             if not row.startswith(NOT_PEERS) and (scores.get("horizon") or {}).get("rms") is not None}
+    best = min(peers, key=peers.get)
+    mixture = overall["mixture"]["horizon"]["rms"]
+    entry = {"mixture_rms": mixture, "best_peer": best, "best_peer_rms": peers[best],
+             "ratio": mixture / peers[best], "peers": peers}
+    return entry, f"mixture {mixture:.5g}, best peer {best} {peers[best]:.5g}, ratio {entry['ratio']:.3f}"
+
+
 def main(argv=None):
-    args = arguments(__doc__, argv)
-    report = {}
-    for name in args.datasets:
-        table = table_of(name)
-        report[name] = {}
-        for h in args.horizons:
-            start = time.perf_counter()
-            overall = ev.evaluate_table(table, horizon=h, log=lambda *_: None).overall
-            peers = {row: scores["horizon"]["rms"] for row, scores in overall.items()
-                     if not row.startswith(NOT_PEERS) and (scores.get("horizon") or {}).get("rms") is not None}
-            best = min(peers, key=peers.get)
-            mixture = overall["mixture"]["horizon"]["rms"]
-            entry = {"mixture_rms": mixture, "best_peer": best, "best_peer_rms": peers[best],
-                     "ratio": mixture / peers[best], "peers": peers, "seconds": time.perf_counter() - start}
-            report[name][f"H={h}"] = entry
-            print(f"{name} H={h}: mixture {mixture:.5g}, best peer {best} {peers[best]:.5g}, "
-                  f"ratio {entry['ratio']:.3f} ({entry['seconds']:.0f}s)", flush=True)
-    save(report, args.json)
-    return report
+    return over_datasets(arguments(__doc__, argv), _against_peers)
 
 
 if __name__ == "__main__":
