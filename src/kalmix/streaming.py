@@ -388,7 +388,14 @@ def _take(state, index):
     return tree_map(lambda a: a[index], state)
 
 
-def pd_factorize(values) -> tuple[np.ndarray, np.ndarray]:
+def _by_key(index, rows, count) -> list[np.ndarray]:
+    """``rows`` grouped by their key ``index[rows]`` (``count`` keys), each group in row order."""
+    order = rows[np.argsort(index[rows], kind="stable")]
+    edges = np.concatenate([[0], np.cumsum(np.bincount(index[rows], minlength=count))])
+    return [order[edges[u]:edges[u + 1]] for u in range(count)]
+
+
+def _factorize(values) -> tuple[np.ndarray, np.ndarray]:
     """Codes (in order of first appearance) and the distinct values of ``values``."""
     import pandas as pd
 
@@ -721,7 +728,7 @@ class TrackPredictor:
         n_rows = len(ids)
         codes = np.empty(n_rows, dtype=np.int8)
         segments = np.zeros(n_rows, dtype=np.int64)
-        index, uniques = pd_factorize(ids)
+        index, uniques = _factorize(ids)
         missing = np.flatnonzero(_is_missing(uniques))
         if len(missing):
             row = int(np.flatnonzero(index == missing[0])[0])
@@ -735,10 +742,7 @@ class TrackPredictor:
             codes[start], segments[start] = -1 if new is None else int(new), gaps.segment
             start += 1
         # then track by track (tracks are independent once the unit is known)
-        order = start + np.argsort(index[start:], kind="stable")
-        bounds = np.concatenate([[0], np.cumsum(np.bincount(index[start:], minlength=len(keys)))])
-        for u, key in enumerate(keys):
-            rows = order[bounds[u]:bounds[u + 1]]
+        for key, rows in zip(keys, _by_key(index, np.arange(start, n_rows), len(keys))):
             if len(rows):
                 gaps = self.gaps.get(key)
                 if gaps is None:
@@ -746,18 +750,12 @@ class TrackPredictor:
                 codes[rows], segments[rows] = gaps.advance_many(times[rows], self.config)
         keep = codes >= 0
         self.skipped += int(n_rows - keep.sum())
-        kept = np.flatnonzero(keep)
-        kept_order = kept[np.argsort(index[kept], kind="stable")]
-        counts = np.bincount(index[kept], minlength=len(keys))
-        firsts = np.full(len(keys), n_rows)
-        np.minimum.at(firsts, index[kept], kept)
+        runs = _by_key(index, np.flatnonzero(keep), len(keys))
+        present = sorted((u for u in range(len(keys)) if len(runs[u])), key=lambda u: runs[u][0])
+        first_kept = np.array([runs[u][0] for u in present], dtype=np.int64)
         gap_rows = codes == 1
-        first_kept = firsts[counts > 0]
         gap_rows[first_kept] &= had_state[index[first_kept]]
-        edges = np.concatenate([[0], np.cumsum(counts)])
-        present = sorted(np.flatnonzero(counts), key=lambda u: firsts[u])
-        return ([keys[u] for u in present], [kept_order[edges[u]:edges[u + 1]] for u in present],
-                segments, gap_rows, keep)
+        return [keys[u] for u in present], [runs[u] for u in present], segments, gap_rows, keep
 
     def _columns(self) -> dict:
         """Output key -> column prefix."""
