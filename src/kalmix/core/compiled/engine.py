@@ -206,7 +206,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         ahead_experts_out = nan(t_count, n, k, p) if with_ahead else None
     sums = [np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k))] if score is not None else None
 
-    offsets = np.cumsum([0] + [f.n_experts for f in bank.families])
+    offsets = [cols.start for cols in bank.slices()]
     costliest_first = sorted(range(len(bank.families)), key=lambda i: -_family_cost(bank.families[i]))
     side_by_side = families_in_parallel(n)
     per_row = n * k * p * 8 * (2 if with_ahead else 1)
@@ -228,7 +228,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         ahead_b = ahead_times[begin:end] if with_ahead else empty2
 
         def run_family(i):
-            family, offset = bank.families[i], int(offsets[i])
+            family, offset = bank.families[i], offsets[i]
             fp, fs = family.params, families[i]
             if family.kind == "akf":
                 families[i] = _akf_block(fp, fs, zb, lb, restart, lens, buffer, offset, ahead_buffer, ahead_frames)
