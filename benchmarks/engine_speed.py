@@ -12,7 +12,8 @@ The issue-11 figures, each the median of ``--repeat`` timed runs after an untime
   tracks (one 2-state filter per coordinate, no mixture);
 - **the CLI**: ``kalmix predict`` of a 100-track, 100,000-row CSV sorted by time (a fresh process,
   interpreter and imports included, warm compiled cache): rows/s. Peer: a filterpy CV Kalman
-  filter per track over the same CSV, read with pandas (a Python loop);
+  filter per track over the same CSV, read with pandas (a Python loop); and the same CSV piped into
+  ``kalmix predict -`` (stdin: the lines that have arrived are stepped together);
 - **cold start** (``--cold``): ``kalmix predict`` of a 1,000-row CSV with an empty compiled-engine
   cache, i.e. what a fresh install costs before the first result.
 
@@ -117,6 +118,15 @@ def run_cli(path, out, env=None) -> float:
     return time.perf_counter() - start
 
 
+def run_cli_stdin(path, out) -> float:
+    """The same CSV piped into ``kalmix predict -`` (stdin has no sample for the length unit: 0.1 given)."""
+    start = time.perf_counter()
+    with open(path, "rb") as source, open(out, "wb") as sink:
+        subprocess.run([kalmix_command(), "predict", "-", "--length-unit", "0.1", "--no-progress"],
+                       check=True, stdin=source, stdout=sink, stderr=subprocess.PIPE)
+    return time.perf_counter() - start
+
+
 def filterpy_cv_csv(path) -> None:
     """The peer of the CLI row: read the CSV, run one filterpy CV Kalman filter per track, row by row."""
     from filterpy.kalman import KalmanFilter
@@ -145,8 +155,10 @@ def cli(rows: int, n_tracks: int, repeats: int) -> dict:
         path = os.path.join(directory, "tracks.csv")
         write_csv(path, rows, n_tracks)
         seconds = median_seconds(lambda: run_cli(path, os.path.join(directory, "out.csv")), repeats)
+        piped = median_seconds(lambda: run_cli_stdin(path, os.path.join(directory, "piped.csv")), repeats)
         peer = median_seconds(lambda: filterpy_cv_csv(path), 1)
     return {"rows": rows, "tracks": n_tracks, "seconds": seconds, "rows_per_s": rows / seconds,
+            "stdin_seconds": piped, "stdin_rows_per_s": rows / piped,
             "filterpy_cv_rows_per_s": rows / peer, "ratio_to_filterpy_cv": peer / seconds,
             "target_rows_per_s": 50_000}
 

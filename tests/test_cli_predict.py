@@ -144,6 +144,65 @@ def test_stdin_prediction_is_written_as_each_line_arrives(tmp_path):
         process.wait(timeout=60)
 
 
+def test_line_batches_take_what_has_arrived():
+    """A pipe that is ahead gives its lines in batches (up to the limit; the last line may lack its newline);
+    a pipe fed line by line gives one line at a time; a stream without a descriptor, a line at a time."""
+    import io
+    import os
+    import threading
+
+    from kalmix.commands._predict_run import _line_batches
+
+    read, write = os.pipe()
+    os.write(write, "".join(f"{i},x\r\n" for i in range(10)).encode() + "é,last".encode())
+    os.close(write)
+    with os.fdopen(read, encoding="utf-8") as stream:
+        batches = list(_line_batches(stream, limit=4))
+    assert [len(b) for b in batches[:2]] == [4, 4] and max(len(b) for b in batches) == 4
+    assert sum(batches, []) == [f"{i},x\r\n" for i in range(10)] + ["é,last"]
+
+    read, write = os.pipe()
+    got, sent = [], threading.Event()
+
+    def feed():
+        for i in range(3):
+            os.write(write, f"{i}\n".encode())
+            sent.wait(30)   # the next line only once this one was taken
+            sent.clear()
+        os.close(write)
+
+    writer = threading.Thread(target=feed)
+    writer.start()
+    with os.fdopen(read) as stream:
+        for batch in _line_batches(stream):
+            got.append(batch)
+            sent.set()
+    writer.join()
+    assert got == [["0\n"], ["1\n"], ["2\n"]]
+    assert list(_line_batches(io.StringIO("a\nb\n"))) == [["a\n"], ["b\n"]]
+
+
+def test_stdin_batches_from_a_pipe_equal_rows_one_at_a_time(cli, tmp_path):
+    """A whole feed piped in at once (stepped in batches) writes the bytes and warnings of the same feed read a
+    line at a time, on interleaved tracks with skipped rows, time glitches, missing values and a gap."""
+    import subprocess
+    import sys
+
+    data = _tracks(n_tracks=4).sort_values(["t", "object_id"], kind="stable")
+    rows = data.to_csv(index=False, na_rep="").splitlines(keepends=True)
+    rows[40:40] = [rows[39], rows[38]]                     # a repeated row and one back in time: skipped
+    rows.insert(60, "101,500.0,0.1,0.2\n")                 # a wrong jump ahead, then rows come back: a glitch
+    feed = "".join(rows)
+    args = ["predict", "-", *FAST]
+    one_at_a_time = _run(cli, args, input=feed)   # in-memory stdin: read a line at a time
+    piped = subprocess.run([sys.executable, "-m", "kalmix.cli", *args], input=feed.encode(), capture_output=True)
+    assert piped.returncode == 0 and one_at_a_time.exit_code == 0, piped.stderr
+    assert piped.stdout.decode() == one_at_a_time.stdout
+    warnings = [line for line in one_at_a_time.stderr.splitlines() if "warning" in line]
+    assert any("row skipped" in w for w in warnings) and any("comes back before" in w for w in warnings)
+    assert [line for line in piped.stderr.decode().splitlines() if "warning" in line] == warnings
+
+
 def test_state_resume_is_bit_for_bit_on_stdin(cli, tmp_path):
     data = _tracks().sort_values(["t", "object_id"], kind="stable")
     whole = _run(cli, ["predict", "-", *FAST, "-H", "2"], input=data.to_csv(index=False, na_rep="")).stdout

@@ -2,7 +2,7 @@
 
 Issue 15, classes 1, 2, 3, 6, 7 and 8. Stops are made deterministic with the test hook
 ``KALMIX_TEST_SIGNAL_AFTER=SIGNAME:N`` (the process sends itself SIGNAME after its N-th unit
-of work: a piece of a chunk, or a stdin row), or with a real signal sent once the output
+of work: a piece of a chunk, or a stdin batch), or with a real signal sent once the output
 shows the process is waiting for input.
 """
 
@@ -166,7 +166,7 @@ def test_a_signal_during_a_stdin_row_finishes_that_row(cli, feed_csv, reference,
     feed = open(feed_csv).read()
     first = _run(cli, args, input=feed, env={TEST_HOOK: f"{sig}:{after}"})
     assert first.exit_code == 128 + signal.Signals[sig].value
-    assert f"after {after} input row(s) in this run (the row in progress was finished)" in first.stderr
+    assert f"after {after} input row(s) in this run (the rows already read were finished)" in first.stderr
     assert open(out, "rb").read().count(b"\n") == 1 + after
     assert _run(cli, args, input=feed).exit_code == 0
     assert open(out, "rb").read() == reference("stdin")

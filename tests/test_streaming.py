@@ -295,3 +295,105 @@ def test_auto_length_unit_recovers_white_noise():
     assert auto_length_unit(np.zeros((2, 2))) == 1.0          # too short
     steps = np.repeat(np.arange(100.0), 3)[:, None]            # quantised: most second differences are 0
     assert auto_length_unit(steps) > 0
+
+
+def _step_row_by_definition(engine, track, time, z):
+    """A stream row by its definition: learn the row (one run of the core), then forecast a missing row one
+    reference interval on from the state after it (a second run). What :meth:`step_row` computed before it
+    took both from one run; (segment, next, next_std, time glitch), or None for a skipped row."""
+    z = np.asarray(z, dtype=np.float64)
+    engine._ensure_params(len(z))
+    gaps = engine.gaps[track].copy() if track in engine.gaps else GapTracker()
+    glitches = gaps.glitches
+    new = gaps.advance(float(time), engine.config)
+    engine.rows += 1
+    if new is None:
+        engine.skipped += 1
+        return None
+    if engine.config.time_unit is None and gaps.intervals:
+        engine._learn_time_unit(gaps.intervals[0])
+    state = engine.states.get(track)
+    fresh = state is None
+    state = engine._fresh() if fresh else state
+    result = engine._run(z[None, None], np.array([[float(time)]]), None, state, np.array([[bool(new) and not fresh]]))
+    nxt, nxt_std = engine._forecast_next(result.state, [float(time) + engine._interval(gaps)])
+    engine.gaps[track], engine.states[track] = gaps, result.state
+    engine.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
+    return gaps.segment, nxt[0], nxt_std[0], gaps.glitches > glitches
+
+
+def _interleaved_feed(seed, n_tracks=5):
+    """Tracks of random walks with missing rows, a 1e8 jump and a 1e12 glitch, adversarial times, interleaved."""
+    rng = np.random.default_rng(seed)
+    ids, times, values, keys = [], [], [], []
+    for track in range(n_tracks):
+        t = _adversarial_times(rng, int(rng.integers(1, 90)))
+        keys += list(np.arange(len(t)) + rng.random())   # interleaved, each track's rows in its own order
+        z = np.cumsum(np.cumsum(rng.normal(size=(len(t), 2)), 0), 0) * 0.01
+        z[rng.random(len(t)) < 0.1] = np.nan
+        if len(t) > 40:
+            z[30:] += 1e8
+            z[35] = 1e12
+        ids += [f"t{track}" if track % 2 else track] * len(t)
+        times += list(t)
+        values += list(z)
+    order = np.argsort(keys, kind="stable")
+    return [ids[i] for i in order], np.array(times)[order], np.array(values)[order]
+
+
+@pytest.mark.parametrize("time_unit", [None, 1.0])
+def test_step_rows_equal_stream_rows_by_definition(time_unit):
+    """Rows stepped in batches of any size (one run of the core each) give every row's prediction, std,
+    segment and glitch flag, and the final trackers, states and counters, of the rows stepped one at a time
+    by definition (two runs a row): bit for bit, on adversarial times and values, every family in the bank."""
+    config = dict(n_experts=6, seed=3, length_unit=0.01, time_unit=time_unit)
+    for seed in range(3):
+        ids, times, values = _interleaved_feed(seed)
+        reference = TrackPredictor(StreamConfig(**config))
+        expected = [_step_row_by_definition(reference, *row) for row in zip(ids, times, values)]
+        engine = TrackPredictor(StreamConfig(**config))
+        rng = np.random.default_rng(seed)
+        got, begin = [], 0
+        while begin < len(ids):
+            end = begin + int(rng.integers(1, 60))
+            got += engine.step_rows(ids[begin:end], times[begin:end], values[begin:end])
+            begin = end
+        assert len(got) == len(expected) and sum(g is None for g in got) > 0
+        for g, e in zip(got, expected):
+            assert (g is None) == (e is None)
+            if g is not None:
+                assert (g.segment, g.time_glitch, g.ahead) == (e[0], e[3], None)
+                assert np.array_equal(g.next, e[1], equal_nan=True) and np.array_equal(g.next_std, e[2], equal_nan=True)
+        assert sum(g is not None and g.time_glitch for g in got) > 0
+        assert (engine.rows, engine.skipped, engine.outliers) == (reference.rows, reference.skipped, reference.outliers)
+        assert engine.outliers > 0 and engine.config.time_unit == reference.config.time_unit
+        assert {k: g.to_json() for k, g in engine.gaps.items()} == {k: g.to_json() for k, g in reference.gaps.items()}
+        assert set(engine.states) == set(reference.states)
+        for track in engine.states:
+            for a, b in zip(_leaves_of(engine.states[track]), _leaves_of(reference.states[track])):
+                assert np.array_equal(a, b, equal_nan=True)
+        # and one row at a time through step_row (which takes the same path)
+        single = TrackPredictor(StreamConfig(**config))
+        rows = [single.step_row(*row) for row in zip(ids, times, values)]
+        assert all((r is None and g is None) or np.array_equal(r.next, g.next, equal_nan=True)
+                   for r, g in zip(rows, got))
+
+
+def _leaves_of(state):
+    from kalmix.streaming import _leaves
+
+    return [array for _, array in _leaves(state)]
+
+
+def test_step_rows_is_all_or_nothing():
+    engine = TrackPredictor(StreamConfig(n_experts=2, bank="kinematic", time_unit=1.0))
+    engine.step_rows(["a", "b"], [0.0, 0.0], [[0.0, 0.0], [1.0, 1.0]])
+    before = {k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, dict(engine.states)
+    with pytest.raises(ValueError, match="expected 2 coordinates per row"):
+        engine.step_rows(["a", "c"], [1.0, 1.0], [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    with pytest.raises(ValueError, match=r"expected 2 times and a \(2, p\) array"):
+        engine.step_rows(["a", "c"], [1.0], [[0.0, 0.0], [1.0, 1.0]])
+    with pytest.raises(TypeError, match=r"track_ids\[1\]: expected a hashable id"):
+        engine.step_rows(["a", ["c"]], [1.0, 1.0], [[0.0, 0.0], [1.0, 1.0]])
+    assert ({k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, dict(engine.states)) == before
+    assert engine.step_rows([], [], np.empty((0, 2))) == []

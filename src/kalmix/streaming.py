@@ -368,6 +368,7 @@ class RowPrediction(NamedTuple):
     ahead: np.ndarray | None      # (p,) prediction ``lead`` (or ``horizon`` time units) ahead, else None
     next_std: np.ndarray | None = None   # (p,) calibrated standard deviations of ``next``
     ahead_std: np.ndarray | None = None  # (p,) of ``ahead``
+    time_glitch: bool = False     # the row came back before its track's jump ahead (that timestamp was wrong)
 
 
 def _leaves(tree, prefix="state"):
@@ -492,7 +493,7 @@ class TrackPredictor:
     def _fresh(self) -> BankState:
         return init_bank_state(self.params, 1)
 
-    def _run(self, values, times, lengths, state, restart):
+    def _run(self, values, times, lengths, state, restart, ahead_times=None):
         """The compiled engine (the numpy reference without numba)."""
         from .core import engine
         from .core.compiled import numba_available
@@ -502,7 +503,7 @@ class TrackPredictor:
             from .core.compiled import engine as compiled
 
             run = compiled.run
-        return run(self.params, values, times, state, lengths=lengths, restart=restart)
+        return run(self.params, values, times, state, lengths=lengths, restart=restart, ahead_times=ahead_times)
 
     def _interval(self, gaps: "GapTracker") -> float:
         """A track's reference interval (median of its first steps), else the time unit, else 1."""
@@ -577,8 +578,11 @@ class TrackPredictor:
             raise TypeError(f"track_id: expected a hashable id (text or a number), got {type(track_id).__name__} "
                             f"{track_id!r:.80}") from None
         params = self._ensure_params(z.shape[0])
+        if params.lead is None and self.config.time_unit is not None:
+            return self._step_batch([track_id], np.array([time]), z[None, :])[0]
         known = self.gaps.get(track_id)
         gaps = GapTracker() if known is None else known.copy()
+        glitches = gaps.glitches
         new = gaps.advance(float(time), self.config)
         if new is None:
             self.rows += 1
@@ -601,7 +605,121 @@ class TrackPredictor:
         self.gaps[track_id], self.states[track_id] = gaps, result.state
         self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
         self.rows += 1
-        return RowPrediction(track_id, float(time), gaps.segment, nxt[0], ahead, nxt_std[0], ahead_std)
+        return RowPrediction(track_id, float(time), gaps.segment, nxt[0], ahead, nxt_std[0], ahead_std,
+                             gaps.glitches > glitches)
+
+    def step_rows(self, track_ids, times, values) -> list[RowPrediction | None]:
+        """Rows that have already arrived, as :meth:`step_row` on each in turn, through one run of the core.
+
+        The same results bit for bit as row by row: each row's prediction is made after that
+        row and before the next (for one reference interval on, as :meth:`step_row`), never
+        from a later row; only the work is shared (the rows of a frame of many tracks in one
+        call, a track's rows in one pass). All or nothing: an exception leaves the predictor
+        as it was. Banks with a lead (``lead``, ``horizon`` > 1), and rows before the time
+        unit is known, go row by row.
+
+        Parameters
+        ----------
+        track_ids : sequence
+            One hashable id per row.
+        times : array_like ``(n,)``
+        values : array_like ``(n, p)``
+            Measurements (NaN = missing).
+
+        Returns
+        -------
+        list
+            Per row, its :class:`RowPrediction`, or None for a skipped row (at or before its
+            track's last time).
+        """
+        ids = list(track_ids)
+        try:
+            times = np.asarray(times, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise ValueError(f"times: expected numbers, got {times!r:.80}") from None
+        try:
+            values = np.asarray(values, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"values: expected numbers (NaN for a missing measurement), got {values!r:.80}") from None
+        if values.ndim != 2 or len(values) != len(ids) or len(times) != len(ids):
+            raise ValueError(f"step_rows: expected {len(ids)} times and a ({len(ids)}, p) array of values (one row "
+                             f"per track id), got {len(times)} times and values of shape {values.shape}")
+        for i, track in enumerate(ids):
+            try:
+                hash(track)
+            except TypeError:
+                raise TypeError(f"track_ids[{i}]: expected a hashable id (text or a number), got "
+                                f"{type(track).__name__} {track!r:.80}") from None
+        if not ids:
+            return []
+        saved = self.checkpoint(list(dict.fromkeys(ids)))
+        try:
+            out = []
+            start = 0
+            while start < len(ids) and (self.params is None or self.params.lead is not None
+                                        or self.config.time_unit is None):
+                out.append(self.step_row(ids[start], times[start], values[start]))
+                start += 1
+            if start < len(ids):
+                self._ensure_params(values.shape[1])
+                out.extend(self._step_batch(ids[start:], times[start:], values[start:]))
+            return out
+        except BaseException:
+            self.rollback(saved)
+            raise
+
+    def _step_batch(self, ids, times, values) -> list[RowPrediction | None]:
+        """:meth:`step_rows` for a bank without a lead, the time unit known: the gap rule row by row, then one
+        run of the core with every row's forecast one reference interval on (its ``ahead``: the same
+        computation as :meth:`_forecast_next` from the state after the row). Changes the predictor only
+        at the end."""
+        n_rows, p = values.shape
+        trackers: dict = {}
+        runs: dict = {}          # track -> [(row, restart, next time)]
+        outcome = [None] * n_rows
+        for i in range(n_rows):
+            track = ids[i]
+            gaps = trackers.get(track)
+            if gaps is None:
+                known = self.gaps.get(track)
+                gaps = trackers[track] = GapTracker() if known is None else known.copy()
+            glitches = gaps.glitches
+            new = gaps.advance(float(times[i]), self.config)
+            if new is None:
+                continue
+            run = runs.setdefault(track, [])
+            fresh = not run and track not in self.states
+            run.append((i, bool(new) and not fresh, float(times[i]) + self._interval(gaps)))
+            outcome[i] = (gaps.segment, gaps.glitches > glitches)
+        results: list[RowPrediction | None] = [None] * n_rows
+        tracks = list(runs)
+        if tracks:
+            lengths = np.array([len(runs[t]) for t in tracks], dtype=np.int64)
+            shape = (int(lengths.max()), len(tracks))
+            dense = np.full(shape + (p,), np.nan)
+            dense_times, ahead_times = np.full(shape, np.nan), np.full(shape, np.nan)
+            restart = np.zeros(shape, dtype=bool)
+            for c, track in enumerate(tracks):
+                rows = np.array([r for r, _, _ in runs[track]], dtype=np.int64)
+                dense[:len(rows), c] = values[rows]
+                dense_times[:len(rows), c] = times[rows]
+                restart[:len(rows), c] = [gap for _, gap, _ in runs[track]]
+                ahead_times[:len(rows), c] = [when for _, _, when in runs[track]]
+            states = [self.states[t] if t in self.states else self._fresh() for t in tracks]
+            state = states[0] if len(tracks) == 1 else _stack(states)   # (one live row: no copies)
+            result = self._run(dense, dense_times, lengths, state, restart, ahead_times)
+            for c, track in enumerate(tracks):
+                for j, (r, _, _) in enumerate(runs[track]):
+                    segment, glitch = outcome[r]
+                    results[r] = RowPrediction(track, float(times[r]), segment, result.ahead[j, c], None,
+                                               result.ahead_std[j, c], None, glitch)
+            for c, track in enumerate(tracks):
+                self.gaps[track] = trackers[track]
+                self.states[track] = result.state if len(tracks) == 1 else _take(result.state, slice(c, c + 1))
+            self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
+        self.rows += n_rows
+        self.skipped += sum(r is None for r in results)
+        return results
 
     # -- a table (or chunk) at once -----------------------------------------------------
     def process_table(self, table, position_names=None, next_times=None):

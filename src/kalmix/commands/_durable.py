@@ -40,7 +40,7 @@ __all__ = ["json_value", "csv_value", "Interrupted", "OutputClosed", "SignalGuar
            "count_rows", "TEST_HOOK"]
 
 _STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
-#: Test hook, ``SIGNAME:N``: after the N-th unit of work (a slice of a chunk, a stdin row) the
+#: Test hook, ``SIGNAME:N``: after the N-th unit of work (a slice of a chunk, a stdin batch) the
 #: process sends itself SIGNAME, at a known point instead of after a sleep.
 TEST_HOOK = "KALMIX_TEST_SIGNAL_AFTER"
 
@@ -363,14 +363,16 @@ class Output:
             text = csv_text(frame, header=not self.header_written)
         self._write(text, len(frame))
 
-    def write_record(self, record: dict) -> None:
-        """Write one prediction row."""
+    def write_records(self, records: list[dict]) -> None:
+        """Write prediction rows (dicts with the same keys) as one piece."""
+        if not records:
+            return
         if self.fmt == "jsonl":
-            text = json.dumps({k: json_value(v) for k, v in record.items()}) + "\n"
+            text = "".join(json.dumps({k: json_value(v) for k, v in record.items()}) + "\n" for record in records)
         else:
-            text = ("" if self.header_written else ",".join(csv_value(k) for k in record) + "\n") + \
-                   ",".join(csv_value(v) for v in record.values()) + "\n"
-        self._write(text, 1)
+            head = "" if self.header_written else ",".join(csv_value(k) for k in records[0]) + "\n"
+            text = head + "".join(",".join(csv_value(v) for v in record.values()) + "\n" for record in records)
+        self._write(text, len(records))
 
     def _write(self, text: str, rows: int) -> None:
         if not text:

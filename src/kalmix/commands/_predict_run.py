@@ -1,9 +1,10 @@
-"""The body of ``kalmix predict``: a file chunk by chunk or stdin row by row, each committed whole.
+"""The body of ``kalmix predict``: a file chunk by chunk or stdin batch by batch, each committed whole.
 
-A chunk (file) or a row (stdin) is computed by :class:`kalmix.streaming.TrackPredictor`,
+A chunk (file) or the stdin lines that have arrived (a batch; one line when they come one at a
+time) are computed by :class:`kalmix.streaming.TrackPredictor`,
 then committed: its predictions are written and, every ``--save-every`` rows and at exit,
 the state file is saved with the output position it matches (:mod:`._durable`). A chunk
-stopped before its commit is rolled back; a stdin row, once read, is finished. So after
+stopped before its commit is rolled back; stdin rows, once read, are finished. So after
 SIGINT, SIGTERM or SIGHUP the output and the state file describe the same rows, and the
 same command run again continues exactly where the first stopped.
 """
@@ -96,7 +97,7 @@ class Run:
                  else "no --state, nothing to resume from")
         if self.stopped is not None:
             undone = ("the chunk in progress was rolled back" if self.unit == "chunk"
-                      else "the row in progress was finished")
+                      else "the rows already read were finished")
             click.echo(f"kalmix: stopped by {self.stopped.name} after {self.rows} input row(s) in this run "
                        f"({undone}); {saved}", err=True)
             raise SystemExit(self.stopped.exit_code)
@@ -261,17 +262,72 @@ def _parse_id(value, column, line_number):
     return value
 
 
+#: Most stdin lines taken in one batch (see :func:`_line_batches`).
+BATCH_LINES = 4096
+
+
+def _line_batches(stream, limit: int = BATCH_LINES):
+    """Lists of the lines of ``stream`` that have arrived: waits for one, then takes those already there.
+
+    A live stream (rows a while apart) gives batches of one line, as before; a pipe that is
+    ahead (a frame of many tracks, a file piped in) gives up to ``limit`` lines at once, which
+    :meth:`~kalmix.streaming.TrackPredictor.step_rows` steps with the same results as row by
+    row. "Already there" is asked of the operating system (``select``) on the stream's file
+    descriptor, read directly (the text layer would hide what it buffered); a stream without
+    one (a test's in-memory text, or where ``select`` cannot wait on it) is read a line at a time.
+    """
+    try:
+        import select
+
+        fd = stream.fileno()
+        select.select([fd], [], [], 0)
+    except (AttributeError, OSError, ValueError, ImportError):
+        yield from ([line] for line in iter(stream.readline, ""))
+        return
+    import codecs
+
+    decoder = codecs.getincrementaldecoder(getattr(stream, "encoding", None) or "utf-8")(
+        getattr(stream, "errors", None) or "strict")
+    pending = ""
+    done = False
+    while not done:
+        lines: list[str] = []
+        wait = None   # block for the first bytes of a batch, then take only what is there
+        while len(lines) < limit:
+            if not select.select([fd], [], [], wait)[0]:
+                break
+            data = os.read(fd, 1 << 16)
+            pending += decoder.decode(data, final=not data)
+            if not data:
+                done = True
+                break
+            parts = pending.split("\n")
+            pending = parts.pop()
+            lines.extend(part + "\n" for part in parts)
+            if lines:
+                wait = 0
+        if done and pending:
+            lines.append(pending)
+            pending = ""
+        for begin in range(0, len(lines), limit):
+            yield lines[begin:begin + limit]
+
+
 def predict_stream(run, stdin, settings, unit, time_column, position_columns, id_column):
     run.unit = "row"
-    lines = iter(stdin.readline, "")
+    batches = _line_batches(stdin)
     line_number = 0
     first = None
-    for raw in lines:
-        line_number += 1
-        if line_number == 1:
-            raw = raw.lstrip("\ufeff")  # a UTF-8 byte order mark would glue itself to the first column's name
-        if raw.strip():
-            first = raw
+    rest: list[str] = []
+    for batch in batches:
+        for position, raw in enumerate(batch):
+            line_number += 1
+            if line_number == 1:
+                raw = raw.lstrip("\ufeff")  # a UTF-8 byte order mark would glue itself to the first column's name
+            if raw.strip():
+                first, rest = raw, batch[position + 1:]
+                break
+        if first is not None:
             break
     if first is None:
         raise ValueError("stdin: no input (expected a CSV header line or JSON lines)")
@@ -300,27 +356,19 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
     index = {name: i for i, name in enumerate(header)}
     counts: dict = {}
 
-    def records():
-        yield from pending
-        nonlocal line_number
-        for raw in lines:
-            line_number += 1
-            if not raw.strip():
-                continue
-            if is_json:
-                try:
-                    record = json.loads(raw)
-                except json.JSONDecodeError as error:
-                    raise ValueError(f"line {line_number}: not valid JSON: {error}") from None
-                if not isinstance(record, dict):
-                    raise ValueError(f"line {line_number}: expected a JSON object, got {raw.strip()[:80]!r}")
-                yield line_number, record
-            else:
-                row = next(csv.reader([raw]))
-                if len(row) != len(header):
-                    raise ValueError(f"line {line_number}: expected {len(header)} fields like the header, "
-                                     f"got {len(row)}")
-                yield line_number, row
+    def parse(raw, number):
+        if is_json:
+            try:
+                record = json.loads(raw)
+            except json.JSONDecodeError as error:
+                raise ValueError(f"line {number}: not valid JSON: {error}") from None
+            if not isinstance(record, dict):
+                raise ValueError(f"line {number}: expected a JSON object, got {raw.strip()[:80]!r}")
+            return record
+        row = next(csv.reader([raw]))
+        if len(row) != len(header):
+            raise ValueError(f"line {number}: expected {len(header)} fields like the header, got {len(row)}")
+        return row
 
     def get(record, name, number):
         if is_json:
@@ -329,7 +377,8 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
             return record[name]
         return record[index[name]]
 
-    for number, record in records():
+    def row_of(number, record):
+        """(line, track, time, positions) of a record, or None for a row without a time (skipped)."""
         track = _parse_id(get(record, columns.track_id, number), columns.track_id, number) if columns.track_id else 0
         if columns.time is None:
             time = float(counts.get(track, engine.gaps[track].last_time + 1 if track in engine.gaps else 0))
@@ -338,30 +387,58 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
             time = _parse_number(get(record, columns.time, number), columns.time, number)
             if math.isnan(time):
                 click.echo(f"kalmix: warning: line {number}: no time, row skipped", err=True)
-                continue
-        z = [_parse_number(get(record, name, number), name, number) for name in columns.positions]
-        with run.guard.deferred():  # a row that was read is finished, whatever signal comes
-            glitches = engine.gaps[track].glitches if track in engine.gaps else 0
-            mark = engine.checkpoint([track])
+                return None
+        return number, track, time, [_parse_number(get(record, name, number), name, number)
+                                     for name in columns.positions]
+
+    def step(rows):
+        """Step and write the rows read (finished whatever signal comes), then warn row by row."""
+        if not rows:
+            return
+        numbers, tracks, times, values = zip(*rows)
+        with run.guard.deferred():
+            mark = engine.checkpoint(list(dict.fromkeys(tracks)))
             committed = False
             try:
-                result = engine.step_row(track, time, z)
-                if result is not None:
-                    run.sink.write_record(_row_record(result, track, time, columns, engine._columns()))
+                results = engine.step_rows(list(tracks), np.array(times), np.array(values, dtype=np.float64))
+                prefixes = engine._columns()
+                records = [_row_record(result, track, time, columns, prefixes)
+                           for result, track, time in zip(results, tracks, times) if result is not None]
+                run.sink.write_records(records)
                 committed = True
-                run.measured += bool(np.isfinite(np.asarray(z, dtype=np.float64)).all())
+                run.measured += int(np.isfinite(np.array(values, dtype=np.float64)).all(axis=1).sum())
             except BaseException:
                 if not committed:
                     engine.rollback(mark)
                 raise
-            run.commit(1)
+            run.commit(len(rows))
+        for number, track, time, result in zip(numbers, tracks, times, results):
             if result is None:
                 click.echo(f"kalmix: warning: line {number}: time {time!r} is not after track {track!r}'s "
                            "previous time; row skipped", err=True)
-            elif engine.gaps[track].glitches > glitches:
+            elif result.time_glitch:
                 click.echo(f"kalmix: warning: line {number}: time {time!r} comes back before track {track!r}'s "
                            "jump ahead; that jump's timestamp was taken as wrong and the track goes on", err=True)
-            run.guard.tick()
+        run.guard.tick()
+
+    def parsed(lines, rows):
+        """``rows`` and the rows of ``lines``; on a bad line, the rows before it are stepped, then it raises."""
+        nonlocal line_number
+        try:
+            for raw in lines:
+                line_number += 1
+                if raw.strip():
+                    row = row_of(line_number, parse(raw, line_number))
+                    if row is not None:
+                        rows.append(row)
+        except ValueError:
+            step(rows)
+            raise
+        return rows
+
+    step(parsed(rest, [row for row in (row_of(number, record) for number, record in pending) if row is not None]))
+    for batch in batches:
+        step(parsed(batch, []))
 
 
 def _row_record(result, track, time, columns, prefixes):

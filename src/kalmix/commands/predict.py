@@ -281,7 +281,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
     lines from stdin and writes each prediction as soon as its measurement arrives.
 
     Stopped by Ctrl-C, SIGTERM or SIGHUP, it saves the --state file to match what it wrote
-    (a chunk in progress is rolled back, a stdin row in progress finished) and exits with
+    (a chunk in progress is rolled back, stdin rows already read are finished) and exits with
     128 + the signal number; the same command then continues (-o is continued, not rewritten).
 
     With --engine dask, INPUT is a directory or glob of Parquet (or CSV) files, rows of a track
