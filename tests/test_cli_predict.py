@@ -184,7 +184,8 @@ def test_line_batches_take_what_has_arrived():
 
 def test_stdin_batches_from_a_pipe_equal_rows_one_at_a_time(cli, tmp_path):
     """A whole feed piped in at once (stepped in batches) writes the bytes and warnings of the same feed read a
-    line at a time, on interleaved tracks with skipped rows, time glitches, missing values and a gap."""
+    line at a time, on interleaved tracks with skipped rows, a row without a time, time glitches, missing
+    values and a gap (the warnings in line order)."""
     import subprocess
     import sys
 
@@ -192,6 +193,7 @@ def test_stdin_batches_from_a_pipe_equal_rows_one_at_a_time(cli, tmp_path):
     rows = data.to_csv(index=False, na_rep="").splitlines(keepends=True)
     rows[40:40] = [rows[39], rows[38]]                     # a repeated row and one back in time: skipped
     rows.insert(60, "101,500.0,0.1,0.2\n")                 # a wrong jump ahead, then rows come back: a glitch
+    rows.insert(70, "102,,0.3,0.4\n")                       # no time: skipped
     feed = "".join(rows)
     args = ["predict", "-", *FAST]
     one_at_a_time = _run(cli, args, input=feed)   # in-memory stdin: read a line at a time
@@ -199,7 +201,8 @@ def test_stdin_batches_from_a_pipe_equal_rows_one_at_a_time(cli, tmp_path):
     assert piped.returncode == 0 and one_at_a_time.exit_code == 0, piped.stderr
     assert piped.stdout.decode() == one_at_a_time.stdout
     warnings = [line for line in one_at_a_time.stderr.splitlines() if "warning" in line]
-    assert any("row skipped" in w for w in warnings) and any("comes back before" in w for w in warnings)
+    assert any("not after" in w for w in warnings) and any("comes back before" in w for w in warnings)
+    assert any("no time" in w for w in warnings)
     assert [line for line in piped.stderr.decode().splitlines() if "warning" in line] == warnings
 
 

@@ -378,7 +378,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         return record[index[name]]
 
     def row_of(number, record):
-        """(line, track, time, positions) of a record, or None for a row without a time (skipped)."""
+        """(line, track, time, positions) of a record; track None for a row without a time (skipped)."""
         track = _parse_id(get(record, columns.track_id, number), columns.track_id, number) if columns.track_id else 0
         if columns.time is None:
             time = float(counts.get(track, engine.gaps[track].last_time + 1 if track in engine.gaps else 0))
@@ -386,59 +386,67 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         else:
             time = _parse_number(get(record, columns.time, number), columns.time, number)
             if math.isnan(time):
-                click.echo(f"kalmix: warning: line {number}: no time, row skipped", err=True)
-                return None
+                return number, None, time, None
         return number, track, time, [_parse_number(get(record, name, number), name, number)
                                      for name in columns.positions]
 
-    def step(rows):
-        """Step and write the rows read (finished whatever signal comes), then warn row by row."""
-        if not rows:
-            return
-        numbers, tracks, times, values = zip(*rows)
+    def take(lines, rows):
+        """Parse ``lines`` after ``rows``, step and write them, then warn line by line; on a bad line the
+        rows before it are stepped and written, then it raises. Lines read are finished whatever signal
+        comes (the signal is raised after the commit)."""
+        nonlocal line_number
+        error = None
         with run.guard.deferred():
-            mark = engine.checkpoint(list(dict.fromkeys(tracks)))
-            committed = False
             try:
-                results = engine.step_rows(list(tracks), np.array(times), np.array(values, dtype=np.float64))
-                prefixes = engine._columns()
-                records = [_row_record(result, track, time, columns, prefixes)
-                           for result, track, time in zip(results, tracks, times) if result is not None]
-                run.sink.write_records(records)
-                committed = True
-                run.measured += int(np.isfinite(np.array(values, dtype=np.float64)).all(axis=1).sum())
-            except BaseException:
-                if not committed:
-                    engine.rollback(mark)
-                raise
-            run.commit(len(rows))
-        for number, track, time, result in zip(numbers, tracks, times, results):
+                for raw in lines:
+                    line_number += 1
+                    if raw.strip():
+                        rows.append(row_of(line_number, parse(raw, line_number)))
+            except ValueError as bad:
+                error = bad
+            timed = [row for row in rows if row[1] is not None]
+            results = iter(step(timed))
+        for number, track, time, _ in rows:
+            if track is None:
+                click.echo(f"kalmix: warning: line {number}: no time, row skipped", err=True)
+                continue
+            result = next(results)
             if result is None:
                 click.echo(f"kalmix: warning: line {number}: time {time!r} is not after track {track!r}'s "
                            "previous time; row skipped", err=True)
             elif result.time_glitch:
                 click.echo(f"kalmix: warning: line {number}: time {time!r} comes back before track {track!r}'s "
                            "jump ahead; that jump's timestamp was taken as wrong and the track goes on", err=True)
-        run.guard.tick()
+        if rows:
+            run.guard.tick()
+        if error is not None:
+            raise error
 
-    def parsed(lines, rows):
-        """``rows`` and the rows of ``lines``; on a bad line, the rows before it are stepped, then it raises."""
-        nonlocal line_number
+    def step(rows) -> list:
+        """Step the rows (line, track, time, positions) and write their predictions, committed together."""
+        if not rows:
+            return []
+        _, tracks, times, values = zip(*rows)
+        values = np.array(values, dtype=np.float64)
+        mark = engine.checkpoint(list(dict.fromkeys(tracks)))
+        committed = False
         try:
-            for raw in lines:
-                line_number += 1
-                if raw.strip():
-                    row = row_of(line_number, parse(raw, line_number))
-                    if row is not None:
-                        rows.append(row)
-        except ValueError:
-            step(rows)
+            results = engine.step_rows(list(tracks), np.array(times), values)
+            prefixes = engine._columns()
+            run.sink.write_records([_row_record(result, track, time, columns, prefixes)
+                                    for result, track, time in zip(results, tracks, times) if result is not None])
+            committed = True
+            run.measured += int(np.isfinite(values).all(axis=1).sum())
+        except BaseException:
+            if not committed:
+                engine.rollback(mark)
             raise
-        return rows
+        run.commit(len(rows))
+        return results
 
-    step(parsed(rest, [row for row in (row_of(number, record) for number, record in pending) if row is not None]))
+    take(rest, [row_of(number, record) for number, record in pending])
     for batch in batches:
-        step(parsed(batch, []))
+        take(batch, [])
 
 
 def _row_record(result, track, time, columns, prefixes):
