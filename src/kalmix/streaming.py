@@ -4,6 +4,8 @@ Two ways in, the same numbers out:
 
 - :meth:`TrackPredictor.step_row` takes one measurement of one track at a time (the
   stdin streaming mode: a prediction is returned as soon as its measurement arrives);
+  :meth:`TrackPredictor.step_rows` takes the rows that have already arrived (of any tracks)
+  with the same results bit for bit, through one run of the core;
 - :meth:`TrackPredictor.process_table` takes a track table (or one chunk of a big
   file) and steps every track segment present in it at once through the batched core.
 
