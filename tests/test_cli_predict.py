@@ -182,6 +182,66 @@ def test_line_batches_take_what_has_arrived():
     assert list(_line_batches(io.StringIO("a\nb\n"))) == [["a\n"], ["b\n"]]
 
 
+def test_line_batches_split_lines_across_reads_and_stop_at_a_bad_byte():
+    """Lines cut anywhere by the reads (inside a multi-byte character, right after a newline) come out whole;
+    a line that does not decode raises, naming it, only after the lines before it."""
+    import io
+    import os
+    import threading
+
+    from kalmix.commands._predict_run import _line_batches, _split_lines
+
+    def batches(chunks, errors="strict"):
+        read, write = os.pipe()
+
+        def feed():   # from a thread: the pipe holds 64 KiB
+            for chunk in chunks:
+                os.write(write, chunk)
+            os.close(write)
+
+        writer = threading.Thread(target=feed)
+        writer.start()
+        with os.fdopen(read, encoding="utf-8", errors=errors) as stream:
+            out = []
+            try:
+                for batch in _line_batches(stream, limit=3):
+                    out.append(batch)
+            except ValueError as error:
+                out.append(str(error))
+        writer.join()
+        return out
+
+    text = "t,é\n1,ü€\n\n2,x\n" + "3," + "9" * 200_000 + "\n4,y"
+    data = text.encode()
+    assert sum(batches([data]), []) == io.StringIO(text).readlines()
+    rng = np.random.default_rng(0)
+    for cuts in ([4], [3, 9, 10], list(range(1, 30)), [5, 14, 15, 16], sorted(rng.choice(len(data), 40))):
+        edges = [0, *cuts, len(data)]
+        partial, lines = [], []
+        for a, b in zip(edges[:-1], edges[1:]):   # reads ending anywhere: inside a character, after a newline
+            lines += _split_lines(partial, data[a:b])
+        lines += [b"".join(partial)]
+        assert [line.decode() for line in lines] == io.StringIO(text).readlines()
+    got = batches([b"t,x\n0,1\n1,\xff\n2,3\n"])
+    assert got[0] == ["t,x\n", "0,1\n"] and "not valid utf-8" in got[1] and "1,\\xff" in got[1]
+    assert sum(batches([b"t,x\n1,\xff\n"], errors="surrogateescape"), [])[1] == "1,\udcff\n"
+
+
+def test_stdin_bad_line_after_rows_on_a_pipe(tmp_path):
+    """On a pipe (rows stepped in batches), the rows before a bad line are written, then a clear error: a JSON
+    integer beyond any float, a CSV line the csv module refuses."""
+    import subprocess
+    import sys
+
+    good = "".join(json.dumps({"t": k, "x": 0.1 * k}) + "\n" for k in range(3))
+    for feed, message in ((good + '{"t": 1' + "0" * 400 + ', "x": 1}\n' + good, "must be finite, got an integer of 401"),
+                          ("t,x\n0,1\n1,2\n2,3\n3,4\r5\n4,5\n", "line 5: not a CSV row")):
+        done = subprocess.run([sys.executable, "-m", "kalmix.cli", "predict", "-", *FAST], input=feed.encode(),
+                              capture_output=True)
+        assert done.returncode != 0 and message in done.stderr.decode(), done.stderr.decode()
+        assert len(done.stdout.decode().strip().splitlines()) == 3 + (not feed.startswith("{"))
+
+
 def test_stdin_batches_from_a_pipe_equal_rows_one_at_a_time(cli, tmp_path):
     """A whole feed piped in at once (stepped in batches) writes the bytes and warnings of the same feed read a
     line at a time, on interleaved tracks with skipped rows, a row without a time, time glitches, missing

@@ -172,6 +172,27 @@ def test_a_signal_during_a_stdin_row_finishes_that_row(cli, feed_csv, reference,
     assert open(out, "rb").read() == reference("stdin")
 
 
+def test_a_signal_while_stdin_rows_are_stepped_waits_for_their_output_and_warnings(cli, monkeypatch, tmp_path):
+    """SIGTERM arriving inside the core's call for a skipped row: the row's warning is still printed (the
+    lines read are finished, warnings included), then the run stops with 143 and the state matches."""
+    state, out = str(tmp_path / "s.npz"), str(tmp_path / "out.csv")
+    real, calls = TrackPredictor.step_rows, []
+
+    def step_rows(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:   # the third line: a repeated time, skipped
+            os.kill(os.getpid(), signal.SIGTERM)
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(TrackPredictor, "step_rows", step_rows)
+    result = _run(cli, ["predict", "-", *FAST, "--state", state, "-o", out], input="t,x\n0,0\n1,1\n1,1\n2,2\n")
+    assert result.exit_code == 128 + signal.SIGTERM
+    assert "line 4: time 1.0 is not after track 0's previous time; row skipped" in result.stderr
+    assert "stopped by SIGTERM after 3 input row(s)" in result.stderr
+    assert open(out, "rb").read().count(b"\n") == 1 + 2
+    assert TrackPredictor.load(state).rows == 3
+
+
 def test_engine_calls_are_all_or_nothing(monkeypatch):
     """An exception inside an engine call leaves trackers, counters and states as they were."""
     table = _feed(n_tracks=3, n=30).rename(columns={"id": "track_id", "t": "time"})

@@ -240,7 +240,11 @@ def _parse_number(text, column, line_number):
     if text is None:
         return math.nan
     if isinstance(text, (int, float)) and not isinstance(text, bool):
-        value = float(text)
+        try:
+            value = float(text)
+        except OverflowError:   # a JSON integer beyond any float
+            raise ValueError(f"line {line_number}: column {column!r} must be finite, got an integer of "
+                             f"{len(str(abs(text)))} digits") from None
     else:
         stripped = str(text).strip()
         if stripped.lower() in ("", "nan", "na", "n/a", "null", "none"):
@@ -266,6 +270,18 @@ def _parse_id(value, column, line_number):
 BATCH_LINES = 4096
 
 
+def _split_lines(partial: list, data: bytes) -> list:
+    """The lines that ``data`` completes (each with its newline); the rest of it joins ``partial``, the pieces
+    of the unfinished line (kept as pieces: a long line costs time linear in its length)."""
+    if b"\n" not in data:
+        partial.append(data)
+        return []
+    parts = (b"".join(partial) + data).split(b"\n")
+    tail = parts.pop()
+    partial[:] = [tail] if tail else []
+    return [part + b"\n" for part in parts]
+
+
 def _line_batches(stream, limit: int = BATCH_LINES):
     """Lists of the lines of ``stream`` that have arrived: waits for one, then takes those already there.
 
@@ -273,44 +289,56 @@ def _line_batches(stream, limit: int = BATCH_LINES):
     ahead (a frame of many tracks, a file piped in) gives up to ``limit`` lines at once, which
     :meth:`~kalmix.streaming.TrackPredictor.step_rows` steps with the same results as row by
     row. "Already there" is asked of the operating system (``select``) on the stream's file
-    descriptor, read directly (the text layer would hide what it buffered); a stream without
-    one (a test's in-memory text, or where ``select`` cannot wait on it) is read a line at a time.
+    descriptor, read directly (the text layer would hide what it buffered), in the stream's
+    encoding when that keeps a newline one byte (UTF-8, ASCII, Latin-1: the bytes are split
+    at newlines, then each line is decoded, so a line that does not decode ends its batch and
+    raises only after the lines before it). A stream without a descriptor (a test's in-memory
+    text, or where ``select`` cannot wait on it) is read a line at a time.
     """
+    import codecs
+
     try:
         import select
 
+        encoding = getattr(stream, "encoding", None) or "utf-8"
+        if codecs.lookup(encoding).name not in ("utf-8", "ascii", "latin-1", "iso8859-1", "cp1252"):
+            raise ValueError(encoding)
         fd = stream.fileno()
         select.select([fd], [], [], 0)
-    except (AttributeError, OSError, ValueError, ImportError):
+    except (AttributeError, OSError, ValueError, LookupError, ImportError):
         yield from ([line] for line in iter(stream.readline, ""))
         return
-    import codecs
-
-    decoder = codecs.getincrementaldecoder(getattr(stream, "encoding", None) or "utf-8")(
-        getattr(stream, "errors", None) or "strict")
-    pending = ""
+    errors = getattr(stream, "errors", None) or "strict"
+    partial: list[bytes] = []   # the pieces of an unfinished line
     done = False
     while not done:
-        lines: list[str] = []
+        lines: list[bytes] = []
         wait = None   # block for the first bytes of a batch, then take only what is there
         while len(lines) < limit:
             if not select.select([fd], [], [], wait)[0]:
                 break
             data = os.read(fd, 1 << 16)
-            pending += decoder.decode(data, final=not data)
             if not data:
                 done = True
                 break
-            parts = pending.split("\n")
-            pending = parts.pop()
-            lines.extend(part + "\n" for part in parts)
-            if lines:
+            whole = _split_lines(partial, data)
+            if whole:
+                lines.extend(whole)
                 wait = 0
-        if done and pending:
-            lines.append(pending)
-            pending = ""
+        if done and partial:
+            lines.append(b"".join(partial))
+            partial.clear()
         for begin in range(0, len(lines), limit):
-            yield lines[begin:begin + limit]
+            texts = []
+            for line in lines[begin:begin + limit]:
+                try:
+                    texts.append(line.decode(encoding, errors))
+                except UnicodeDecodeError as error:
+                    if texts:
+                        yield texts
+                    raise ValueError(f"stdin: a line is not valid {encoding} ({error.reason} at its byte "
+                                     f"{error.start}): {line[:80]!r}") from None
+            yield texts
 
 
 def predict_stream(run, stdin, settings, unit, time_column, position_columns, id_column):
@@ -335,14 +363,17 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
     if is_json:
         try:
             record = json.loads(first)
-        except json.JSONDecodeError as error:
+        except (json.JSONDecodeError, RecursionError) as error:
             raise ValueError(f"line {line_number}: not valid JSON: {error}") from None
         if not isinstance(record, dict):
             raise ValueError(f"line {line_number}: expected a JSON object, got {first.strip()[:80]!r}")
         header = list(record)
         pending = [(line_number, record)]
     else:
-        header = next(csv.reader([first]))
+        try:
+            header = next(csv.reader([first]))
+        except csv.Error as error:
+            raise ValueError(f"line {line_number}: not a CSV header: {error}") from None
         pending = []
     columns = _columns(header, time_column, position_columns, id_column)
     _check_resumed(run.engine, columns)
@@ -360,12 +391,15 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         if is_json:
             try:
                 record = json.loads(raw)
-            except json.JSONDecodeError as error:
+            except (json.JSONDecodeError, RecursionError) as error:
                 raise ValueError(f"line {number}: not valid JSON: {error}") from None
             if not isinstance(record, dict):
                 raise ValueError(f"line {number}: expected a JSON object, got {raw.strip()[:80]!r}")
             return record
-        row = next(csv.reader([raw]))
+        try:
+            row = next(csv.reader([raw]))
+        except csv.Error as error:
+            raise ValueError(f"line {number}: not a CSV row: {error}") from None
         if len(row) != len(header):
             raise ValueError(f"line {number}: expected {len(header)} fields like the header, got {len(row)}")
         return row
@@ -392,8 +426,8 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
 
     def take(lines, rows):
         """Parse ``lines`` after ``rows``, step and write them, then warn line by line; on a bad line the
-        rows before it are stepped and written, then it raises. Lines read are finished whatever signal
-        comes (the signal is raised after the commit)."""
+        rows before it are stepped, written and warned about, then it raises. Lines read are finished,
+        warnings included, whatever signal comes (the signal is raised after them)."""
         nonlocal line_number
         error = None
         with run.guard.deferred():
@@ -402,21 +436,21 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
                     line_number += 1
                     if raw.strip():
                         rows.append(row_of(line_number, parse(raw, line_number)))
-            except ValueError as bad:
+            except Exception as bad:   # noqa: BLE001 - raised below, once the rows before it are done
                 error = bad
-            timed = [row for row in rows if row[1] is not None]
-            results = iter(step(timed))
-        for number, track, time, _ in rows:
-            if track is None:
-                click.echo(f"kalmix: warning: line {number}: no time, row skipped", err=True)
-                continue
-            result = next(results)
-            if result is None:
-                click.echo(f"kalmix: warning: line {number}: time {time!r} is not after track {track!r}'s "
-                           "previous time; row skipped", err=True)
-            elif result.time_glitch:
-                click.echo(f"kalmix: warning: line {number}: time {time!r} comes back before track {track!r}'s "
-                           "jump ahead; that jump's timestamp was taken as wrong and the track goes on", err=True)
+            results = iter(step([row for row in rows if row[1] is not None]))
+            for number, track, time, _ in rows:
+                if track is None:
+                    click.echo(f"kalmix: warning: line {number}: no time, row skipped", err=True)
+                    continue
+                result = next(results)
+                if result is None:
+                    click.echo(f"kalmix: warning: line {number}: time {time!r} is not after track {track!r}'s "
+                               "previous time; row skipped", err=True)
+                elif result.time_glitch:
+                    click.echo(f"kalmix: warning: line {number}: time {time!r} comes back before track "
+                               f"{track!r}'s jump ahead; that jump's timestamp was taken as wrong and the track "
+                               "goes on", err=True)
         if rows:
             run.guard.tick()
         if error is not None:
