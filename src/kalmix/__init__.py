@@ -3,6 +3,10 @@
 Implements P. Wira, J.-P. Urban, J. Gresser, "A divide-and-conquer learning architecture
 for predicting unknown motion" (2001): state-model adaptive Kalman filters (AKF) whose
 system matrix is re-estimated online, combined by a gated mixture of experts.
+
+Two front doors: :class:`TrackPredictor` (many tracks, the default bank of expert families:
+what ``kalmix predict`` runs, the most accurate on real tracks) and :class:`MixturePredictor`
+(the paper's mixture of AKFs, one stream or N streams of frames).
 """
 
 from .bank import make_params
@@ -10,4 +14,16 @@ from .core.run import RunResult
 from .predictor import MixturePredictor, run
 
 __version__ = "0.1.0"
-__all__ = ["MixturePredictor", "make_params", "run", "RunResult", "__version__"]
+__all__ = ["MixturePredictor", "make_params", "run", "RunResult", "TrackPredictor", "StreamConfig", "RowPrediction",
+           "__version__"]
+
+_STREAMING = ("TrackPredictor", "StreamConfig", "RowPrediction")
+
+
+def __getattr__(name):
+    """The default bank's front door (:mod:`kalmix.streaming`), imported when first asked for."""
+    if name in _STREAMING:
+        from . import streaming
+
+        return getattr(streaming, name)
+    raise AttributeError(f"module 'kalmix' has no attribute {name!r}")
