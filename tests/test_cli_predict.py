@@ -430,6 +430,37 @@ def test_csv_output_round_trips_every_value_and_quotes_what_needs_it():
     pd.testing.assert_frame_equal(back, odd, check_exact=True)
 
 
+def test_jsonl_output_is_each_record_as_json_dumps_writes_it():
+    """Column by column, the text of json.dumps on each record (NaN/inf null, floats round-tripping, numpy
+    numbers and bools as JSON's, escaped text); dates and bytes (Parquet ids) as ISO text and UTF-8."""
+    from kalmix.commands._durable import json_value, jsonl_text
+
+    frame = pd.DataFrame({
+        "track_id": ["a", 'q"u', "é", "x\ny"], "time": [0.0, 1e300, -0.0, 5e-324], "segment": np.arange(4),
+        "pred_x": [np.nan, np.inf, -np.inf, 1 / 3], "n": np.array([1, 2, 3, -4], dtype=np.int32),
+        "f32": np.array([0.1, np.nan, 2, 3], dtype=np.float32), "b": [True, False, True, False],
+        "o": [None, 1, 2.5, "s"], "s": pd.array(["x", pd.NA, "y", "z"], dtype="string"),
+        "d": pd.to_datetime(["2020-01-01 00:00:00", None, "2020-01-02 03:04:05", "2021-06-01 00:00:00"]),
+        "bytes": [b"ab", b"\xff", b"", b"c"]})
+    expected = "".join(json.dumps({k: json_value(v) for k, v in record.items()}) + "\n"
+                       for record in frame.to_dict(orient="records"))
+    assert jsonl_text(frame) == expected
+    rows = [json.loads(line) for line in expected.splitlines()]
+    assert rows[0]["pred_x"] is None and rows[2]["time"] == 0.0 and rows[3]["time"] == 5e-324
+    assert [r["d"] for r in rows] == ["2020-01-01T00:00:00", None, "2020-01-02T03:04:05", "2021-06-01T00:00:00"]
+    assert rows[1]["bytes"] == "\\xff" and rows[0]["b"] is True and rows[3]["n"] == -4
+
+
+def test_jsonl_output_of_a_parquet_file_with_date_ids(cli, tmp_path):
+    data = _tracks(n_tracks=2).assign(object_id=lambda f: pd.to_datetime("2020-01-01") + pd.to_timedelta(
+        f["object_id"] - 100, unit="D"))
+    data.to_parquet(tmp_path / "in.parquet")
+    result = _run(cli, ["predict", str(tmp_path / "in.parquet"), *FAST, "-o", str(tmp_path / "out.jsonl")])
+    assert result.exit_code == 0, result.output
+    rows = [json.loads(line) for line in open(tmp_path / "out.jsonl")]
+    assert len(rows) == len(data) and {r["object_id"] for r in rows} == {"2020-01-01T00:00:00", "2020-01-02T00:00:00"}
+
+
 @pytest.mark.parametrize("frame", [
     pd.DataFrame({"a": [1.5, np.nan, 2.5]}),                                             # one column: a blank line
     pd.DataFrame({"a": np.array([1.0, 2.0], dtype=object), "b": ["p", "q"]}),            # floats as objects
