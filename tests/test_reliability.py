@@ -199,11 +199,11 @@ def test_engine_calls_are_all_or_nothing(monkeypatch):
     config = lambda: StreamConfig(n_experts=2, seed=1, horizon=2)  # noqa: E731  (each learns its time unit)
     real_run, calls, fail_at = TrackPredictor._run, [], [2]
 
-    def failing(self, *args):
+    def failing(self, *args, **kwargs):
         calls.append(1)
         if len(calls) == fail_at[0]:
             raise KeyboardInterrupt
-        return real_run(self, *args)
+        return real_run(self, *args, **kwargs)
 
     expected = TrackPredictor(config()).process_table(table)
     engine = TrackPredictor(config())
@@ -219,7 +219,8 @@ def test_engine_calls_are_all_or_nothing(monkeypatch):
     rows = list(table.itertuples())
     expected = [clean.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows]
     calls.clear()
-    fail_at[0] = 14   # two calls a row (the row, then its forecast for the next one): the seventh row's second
+    fail_at[0] = 14   # two calls a row (the row and its lead; the bank without its lead for the next row): the
+    # seventh row's second
     monkeypatch.setattr(TrackPredictor, "_run", failing)
     got = [engine.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows[:6]]
     before = (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, dict(engine.states))

@@ -300,7 +300,8 @@ def test_auto_length_unit_recovers_white_noise():
 def _step_row_by_definition(engine, track, time, z):
     """A stream row by its definition: learn the row (one run of the core), then forecast a missing row one
     reference interval on from the state after it (a second run). What :meth:`step_row` computed before it
-    took both from one run; (segment, next, next_std, time glitch), or None for a skipped row."""
+    took both from one run; (segment, next, next_std, time glitch, lead forecast, its std), or None for a
+    skipped row."""
     z = np.asarray(z, dtype=np.float64)
     engine._ensure_params(len(z))
     gaps = engine.gaps[track].copy() if track in engine.gaps else GapTracker()
@@ -317,9 +318,12 @@ def _step_row_by_definition(engine, track, time, z):
     state = engine._fresh() if fresh else state
     result = engine._run(z[None, None], np.array([[float(time)]]), None, state, np.array([[bool(new) and not fresh]]))
     nxt, nxt_std = engine._forecast_next(result.state, [float(time) + engine._interval(gaps)])
+    ahead = ahead_std = None
+    if result.lead is not None:   # none from a track's first row
+        ahead, ahead_std = (np.full(len(z), np.nan),) * 2 if fresh else (result.lead[0, 0], result.lead_std[0, 0])
     engine.gaps[track], engine.states[track] = gaps, result.state
     engine.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
-    return gaps.segment, nxt[0], nxt_std[0], gaps.glitches > glitches
+    return gaps.segment, nxt[0], nxt_std[0], gaps.glitches > glitches, ahead, ahead_std
 
 
 def _interleaved_feed(seed, n_tracks=5):
@@ -341,12 +345,13 @@ def _interleaved_feed(seed, n_tracks=5):
     return [ids[i] for i in order], np.array(times)[order], np.array(values)[order]
 
 
-@pytest.mark.parametrize("time_unit", [None, 1.0])
-def test_step_rows_equal_stream_rows_by_definition(time_unit):
-    """Rows stepped in batches of any size (one run of the core each) give every row's prediction, std,
-    segment and glitch flag, and the final trackers, states and counters, of the rows stepped one at a time
-    by definition (two runs a row): bit for bit, on adversarial times and values, every family in the bank."""
-    config = dict(n_experts=6, seed=3, length_unit=0.01, time_unit=time_unit)
+@pytest.mark.parametrize("time_unit, lead", [(None, {}), (1.0, {}), (None, {"lead": 2.5}), (1.0, {"horizon": 3})])
+def test_step_rows_equal_stream_rows_by_definition(time_unit, lead):
+    """Rows stepped in batches of any size (one run of the core each, two with a lead) give every row's
+    prediction, std, lead forecast, segment and glitch flag, and the final trackers, states and counters, of
+    the rows stepped one at a time by definition (two runs a row): bit for bit, on adversarial times and
+    values, every family in the bank, with and without a lead head."""
+    config = dict(n_experts=6, seed=3, length_unit=0.01, time_unit=time_unit, **lead)
     for seed in range(3):
         ids, times, values = _interleaved_feed(seed)
         reference = TrackPredictor(StreamConfig(**config))
@@ -362,9 +367,16 @@ def test_step_rows_equal_stream_rows_by_definition(time_unit):
         for g, e in zip(got, expected):
             assert (g is None) == (e is None)
             if g is not None:
-                assert (g.segment, g.time_glitch, g.ahead) == (e[0], e[3], None)
+                assert (g.segment, g.time_glitch) == (e[0], e[3])
                 assert np.array_equal(g.next, e[1], equal_nan=True) and np.array_equal(g.next_std, e[2], equal_nan=True)
+                if lead:
+                    assert np.array_equal(g.ahead, e[4], equal_nan=True)
+                    assert np.array_equal(g.ahead_std, e[5], equal_nan=True)
+                else:
+                    assert g.ahead is None and e[4] is None
         assert sum(g is not None and g.time_glitch for g in got) > 0
+        if lead:
+            assert sum(g is not None and np.isfinite(g.ahead).all() for g in got) > 100
         assert (engine.rows, engine.skipped, engine.outliers) == (reference.rows, reference.skipped, reference.outliers)
         assert engine.outliers > 0 and engine.config.time_unit == reference.config.time_unit
         assert {k: g.to_json() for k, g in engine.gaps.items()} == {k: g.to_json() for k, g in reference.gaps.items()}

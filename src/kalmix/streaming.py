@@ -68,7 +68,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -495,8 +495,8 @@ class TrackPredictor:
     def _fresh(self) -> BankState:
         return init_bank_state(self.params, 1)
 
-    def _run(self, values, times, lengths, state, restart, ahead_times=None):
-        """The compiled engine (the numpy reference without numba)."""
+    def _run(self, values, times, lengths, state, restart, ahead_times=None, bank=None):
+        """The compiled engine (the numpy reference without numba), on this predictor's bank or ``bank``."""
         from .core import engine
         from .core.compiled import numba_available
 
@@ -505,7 +505,8 @@ class TrackPredictor:
             from .core.compiled import engine as compiled
 
             run = compiled.run
-        return run(self.params, values, times, state, lengths=lengths, restart=restart, ahead_times=ahead_times)
+        return run(bank or self.params, values, times, state, lengths=lengths, restart=restart,
+                   ahead_times=ahead_times)
 
     def _interval(self, gaps: "GapTracker") -> float:
         """A track's reference interval (median of its first steps), else the time unit, else 1."""
@@ -580,7 +581,7 @@ class TrackPredictor:
             raise TypeError(f"track_id: expected a hashable id (text or a number), got {type(track_id).__name__} "
                             f"{track_id!r:.80}") from None
         params = self._ensure_params(z.shape[0])
-        if params.lead is None and self.config.time_unit is not None:
+        if self.config.time_unit is not None:
             return self._step_batch([track_id], np.array([time]), z[None, :])[0]
         known = self.gaps.get(track_id)
         gaps = GapTracker() if known is None else known.copy()
@@ -617,8 +618,7 @@ class TrackPredictor:
         row and before the next (for one reference interval on, as :meth:`step_row`), never
         from a later row; only the work is shared (the rows of a frame of many tracks in one
         call, a track's rows in one pass). All or nothing: an exception leaves the predictor
-        as it was. Banks with a lead (``lead``, ``horizon`` > 1), and rows before the time
-        unit is known, go row by row.
+        as it was. Rows before the time unit is known go row by row.
 
         Parameters
         ----------
@@ -658,8 +658,7 @@ class TrackPredictor:
         try:
             out = []
             start = 0
-            while start < len(ids) and (self.params is None or self.params.lead is not None
-                                        or self.config.time_unit is None):
+            while start < len(ids) and (self.params is None or self.config.time_unit is None):
                 out.append(self.step_row(ids[start], times[start], values[start]))
                 start += 1
             if start < len(ids):
@@ -671,10 +670,12 @@ class TrackPredictor:
             raise
 
     def _step_batch(self, ids, times, values) -> list[RowPrediction | None]:
-        """:meth:`step_rows` for a bank without a lead, the time unit known: the gap rule row by row, then one
-        run of the core with every row's forecast one reference interval on (its ``ahead``: the same
-        computation as :meth:`_forecast_next` from the state after the row). Changes the predictor only
-        at the end."""
+        """:meth:`step_rows` once the time unit is known: the gap rule row by row, then one run of the core with
+        every row's forecast one reference interval on (its ``ahead``: the same computation as
+        :meth:`_forecast_next` from the state after the row). A bank with a lead takes its ``ahead`` for
+        the lead, so there the forecasts one interval on come from a second run over the same rows of
+        the bank without its lead head, which nothing else reads (the families, rule, screen and
+        calibration learn the same bits). Changes the predictor only at the end."""
         n_rows, p = values.shape
         trackers: dict = {}
         runs: dict = {}          # track -> [(row, restart, next time)]
@@ -709,12 +710,22 @@ class TrackPredictor:
                 ahead_times[:len(rows), c] = [when for _, _, when in runs[track]]
             states = [self.states[t] if t in self.states else self._fresh() for t in tracks]
             state = states[0] if len(tracks) == 1 else _stack(states)   # (one live row: no copies)
-            result = self._run(dense, dense_times, lengths, state, restart, ahead_times)
+            if self.params.lead is None:
+                result = nxt = self._run(dense, dense_times, lengths, state, restart, ahead_times)
+            else:
+                result = self._run(dense, dense_times, lengths, state, restart)
+                nxt = self._run(dense, dense_times, lengths, state._replace(lead=None), restart, ahead_times,
+                                bank=replace(self.params, lead=None))
             for c, track in enumerate(tracks):
                 for j, (r, _, _) in enumerate(runs[track]):
                     segment, glitch = outcome[r]
-                    results[r] = RowPrediction(track, float(times[r]), segment, result.ahead[j, c], None,
-                                               result.ahead_std[j, c], None, glitch)
+                    ahead = ahead_std = None
+                    if result.lead is not None:   # none from a track's first row (a single position)
+                        first = j == 0 and track not in self.states
+                        ahead = np.full(p, np.nan) if first else result.lead[j, c]
+                        ahead_std = np.full(p, np.nan) if first else result.lead_std[j, c]
+                    results[r] = RowPrediction(track, float(times[r]), segment, nxt.ahead[j, c], ahead,
+                                               nxt.ahead_std[j, c], ahead_std, glitch)
             for c, track in enumerate(tracks):
                 self.gaps[track] = trackers[track]
                 self.states[track] = result.state if len(tracks) == 1 else _take(result.state, slice(c, c + 1))
