@@ -242,7 +242,8 @@ def test_stdin_bad_line_after_rows_on_a_pipe(tmp_path):
         assert len(done.stdout.decode().strip().splitlines()) == 3 + (not feed.startswith("{"))
 
 
-def test_stdin_batches_from_a_pipe_equal_rows_one_at_a_time(cli, tmp_path):
+@pytest.mark.parametrize("extra", [[], ["--lead", "0.1"]])
+def test_stdin_batches_from_a_pipe_equal_rows_one_at_a_time(cli, tmp_path, extra):
     """A whole feed piped in at once (stepped in batches) writes the bytes and warnings of the same feed read a
     line at a time, on interleaved tracks with skipped rows, a row without a time, time glitches, missing
     values and a gap (the warnings in line order)."""
@@ -255,7 +256,7 @@ def test_stdin_batches_from_a_pipe_equal_rows_one_at_a_time(cli, tmp_path):
     rows.insert(60, "101,500.0,0.1,0.2\n")                 # a wrong jump ahead, then rows come back: a glitch
     rows.insert(70, "102,,0.3,0.4\n")                       # no time: skipped
     feed = "".join(rows)
-    args = ["predict", "-", *FAST]
+    args = ["predict", "-", *FAST, *extra]
     one_at_a_time = _run(cli, args, input=feed)   # in-memory stdin: read a line at a time
     piped = subprocess.run([sys.executable, "-m", "kalmix.cli", *args], input=feed.encode(), capture_output=True)
     assert piped.returncode == 0 and one_at_a_time.exit_code == 0, piped.stderr
