@@ -317,7 +317,10 @@ def _line_batches(stream, limit: int = BATCH_LINES):
         while len(lines) < limit:
             if not select.select([fd], [], [], wait)[0]:
                 break
-            data = os.read(fd, 1 << 16)
+            try:
+                data = os.read(fd, 1 << 16)
+            except BlockingIOError:   # a descriptor left non-blocking, ready after all: wait again
+                continue
             if not data:
                 done = True
                 break
