@@ -1,5 +1,6 @@
 """``kalmix predict``: formats, stdin streaming == batch, --state resume, bad inputs, a big file in chunks."""
 
+import decimal
 import io
 import json
 
@@ -450,6 +451,33 @@ def test_jsonl_output_is_each_record_as_json_dumps_writes_it():
     assert rows[0]["pred_x"] is None and rows[2]["time"] == 0.0 and rows[3]["time"] == 5e-324
     assert [r["d"] for r in rows] == ["2020-01-01T00:00:00", None, "2020-01-02T03:04:05", "2021-06-01T00:00:00"]
     assert rows[1]["bytes"] == "\\xff" and rows[0]["b"] is True and rows[3]["n"] == -4
+    odd = [pd.DataFrame({"a": pd.array([1, None, 2**62], dtype="Int64"), "b": [1.0, 2.0, 3.0]}),
+           pd.DataFrame({"a": np.array([1.0, 2.0, np.inf], dtype=np.longdouble)}),
+           pd.DataFrame({"a": np.array([np.datetime64("2020-01-01"), np.datetime64("NaT"), 1], dtype=object)}),
+           pd.DataFrame({True: [1.0], None: [2.0], 1.5: [3.0]}), pd.DataFrame(index=range(3)),
+           pd.DataFrame({"d": [decimal.Decimal("1.50"), decimal.Decimal("2")], "t": pd.to_timedelta([1, 2], unit="s"),
+                         "c": pd.Categorical([1, None])})]
+    for other in odd:
+        assert jsonl_text(other) == "".join(json.dumps({k: json_value(v) for k, v in record.items()}) + "\n"
+                                            for record in other.to_dict(orient="records"))
+    assert jsonl_text(odd[0]).splitlines()[2] == '{"a": 4611686018427387904, "b": 3.0}'
+
+
+@pytest.mark.parametrize("header, option", [("id,segment,x,y", ["--time", "segment"]),
+                                            ("segment,t,x,y", ["--id", "segment"]),
+                                            ("pred_x,t,x,y", ["--id", "pred_x"]),
+                                            ("std3_y,t,x,y", ["--id", "std3_y"]),
+                                            ("row,x,y", ["--id", "row"])])
+def test_an_input_column_named_like_an_output_column_is_refused(cli, tmp_path, header, option):
+    """The id and time columns are kept in the output: one named like a column the predictions add (or like
+    the row number without a time column) would write two columns of one name."""
+    path = tmp_path / "in.csv"
+    path.write_text(header + "\n" + "\n".join(",".join(["1"] * len(header.split(","))) for _ in range(3)) + "\n")
+    result = _run(cli, ["predict", str(path), *FAST, *option, "-o", str(tmp_path / "out.jsonl")])
+    assert result.exit_code == 1, result.output
+    assert ("the name of a column the predictions add" in result.output
+            or "the name the output gives the row number" in result.output), result.output
+    assert not (tmp_path / "out.jsonl").exists()
 
 
 def test_jsonl_output_of_a_parquet_file_with_date_ids(cli, tmp_path):

@@ -53,7 +53,8 @@ from dataclasses import asdict
 import numpy as np
 import pandas as pd
 
-from .io.tables import TrackColumns, _check_unique, _csv_options, _header, _normalise, _to_float, detect_columns
+from .io.tables import (TrackColumns, _check_unique, _csv_options, _header, _normalise, _to_float, check_output_names,
+                        detect_columns)
 
 __all__ = ["predict_dask", "read_archive", "archive_files", "prepare", "data_units", "PIECE_ROWS", "BATCH_TRACKS"]
 
@@ -229,6 +230,7 @@ def read_archive(source, *, time=None, positions=None, track_id=None, piece_rows
 
     files, fmt = archive_files(source)
     columns = detect_columns(_header(files[0], fmt), time=time, positions=positions, track_id=track_id)
+    check_output_names(columns)
     _check_files(files, fmt, columns)
     meta = _canonical(_read_raw(files[0], fmt, columns, nrows=0), columns, 0, files[0])
     pieces = _pieces(files, fmt, piece_rows)
@@ -458,6 +460,7 @@ def predict_dask(frame, columns: TrackColumns | None = None, *, length_unit: flo
     config = StreamConfig(length_unit=1.0 if length_unit is None else length_unit, **settings)  # checked now
     if columns is None:
         columns = detect_columns([str(c) for c in frame.columns])
+    check_output_names(columns)
     if not prepared:
         frame = prepare(frame, columns)
     unit, why, time_unit, sample = data_units(frame, columns, config, derive_length=length_unit is None,

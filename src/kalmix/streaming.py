@@ -454,6 +454,7 @@ class TrackPredictor:
         self.outliers = 0   # rows the glitch screen did not learn (kalmix.core.screen)
         self.output: dict | None = None
         self.loaded_version: int | None = None  # format version of the file :meth:`load` read
+        self._plain: tuple | None = None   # (bank, the bank without its lead head), see _without_lead
 
     # -- set-up ---------------------------------------------------------------------
     def _ensure_params(self, measurement_dim: int) -> Bank:
@@ -491,6 +492,13 @@ class TrackPredictor:
         if self.config.time_unit is None and gaps.intervals:
             self._learn_time_unit(gaps.intervals[0])
         return gaps, new
+
+    def _without_lead(self) -> Bank:
+        """This predictor's bank without its lead head (kept while the bank is the same: the engine checks a
+        state against a bank once per bank)."""
+        if self._plain is None or self._plain[0] is not self.params:
+            self._plain = (self.params, replace(self.params, lead=None))
+        return self._plain[1]
 
     def _fresh(self) -> BankState:
         return init_bank_state(self.params, 1)
@@ -715,7 +723,7 @@ class TrackPredictor:
             else:
                 result = self._run(dense, dense_times, lengths, state, restart)
                 nxt = self._run(dense, dense_times, lengths, state._replace(lead=None), restart, ahead_times,
-                                bank=replace(self.params, lead=None))
+                                bank=self._without_lead())
             for c, track in enumerate(tracks):
                 for j, (r, _, _) in enumerate(runs[track]):
                     segment, glitch = outcome[r]

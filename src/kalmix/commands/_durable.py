@@ -20,6 +20,7 @@ file, the trackers and the output always describe the same rows.
 from __future__ import annotations
 
 import contextlib
+import decimal
 import gzip
 import json
 import math
@@ -46,16 +47,23 @@ TEST_HOOK = "KALMIX_TEST_SIGNAL_AFTER"
 
 
 def json_value(value):
-    """A prediction value for JSON lines: NaN/inf as null, numpy scalars as Python numbers, dates and times
-    (a Parquet id column) in ISO 8601 (NaT and pandas' NA as null), bytes as UTF-8 text."""
+    """A prediction value for JSON lines: NaN/inf as null, numpy scalars as Python numbers, dates, times and
+    durations (Parquet id columns) in ISO 8601 (NaT and pandas' NA as null), decimals as their text, bytes as
+    UTF-8 text."""
     if isinstance(value, (float, np.floating)):
         return None if not math.isfinite(value) else float(value)
     if isinstance(value, (np.integer, np.bool_)):
         return value.item()
+    if isinstance(value, (np.datetime64, np.timedelta64)):
+        import pandas as pd
+
+        value = (pd.Timestamp if isinstance(value, np.datetime64) else pd.Timedelta)(value)
     if hasattr(value, "isoformat"):
         return None if value != value else value.isoformat()   # NaT is not equal to itself
     if isinstance(value, bytes):
         return value.decode("utf-8", "backslashreplace")
+    if isinstance(value, decimal.Decimal):
+        return str(value)
     if type(value).__name__ == "NAType":   # pandas' missing value of text and nullable columns
         return None
     return value
@@ -91,23 +99,24 @@ def _arrow_writes_as_pandas(frame) -> bool:
 
 def _json_column(column) -> list[str]:
     """A column's values as JSON text, each as ``json.dumps(json_value(value))`` writes the record's value
-    (pandas' Python scalars): floats as their ``repr`` (what ``json`` writes) or ``null``, integers as digits,
-    other columns value by value."""
-    values = column.to_numpy()
-    if values.dtype.kind == "f":
-        finite = np.isfinite(values)
-        return [repr(v) if ok else "null" for v, ok in zip(values.astype(np.float64).tolist(), finite.tolist())]
-    if values.dtype.kind in "iu":
-        return [str(v) for v in values.tolist()]
+    (pandas' Python scalars): numpy floats as their ``repr`` (what ``json`` writes) or ``null``, numpy
+    integers as digits, any other column value by value."""
+    if isinstance(column.dtype, np.dtype) and column.dtype.kind in "fiu":
+        values = column.to_numpy()
+        if values.dtype.kind in "iu":
+            return [str(v) for v in values.tolist()]
+        values = values.astype(np.float64)
+        return [repr(v) if ok else "null" for v, ok in zip(values.tolist(), np.isfinite(values).tolist())]
     return [json.dumps(json_value(v)) for v in column.tolist()]
 
 
 def jsonl_text(frame) -> str:
     """``frame`` as JSON lines, the text ``json.dumps`` gives each record (its ``json_value`` of each value),
     built column by column (100k prediction rows: 0.30 s, against 0.68 s record by record)."""
-    keys = [json.dumps(str(name)) + ": " for name in frame.columns]
-    columns = [[key + text for text in _json_column(frame[name])]
-               for key, name in zip(keys, frame.columns)]
+    if frame.shape[1] == 0:
+        return "{}\n" * len(frame)
+    keys = [json.dumps({name: 0})[1:-4] + ": " for name in frame.columns]   # a key as json writes it
+    columns = [[key + text for text in _json_column(frame.iloc[:, i])] for i, key in enumerate(keys)]
     return "".join("{" + ", ".join(row) + "}\n" for row in zip(*columns))
 
 

@@ -186,9 +186,11 @@ def _file_format(path):
 
 
 def _columns(header, time_column, position_columns, id_column):
-    from ..io import detect_columns
+    from ..io.tables import check_output_names, detect_columns
 
-    return detect_columns(header, time=time_column, positions=_positions(position_columns), track_id=id_column)
+    columns = detect_columns(header, time=time_column, positions=_positions(position_columns), track_id=id_column)
+    check_output_names(columns)
+    return columns
 
 
 def _output_columns(frame, columns, names):

@@ -49,6 +49,7 @@ __all__ = [
     "TrackColumns",
     "TrackArrays",
     "detect_columns",
+    "check_output_names",
     "read_tracks",
     "iter_track_chunks",
     "to_arrays",
@@ -137,6 +138,26 @@ def _require(columns: Sequence[str], wanted: Sequence[str], what: str) -> None:
     missing = [c for c in wanted if c not in columns]
     if missing:
         raise ValueError(f"{what}: column(s) {missing} not found; available columns: {list(columns)}")
+
+
+def check_output_names(columns: "TrackColumns") -> None:
+    """``ValueError`` when a column that predictions keep (the id, the time, or ``row`` without a time
+    column) has the name of a column they add: ``segment``, ``pred_<position>``, ``std_<position>``,
+    ``lead_<position>``, ``lead_std_<position>``, ``pred<H>_<position>``, ``std<H>_<position>``; or when
+    the two kept columns would share a name. Either would write two columns of one name."""
+    import re
+
+    positions = set(columns.positions)
+    made = {"segment"} | {prefix + name for name in positions for prefix in ("pred_", "std_", "lead_", "lead_std_")}
+    kept = [("the track id column", columns.track_id), ("the time column", columns.time or "row")]
+    for what, name in kept:
+        horizon = None if name is None else re.fullmatch(r"(?:pred|std)\d+_(.+)", name)
+        if name in made or (horizon and horizon.group(1) in positions):
+            raise ValueError(f"{what} is named {name!r}, the name of a column the predictions add; rename it in "
+                             "the input (or choose another column)")
+    if columns.track_id is not None and columns.track_id == (columns.time or "row"):
+        raise ValueError(f"the track id column is named {columns.track_id!r}, the name the output gives the row "
+                         "number when there is no time column; rename it in the input")
 
 
 def detect_columns(columns: Sequence[str], *, time: str | None = None,
