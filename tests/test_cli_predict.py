@@ -302,6 +302,34 @@ def test_state_resume_is_bit_for_bit_on_files(cli, tmp_path):
     assert combined.loc[cut, same].to_csv(index=False) == expected.loc[cut, same].to_csv(index=False)
 
 
+@pytest.mark.parametrize("ids", [
+    pd.to_datetime(["2020-01-01", "2020-01-02 03:04:05.000000001", "2021-06-01"], format="ISO8601").tz_localize("UTC"),
+    pd.to_timedelta([1, 2, 3], unit="s"), [b"a", b"\xff", b""], [decimal.Decimal("1.50"), decimal.Decimal("2"),
+                                                                   decimal.Decimal("-0.1")],
+    np.array([0.5, 1.5, 2.5], dtype=np.float16)])
+def test_state_keeps_parquet_ids_that_json_has_no_type_for(cli, tmp_path, ids):
+    """Dates, durations, bytes and decimals as track ids (Parquet columns): the state file keeps them (it
+    failed to save: 'not JSON serializable'), and a resumed run finds its tracks again; float16 ids (pandas
+    cannot group them) are read as float32."""
+    data = _tracks(gap=False)
+    data["object_id"] = data["object_id"].map(dict(zip([100, 101, 102], ids)))
+    ordered = data.sort_values(["t", "object_id"], kind="stable").reset_index(drop=True)
+    ordered.iloc[:90].to_parquet(tmp_path / "a.parquet")
+    ordered.iloc[80:].to_parquet(tmp_path / "b.parquet")
+    state = str(tmp_path / "state.npz")
+    first = _run(cli, ["predict", str(tmp_path / "a.parquet"), *FAST, "--state", state, "-o", str(tmp_path / "a.csv")])
+    assert first.exit_code == 0, first.output
+    second = _run(cli, ["predict", str(tmp_path / "b.parquet"), "--state", state, "--no-progress",
+                        "-o", str(tmp_path / "b.csv")])
+    assert second.exit_code == 0, second.output
+    assert "skipped 10 row(s)" in second.stderr   # the rows already processed: their tracks were found again
+    assert len(pd.read_csv(tmp_path / "b.csv")) == len(ordered) - 90
+    from kalmix.streaming import TrackPredictor
+
+    kept = pd.read_parquet(tmp_path / "a.parquet")["object_id"]   # as Parquet gives them back (decimal scale)
+    assert sorted(map(repr, TrackPredictor.load(state).gaps)) == sorted(map(repr, set(kept)))
+
+
 def test_state_refuses_conflicting_settings(cli, tmp_path):
     data = _tracks(n_tracks=1)
     path = _write_csv(data, tmp_path / "in.csv")

@@ -414,6 +414,10 @@ def _is_missing(values) -> np.ndarray:
 
 
 def _id_to_json(value):
+    if isinstance(value, (np.datetime64, np.timedelta64)):   # (numpy's timedelta64 is an integer type)
+        import pandas as pd
+
+        return (pd.Timestamp if isinstance(value, np.datetime64) else pd.Timedelta)(value)
     if isinstance(value, (np.integer,)):
         return int(value)
     if isinstance(value, (np.floating,)):
@@ -421,6 +425,45 @@ def _id_to_json(value):
     if isinstance(value, np.str_):
         return str(value)
     return value
+
+
+def _id_to_meta(track):
+    """A track id as the state file's JSON holds it: JSON values as they are; dates, times, durations,
+    decimals and bytes (Parquet id columns) tagged, so that :func:`_id_from_meta` gives back an equal key."""
+    import datetime
+    import decimal
+
+    import pandas as pd
+
+    if isinstance(track, (pd.Timestamp, datetime.datetime)):
+        return {"datetime": pd.Timestamp(track).isoformat()}
+    if isinstance(track, (pd.Timedelta, datetime.timedelta)):
+        return {"timedelta_ns": int(pd.Timedelta(track).value)}
+    if isinstance(track, datetime.date):
+        return {"date": track.isoformat()}
+    if isinstance(track, datetime.time):
+        return {"time": track.isoformat()}
+    if isinstance(track, decimal.Decimal):
+        return {"decimal": str(track)}
+    if isinstance(track, bytes):
+        return {"bytes": track.hex()}
+    return track
+
+
+def _id_from_meta(value):
+    """The inverse of :func:`_id_to_meta`."""
+    if not isinstance(value, dict):
+        return value
+    import datetime
+    import decimal
+
+    import pandas as pd
+
+    (kind, text), = value.items()
+    decode = {"datetime": pd.Timestamp, "timedelta_ns": lambda ns: pd.Timedelta(int(ns), unit="ns"),
+              "date": datetime.date.fromisoformat, "time": datetime.time.fromisoformat,
+              "decimal": decimal.Decimal, "bytes": bytes.fromhex}
+    return decode[kind](text)
 
 
 class TrackPredictor:
@@ -918,7 +961,8 @@ class TrackPredictor:
         meta = {"magic": _MAGIC, "format_version": STATE_FORMAT_VERSION, "config": asdict(self.config),
                 "measurement_dim": None if self.params is None else self.params.measurement_dim,
                 "position_names": None if self.position_names is None else list(self.position_names),
-                "tracks": [{"id": t, "gaps": self.gaps[t].to_json(), "state": t in self.states} for t in tracks],
+                "tracks": [{"id": _id_to_meta(t), "gaps": self.gaps[t].to_json(), "state": t in self.states}
+                           for t in tracks],
                 "rows": self.rows, "skipped": self.skipped, "outliers": self.outliers,
                 "output": self.output}
         arrays = {}
@@ -943,9 +987,9 @@ class TrackPredictor:
                 engine.loaded_version = meta["format_version"]
                 if meta["measurement_dim"] is not None:
                     engine._ensure_params(int(meta["measurement_dim"]))
-                entries = [(entry["id"], GapTracker(**entry["gaps"]), bool(entry["state"]))
+                entries = [(_id_from_meta(entry["id"]), GapTracker(**entry["gaps"]), bool(entry["state"]))
                            for entry in meta["tracks"]]
-            except (KeyError, TypeError) as error:
+            except (KeyError, TypeError, ValueError) as error:
                 raise ValueError(f"{path}: the kalmix state file's settings are incomplete or corrupt: "
                                  f"{error!r}") from error
             count = sum(has_state for _, _, has_state in entries)

@@ -283,6 +283,8 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
         ids = pd.Series(np.zeros(n, dtype=np.int64))
     else:
         ids = raw[cols.track_id].reset_index(drop=True)
+        if ids.dtype == np.float16:   # pandas cannot group or index float16: the same values in float32
+            ids = ids.astype(np.float32)
         if ids.isna().any():
             i = int(np.argmax(ids.isna().to_numpy()))
             raise ValueError(f"Column {cols.track_id!r} (track id) must not be empty; row {offset + i} (counted from "
