@@ -280,7 +280,8 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
     --lead L adds lead_<position> / lead_std_<position> at time + L (--horizon H: pred<H>_ /
     std<H>_ at H time units), the same in files and on stdin. A file is processed in chunks,
     all tracks at once through the batched core; '-' reads CSV rows (header first) or JSON
-    lines from stdin and writes each prediction as soon as its measurement arrives.
+    lines from stdin and writes each prediction as soon as its measurement arrives (lines that
+    arrive together, a frame or a piped file, are stepped together, with the same results).
 
     Stopped by Ctrl-C, SIGTERM or SIGHUP, it saves the --state file to match what it wrote
     (a chunk in progress is rolled back, stdin rows already read are finished) and exits with
