@@ -631,36 +631,8 @@ class TrackPredictor:
         except TypeError:
             raise TypeError(f"track_id: expected a hashable id (text or a number), got {type(track_id).__name__} "
                             f"{track_id!r:.80}") from None
-        params = self._ensure_params(z.shape[0])
-        if self.config.time_unit is not None:
-            return self._step_batch([track_id], np.array([time]), z[None, :])[0]
-        known = self.gaps.get(track_id)
-        gaps = GapTracker() if known is None else known.copy()
-        glitches = gaps.glitches
-        new = gaps.advance(float(time), self.config)
-        if new is None:
-            self.rows += 1
-            self.skipped += 1
-            return None
-        if self.config.time_unit is None and len(gaps.intervals):
-            self._learn_time_unit(gaps.intervals[0])
-            params = self.params
-        state = self.states.get(track_id)
-        fresh = state is None
-        state = self._fresh() if fresh else state
-        values = z[None, None, :]
-        times = np.array([[float(time)]])
-        result = self._run(values, times, None, state, np.array([[bool(new) and not fresh]]))
-        nxt, nxt_std = self._forecast_next(result.state, [float(time) + self._interval(gaps)])
-        ahead = ahead_std = None
-        if result.lead is not None:   # none from a track's first row (a single position)
-            ahead, ahead_std = (np.full(z.shape, np.nan), np.full(z.shape, np.nan)) if fresh else (
-                result.lead[0, 0], result.lead_std[0, 0])
-        self.gaps[track_id], self.states[track_id] = gaps, result.state
-        self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
-        self.rows += 1
-        return RowPrediction(track_id, float(time), gaps.segment, nxt[0], ahead, nxt_std[0], ahead_std,
-                             gaps.glitches > glitches)
+        self._ensure_params(z.shape[0])
+        return self._step_batch([track_id], np.array([time]), z[None, :])[0]
 
     def step_rows(self, track_ids, times, values) -> list[RowPrediction | None]:
         """Rows that have already arrived, as :meth:`step_row` on each in turn, through one run of the core.
@@ -709,11 +681,11 @@ class TrackPredictor:
         try:
             out = []
             start = 0
-            while start < len(ids) and (self.params is None or self.config.time_unit is None):
-                out.append(self.step_row(ids[start], times[start], values[start]))
+            self._ensure_params(values.shape[1])
+            while start < len(ids) and self.config.time_unit is None:   # one row at a time until it is known
+                out.extend(self._step_batch(ids[start:start + 1], times[start:start + 1], values[start:start + 1]))
                 start += 1
             if start < len(ids):
-                self._ensure_params(values.shape[1])
                 out.extend(self._step_batch(ids[start:], times[start:], values[start:]))
             return out
         except BaseException:
@@ -721,12 +693,14 @@ class TrackPredictor:
             raise
 
     def _step_batch(self, ids, times, values) -> list[RowPrediction | None]:
-        """:meth:`step_rows` once the time unit is known: the gap rule row by row, then one run of the core with
+        """:meth:`step_rows` (and :meth:`step_row`, one row): the gap rule row by row, then one run of the core with
         every row's forecast one reference interval on (its ``ahead``: the same computation as
         :meth:`_forecast_next` from the state after the row). A bank with a lead takes its ``ahead`` for
         the lead, so there the forecasts one interval on come from a second run over the same rows of
         the bank without its lead head, which nothing else reads (the families, rule, screen and
-        calibration learn the same bits). Changes the predictor only at the end."""
+        calibration learn the same bits). Until the time unit is known, rows come one at a time: a row
+        that fixes it runs with the bank it fixes, as the rows after it. Changes the predictor only at
+        the end (but for that unit)."""
         n_rows, p = values.shape
         trackers: dict = {}
         runs: dict = {}          # track -> [(row, restart, next time)]
@@ -741,6 +715,8 @@ class TrackPredictor:
             new = gaps.advance(float(times[i]), self.config)
             if new is None:
                 continue
+            if self.config.time_unit is None and gaps.intervals:
+                self._learn_time_unit(gaps.intervals[0])
             run = runs.setdefault(track, [])
             fresh = not run and track not in self.states
             run.append((i, bool(new) and not fresh, float(times[i]) + self._interval(gaps)))

@@ -344,6 +344,17 @@ def _line_batches(stream, limit: int = BATCH_LINES):
             yield texts
 
 
+def _json_line(raw, number) -> dict:
+    """A JSON-lines record, or a ``ValueError`` naming line ``number``."""
+    try:
+        record = json.loads(raw)
+    except (json.JSONDecodeError, RecursionError) as error:
+        raise ValueError(f"line {number}: not valid JSON: {error}") from None
+    if not isinstance(record, dict):
+        raise ValueError(f"line {number}: expected a JSON object, got {raw.strip()[:80]!r}")
+    return record
+
+
 def predict_stream(run, stdin, settings, unit, time_column, position_columns, id_column):
     run.unit = "row"
     batches = _line_batches(stdin)
@@ -364,12 +375,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         raise ValueError("stdin: no input (expected a CSV header line or JSON lines)")
     is_json = first.lstrip().startswith("{")
     if is_json:
-        try:
-            record = json.loads(first)
-        except (json.JSONDecodeError, RecursionError) as error:
-            raise ValueError(f"line {line_number}: not valid JSON: {error}") from None
-        if not isinstance(record, dict):
-            raise ValueError(f"line {line_number}: expected a JSON object, got {first.strip()[:80]!r}")
+        record = _json_line(first, line_number)
         header = list(record)
         pending = [(line_number, record)]
     else:
@@ -392,13 +398,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
 
     def parse(raw, number):
         if is_json:
-            try:
-                record = json.loads(raw)
-            except (json.JSONDecodeError, RecursionError) as error:
-                raise ValueError(f"line {number}: not valid JSON: {error}") from None
-            if not isinstance(record, dict):
-                raise ValueError(f"line {number}: expected a JSON object, got {raw.strip()[:80]!r}")
-            return record
+            return _json_line(raw, number)
         try:
             row = next(csv.reader([raw]))
         except csv.Error as error:
