@@ -67,6 +67,24 @@ def test_spec_and_compiled_agree_with_bias_and_ahead_times(rule):
     _close(compiled.ahead, reference.ahead, 1e-9)
 
 
+def test_without_a_jump_test_a_zero_running_error_flags_no_jump():
+    """jump_threshold = inf turns the jump test off, even where the running error is exactly 0
+    (a long stretch of exact input: inf x 0 was NaN, and the next change of velocity was taken
+    for a jump and not fitted). Both engines."""
+    bank = _ar_bank()
+    times = np.arange(6, dtype=float)[:, None]
+    z = np.column_stack([np.arange(6.0) * 0.1, np.zeros(6)])[:, None]
+    z[5, 0, 0] += 0.3                                             # a change of velocity on the last row
+    for run in (engine.run, ce.run):
+        head = run(bank, z[:5], times[:5])
+        family = head.state.families[0]
+        quiet = head.state._replace(families=(family._replace(error=np.zeros_like(family.error)),))
+        last = run(bank, z[5:], times[5:], quiet).state.families[0]
+        assert last.jumps[0, 0] == 0                               # not a jump ...
+        assert last.history[0, 0, 0, 0] == pytest.approx(4.0)      # ... the velocity (0.4 / 0.1) is learned
+        assert last.error[0, 0] > 0
+
+
 @settings(max_examples=4, deadline=None, derandomize=True)
 @given(seed=st.integers(0, 2**16), p=st.integers(1, 3))
 def test_ar_family_property_both_engines_on_adversarial_tracks(seed, p):

@@ -130,7 +130,7 @@ def _learn(order, bias, m, lam, rho, persistence, jump_threshold, window, max_ve
         err = v[c] - _velocity(m, weights_k[c], x, max_velocity)
         squared = err * err if c == 0 else squared + err * err
     squared = squared / p
-    wild = not (squared <= jump_threshold**2 * error[n, k])
+    wild = squared > jump_threshold**2 * error[n, k]   # inf x 0 (no test, no error yet): not wild
     jump = wild and jumps[n, k] < 1
     jumps[n, k] = jumps[n, k] + 1.0 if jump else 0.0
     if jump:

@@ -246,7 +246,8 @@ def update(params: ARParams, state: ARState, measurement: np.ndarray, time, lear
     v_k = np.broadcast_to(v[:, None, :], state.history.shape[:-1])                 # (N, K, p)
     err = v_k - _velocity_forecast(params, state)
     squared = _dot(err, err) / err.shape[-1]                                        # (N, K)
-    wild = ~(squared <= params.jump_threshold**2 * state.error)
+    with np.errstate(invalid="ignore"):
+        wild = squared > params.jump_threshold**2 * state.error   # inf x 0 (no test, no error yet): not wild
     jump = wild & (state.jumps < 1)
     info, target, scale, weight, weights = _fit(params, state, x, v_k)
     history = np.concatenate([v_k[..., None], state.history[..., :-1]], axis=-1)
