@@ -228,6 +228,45 @@ def test_line_batches_split_lines_across_reads_and_stop_at_a_bad_byte():
     assert sum(batches([b"t,x\n1,\xff\n"], errors="surrogateescape"), [])[1] == "1,\udcff\n"
 
 
+def test_line_batches_take_a_lone_carriage_return_as_a_line_end():
+    """Old Mac text (lines ending in a lone \\r) on a pipe gives the lines of its \\n version, whatever the reads'
+    cuts (one between the first \\r and what follows it too); \\r\\n is kept as one line end, as before. The
+    CLI gives the same bytes for the three endings."""
+    import os
+    import subprocess
+    import sys
+    import threading
+
+    from kalmix.commands._predict_run import _line_batches
+
+    def lines(data, cuts):
+        read, write = os.pipe()
+        edges = [0, *cuts, len(data)]
+
+        def feed():
+            for a, b in zip(edges[:-1], edges[1:]):
+                os.write(write, data[a:b])
+            os.close(write)
+
+        writer = threading.Thread(target=feed)
+        writer.start()
+        with os.fdopen(read, encoding="utf-8") as stream:
+            got = sum(_line_batches(stream, limit=2), [])
+        writer.join()
+        return got
+
+    rows = ["t,x", "0,1", "1,2", "2,3"]
+    for cuts in ([], [3], [4], [5], [2, 4, 6], list(range(1, 16))):
+        assert lines("\r".join(rows).encode(), cuts) == [r + "\n" for r in rows[:-1]] + [rows[-1]]
+        assert lines(("\r\n".join(rows) + "\r\n").encode(), cuts) == [r + "\r\n" for r in rows]
+    assert lines(b"t,x\r", [3]) == ["t,x\r"]      # a header alone, its end a \r at the stream's end
+    text = "time,track_id,x,y{0}0,a,1,2{0}1,a,2,3{0}2,a,3,4{0}3,a,4,5.5{0}"
+    outputs = {subprocess.run([sys.executable, "-m", "kalmix.cli", "predict", "--length-unit", "1", "-"],
+                              input=text.format(end).encode(), capture_output=True, check=True).stdout
+               for end in ("\r", "\n", "\r\n")}
+    assert len(outputs) == 1 and outputs.pop().count(b"\n") == 5
+
+
 def test_stdin_bad_line_after_rows_on_a_pipe(tmp_path):
     """On a pipe (rows stepped in batches), the rows before a bad line are written, then a clear error: a JSON
     integer beyond any float, a CSV line the csv module refuses."""

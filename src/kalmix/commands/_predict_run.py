@@ -282,6 +282,21 @@ def _split_lines(partial: list, data: bytes) -> list:
     return [part + b"\n" for part in parts]
 
 
+def _line_ending(partial: list, data: bytes):
+    """Whether a stream's lines end in a lone ``\\r`` (old Mac text), told by its first line's end:
+    ``None`` while that is not there yet (``partial``, the pieces read before ``data``, holds no line end,
+    or only a ``\\r`` at its very end, which a ``\\n`` may follow)."""
+    if partial and partial[-1].endswith(b"\r"):
+        return not data.startswith(b"\n")
+    ends = [i for i in (data.find(b"\r"), data.find(b"\n")) if i >= 0]
+    if not ends:
+        return None
+    end = min(ends)
+    if data[end:end + 1] == b"\n":
+        return False
+    return None if end + 1 == len(data) else data[end + 1:end + 2] != b"\n"
+
+
 def _line_batches(stream, limit: int = BATCH_LINES):
     """Lists of the lines of ``stream`` that have arrived: waits for one, then takes those already there.
 
@@ -310,6 +325,7 @@ def _line_batches(stream, limit: int = BATCH_LINES):
         return
     errors = getattr(stream, "errors", None) or "strict"
     partial: list[bytes] = []   # the pieces of an unfinished line
+    carriage = None   # lines end in a lone "\r" (old Mac text): known at the first line's end
     done = False
     while not done:
         lines: list[bytes] = []
@@ -324,6 +340,15 @@ def _line_batches(stream, limit: int = BATCH_LINES):
             if not data:
                 done = True
                 break
+            if carriage is None:
+                carriage = _line_ending(partial, data)
+                if carriage is None:
+                    partial.append(data)
+                    continue
+                if carriage:
+                    partial[:] = [piece.replace(b"\r", b"\n") for piece in partial]
+            if carriage:
+                data = data.replace(b"\r", b"\n")
             whole = _split_lines(partial, data)
             if whole:
                 lines.extend(whole)
