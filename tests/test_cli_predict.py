@@ -474,10 +474,44 @@ def test_mixture_options_pass_through_and_are_validated(cli, tmp_path):
     warm = _run(cli, ["predict", path, *FAST, "--option", "order=3", "--option", "forgetting_levels=[0.9]"])
     assert warm.exit_code == 0, warm.output
     assert not np.allclose(_read(warm.stdout)["pred_px"], plain["pred_px"], equal_nan=True)
-    bad = _run(cli, ["predict", path, *FAST, "--option", "temperature=-1"])
-    assert bad.exit_code == 1 and "temperature" in bad.stderr
+    bad = _run(cli, ["predict", path, *FAST, "--option", "spectral_radius_bound=-1"])
+    assert bad.exit_code == 1 and "spectral_radius_bound" in bad.stderr
     bad = _run(cli, ["predict", path, *FAST, "--option", "nonsense"])
     assert bad.exit_code == 2 and "KEY=VALUE" in bad.output
+
+
+@pytest.mark.parametrize("option", ["gating=paper", "temperature=4", "gate_share=0.1", "adapt_noise=true"])
+def test_the_gates_options_are_refused_as_the_bank_has_no_gate(cli, tmp_path, option):
+    """A bank's AKF family has no gate (the rule combines the experts): such an --option changed nothing, and
+    said nothing. Now refused by name, with what the family takes; make_bank refuses them too."""
+    from kalmix.bank import make_bank
+
+    path = _write_csv(_tracks(n_tracks=1), tmp_path / "in.csv")
+    bad = _run(cli, ["predict", path, *FAST, "--option", option])
+    key = option.split("=")[0]
+    assert bad.exit_code == 2 and f"'{key}' sets the paper's gate" in bad.output and "dynamics, order" in bad.output
+    with pytest.raises(ValueError, match=f"akf_options: \\['{key}'\\] set the paper's gate"):
+        make_bank(2, akf_options={key: 1.0})
+
+
+def test_a_state_file_made_with_gate_options_still_resumes(tmp_path):
+    """A state saved when gate options were taken (without effect) resumes, without them, to the same numbers."""
+    from kalmix.streaming import StreamConfig, TrackPredictor
+
+    rng = np.random.default_rng(0)
+    z = np.cumsum(rng.normal(size=(40, 2)), axis=0)
+    config = dict(length_unit=0.5, n_experts=4, bank="mixed")
+    whole = TrackPredictor(StreamConfig(**config))
+    expected = [whole.step_row("a", float(t), z[t]).next for t in range(40)]
+    first = TrackPredictor(StreamConfig(**config))
+    for t in range(20):
+        first.step_row("a", float(t), z[t])
+    first.config.options = {"gating": "paper", "temperature": 4.0}   # as such a file was written
+    first.save(tmp_path / "old.npz")
+    resumed = TrackPredictor.load(tmp_path / "old.npz")
+    assert resumed.config.options == {}
+    got = [resumed.step_row("a", float(t), z[t]).next for t in range(20, 40)]
+    np.testing.assert_array_equal(got, expected[20:])
 
 
 def test_csv_output_round_trips_every_value_and_quotes_what_needs_it():

@@ -145,7 +145,7 @@ def test_a_kinematic_state_resumed_with_experts_is_refused(cli, tracks_csv, tmp_
 
 
 @pytest.mark.parametrize("option, message", [
-    ("bogus=1", "unknown option 'bogus'; expected one of dynamics, gating"),
+    ("bogus=1", "unknown option 'bogus'; expected one of dynamics, order"),
     ("seed=3", "use --seed for the seed"),
 ])
 def test_unknown_options_are_named_with_the_known_ones(cli, tracks_csv, option, message):

@@ -18,7 +18,7 @@ from .core.mixture import DYNAMICS, GATINGS, MixtureParams
 __all__ = ["make_params", "noise_grid", "check_horizon", "check_length_unit", "MAX_HORIZON", "MAX_SEED",
            "LENGTH_UNIT_RANGE", "make_bank", "BANK_KINDS", "KINEMATIC_PROCESS_LEVELS",
            "KINEMATIC_MEASUREMENT_LEVELS", "DEFAULT_BANK", "AR_ORDERS", "AR_FORGETTING", "AR_RIDGE",
-           "TURN_GAINS", "recipe_parts"]
+           "TURN_GAINS", "recipe_parts", "GATE_OPTIONS"]
 
 #: Largest prediction horizon (frames ahead). A prediction H frames ahead costs H - 1
 #: matrix-vector products per expert and stream, so every call is bounded (about 30 ms for
@@ -476,7 +476,9 @@ def make_bank(
         :data:`DEFAULT_RULE_OPTIONS` (BOA: ``bound_forgetting`` 0.99; give
         ``{"bound_forgetting": 1.0}`` for the original rule).
     akf_options : dict, optional
-        Other :func:`make_params` arguments of the AKF family.
+        Other :func:`make_params` arguments of the AKF family's experts (``dynamics``,
+        ``order``, the noise ranges, ...); those of the gate (:data:`GATE_OPTIONS`) are
+        refused, as the family has no gate.
     outlier_threshold : float
         The glitch screen's threshold (:mod:`kalmix.core.screen`): a row further than this
         many times the track's typical extrapolation error is not learned; ``inf``
@@ -551,6 +553,11 @@ def make_bank(
         families.append(Family("turn", TurnParams(gain=np.asarray(turn_gains, float), length_unit=unit,
                                                   time_unit=tunit)))
     if "akf" in parts:
+        gate = [name for name in (akf_options or {}) if name in GATE_OPTIONS]
+        if gate:
+            raise ValueError(f"akf_options: {gate} set the paper's gate (or its eq. 11/12 noise feedback), which "
+                             "the AKF family of a bank does not have: the bank's rule combines the experts (rule, "
+                             "rule_options); the paper's gated mixture is kalmix.core.mixture with make_params")
         akf = make_params(p, _check_int("n_akf", n_akf, 1), seed=seed, length_unit=unit,
                           **{**(akf_options or {}), "adapt_noise": False})
         families.append(Family("akf", akf))
@@ -592,3 +599,9 @@ def make_bank(
 #: The default bank and rule of ``kalmix predict`` / ``evaluate`` / :class:`kalmix.streaming.TrackPredictor`,
 #: chosen by the ablation on the shipped recordings and the paper scenario (README, "Choosing the default").
 DEFAULT_BANK = {"kind": "mixed+ar+turn", "rule": "boa"}
+
+#: :func:`make_params` arguments of the paper's gate and its eq. 11/12 noise feedback: the AKF
+#: family of a bank has neither (its rule combines the experts), so ``akf_options`` refuses them.
+GATE_OPTIONS = ("gating", "gating_input", "velocity_scale", "expert_scale", "temperature", "gate_share",
+                "eta_initial", "eta_minimum", "eta_decay_steps", "eta_sensitivity", "adapt_noise",
+                "process_noise_shrink", "measurement_noise_shrink", "noise_floor", "noise_reinflation")

@@ -954,6 +954,9 @@ class TrackPredictor:
             meta = archive.meta
             try:
                 config = dict(meta["config"])
+                if config.get("options"):   # gate arguments were taken, without effect, before they were refused
+                    from .bank import GATE_OPTIONS
+                    config["options"] = {k: v for k, v in config["options"].items() if k not in GATE_OPTIONS}
                 if meta["format_version"] < 5 and config.get("rule") == "boa":
                     config["rule_options"] = {"bound_forgetting": 1.0, **config.get("rule_options", {})}
                 engine = cls(StreamConfig(**config), meta.get("position_names"))

@@ -16,7 +16,7 @@ import warnings
 import click
 import numpy as np
 
-from ..bank import BANK_KINDS, DEFAULT_BANK, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED, recipe_parts
+from ..bank import BANK_KINDS, DEFAULT_BANK, GATE_OPTIONS, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED, recipe_parts
 
 _LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres). "
                      "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
@@ -38,8 +38,9 @@ def _column_options(function):
     return function
 
 
-def _mixture_options(pairs):
-    """``--option key=value`` pairs to :func:`kalmix.bank.make_params` keyword arguments."""
+def _mixture_options(pairs, bank: bool = False):
+    """``--option key=value`` pairs to :func:`kalmix.bank.make_params` keyword arguments; with ``bank``, those of
+    a bank's AKF family (the gate's are refused: the family has none)."""
     options = {}
     for pair in pairs or ():
         key, sep, text = pair.partition("=")
@@ -53,26 +54,35 @@ def _mixture_options(pairs):
     for key, flag in (("length_unit", "--length-unit"), ("seed", "--seed")):
         if key in options:
             raise click.BadParameter(f"use {flag} for the {key.replace('_', ' ')}", param_hint="--option")
-    known = _option_names()
+    known = _option_names(bank)
     for key in options:
+        if bank and key in GATE_OPTIONS:
+            raise click.BadParameter(f"{key!r} sets the paper's gate, and the bank's AKF family has none: --rule "
+                                     f"combines the experts (the family takes {', '.join(known)})",
+                                     param_hint="--option")
         if key not in known:
             raise click.BadParameter(f"unknown option {key!r}; expected one of {', '.join(known)}",
                                      param_hint="--option")
     return options
 
 
-def _option_names() -> list[str]:
-    """The keyword arguments of :func:`kalmix.bank.make_params` that --option may set."""
+def _option_names(bank: bool = False) -> list[str]:
+    """The keyword arguments of :func:`kalmix.bank.make_params` that --option may set (``bank``: of an AKF family)."""
     import inspect
 
     from ..bank import make_params
 
     return [name for name, p in inspect.signature(make_params).parameters.items()
-            if p.kind == p.KEYWORD_ONLY and name not in ("seed", "length_unit")]
+            if p.kind == p.KEYWORD_ONLY and name not in ("seed", "length_unit")
+            and not (bank and name in GATE_OPTIONS)]
 
 
-_OPTION_HELP = ("A kalmix.bank.make_params argument of the mixture, KEY=VALUE (JSON value), repeatable, "
-                "e.g. --option temperature=4 --option gating=paper.")
+_OPTION_HELP = ("A kalmix.bank.make_params argument of the AKF mixture (the 'AKF mixture (previous default)' and "
+                "'single AKF' rows), KEY=VALUE (JSON value), repeatable, e.g. --option temperature=4 --option "
+                "gating=paper.")
+_BANK_OPTION_HELP = ("A kalmix.bank.make_params argument of the bank's AKF family, KEY=VALUE (JSON value), "
+                     "repeatable, e.g. --option dynamics=literal --option order=3 (the gate's arguments are refused: "
+                     "--rule combines the experts).")
 
 
 def _positions(text):
@@ -256,7 +266,7 @@ def _local_only(given, output):
               help="Rows read at a time from a file (bounded memory); --engine dask: the first chunk "
                    "(the units) and the cells of one engine call.")
 @click.option("--progress/--no-progress", default=None, help="Progress bar on stderr [default: when a terminal].")
-@click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
+@click.option("--option", "mixture_options", multiple=True, help=_BANK_OPTION_HELP)
 @click.option("--engine", "engine_kind", default="local", show_default=True, type=click.Choice(["local", "dask"]),
               help="local: this process, a file chunk by chunk or stdin; dask: INPUT a directory or glob of "
                    "Parquet or CSV files, shuffled by track over a Dask cluster (the 'dask' extra), the same "
@@ -297,7 +307,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
 
     unit = _length_unit(length_unit)
     gap, never = _max_gap(max_gap)
-    options = _mixture_options(mixture_options)
+    options = _mixture_options(mixture_options, bank=True)
     out_fmt = _file_format(output) if output else "csv"
     given = _given(("save_every", "scheduler", "workers", "partitions"))
     with _user_errors():
