@@ -140,7 +140,7 @@ def test_per_track_numbers_equal_direct_runs_on_each_track():
     result = evaluate_table(table, n_experts=8, peers=False, tune_units=False)
     tuned = result.tuned["CV Kalman"]
     unit, tunit = result.tuned["length_unit"]["rule"], result.tuned["mixture"]["bank"]["time_unit"]
-    bank = make_bank(2, **{**DEFAULT_BANK, "n_akf": 40}, length_unit=unit, time_unit=tunit)
+    bank = make_bank(2, **{**DEFAULT_BANK, "n_akf": 8}, length_unit=unit, time_unit=tunit)   # n_experts, as predict
     for track, group in table.groupby("track_id"):
         z, t = group[["x", "y"]].to_numpy(), group["time"].to_numpy()
         cut = int(np.ceil(0.2 * len(z)))
@@ -183,3 +183,18 @@ def test_plot_intervals_writes_a_png(tmp_path):
                                           "--plot-intervals", str(out), "--track", "t1"], catch_exceptions=False)
     assert result.exit_code == 0, result.output
     assert "intervals:" in result.output and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_experts_and_family_options_reach_the_bank_as_in_predict():
+    """--experts and the AKF family's --option change the mixture row (the default bank's AKF family), as in
+    ``kalmix predict``; a gate option reaches only the AKF mixture row (a bank has no gate)."""
+    table = _turning_tracks()
+    rms = lambda result, row: result.overall[row]["one_step"]["rms"]  # noqa: E731
+    base = evaluate_table(table, n_experts=4, peers=False, tune_units=False)
+    family = evaluate_table(table, n_experts=4, peers=False, tune_units=False, options={"order": 3})
+    gate = evaluate_table(table, n_experts=4, peers=False, tune_units=False, options={"gating": "paper"})
+    more = evaluate_table(table, n_experts=6, peers=False, tune_units=False)
+    assert base.tuned["mixture"]["n_experts"] + 2 == more.tuned["mixture"]["n_experts"]
+    assert rms(family, "mixture") != rms(base, "mixture")
+    assert rms(gate, "mixture") == rms(base, "mixture")
+    assert rms(gate, "AKF mixture (previous default)") != rms(base, "AKF mixture (previous default)")

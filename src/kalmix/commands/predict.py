@@ -77,9 +77,9 @@ def _option_names(bank: bool = False) -> list[str]:
             and not (bank and name in GATE_OPTIONS)]
 
 
-_OPTION_HELP = ("A kalmix.bank.make_params argument of the AKF mixture (the 'AKF mixture (previous default)' and "
-                "'single AKF' rows), KEY=VALUE (JSON value), repeatable, e.g. --option temperature=4 --option "
-                "gating=paper.")
+_OPTION_HELP = ("A kalmix.bank.make_params argument, KEY=VALUE (JSON value), repeatable: of the bank's AKF family "
+                "(as predict's --option) and of the 'AKF mixture (previous default)' and 'single AKF' rows; the "
+                "gate's (e.g. --option temperature=4 --option gating=paper) reach only those rows.")
 _BANK_OPTION_HELP = ("A kalmix.bank.make_params argument of the bank's AKF family, KEY=VALUE (JSON value), "
                      "repeatable, e.g. --option dynamics=literal --option order=3 (the gate's arguments are refused: "
                      "--rule combines the experts).")
@@ -368,7 +368,8 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
 @_column_options
 @click.option("--horizon", "-H", default=1, show_default=True, type=click.IntRange(1, MAX_HORIZON),
               help=f"Also report the H-step errors; at most {MAX_HORIZON}.")
-@click.option("--experts", "n_experts", default=40, show_default=True, type=click.IntRange(min=1))
+@click.option("--experts", "n_experts", default=40, show_default=True, type=click.IntRange(min=1),
+              help="Experts of the bank's AKF family (as predict's --experts) and of the AKF mixture row.")
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(0, MAX_SEED))
 @click.option("--length-unit", default="auto", show_default=True,
               help="Mixture's length unit; 'auto': the second-difference rule on the tuning part.")
@@ -379,7 +380,10 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
 @click.option("--max-samples", default=None, type=click.IntRange(min=3),
               help="Use only the first N samples of each track (quicker).")
 @click.option("--tracks", default=None, help="Comma-separated track ids to keep.")
-@click.option("--peers/--no-peers", default=True, show_default=True, help="Include filterpy's IMM.")
+@click.option("--peers/--no-peers", default=True, show_default=True,
+              help="Include the peers (CV/CA Kalman filters in real time; where installed, filterpy's IMM and MMAE "
+                   "bank, river's Holt-Winters, padasip's RLS AR, statsmodels' local linear trend), each tuned on "
+                   "the tuning part; --no-peers: the mixture and kalmix's own baselines only.")
 @click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False), help="Write the results as JSON.")
 @click.option("--plot", "plot_path", default=None, type=click.Path(dir_okay=False),
               help="PNG of the one-step error over time for --track.")

@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from ..bank import DEFAULT_BANK, check_horizon, check_length_unit, make_bank, make_params
+from ..bank import DEFAULT_BANK, GATE_OPTIONS, check_horizon, check_length_unit, make_bank, make_params
 from ..core.mixture import init_state, predict, step
 from ..metrics import error_summary
 from ..streaming import GapTracker, StreamConfig, auto_length_unit, auto_time_unit
@@ -532,7 +532,7 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     horizon : int
         H of the H-step errors (the one-step errors are always reported).
     n_experts, seed : int
-        The mixture's K and bank seed.
+        K of the bank's AKF family and of the AKF mixture row, and the seed.
     length_unit : float, optional
         Default: :func:`~kalmix.streaming.auto_length_unit` on the tuning part, times the
         factor of :data:`UNIT_FACTORS` with the lowest one-step RMS there (``tune_units``).
@@ -545,11 +545,14 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     tracks : sequence, optional
         Keep only these track ids.
     peers : bool
-        Include filterpy's IMM (needs the ``peers`` extra).
+        Include the peers: filterpy's IMM (the ``peers`` extra) and those of
+        :mod:`kalmix.peer_models` whose packages are installed.
     tune_units : bool
         Tune the mixture's length unit on the tuning part (else the rule's value).
     options : dict, optional
-        Other :func:`kalmix.bank.make_params` arguments for the mixture.
+        Other :func:`kalmix.bank.make_params` arguments: of the AKF mixture row, and of the
+        bank's AKF family except the gate's (:data:`kalmix.bank.GATE_OPTIONS`), as in
+        ``kalmix predict``.
     log : callable, optional
         Called with a short progress message before each predictor.
     bank_options : dict, optional
@@ -597,8 +600,11 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         tuned["mixture_options"] = options
     predictions: dict[str, tuple] = {}
     time_unit = auto_time_unit(np.where(tuning, streams.times, np.nan) if tuning.any() else streams.times)
+    # the AKF family takes K and the options as predict's does (the gate's reach only the AKF mixture row)
+    family = {"n_akf": n_experts, "akf_options": {k: v for k, v in options.items() if k not in GATE_OPTIONS}}
     bank = make_bank(p, length_unit=rule, time_unit=time_unit, seed=seed,
-                     lead=horizon * time_unit if horizon > 1 else None, **dict(bank_options or DEFAULT_BANK))
+                     lead=horizon * time_unit if horizon > 1 else None,
+                     **{**family, **dict(bank_options or DEFAULT_BANK)})
     tuned["mixture"] = {"bank": bank.description, "n_experts": bank.n_experts}
     log(f"mixture: {bank.description['kind']} bank of {bank.n_experts} experts, rule {bank.rule} "
         f"(length unit {rule:.4g}, time unit {time_unit:.4g})")
