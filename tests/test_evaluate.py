@@ -198,3 +198,49 @@ def test_experts_and_family_options_reach_the_bank_as_in_predict():
     assert rms(family, "mixture") != rms(base, "mixture")
     assert rms(gate, "mixture") == rms(base, "mixture")
     assert rms(gate, "AKF mixture (previous default)") != rms(base, "AKF mixture (previous default)")
+
+
+def test_cli_evaluate_refuses_up_front_what_it_cannot_do(tmp_path):
+    """Before any work (no JSON written): a horizon beyond every segment (was a KeyError traceback after the
+    run), unknown --tracks ids (were dropped silently) with the ids there are, a figure format matplotlib
+    cannot write and --plot-intervals on one coordinate (were refused after the whole run)."""
+    path = tmp_path / "t.csv"
+    _turning_tracks(n=40).to_csv(path, index=False)
+    one_d = tmp_path / "x.csv"
+    _turning_tracks(n=40).drop(columns="y").to_csv(one_d, index=False)
+    runner = CliRunner()
+    for args, message in (
+            (["-H", "40"], "horizon: no measurement of a scored row has one 40 rows before it"),
+            (["--tracks", "t0,zz"], "tracks: ['zz'] not in the data (its track ids: ['t0', 't1'])"),
+            (["--plot", str(tmp_path / "e.xyz")], "--plot: expected a figure file ending in .png"),
+            (["--plot-intervals", str(tmp_path / "e.png"), str(one_d)], "needs two position coordinates, the data has 1")):
+        paths = [a for a in args if a.endswith(".csv")] or [str(path)]
+        args = [a for a in args if not a.endswith(".csv")]
+        result = runner.invoke(build(), ["evaluate", *paths, "--experts", "2", "--no-peers", *args,
+                                         "--json", str(tmp_path / "r.json")])
+        assert result.exit_code == 1 and message in result.stderr, result.output
+        assert not (tmp_path / "r.json").exists()
+
+
+def test_a_target_at_rest_in_the_tuning_part_leaves_the_peers_running(monkeypatch):
+    """A target parked while the peers tune (every tuning innovation 0): the real-dt CV/CA filters keep their grid's
+    noise (the calibration scale was 0, so q = r = 0 was refused and the whole run stopped); a peer library that
+    fails on the data is left out, said in the log and in ``tuned``, and the others are scored."""
+    from kalmix import peer_models
+
+    table = _turning_tracks(n=100)
+    table.loc[table["time"] < 3.0, ["x", "y"]] = 1.0                 # at rest for the first 30 % of each track
+    messages = []
+    failing = peer_models.PEERS["holt_winters"]
+
+    def broken(*args, **kwargs):
+        raise ZeroDivisionError("float division by zero")
+
+    monkeypatch.setitem(peer_models.PEERS, "holt_winters", failing.__class__(
+        **{**{f: getattr(failing, f) for f in failing.__dataclass_fields__}, "tune": broken}))
+    result = evaluate_table(table, n_experts=2, tuning_fraction=0.25, log=messages.append)
+    assert np.isfinite(result.overall["CV Kalman (real dt)"]["one_step"]["rms"])
+    assert result.tuned["CV Kalman (real dt)"]["process_noise"] > 0
+    assert "Holt-Winters (river)" not in result.overall
+    assert result.tuned["Holt-Winters (river)"] == {"left_out": "ZeroDivisionError: float division by zero"}
+    assert any("Holt-Winters (river): left out, it failed on this data" in m for m in messages)

@@ -431,6 +431,12 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
             table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True)
             label = os.path.basename(input_path)
         wanted = [t.strip() for t in tracks.split(",")] if tracks else None
+        for flag, path in (("--plot", plot_path), ("--plot-intervals", intervals_path)):   # before the work
+            if path:
+                _check_figure_path(flag, path)
+        positions = [c for c in table.columns if c not in ("track_id", "time")]
+        if intervals_path and len(positions) < 2:
+            raise ValueError(f"--plot-intervals: needs two position coordinates, the data has {len(positions)}")
         if (plot_path or intervals_path) and plot_track is not None:  # before the work, not after it
             names = [str(t) for t in pd.unique(table["track_id"])]
             names = [t for t in names if wanted is None or t in wanted]
@@ -480,8 +486,16 @@ def format_result(result, per_track=True) -> str:
     tuning = (f"first {result.tuning_fraction:.0%} of each track tunes the peers and is not scored"
               if result.tuning_fraction > 0 else
               "no tuning part (--tuning-fraction 0): the peers are tuned on the scored rows, in hindsight")
+    bank = result.tuned.get("mixture", {}).get("bank", {})
+    if "length_unit" in bank and "time_unit" in bank:
+        units = (f"the mixture's length unit {bank['length_unit']:.4g} and time unit {bank['time_unit']:.4g}, "
+                 f"the AKF rows' length unit {result.length_unit:.4g}\n(kalmix predict --length-unit "
+                 f"{bank['length_unit']!r} --time-unit {bank['time_unit']!r}, and this command's other flags, runs the same "
+                 "mixture)")
+    else:
+        units = f"length unit {result.length_unit:.4g}"
     lines = [f"{result.dataset}: {len(streams.track_ids)} track(s), {n_rows} samples in {len(streams.lengths)} "
-             f"segment(s); length unit {result.length_unit:.4g}; {tuning}; errors per coordinate, data units", ""]
+             f"segment(s); {units}; {tuning}; errors per coordinate, data units", ""]
     lines += _table("overall", result.overall, result.horizon)
     calibration = result.tuned.get("mixture", {}).get("calibration", {})
     for which, entry in calibration.items():
@@ -511,6 +525,20 @@ def _track_columns(result, track):
     return track, np.flatnonzero(streams.track_of == names.index(str(track)))
 
 
+def _check_figure_path(flag, path):
+    """``ValueError`` unless matplotlib can write ``path``'s format (its extension: .png, .pdf, .svg, ...)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    kinds = FigureCanvasBase.get_supported_filetypes()
+    extension = os.path.splitext(path)[1].lstrip(".").lower()
+    if extension not in kinds:
+        raise ValueError(f"{flag}: expected a figure file ending in .png (or {', '.join('.' + k for k in kinds if k != 'png')}), "
+                         f"got {path!r}")
+
+
 def plot_intervals(result, path, track=None, rows: int = 30):
     """PNG: ``rows`` scored samples of a track (the first two coordinates), the mixture's one-step
     predictions and their 95 % ellipses (chi-square with 2 degrees of freedom on the calibrated covariance)."""
@@ -527,7 +555,10 @@ def plot_intervals(result, path, track=None, rows: int = 30):
     forecasts, covariance = result.intervals
     j = max(columns, key=lambda c: streams.lengths[c])        # the track's longest segment
     n = int(streams.lengths[j])
-    start = min(int(np.ceil(result.tuning_fraction * n)), max(0, n - rows))
+    # the scored rows (the track's first tuning_fraction is not scored), as many as there are up to ``rows``
+    track_rows = int(streams.lengths[streams.track_of == streams.track_of[j]].sum())
+    scored = np.flatnonzero(streams.sample_index[:n, j] >= np.ceil(result.tuning_fraction * track_rows))
+    start = min(int(scored[0]), max(0, n - rows)) if scored.size else max(0, n - rows)
     part = slice(start, min(n, start + rows))
     z, mean, cov = streams.values[part, j, :2], forecasts[part, j, :2], covariance[part, j, :2, :2]
     inside = []

@@ -211,7 +211,7 @@ def _calibration(errors, std, covariance, scored):
     """Coverage of mean ± 1.96 std per coordinate, and mean NEES, over the scored pairs."""
     ok = scored & np.isfinite(errors).all(axis=-1) & np.isfinite(std).all(axis=-1)
     if not ok.any():
-        return {"coverage_95": float("nan"), "mean_nees": float("nan"), "count": 0}
+        return {"coverage_95": float("nan"), "mean_nees": float("nan"), "median_nees": float("nan"), "count": 0}
     e, s = errors[ok], std[ok]
     coverage = float(np.mean(np.abs(e) <= 1.959963984540054 * s))
     out = {"coverage_95": coverage, "count": int(ok.sum())}
@@ -380,16 +380,22 @@ def _run_peer_models(streams, tuning, unit, horizon, predictions, tuned, log):
         keep = row_budget(streams.lengths, peer.max_rows)
         log(f"{label}: tuning and running on {int(keep.sum())} of {int(streams.lengths.sum())} rows")
         cut = [(v[:n], t[:n], m[:n]) for (v, t, m), n in zip(segments, keep) if n > 1]
-        params = peer.tune([c for c in cut if c[2].any()] or cut, unit=unit, time_unit=time_unit)
-        one = np.full_like(streams.values, np.nan)
-        ahead = np.full_like(streams.values, np.nan) if horizon > 1 else one
-        for j, n in enumerate(keep):
-            if n < 2:
-                continue
-            v, t = streams.values[:n, j], streams.times[:n, j]
-            one[:n, j] = peer.predict(v, t, params, horizon=1)
-            if horizon > 1:
-                ahead[:n, j] = peer.predict(v, t, params, horizon=horizon)
+        try:
+            params = peer.tune([c for c in cut if c[2].any()] or cut, unit=unit, time_unit=time_unit)
+            one = np.full_like(streams.values, np.nan)
+            ahead = np.full_like(streams.values, np.nan) if horizon > 1 else one
+            for j, n in enumerate(keep):
+                if n < 2:
+                    continue
+                v, t = streams.values[:n, j], streams.times[:n, j]
+                one[:n, j] = peer.predict(v, t, params, horizon=1)
+                if horizon > 1:
+                    ahead[:n, j] = peer.predict(v, t, params, horizon=horizon)
+        except Exception as error:   # noqa: BLE001 - a peer library that fails on this data is left out, said
+            reason = f"{type(error).__name__}: {error}"
+            log(f"{label}: left out, it failed on this data ({reason})")
+            tuned[label] = {"left_out": reason}
+            continue
         predictions[label] = (one, ahead)
         tuned[label] = {**params, "rows_evaluated": int(keep.sum()), "rows": int(streams.lengths.sum())}
 
@@ -512,9 +518,13 @@ def _require_errors(values, mask, doing, part, track_lengths):
     """``ValueError`` unless ``mask`` holds a one-step error: a measurement right after another."""
     present = np.isfinite(values).all(axis=-1)
     if not (mask[1:] & present[1:] & present[:-1]).any():
+        complete = int(present.sum())
+        which = ("" if complete == int(track_lengths.sum()) else
+                 f"; only {complete} row(s) have every position column measured (NaN or empty elsewhere: check "
+                 "--position)")
         raise ValueError(f"too little data to {doing}: {part} holds no two consecutive measurements of a "
-                         f"segment (longest track: {int(track_lengths.max())} row(s) after de-duplicating times; "
-                         "evaluate needs tracks of a few dozen rows)")
+                         f"segment (longest track: {int(track_lengths.max())} row(s) after de-duplicating times"
+                         f"{which}; evaluate needs tracks of a few dozen rows, or a smaller --tuning-fraction)")
 
 
 def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 0,
@@ -569,9 +579,13 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     log = log or (lambda message: None)
     if tracks is not None:
         wanted = {str(t) for t in tracks}
-        table = table[table["track_id"].astype(str).isin(wanted)]
-        if table.empty:
-            raise ValueError(f"tracks: none of {sorted(wanted)} is in the data")
+        ids = table["track_id"].astype(str)
+        missing = sorted(wanted - set(ids))
+        if missing:
+            have = list(dict.fromkeys(ids))
+            raise ValueError(f"tracks: {missing} not in the data (its track ids: {have[:20]}"
+                             f"{' ...' if len(have) > 20 else ''})")
+        table = table[ids.isin(wanted)]
     streams = split_streams(table, max_gap=max_gap, max_gap_factor=max_gap_factor, max_samples=max_samples)
     values, s, p = streams.values, streams.values.shape[1], streams.values.shape[2]
     track_lengths = np.bincount(streams.track_of, weights=streams.lengths).astype(int)
@@ -585,6 +599,10 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     _require_errors(values, tune_scored, "tune the predictors on",
                     f"the first {tuning_fraction:.0%} of each track (--tuning-fraction)", track_lengths)
     _require_errors(values, scored, "score", "the rest of each track", track_lengths)
+    finite = np.isfinite(values).all(axis=-1)
+    if horizon > 1 and not (finite & _shift(scored & finite, horizon, False)).any():
+        raise ValueError(f"horizon: no measurement of a scored row has one {horizon} rows before it in its "
+                         f"segment (longest segment: {int(streams.lengths.max())} rows); give a smaller -H")
     if length_unit is not None:
         unit = rule = float(length_unit)
         tuned["length_unit"] = {"given": unit}

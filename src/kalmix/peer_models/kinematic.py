@@ -177,6 +177,8 @@ def _tune(segments, unit, time_unit, order):
     # q/r alone sets the predictions (P0 is proportional to r): scale both so that the
     # innovations are calibrated (mean normalised squared error 1); r is then a noise variance.
     scale = float(nis[best] / count)
+    if not scale > 0:   # every tuning innovation exactly 0 (a target at rest): nothing to calibrate on
+        scale = 1.0
     return {"process_noise": float(q[best] * scale), "measurement_noise": float(r[best] * scale),
             "time_unit": time_unit, "tuning_rms": float(np.sqrt(mse[best]))}
 
