@@ -606,3 +606,29 @@ def test_csv_output_reads_back_as_pandas_own_for_any_column_type(frame):
 
     ours = pd.read_csv(io.StringIO(csv_text(frame, header=True)))
     pd.testing.assert_frame_equal(ours, pd.read_csv(io.StringIO(frame.to_csv(index=False))), check_exact=True)
+
+
+def test_iso_8601_times_are_seconds_since_1970_in_files_on_stdin_and_as_parquet_datetimes(cli, tmp_path):
+    """A CSV time column of ISO 8601 date-times (AIS, ADS-B logs) was refused ("must hold finite numbers") while
+    the same times as a Parquet datetime column worked: now both are seconds since 1970 UTC, text without an
+    offset read as UTC, and a CSV file, the same CSV on stdin and the Parquet file give the same times and the
+    same lead forecasts (a definition the file and stdin share)."""
+    table = _tracks(n_tracks=2, n=30, gap=False)
+    stamps = pd.Timestamp("2024-05-01T12:00:00Z") + pd.to_timedelta(table["t"], unit="s")
+    text = table.assign(t=stamps.dt.strftime("%Y-%m-%dT%H:%M:%S.%f") + np.where(table.index % 2, "Z", "+00:00"))
+    text.to_csv(tmp_path / "iso.csv", index=False)
+    table.assign(t=stamps).to_parquet(tmp_path / "dt.parquet", index=False)
+    args = [*FAST, "--time-unit", "0.04", "--lead", "0.1"]
+    file = _read(_run(cli, ["predict", str(tmp_path / "iso.csv"), *args]).stdout)
+    piped = _read(_run(cli, ["predict", "-", *args], input=(tmp_path / "iso.csv").read_text()).stdout)
+    parquet = _read(_run(cli, ["predict", str(tmp_path / "dt.parquet"), *args]).stdout)
+    expected = (stamps - pd.Timestamp(0, tz="UTC")) / pd.Timedelta(seconds=1)
+    np.testing.assert_allclose(file["t"], expected, rtol=0, atol=1e-6)
+    for other in (piped, parquet):
+        np.testing.assert_array_equal(other["t"], file["t"])
+        np.testing.assert_array_equal(other[["lead_px", "lead_py"]], file[["lead_px", "lead_py"]])
+    bad = text.copy()
+    bad.loc[3, "t"] = "yesterday"
+    bad.to_csv(tmp_path / "bad.csv", index=False)
+    result = _run(cli, ["predict", str(tmp_path / "bad.csv"), *FAST])
+    assert result.exit_code == 1 and "ISO 8601 date-times" in result.stderr and "'yesterday'" in result.stderr

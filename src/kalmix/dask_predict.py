@@ -188,7 +188,7 @@ def _canonical(raw, columns: TrackColumns, base: int, where: str, offset: int = 
         out = pd.DataFrame({"track_id": ids})
         for name, source in ((("time", columns.time),) if columns.time is not None else ()) + tuple(
                 (p, p) for p in columns.positions):
-            out[name] = _to_float(raw[source].reset_index(drop=True), source, offset)
+            out[name] = _to_float(raw[source].reset_index(drop=True), source, offset, dates=name == "time")
     except ValueError as error:
         raise ValueError(f"{where}: {error}") from None
     out["_order"] = (np.int64(base) << _ORDER_BITS) + np.arange(n, dtype=np.int64)

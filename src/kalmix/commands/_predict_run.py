@@ -258,6 +258,22 @@ def _parse_number(text, column, line_number):
     return value
 
 
+def _parse_time(text, column, line_number):
+    """A row's time: a number, or ISO 8601 date-time text as seconds since 1970 UTC, as in a file."""
+    try:
+        return _parse_number(text, column, line_number)
+    except ValueError:
+        if not isinstance(text, str):
+            raise
+    from ..io.tables import iso_seconds
+
+    try:
+        return iso_seconds(text.strip())
+    except (ValueError, TypeError, OverflowError):
+        raise ValueError(f"line {line_number}: column {column!r} must hold a number or an ISO 8601 date-time "
+                         f"(like 2024-05-01T12:00:00.5Z), got {text!r}") from None
+
+
 def _parse_id(value, column, line_number):
     """A track id as written: CSV text unchanged (``01`` is not ``1``, as in a file), a JSON value as parsed."""
     if value is None or value == "" or isinstance(value, (dict, list)):
@@ -446,7 +462,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
             time = float(counts.get(track, engine.gaps[track].last_time + 1 if track in engine.gaps else 0))
             counts[track] = time + 1
         else:
-            time = _parse_number(get(record, columns.time, number), columns.time, number)
+            time = _parse_time(get(record, columns.time, number), columns.time, number)
             if math.isnan(time):
                 return number, None, time, None
         return number, track, time, [_parse_number(get(record, name, number), name, number)

@@ -81,7 +81,8 @@ class TrackColumns:
     ----------
     time : str or None
         Time column (seconds, or any numeric clock; datetime and timedelta
-        columns are converted to seconds). ``None`` means row order is time:
+        columns, and text of ISO 8601 date-times, are converted to seconds,
+        since 1970-01-01 UTC for dates). ``None`` means row order is time:
         each track's k-th row gets time ``k``.
     positions : tuple of str
         One to three position column names, kept as names in the output.
@@ -240,8 +241,22 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
 
 
 # --------------------------------------------------------------------------- validation
-def _to_float(s: pd.Series, name: str, offset: int) -> np.ndarray:
-    """Column to float64; ValueError at the first value that is not a number."""
+def iso_seconds(text):
+    """Seconds since 1970-01-01 UTC of ISO 8601 date-time text (a Series, or one str; no offset = UTC);
+    ``ValueError`` when it is not such text. Counted in nanoseconds whatever the text's precision, and
+    shared by the file and stdin paths, so both give the same bits for the same text."""
+    one = isinstance(text, str)
+    when = pd.to_datetime(pd.Series([text] if one else text, dtype=object), format="ISO8601", utc=True)
+    when = when.dt.as_unit("ns")
+    seconds = ((when - pd.Timestamp(0, tz="UTC")) / pd.Timedelta(seconds=1)).to_numpy(np.float64, na_value=np.nan)
+    if one and np.isnan(seconds[0]):
+        raise ValueError(f"not a date-time: {text!r}")
+    return float(seconds[0]) if one else seconds
+
+
+def _to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.ndarray:
+    """Column to float64; ValueError at the first value that is not a number. ``dates``: a text column of
+    ISO 8601 date-times is read as seconds since 1970 UTC (:func:`iso_seconds`), as a datetime column is."""
     if pd.api.types.is_datetime64_any_dtype(s):
         epoch = pd.Timestamp(0, tz=getattr(s.dt, "tz", None))
         return ((s - epoch) / pd.Timedelta(seconds=1)).to_numpy(np.float64, na_value=np.nan)
@@ -254,10 +269,21 @@ def _to_float(s: pd.Series, name: str, offset: int) -> np.ndarray:
         out = pd.to_numeric(s.astype(object), errors="coerce").to_numpy(np.float64, na_value=np.nan)
         text = s.astype(str).str.strip().str.lower()
         bad = (np.isnan(out) & s.notna().to_numpy() & ~text.isin(_MISSING_TEXT).to_numpy()) | np.isinf(out)
+    if bad.any() and dates and np.isnan(out).all():
+        missing = s.isna().to_numpy() | s.astype(str).str.strip().str.lower().isin(_MISSING_TEXT).to_numpy()
+        text = s.where(~missing).astype(object)
+        try:
+            return iso_seconds(text)
+        except (ValueError, TypeError, OverflowError):   # name the first value that is not a date-time
+            when = pd.to_datetime(text, format="ISO8601", utc=True, errors="coerce")
+            undated = when.isna().to_numpy() & ~missing
+            bad = undated if undated.any() else bad
     if bad.any():
         i = int(np.argmax(bad))
+        what = "finite numbers (or, for a time column, ISO 8601 date-times like 2024-05-01T12:00:00.5Z)" \
+            if dates else "finite numbers"
         raise ValueError(
-            f"Column {name!r} must hold finite numbers; row {offset + i} (counted from 0 after the "
+            f"Column {name!r} must hold {what}; row {offset + i} (counted from 0 after the "
             f"header) holds {s.iloc[i:i + 1].tolist()[0]!r}. Empty cells and 'nan' are read as "
             "missing measurements.")
     return out
@@ -298,7 +324,7 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
                 counts[tid] = counts.get(tid, 0) + int(c)
         out["time"] = k
     else:
-        out["time"] = _to_float(raw[cols.time].reset_index(drop=True), cols.time, offset)
+        out["time"] = _to_float(raw[cols.time].reset_index(drop=True), cols.time, offset, dates=True)
     for p in cols.positions:
         out[p] = _to_float(raw[p].reset_index(drop=True), p, offset)
 
