@@ -632,3 +632,6 @@ def test_iso_8601_times_are_seconds_since_1970_in_files_on_stdin_and_as_parquet_
     bad.to_csv(tmp_path / "bad.csv", index=False)
     result = _run(cli, ["predict", str(tmp_path / "bad.csv"), *FAST])
     assert result.exit_code == 1 and "ISO 8601 date-times" in result.stderr and "'yesterday'" in result.stderr
+    piped_bad = _run(cli, ["predict", "-", *FAST], input=(tmp_path / "bad.csv").read_text())
+    assert piped_bad.exit_code == 1 and "line 5: column 't' must hold a number or an ISO 8601" in piped_bad.stderr
+    assert len(_read(piped_bad.stdout)) == 3                     # the rows before it are written

@@ -259,19 +259,32 @@ def _parse_number(text, column, line_number):
 
 
 def _parse_time(text, column, line_number):
-    """A row's time: a number, or ISO 8601 date-time text as seconds since 1970 UTC, as in a file."""
+    """A row's time: a number, or text left for :func:`_dated` (ISO 8601 date-times, converted together)."""
     try:
         return _parse_number(text, column, line_number)
     except ValueError:
         if not isinstance(text, str):
             raise
+    return text.strip()
+
+
+def _dated(rows, column):
+    """``rows`` (line, track, time, positions) with their ISO 8601 time text as seconds since 1970 UTC, all in
+    one conversion (as in a file: the same bits); cut before the first that is not a date-time, with its error."""
     from ..io.tables import iso_seconds
 
-    try:
-        return iso_seconds(text.strip())
-    except (ValueError, TypeError, OverflowError):
-        raise ValueError(f"line {line_number}: column {column!r} must hold a number or an ISO 8601 date-time "
-                         f"(like 2024-05-01T12:00:00.5Z), got {text!r}") from None
+    at = [k for k, row in enumerate(rows) if isinstance(row[2], str)]
+    if not at:
+        return rows, None
+    seconds = iso_seconds([rows[k][2] for k in at], errors="coerce")
+    out = list(rows)
+    for k, value in zip(at, seconds):
+        number, track, text, values = rows[k]
+        if math.isnan(value):
+            return out[:k], ValueError(f"line {number}: column {column!r} must hold a number or an ISO 8601 "
+                                       f"date-time (like 2024-05-01T12:00:00.5Z), got {text!r}")
+        out[k] = (number, track, float(value), values)
+    return out, None
 
 
 def _parse_id(value, column, line_number):
@@ -463,7 +476,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
             counts[track] = time + 1
         else:
             time = _parse_time(get(record, columns.time, number), columns.time, number)
-            if math.isnan(time):
+            if not isinstance(time, str) and math.isnan(time):   # text: a date-time, see _dated
                 return number, None, time, None
         return number, track, time, [_parse_number(get(record, name, number), name, number)
                                      for name in columns.positions]
@@ -482,6 +495,8 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
                         rows.append(row_of(line_number, parse(raw, line_number)))
             except Exception as bad:   # noqa: BLE001 - raised below, once the rows before it are done
                 error = bad
+            rows[:], undated = _dated(rows, columns.time)
+            error = undated or error   # an earlier line than the one that stopped the parse
             results = iter(step([row for row in rows if row[1] is not None]))
             for number, track, time, _ in rows:
                 if track is None:

@@ -241,12 +241,14 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
 
 
 # --------------------------------------------------------------------------- validation
-def iso_seconds(text):
-    """Seconds since 1970-01-01 UTC of ISO 8601 date-time text (a Series, or one str; no offset = UTC);
-    ``ValueError`` when it is not such text. Counted in nanoseconds whatever the text's precision, and
-    shared by the file and stdin paths, so both give the same bits for the same text."""
+def iso_seconds(text, errors: str = "raise"):
+    """Seconds since 1970-01-01 UTC of ISO 8601 date-time text (a sequence, or one str; no offset = UTC);
+    ``ValueError`` when it is not such text (``errors="coerce"``: NaN there). Counted in nanoseconds whatever
+    the text's precision, element by element, and shared by the file and stdin paths, so both give the same
+    bits for the same text."""
     one = isinstance(text, str)
-    when = pd.to_datetime(pd.Series([text] if one else text, dtype=object), format="ISO8601", utc=True)
+    when = pd.to_datetime(pd.Series([text] if one else text, dtype=object), format="ISO8601", utc=True,
+                          errors=errors)
     when = when.dt.as_unit("ns")
     seconds = ((when - pd.Timestamp(0, tz="UTC")) / pd.Timedelta(seconds=1)).to_numpy(np.float64, na_value=np.nan)
     if one and np.isnan(seconds[0]):
