@@ -244,3 +244,23 @@ def test_a_target_at_rest_in_the_tuning_part_leaves_the_peers_running(monkeypatc
     assert "Holt-Winters (river)" not in result.overall
     assert result.tuned["Holt-Winters (river)"] == {"left_out": "ZeroDivisionError: float division by zero"}
     assert any("Holt-Winters (river): left out, it failed on this data" in m for m in messages)
+
+
+def test_plots_pick_a_track_with_scored_errors_and_the_imm_says_when_it_was_not_tuned(tmp_path):
+    """The default --track is the first with a scored error (the first track, of one row, gave an empty plot);
+    a track without one is refused by name. Tuning parts of 10 rows or fewer leave filterpy's IMM at its grid's
+    middle: ``tuned`` says so (it showed those values as if chosen)."""
+    pytest.importorskip("filterpy")
+    table = pd.concat([_turning_tracks(n=40), pd.DataFrame({"track_id": ["a"], "time": [0.0], "x": [0.0],
+                                                             "y": [0.0]})]).sort_values(["track_id", "time"])
+    path = tmp_path / "t.csv"
+    table.to_csv(path, index=False)
+    runner = CliRunner()
+    ok = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--json", str(tmp_path / "r.json"),
+                                 "--plot", str(tmp_path / "e.png")])
+    assert ok.exit_code == 0, ok.output
+    assert (tmp_path / "e.png").read_bytes()[:4] == b"\x89PNG"
+    assert "the grid's middle" in json.loads((tmp_path / "r.json").read_text())["tuned"]["IMM (filterpy)"]["untuned"]
+    bad = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--no-peers", "--plot",
+                                  str(tmp_path / "f.png"), "--track", "a"])
+    assert bad.exit_code == 1 and "--track a: no scored error to plot" in bad.stderr

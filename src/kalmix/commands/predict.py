@@ -362,7 +362,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
 
 # -------------------------------------------------------------------------------------- evaluate
 @click.command()
-@click.argument("input_path", metavar="INPUT", required=False)
+@click.argument("input_path", metavar="[INPUT]", required=False)
 @click.option("--dataset", default=None, help="A shipped recording instead of INPUT: hawkeye_ball, skillcorner, "
               "cycling (needs the 'data' extra).")
 @_column_options
@@ -370,13 +370,15 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
               help=f"Also report the H-step errors; at most {MAX_HORIZON}.")
 @click.option("--experts", "n_experts", default=40, show_default=True, type=click.IntRange(min=1),
               help="Experts of the bank's AKF family (as predict's --experts) and of the AKF mixture row.")
-@click.option("--seed", default=0, show_default=True, type=click.IntRange(0, MAX_SEED))
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(0, MAX_SEED),
+              help="Seed of the bank and of the AKF mixture row.")
 @click.option("--length-unit", default="auto", show_default=True,
               help="Mixture's length unit; 'auto': the second-difference rule on the tuning part.")
 @click.option("--tuning-fraction", default=0.2, show_default=True, type=click.FloatRange(0.0, 1.0, max_open=True),
               help="Leading share of each track used to tune the peers (and the length unit), not scored.")
-@click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP)
-@click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True))
+@click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP + " 'none' never splits.")
+@click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True),
+              help="Gap threshold as a multiple of the reference interval (median of a track's first 16 steps).")
 @click.option("--max-samples", default=None, type=click.IntRange(min=3),
               help="Use only the first N samples of each track (quicker).")
 @click.option("--tracks", default=None, help="Comma-separated track ids to keep.")
@@ -516,13 +518,19 @@ def format_result(result, per_track=True) -> str:
 
 
 def _track_columns(result, track):
+    """The plotted track (given, else the first with a scored error) and its segments' columns."""
     streams = result.streams
     names = [str(t) for t in streams.track_ids]
+    scored = np.isfinite(result.errors["mixture"]).all(axis=-1).any(axis=0)   # (segments,)
     if track is None:
-        track = names[0]
+        track = next((name for i, name in enumerate(names) if scored[streams.track_of == i].any()), names[0])
     if str(track) not in names:
         raise ValueError(f"--track: expected one of {names[:20]}{' ...' if len(names) > 20 else ''}, got {track!r}")
-    return track, np.flatnonzero(streams.track_of == names.index(str(track)))
+    columns = np.flatnonzero(streams.track_of == names.index(str(track)))
+    if not scored[columns].any():
+        raise ValueError(f"--track {track}: no scored error to plot (its rows are in the tuning part, or alone in "
+                         "their segments); pick a longer track")
+    return track, columns
 
 
 def _check_figure_path(flag, path):
@@ -608,6 +616,8 @@ def plot_errors(result, path, track=None):
             import pandas as pd
             e = pd.Series(e).rolling(window, min_periods=1, center=True).median().to_numpy()
         style = dict(lw=2.0, color="black") if name == "mixture" else dict(lw=1.0, alpha=0.8)
+        if np.isfinite(e).sum() < 50:   # a few errors: their points, which a line would not show alone
+            style["marker"] = "o"
         ax.plot(t, e, label=name, **style)
     ax.set_yscale("log")
     ax.set_xlabel("time")

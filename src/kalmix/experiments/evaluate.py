@@ -444,8 +444,9 @@ def _tune_imm(streams, tuning, unit, measurement_noise):
         rows = np.flatnonzero(tuning[:, j])[:400]
         if rows.size > 10:
             pieces.append(streams.values[rows, j])
-    if not pieces:
-        return {"measurement_noise": measurement_noise / unit**2, **{k: v[1] for k, v in _IMM_GRID.items()}}
+    if not pieces:   # too short to tune on: the grid's middle, said in ``tuned``
+        return {"measurement_noise": measurement_noise / unit**2, **{k: v[1] for k, v in _IMM_GRID.items()},
+                "untuned": "no track's tuning part has more than 10 rows: the grid's middle values"}
     best, best_rms = None, math.inf
     for candidate in itertools.product(*_IMM_GRID.values()):
         options = dict(zip(_IMM_GRID, candidate), measurement_noise=measurement_noise / unit**2)
@@ -662,7 +663,11 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         if imm_predictions is not None:
             log("IMM (filterpy): tuning")
             best = _tune_imm(streams, tune_scored, rule, tuned["CV Kalman"]["measurement_noise"])
+            note = best.pop("untuned", None)
             tuned["IMM (filterpy)"] = {k: v * rule**2 if k != "switch_probability" else v for k, v in best.items()}
+            if note:
+                tuned["IMM (filterpy)"]["untuned"] = note
+                log(f"IMM (filterpy): not tuned ({note})")
             log("IMM (filterpy): running")
             imm = np.full_like(values, np.nan)
             for j in range(s):

@@ -203,12 +203,12 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
     lookup: dict[str, str] = {}
     for c in columns:
         lookup.setdefault(c.strip().lower(), c)
-    for name, value in (("time", time), ("track_id", track_id)):
+    for name, flag, value in (("time", "--time", time), ("track_id", "--id", track_id)):
         if value is not None:
-            _require(columns, [value], f"{name}={value!r}")
+            _require(columns, [value], f"{name}={value!r} ({flag})")
     if positions is not None:
         positions = (positions,) if isinstance(positions, str) else tuple(positions)
-        _require(columns, positions, f"positions={list(positions)}")
+        _require(columns, positions, f"positions={list(positions)} (--position)")
     else:
         for prefix in _PREFIXES:
             for a, b, c in _AXES:
@@ -226,7 +226,7 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
             raise ValueError(
                 "Could not detect position columns (expected e.g. x/y[/z], u/v, lat/lon, "
                 f"position_x/..., px/py/pz); available columns: {columns}. "
-                "Pass positions=(...) or a TrackColumns.")
+                "Name them: --position a,b on the command line, positions=(...) or a TrackColumns in Python.")
     taken = set(positions)
 
     def first(names, explicit):
