@@ -32,6 +32,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ._libm import exp
+from .aggregators._common import ordered_sum
+
 __all__ = ["CalibrationParams", "CalibrationState", "init", "moments", "update", "z_score"]
 
 
@@ -64,13 +67,13 @@ def moments(params: CalibrationParams, state: CalibrationState, weights, experts
     """The mixture's mean ``(N, p)`` and covariance ``(N, p, p)`` (NaN where no expert is awake)."""
     x = np.where(awake[..., None], experts, 0.0)
     w = np.where(awake, weights, 0.0)
-    mean = np.einsum("nk,nkp->np", w, x)
+    mean = ordered_sum(w[..., None] * x, axis=1)
     with np.errstate(over="ignore", invalid="ignore"):
         dev = np.where(awake[..., None], x - mean[:, None, :], 0.0)
-        cov = np.einsum("nk,nkp,nkq->npq", w, dev, dev)
-        diagonal = np.einsum("nk,nkp->np", w, np.where(awake[..., None], state.variance, 0.0))
+        cov = ordered_sum(w[..., None, None] * (dev[..., :, None] * dev[..., None, :]), axis=1)
+        diagonal = ordered_sum(w[..., None] * np.where(awake[..., None], state.variance, 0.0), axis=1)
         cov = cov + diagonal[:, :, None] * np.eye(mean.shape[-1])
-        cov = np.exp(2.0 * state.log_scale)[:, None, None] * cov
+        cov = exp(2.0 * state.log_scale)[:, None, None] * cov
     cov = np.clip(np.nan_to_num(cov, nan=params.max_variance, posinf=params.max_variance,
                                  neginf=-params.max_variance), -params.max_variance, params.max_variance)
     some = awake.any(axis=-1)

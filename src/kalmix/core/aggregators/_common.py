@@ -2,14 +2,23 @@
 
 import numpy as np
 
+from .._libm import exp, log  # noqa: F401 - the kernels' exp and log, for the rules
+
+
+def ordered_sum(a, axis: int = -1, keepdims: bool = False):
+    """Sum over ``axis`` term by term in index order, ``((a_0 + a_1) + a_2) + ...``: the compiled kernels' order
+    (``a.sum`` adds in pairs and blocks, which rounds differently)."""
+    total = np.take(np.add.accumulate(a, axis=axis), -1, axis=axis)
+    return np.expand_dims(total, axis) if keepdims else total
+
 
 def normalise_awake(log_weights, awake):
     """Softmax of ``log_weights (N, K)`` over the awake experts; rows with none awake are zero."""
     masked = np.where(awake, log_weights, -np.inf)
     top = masked.max(axis=-1, keepdims=True)
     top = np.where(np.isfinite(top), top, 0.0)
-    w = np.where(awake, np.exp(masked - top), 0.0)
-    total = w.sum(axis=-1, keepdims=True)
+    w = np.where(awake, exp(np.where(awake, masked - top, 0.0)), 0.0)
+    total = ordered_sum(w, keepdims=True)
     return np.where(total > 0, w / np.where(total > 0, total, 1.0), 0.0)
 
 
@@ -19,7 +28,7 @@ def linearised_regret(weights, experts, measurement, awake):
     :math:`\\hat y = \\sum_k w_k x_k` over the awake experts; zero for sleeping experts.
     """
     x = np.where(awake[..., None], experts, 0.0)
-    mix = np.einsum("nk,nkp->np", weights, x)
+    mix = ordered_sum(weights[..., None] * x, axis=1)
     with np.errstate(over="ignore", invalid="ignore"):
-        r = 2.0 * np.einsum("np,nkp->nk", mix - measurement, mix[:, None, :] - x)
+        r = 2.0 * ordered_sum((mix - measurement)[:, None, :] * (mix[:, None, :] - x))
     return np.where(awake, r, 0.0)

@@ -27,7 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._common import linearised_regret, normalise_awake
+from ._common import linearised_regret, log, normalise_awake
 
 __all__ = ["Params", "State", "init", "weights", "update", "learning_rates"]
 
@@ -61,7 +61,7 @@ def learning_rates(state: State, n_experts: int) -> np.ndarray:
 
 def weights(params: Params, state: State, awake: np.ndarray) -> np.ndarray:
     eta = learning_rates(state, state.regret.shape[-1])
-    w = normalise_awake(np.log(eta) + eta * state.regret, awake)
+    w = normalise_awake(log(eta) + eta * state.regret, awake)
     count = awake.sum(axis=-1, keepdims=True)
     floor = np.where(awake, params.share / np.maximum(count, 1), 0.0)
     return (1.0 - params.share) * w + floor

@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._common import normalise_awake
+from ._common import log, normalise_awake, ordered_sum
 
 __all__ = ["Params", "State", "init", "weights", "update"]
 
@@ -49,10 +49,10 @@ def update(params: Params, state: State, experts, measurement, awake, learn) -> 
     z = np.where(learn[:, None], measurement, 0.0)
     w = weights(params, state, awake)
     x = np.where(awake[..., None], experts, 0.0)
-    mix = np.einsum("nk,nkp->np", w, x)
+    mix = ordered_sum(w[..., None] * x, axis=1)
     with np.errstate(over="ignore", invalid="ignore"):
-        squared = state.squared + np.sum((mix - z) ** 2, axis=-1) / p
-        loss = np.sum((z[:, None, :] - x) ** 2, axis=-1)
+        squared = state.squared + ordered_sum((mix - z) ** 2) / p
+        loss = ordered_sum((z[:, None, :] - x) ** 2)
     count = state.count + 1.0
     if params.scale > 0:
         variance = np.full(z.shape[0], params.scale**2)
@@ -64,7 +64,7 @@ def update(params: Params, state: State, experts, measurement, awake, learn) -> 
     count_awake = awake.sum(axis=-1, keepdims=True)
     shared = (1.0 - params.share) * scored + np.where(awake, params.share / np.maximum(count_awake, 1), 0.0)
     with np.errstate(divide="ignore"):
-        new_log = np.where(awake, np.log(shared), state.log_weights)
+        new_log = np.where(awake, log(shared), state.log_weights)
     finite = np.isfinite(squared) & np.isfinite(np.where(awake, loss, 0.0)).all(axis=-1)
     scored_rows = learn & awake.any(axis=-1) & finite   # an overflowing loss teaches nothing
     return State(np.where(scored_rows[:, None], new_log, state.log_weights),

@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._common import linearised_regret
+from ._common import linearised_regret, ordered_sum
 
 __all__ = ["Params", "State", "init", "weights", "update"]
 
@@ -42,7 +42,7 @@ def weights(params: Params, state: State, awake: np.ndarray) -> np.ndarray:
     denominator = state.variance + state.bound[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
         score = np.where(awake & (denominator > 0), np.maximum(state.regret, 0.0) / denominator, 0.0)
-    total = score.sum(axis=-1, keepdims=True)
+    total = ordered_sum(score, keepdims=True)
     count = awake.sum(axis=-1, keepdims=True)
     uniform = np.where(awake, 1.0 / np.maximum(count, 1), 0.0)
     w = np.where(total > 0, score / np.where(total > 0, total, 1.0), uniform)

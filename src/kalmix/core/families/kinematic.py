@@ -105,14 +105,49 @@ def process_noise(order: int, delta: np.ndarray) -> np.ndarray:
     return q
 
 
+def _matmul(a, b):
+    """``a @ b``, each entry summed over the inner index in order from 0 (the compiled kernel's loops, which
+    ``@`` need not follow: the same bits in both engines)."""
+    out = np.zeros(np.broadcast_shapes(a.shape[:-2], b.shape[:-2]) + (a.shape[-2], b.shape[-1]))
+    for l in range(a.shape[-1]):
+        out = out + a[..., :, l:l + 1] * b[..., l:l + 1, :]
+    return out
+
+
+def _power(x, m: int):
+    """``x ** m`` for an integer ``m >= 0`` as the compiled kernel computes it (by repeated squaring)."""
+    out = np.ones_like(x)
+    while m:
+        if m & 1:
+            out = out * x
+        m >>= 1
+        x = x * x
+    return out
+
+
+def _symmetrise(cov):
+    """Off-diagonal pairs replaced by their mean; the diagonal kept as it is."""
+    out = cov.copy()
+    for i in range(cov.shape[-1]):
+        for j in range(i + 1, cov.shape[-1]):
+            out[..., i, j] = out[..., j, i] = 0.5 * (cov[..., i, j] + cov[..., j, i])
+    return out
+
+
 def _predict(params: KinematicParams, state: KinematicState, delta: np.ndarray):
-    """Mean and covariance extrapolated by ``delta (N,)`` steps."""
+    """Mean and covariance extrapolated by ``delta (N,)`` steps (the kernel's operations, in its order)."""
     f = transition(params.order, delta)[:, None]                                   # (N, 1, d, d)
-    mean = f @ state.mean                                                          # (N, K, d, p)
-    cov = f @ state.cov @ np.swapaxes(f, -1, -2)
-    cov = cov + params.process_noise[None, :, None, None] * process_noise(params.order, delta)[:, None]
-    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
-    return mean, cov
+    mean = _matmul(f, state.mean)                                                  # (N, K, d, p)
+    cov = _matmul(_matmul(f, state.cov), np.swapaxes(f, -1, -2))
+    d, fact = params.order, (1.0, 1.0, 2.0)
+    q = params.process_noise[None, :]                                              # (1, K)
+    with np.errstate(over="ignore", invalid="ignore"):
+        for i in range(d):
+            for j in range(d):
+                a, b = d - 1 - i, d - 1 - j
+                m = a + b + 1
+                cov[..., i, j] = cov[..., i, j] + q * _power(delta, m)[:, None] / (m * fact[a] * fact[b])
+    return mean, _symmetrise(cov)
 
 
 def forecast(params: KinematicParams, state: KinematicState, time) -> tuple[np.ndarray, np.ndarray]:
@@ -143,9 +178,11 @@ def update(params: KinematicParams, state: KinematicState, measurement: np.ndarr
     gain = cov[..., :, 0] / s[..., None]                                           # (N, K, d)
     innovation = z[:, None, :] - mean[..., 0, :]                                   # (N, K, p)
     new_mean = mean + gain[..., :, None] * innovation[..., None, :]
-    a = np.eye(params.order) - gain[..., :, None] * np.eye(params.order)[0][None, None, None, :]
-    new_cov = a @ cov @ np.swapaxes(a, -1, -2) + r[..., None, None] * gain[..., :, None] * gain[..., None, :]
-    new_cov = 0.5 * (new_cov + np.swapaxes(new_cov, -1, -2))
+    a = np.broadcast_to(np.eye(params.order), cov.shape).copy()                     # A = I - g e0^T
+    a[..., :, 0] = a[..., :, 0] - gain
+    new_cov = _matmul(_matmul(a, cov), np.swapaxes(a, -1, -2)) \
+        + r[..., None, None] * gain[..., :, None] * gain[..., None, :]
+    new_cov = _symmetrise(new_cov)
     excess = np.maximum(new_cov[..., 0, 0] / params.max_variance, 1.0)
     new_cov = new_cov / excess[..., None, None]
 

@@ -45,6 +45,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._libm import atan2, cos, sin
 from .ar import _dot   # a sum over the last axis in the kernel's order
 from .kinematic import _step   # the same clipped step in time units (params.time_unit, max_step; state.last_time)
 
@@ -114,7 +115,7 @@ def turn_geometry(state: TurnState):
     turning = both & (sine > 0)
     c = np.where(turning[:, None], perp / np.where(turning, sine, 1.0)[:, None], 0.0)
     mid = 0.5 * (state.previous_span + state.span)
-    omega = np.where(turning, np.arctan2(sine, cosine) / np.where(turning, mid, 1.0), 0.0)
+    omega = np.where(turning, atan2(sine, cosine) / np.where(turning, mid, 1.0), 0.0)
     # the chord of the last interval is shorter than the arc: speed = |v2| / sinc(omega Delta_2 / 2)
     return s2 / _sinc(np.minimum(0.5 * omega * state.span, 0.5 * np.pi)), b, c, omega
 
@@ -122,7 +123,7 @@ def turn_geometry(state: TurnState):
 def _sinc(x):
     """``sin(x) / x`` (1 at 0)."""
     small = np.abs(x) < 1e-8
-    return np.where(small, 1.0, np.sin(x) / np.where(small, 1.0, x))
+    return np.where(small, 1.0, sin(x) / np.where(small, 1.0, x))
 
 
 def _means(params: TurnParams, state: TurnState, delta) -> np.ndarray:
@@ -131,7 +132,7 @@ def _means(params: TurnParams, state: TurnState, delta) -> np.ndarray:
     w = params.gain[None, :] * omega[:, None]                                        # (N, K)
     alpha = 0.5 * w * (state.span[:, None] + delta[:, None])
     length = speed[:, None] * delta[:, None] * _sinc(0.5 * w * delta[:, None])       # (N, K)
-    direction = b[:, None, :] * np.cos(alpha)[..., None] + c[:, None, :] * np.sin(alpha)[..., None]
+    direction = b[:, None, :] * cos(alpha)[..., None] + c[:, None, :] * sin(alpha)[..., None]
     moving = (state.known >= 1)[:, None, None]
     return state.position[:, None, :] + np.where(moving, length[..., None] * direction, 0.0)
 

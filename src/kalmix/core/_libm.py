@@ -1,0 +1,49 @@
+"""The C library's ``exp``, ``log``, ``sin``, ``cos`` and ``atan2``, element by element, for the reference engine.
+
+The compiled kernels call the C library's functions (numba lowers ``math.exp`` and the others
+to them); numpy's own vectorised ``np.exp``, ``np.sin``, ... may differ from them in the last
+bit. The reference families and rules use these instead, so that both engines compute the
+same bits wherever they also add in the same order: an ulp of difference in a weight, summed
+over thousands of rows by a rule's regret, becomes a visible one. They are slower than
+numpy's; the reference engine runs small inputs.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["exp", "log", "sin", "cos", "atan2"]
+
+
+def _exp_or_inf(x):
+    try:
+        return math.exp(x)
+    except OverflowError:   # the C function gives inf
+        return math.inf
+
+
+def _log_or_nan(x):
+    if x > 0:
+        return math.log(x)
+    return -math.inf if x == 0 else math.nan
+
+
+def _elementwise(function, arity=1):
+    ufunc = np.frompyfunc(function, arity, 1)
+
+    def apply(*arrays):
+        out = ufunc(*(np.asarray(a, dtype=np.float64) for a in arrays))
+        return np.asarray(out, dtype=np.float64)
+
+    apply.__name__ = getattr(function, "__name__", "libm")
+    apply.__doc__ = f"``{apply.__name__}`` of the C library, element by element."
+    return apply
+
+
+exp = _elementwise(_exp_or_inf)
+log = _elementwise(_log_or_nan)
+sin = _elementwise(math.sin)
+cos = _elementwise(math.cos)
+atan2 = _elementwise(math.atan2, 2)
