@@ -67,7 +67,7 @@ def test_engine_arguments_are_checked_by_name(run, call, message):
 
 @pytest.mark.parametrize("args, error, message", [
     (("a", 0.0, ["1", "x"]), ValueError, r"z: expected numbers .*got \['1', 'x'\]"),
-    ((["a"], 0.0, [1.0, 2.0]), TypeError, r"track_id: expected a hashable id .*got list \['a'\]"),
+    ((["a"], 0.0, [1.0, 2.0]), TypeError, r"track_id: expected a track id .*got list \['a'\]"),
     (("a", "noon", [1.0, 2.0]), ValueError, "time: expected a number, got 'noon'"),
 ])
 def test_step_row_names_a_bad_argument(args, error, message):

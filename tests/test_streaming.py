@@ -405,7 +405,75 @@ def test_step_rows_is_all_or_nothing():
         engine.step_rows(["a", "c"], [1.0, 1.0], [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
     with pytest.raises(ValueError, match=r"expected 2 times and a \(2, p\) array"):
         engine.step_rows(["a", "c"], [1.0], [[0.0, 0.0], [1.0, 1.0]])
-    with pytest.raises(TypeError, match=r"track_ids\[1\]: expected a hashable id"):
+    with pytest.raises(TypeError, match=r"track_ids\[1\]: expected a track id \(text, a number, or a date\)"):
         engine.step_rows(["a", ["c"]], [1.0, 1.0], [[0.0, 0.0], [1.0, 1.0]])
     assert ({k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, dict(engine.states)) == before
     assert engine.step_rows([], [], np.empty((0, 2))) == []
+
+
+def test_python_api_review_fixes():
+    """From a hostile review of the Python API: each of these went wrong silently."""
+    import warnings
+
+    import pandas as pd
+
+    # the predictor learns its time unit into its own copy of the settings, not into the caller's
+    config = StreamConfig(length_unit=0.05)
+    first, second = TrackPredictor(config), TrackPredictor(config)
+    for i in range(5):
+        first.step_row("a", i * 0.1, [i, 0.0])
+    assert config.time_unit is None and second.config.time_unit is None and first.config.time_unit == 0.1
+    # numpy ids are keys as process_table and the state file hold them; what cannot be an id is refused
+    engine = TrackPredictor(StreamConfig(length_unit=0.05, bank="kinematic"))
+    engine.step_rows(np.array([1, 2]), [0.0, 0.0], np.ones((2, 2)))
+    assert sorted(engine.states) == [1, 2] and all(type(k) is int for k in engine.states)
+    for bad, kind in ((None, ValueError), (float("nan"), ValueError), (("t", 1), TypeError)):
+        with pytest.raises(kind, match="track_id: expected a track id"):
+            engine.step_row(bad, 1.0, [1.0, 2.0])
+    # a NaN or infinite time is skipped, and never becomes the clock (every later row was skipped)
+    assert engine.step_row("b", float("nan"), [1.0, 2.0]) is None
+    assert engine.step_row("b", float("inf"), [1.0, 2.0]) is None
+    assert all(engine.step_row("b", float(t), [t, 2.0]) is not None for t in range(1, 4))
+    # a lead is checked against the time unit once it is learned: a clear error, nothing changed
+    lead = TrackPredictor(StreamConfig(length_unit=0.05, lead=20.0))
+    lead.step_row("a", 0.0, [1.0, 2.0])
+    with pytest.raises(ValueError, match="the time unit learned from the data's first step, 0.001"):
+        lead.step_row("a", 0.001, [1.0, 2.0])
+    assert lead.config.time_unit is None and lead.gaps["a"].last_time == 0.0
+    assert StreamConfig(length_unit=0.05, lead=1e9).lead == 1e9   # nanosecond clocks: judged once the unit is known
+    # a unit learned from a first step that a later row shows to be a wrong timestamp: said
+    glitch = TrackPredictor(StreamConfig(length_unit=0.05))
+    glitch.step_row("a", 0.0, [0.0, 0.0])
+    glitch.step_row("a", 1e9, [0.0, 0.0])
+    with pytest.warns(RuntimeWarning, match="learned from the first step of track 'a', which a later row"):
+        glitch.step_row("a", 1.0, [1.0, 0.5])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")   # once
+        glitch.step_row("a", 2.0, [2.0, 1.0])
+
+
+def test_process_table_takes_positions_by_name_and_dates_as_seconds():
+    """Columns in another order are taken by name (they were taken by place: x learned as y); other names are
+    refused; a datetime time column is seconds since 1970 UTC, as files are read (it crashed, or was taken as
+    the column's integer microseconds)."""
+    import pandas as pd
+
+    rng = np.random.default_rng(0)
+    n = 60
+    seconds = np.arange(n) * 0.1
+    table = pd.DataFrame({"track_id": "a", "time": seconds, "x": np.cumsum(rng.normal(size=n)),
+                          "y": 100 + np.cumsum(rng.normal(size=n))})
+    plain = TrackPredictor(StreamConfig(length_unit=0.05))
+    expected = pd.concat([plain.process_table(table.iloc[:30]), plain.process_table(table.iloc[30:])])
+    swapped = TrackPredictor(StreamConfig(length_unit=0.05))
+    got = pd.concat([swapped.process_table(table.iloc[:30]),
+                     swapped.process_table(table.iloc[30:][["track_id", "time", "y", "x"]])])
+    pd.testing.assert_frame_equal(got.reset_index(drop=True), expected.reset_index(drop=True))
+    with pytest.raises(ValueError, match=r"expected the position columns \['x', 'y'\] \(as before\), got \['u', 'y'\]"):
+        swapped.process_table(table.rename(columns={"x": "u"}))
+    dated = TrackPredictor(StreamConfig(length_unit=0.05))
+    stamps = pd.Timestamp(0, tz="UTC") + pd.to_timedelta(seconds, unit="s")
+    out = dated.process_table(table.assign(time=stamps))
+    numeric = TrackPredictor(StreamConfig(length_unit=0.05)).process_table(
+        table.assign(time=(stamps - pd.Timestamp(0, tz="UTC")) / pd.Timedelta(seconds=1)))
+    pd.testing.assert_frame_equal(out, numeric)

@@ -68,6 +68,8 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
+from collections.abc import Hashable
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, NamedTuple
 
@@ -238,9 +240,11 @@ class StreamConfig:
             raise TypeError(f"options: expected a dict of make_params arguments, got {self.options!r}")
         if not isinstance(self.rule_options, dict):
             raise TypeError(f"rule_options: expected a dict of the rule's parameters, got {self.rule_options!r}")
-        # every bank argument is checked now, not at the first row
+        # every bank argument is checked now, not at the first row (a lead against a time unit still to be
+        # learned is checked when it is learned: here as one unit)
         make_params(1, self.n_experts, seed=self.seed, length_unit=self.length_unit, **self.options)
-        make_bank(1, self.bank, rule=self.rule, length_unit=self.length_unit, time_unit=self.time_unit or 1.0,
+        unit = self.time_unit if self.time_unit is not None else (self.lead if self.lead is not None else 1.0)
+        make_bank(1, self.bank, rule=self.rule, length_unit=self.length_unit, time_unit=unit,
                   seed=self.seed, n_akf=self.n_experts, akf_options=self.options, lead=self.lead_time(),
                   rule_options=self.rule_options)
 
@@ -290,7 +294,10 @@ class GapTracker:
         return config.max_gap_factor * _median(self.intervals)
 
     def advance(self, time: float, config: StreamConfig) -> bool | None:
-        """Register ``time``; True if it starts a new segment, None if out of order (skip)."""
+        """Register ``time``; True if it starts a new segment, None if out of order or not finite (skip: a NaN
+        or infinite time never becomes the track's clock, which would skip every later row)."""
+        if not math.isfinite(time):
+            return None
         if self.last_time is None:
             self.last_time, self.segment = time, self.segment + 1
             self.jumped_from, self.jump_counted = -math.inf, False
@@ -427,6 +434,30 @@ def _id_to_json(value):
     return value
 
 
+def _seconds(column) -> np.ndarray:
+    """A table's time column as float seconds: datetimes since 1970 UTC, durations in seconds (as
+    :func:`kalmix.io.read_tracks` reads them), numbers as they are."""
+    import pandas as pd
+
+    if pd.api.types.is_datetime64_any_dtype(column) or pd.api.types.is_timedelta64_dtype(column):
+        from .io.tables import _to_float
+
+        return _to_float(column.reset_index(drop=True), "time", 0)
+    return column.to_numpy(np.float64)
+
+
+def _track_key(value, where: str):
+    """A track id as the predictor's key (numpy scalars as Python ones, as :meth:`TrackPredictor.process_table`
+    and the state file hold them); ``TypeError``/``ValueError`` for what cannot be an id."""
+    if value is None or (isinstance(value, (float, np.floating)) and math.isnan(value)):
+        raise ValueError(f"{where}: expected a track id (text or a number), got {value!r}")
+    key = _id_to_json(value)
+    if isinstance(key, (tuple, frozenset)) or not isinstance(key, Hashable):
+        raise TypeError(f"{where}: expected a track id (text, a number, or a date), got {type(value).__name__} "
+                        f"{value!r:.80}")
+    return key
+
+
 def _id_to_meta(track):
     """A track id as the state file's JSON holds it: JSON values as they are; dates, times, durations,
     decimals and bytes (Parquet id columns) tagged, so that :func:`_id_from_meta` gives back an equal key."""
@@ -487,7 +518,9 @@ class TrackPredictor:
     """
 
     def __init__(self, config: StreamConfig, position_names=None):
-        self.config = config
+        import copy
+
+        self.config = copy.deepcopy(config)   # the predictor learns its time unit into it: not the caller's
         self.position_names = None if position_names is None else tuple(position_names)
         self.params: Bank | None = None
         self.states: dict[Any, BankState] = {}
@@ -514,7 +547,19 @@ class TrackPredictor:
                          time_unit=1.0 if c.time_unit is None else c.time_unit, seed=c.seed, n_akf=c.n_experts,
                          akf_options=c.options, lead=c.lead_time(), rule_options=c.rule_options)
 
-    def _learn_time_unit(self, value: float) -> None:
+    def _unit_step_taken_back(self, track, gaps: GapTracker) -> None:
+        """Warn once when the step the time unit was learned from (a track's first) is taken back: a row came
+        back before it, so that step's timestamp was wrong, and so is the unit (the bank stays as it is)."""
+        source = getattr(self, "_unit_source", None)
+        if source is not None and source[0] == track and gaps.glitches and (
+                not gaps.intervals or gaps.intervals[0] != source[1]):
+            self._unit_source = None
+            warnings.warn(f"the time unit, {source[1]:.6g} time-column units, was learned from the first step of "
+                          f"track {track!r}, which a later row showed to be a wrong timestamp; the kinematic "
+                          "experts' noise and the lead's frames scale with it: pass time_unit (--time-unit) to set it",
+                          RuntimeWarning, stacklevel=4)
+
+    def _learn_time_unit(self, value: float, track=None) -> None:
         """Fix a learned time unit (the bank's parameters scale with it; states do not).
 
         Only first rows of tracks come before it (a track's second row has a time step), and
@@ -522,7 +567,14 @@ class TrackPredictor:
         from a first row), so the order in which those first rows come changes nothing.
         """
         if self.config.time_unit is None and math.isfinite(value) and value > 0:
-            self.config.time_unit = float(value)
+            try:   # the settings with this unit (a lead in time units is bounded), checked before any change
+                learned = replace(self.config, time_unit=float(value))
+            except ValueError as error:
+                raise ValueError(f"the time unit learned from the data's first step, {value:.6g} time-column units, "
+                                 f"does not suit these settings: {error} (pass time_unit, --time-unit on the "
+                                 "command line)") from None
+            self.config.time_unit = learned.time_unit
+            self._unit_source = (track, learned.time_unit)
             if self.params is not None:
                 self.params = self._build(self.params.measurement_dim)
 
@@ -533,7 +585,8 @@ class TrackPredictor:
             gaps = self.gaps[track] = GapTracker()
         new = gaps.advance(time, self.config)
         if self.config.time_unit is None and gaps.intervals:
-            self._learn_time_unit(gaps.intervals[0])
+            self._learn_time_unit(gaps.intervals[0], track)
+        self._unit_step_taken_back(track, gaps)
         return gaps, new
 
     def _without_lead(self) -> Bank:
@@ -614,7 +667,8 @@ class TrackPredictor:
 
     # -- one row at a time ------------------------------------------------------------
     def step_row(self, track_id, time: float, z) -> RowPrediction | None:
-        """Learn from one measurement (NaN = missing) and predict; None if the row is skipped.
+        """Learn from one measurement (NaN = missing) and predict; None if the row is skipped (its time at or
+        before its track's last time, or NaN or infinite).
 
         All or nothing: the track's tracker and state change only once the step succeeded.
         """
@@ -626,13 +680,8 @@ class TrackPredictor:
             time = float(time)
         except (TypeError, ValueError):
             raise ValueError(f"time: expected a number, got {time!r:.80}") from None
-        try:
-            hash(track_id)
-        except TypeError:
-            raise TypeError(f"track_id: expected a hashable id (text or a number), got {type(track_id).__name__} "
-                            f"{track_id!r:.80}") from None
-        self._ensure_params(z.shape[0])
-        return self._step_batch([track_id], np.array([time]), z[None, :])[0]
+        track_id = _track_key(track_id, "track_id")
+        return self.step_rows([track_id], np.array([time]), z[None, :])[0]
 
     def step_rows(self, track_ids, times, values) -> list[RowPrediction | None]:
         """Rows that have already arrived, as :meth:`step_row` on each in turn, through one run of the core.
@@ -669,12 +718,7 @@ class TrackPredictor:
         if values.ndim != 2 or len(values) != len(ids) or len(times) != len(ids):
             raise ValueError(f"step_rows: expected {len(ids)} times and a ({len(ids)}, p) array of values (one row "
                              f"per track id), got {len(times)} times and values of shape {values.shape}")
-        for i, track in enumerate(ids):
-            try:
-                hash(track)
-            except TypeError:
-                raise TypeError(f"track_ids[{i}]: expected a hashable id (text or a number), got "
-                                f"{type(track).__name__} {track!r:.80}") from None
+        ids = [_track_key(track, f"track_ids[{i}]") for i, track in enumerate(ids)]
         if not ids:
             return []
         saved = self.checkpoint(list(dict.fromkeys(ids)))
@@ -716,7 +760,8 @@ class TrackPredictor:
             if new is None:
                 continue
             if self.config.time_unit is None and gaps.intervals:
-                self._learn_time_unit(gaps.intervals[0])
+                self._learn_time_unit(gaps.intervals[0], track)
+            self._unit_step_taken_back(track, gaps)
             run = runs.setdefault(track, [])
             fresh = not run and track not in self.states
             run.append((i, bool(new) and not fresh, float(times[i]) + self._interval(gaps)))
@@ -815,6 +860,9 @@ class TrackPredictor:
     def _process_table(self, table, position_names, next_times):
         import pandas as pd
 
+        if not pd.api.types.is_numeric_dtype(table["time"]):   # dates and durations: seconds, as files are read
+            table = table.assign(time=_seconds(table["time"]))
+
         if self.config.time_unit is None:
             # rows before the time unit is known run with the bank of a unit of 1, as they would row by row
             split = self._unit_row(table["track_id"].to_numpy(), table["time"].to_numpy(np.float64))
@@ -826,6 +874,11 @@ class TrackPredictor:
         names = list(position_names or [c for c in table.columns if c not in ("track_id", "time")])
         if self.position_names is None:
             self.position_names = tuple(names)
+        elif set(names) == set(self.position_names):
+            names = list(self.position_names)   # the coordinates by name, in the order the predictor learned
+        else:
+            raise ValueError(f"table: expected the position columns {list(self.position_names)} (as before), got "
+                             f"{names}")
         values = table[names].to_numpy(np.float64)
         times = table["time"].to_numpy(np.float64)
         ids = table["track_id"].to_numpy()
@@ -906,6 +959,7 @@ class TrackPredictor:
                 if gaps is None:
                     gaps = self.gaps[key] = GapTracker()
                 codes[rows], segments[rows] = gaps.advance_many(times[rows], self.config)
+                self._unit_step_taken_back(key, gaps)
         keep = codes >= 0
         self.skipped += int(n_rows - keep.sum())
         runs = _by_key(index, np.flatnonzero(keep), len(keys))
