@@ -13,6 +13,7 @@ import math
 import numba as nb
 import numpy as np
 
+from ..families import kinematic as _spec
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
 
@@ -91,6 +92,20 @@ def forecast_expert(order, delta, q, r, max_variance, mean_k, cov_k, out, m_pred
     return min(c_pred[0, 0], max_variance) + r
 
 
+#: The spec's restart threshold on the innovation's NIS (1e6 standard deviations).
+RESTART_NIS = float(_spec.RESTART_NIS)
+
+
+@nb.njit(inline="always", **_JIT)
+def _absurd(z, m_pred, s):
+    """The measurement is more than 1e6 standard deviations from the forecast (or the forecast is not finite)."""
+    nis = 0.0
+    for c in range(z.shape[0]):
+        e = z[c] - m_pred[0, c]
+        nis = nis + e * e / s
+    return not nis <= RESTART_NIS
+
+
 @nb.njit(inline="always", **_JIT)
 def _start(order, initial_k, z, mean_k, cov_k):
     for i in range(order):
@@ -143,7 +158,7 @@ def step_expert(order, delta, q, r, initial_k, max_variance, started, learn, fre
         for c in range(out.shape[0]):
             out[c] = np.nan
     if learn:
-        if fresh or not started:
+        if fresh or not started or _absurd(z, m_pred, c_pred[0, 0] + r):
             _start(order, initial_k, z, mean_k, cov_k)
         else:
             _update(order, r, max_variance, z, mean_k, cov_k, m_pred, c_pred, work, gain, a)

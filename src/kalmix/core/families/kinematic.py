@@ -26,7 +26,10 @@ applies the Joseph-form update. The first measurement starts the filter at
 ``[z, 0, 0]`` with covariance ``diag(r, v0, a0)`` (``initial_variance``).
 
 Time steps are clipped to ``max_step`` intervals so that an absurd gap cannot overflow
-the covariance; the variance cap keeps every number finite after very long gaps.
+the covariance; the variance cap keeps every number finite after very long gaps. A
+measurement more than 1e6 standard deviations from an expert's forecast (:data:`RESTART_NIS`)
+restarts that expert at it, as a first measurement: a glitch the filter took in cannot leave
+it a slope it would keep for thousands of rows.
 """
 
 from __future__ import annotations
@@ -35,7 +38,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["KinematicParams", "KinematicState", "init_state", "forecast", "update", "transition", "process_noise"]
+__all__ = ["KinematicParams", "KinematicState", "init_state", "forecast", "update", "transition", "process_noise",
+           "RESTART_NIS"]
 
 
 class KinematicParams(NamedTuple):
@@ -59,6 +63,13 @@ class KinematicState(NamedTuple):
     cov: np.ndarray          # (N, K, d, d)
     last_time: np.ndarray    # (N,) time of the last measurement (NaN before the first)
     initialised: np.ndarray  # (N,) bool
+
+
+#: An innovation whose NIS (squared distance in its own standard deviations) exceeds this, 1e6 standard
+#: deviations, restarts the filter at the measurement: a glitch it took in (before the glitch screen's
+#: warm-up is over) no longer leaves a slope of 1e10 that a filter of low process noise keeps for
+#: thousands of rows. Real motion never comes near it.
+RESTART_NIS = 1e12
 
 
 def init_state(params: KinematicParams, n_targets: int, measurement_dim: int) -> KinematicState:
@@ -186,14 +197,20 @@ def update(params: KinematicParams, state: KinematicState, measurement: np.ndarr
     excess = np.maximum(new_cov[..., 0, 0] / params.max_variance, 1.0)
     new_cov = new_cov / excess[..., None, None]
 
-    start = learn & ~state.initialised
-    go = learn & state.initialised
+    # an innovation more than 1e6 of its standard deviations away (a glitch the filter took in) restarts it
+    with np.errstate(over="ignore", invalid="ignore"):
+        nis = np.zeros(s.shape)
+        for c in range(innovation.shape[-1]):
+            nis = nis + innovation[..., c] * innovation[..., c] / s
+    absurd = ~(nis <= RESTART_NIS)                                                 # (N, K)
+    start = (learn & ~state.initialised)[:, None] | ((learn & state.initialised)[:, None] & absurd)
+    go = (learn & state.initialised)[:, None] & ~absurd
     first_mean = np.zeros_like(state.mean)
     first_mean[..., 0, :] = z[:, None, :]
     first_cov = np.broadcast_to(np.eye(params.order) * params.initial_variance[:, None, :], state.cov.shape)
 
     def pick(fresh, updated, old):
-        shape = (-1,) + (1,) * (old.ndim - 1)
+        shape = start.shape + (1,) * (old.ndim - 2)
         return np.where(start.reshape(shape), fresh, np.where(go.reshape(shape), updated, old))
 
     return KinematicState(
