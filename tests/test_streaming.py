@@ -477,3 +477,36 @@ def test_process_table_takes_positions_by_name_and_dates_as_seconds():
     numeric = TrackPredictor(StreamConfig(length_unit=0.05)).process_table(
         table.assign(time=(stamps - pd.Timestamp(0, tz="UTC")) / pd.Timedelta(seconds=1)))
     pd.testing.assert_frame_equal(out, numeric)
+
+
+def test_settings_and_rows_that_were_taken_silently_or_failed_late(tmp_path):
+    """numpy numbers in the settings are saved as the numbers they stand for (the save failed: 'not JSON
+    serializable'); settings of the wrong type or an unknown bank are named; an infinite measurement is refused
+    (NaN is missing data), and so is a z of several rows (it was flattened into more coordinates)."""
+    from kalmix import MixturePredictor
+
+    config = StreamConfig(n_experts=np.int64(4), length_unit=np.float32(0.5), lead=np.int64(1),
+                          options={"forgetting_levels": np.array([0.9, 0.99])})
+    engine = TrackPredictor(config)
+    for t in range(3):
+        engine.step_row("a", float(t), [t, 0.0])
+    engine.save(tmp_path / "s.npz")
+    loaded = TrackPredictor.load(tmp_path / "s.npz")
+    assert loaded.config.n_experts == 4 and loaded.config.options == {"forgetting_levels": [0.9, 0.99]}
+    np.testing.assert_array_equal(loaded.step_row("a", 3.0, [3.0, 0.0]).next, engine.step_row("a", 3.0, [3.0, 0.0]).next)
+    mixture = MixturePredictor(4, seed=np.int64(1))
+    mixture.step(np.array([1.0, 2.0, 3.0]))
+    mixture.save(tmp_path / "m.npz")
+    assert MixturePredictor.load(tmp_path / "m.npz").get_config()["seed"] == 1
+    for kwargs, kind, message in (({"bank": "x"}, ValueError, "bank: expected one of mixed"),
+                                  ({"time_unit": "x"}, TypeError, "time_unit: expected a number, got str"),
+                                  ({"max_gap": "x"}, TypeError, "max_gap: expected a number, got str")):
+        with pytest.raises(kind, match=message):
+            StreamConfig(**kwargs)
+    with pytest.raises(ValueError, match="z: expected finite numbers"):
+        engine.step_row("a", 4.0, [np.inf, 0.0])
+    with pytest.raises(ValueError, match=r"values\[1\]: expected finite numbers"):
+        engine.step_rows(["a", "b"], [4.0, 4.0], [[0.0, 0.0], [1.0, -np.inf]])
+    with pytest.raises(ValueError, match=r"z: expected one row of coordinates, shape \(p,\), got shape \(2, 2\)"):
+        engine.step_row("a", 4.0, np.ones((2, 2)))
+    assert engine.step_row("a", 4.0, np.ones((1, 2))) is not None

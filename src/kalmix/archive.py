@@ -50,6 +50,16 @@ def _fsync_directory(directory: str) -> None:
         os.close(fd)
 
 
+def _json_default(value):
+    """numpy numbers and arrays in the settings (``seed=np.int64(1)``, ``forgetting_levels=np.array(...)``) as the
+    Python values they stand for; anything else is refused by name."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"a setting of type {type(value).__name__} cannot be saved in a state file: {value!r:.80}")
+
+
 def write_archive(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarray]) -> None:
     """Write JSON ``meta`` and named ``arrays`` to ``path``; a crash never leaves half a file."""
     path = os.fspath(path)
@@ -58,7 +68,7 @@ def write_archive(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndar
     fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as handle:
-            np.savez(handle, meta=np.array(json.dumps(meta)), **arrays)
+            np.savez(handle, meta=np.array(json.dumps(meta, default=_json_default)), **arrays)
             handle.flush()
             os.fsync(handle.fileno())
         os.chmod(tmp, mode)

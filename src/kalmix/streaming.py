@@ -220,10 +220,19 @@ class StreamConfig:
     lead: float | None = None
 
     def __post_init__(self):
+        import numbers
+
+        from .bank import BANK_KINDS
+
         self.horizon = check_horizon(self.horizon)
+        for name in ("lead", "time_unit", "max_gap", "max_gap_factor"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)):
+                raise TypeError(f"{name}: expected a number, got {type(value).__name__} {value!r:.80}")
+        if self.bank not in BANK_KINDS:
+            raise ValueError(f"bank: expected one of {', '.join(BANK_KINDS)}, got {self.bank!r}")
         if self.lead is not None:
-            if isinstance(self.lead, bool) or not isinstance(self.lead, (int, float)) or not (
-                    math.isfinite(self.lead) and self.lead > 0):
+            if not (math.isfinite(self.lead) and self.lead > 0):
                 raise ValueError(f"lead: expected a finite time > 0 (time-column units), got {self.lead!r}")
             if self.horizon > 1:
                 raise ValueError(f"lead and horizon: give one of them (a horizon H is the lead of H time units), "
@@ -673,9 +682,16 @@ class TrackPredictor:
         All or nothing: the track's tracker and state change only once the step succeeded.
         """
         try:
-            z = np.asarray(z, dtype=np.float64).reshape(-1)
+            if z is None:
+                raise TypeError
+            given = np.asarray(z, dtype=np.float64)
         except (TypeError, ValueError):
             raise ValueError(f"z: expected numbers (NaN for a missing measurement), got {z!r:.80}") from None
+        if given.ndim > 1 and given.shape[:-1] != (1,) * (given.ndim - 1):
+            raise ValueError(f"z: expected one row of coordinates, shape (p,), got shape {given.shape}")
+        z = given.reshape(-1)
+        if np.isinf(z).any():
+            raise ValueError(f"z: expected finite numbers (NaN for a missing measurement), got {z!r:.80}")
         try:
             time = float(time)
         except (TypeError, ValueError):
@@ -718,6 +734,9 @@ class TrackPredictor:
         if values.ndim != 2 or len(values) != len(ids) or len(times) != len(ids):
             raise ValueError(f"step_rows: expected {len(ids)} times and a ({len(ids)}, p) array of values (one row "
                              f"per track id), got {len(times)} times and values of shape {values.shape}")
+        if np.isinf(values).any():
+            i = int(np.flatnonzero(np.isinf(values).any(axis=-1))[0])
+            raise ValueError(f"values[{i}]: expected finite numbers (NaN for a missing measurement), got {values[i]!r}")
         ids = [_track_key(track, f"track_ids[{i}]") for i, track in enumerate(ids)]
         if not ids:
             return []
@@ -880,6 +899,10 @@ class TrackPredictor:
             raise ValueError(f"table: expected the position columns {list(self.position_names)} (as before), got "
                              f"{names}")
         values = table[names].to_numpy(np.float64)
+        if np.isinf(values).any():
+            i = int(np.flatnonzero(np.isinf(values).any(axis=-1))[0])
+            raise ValueError(f"table: expected finite positions (NaN for a missing measurement), got {values[i]!r} "
+                             f"in row {i} (counted from 0)")
         times = table["time"].to_numpy(np.float64)
         ids = table["track_id"].to_numpy()
         self._ensure_params(values.shape[1])
