@@ -309,3 +309,25 @@ def test_families_side_by_side_equal_one_after_another(monkeypatch):
     monkeypatch.setattr(ce, "families_in_parallel", lambda n: False)
     serial = ce.run(bank, z, t, restart=restart, record_experts=True, record_covariance=True)
     _assert_identical(side, serial)
+
+
+def test_both_engines_check_learn_ahead_and_lengths_alike():
+    """A ``learn`` or ``ahead_times`` that does not broadcast to (T, N), ``ahead_frames`` < 1 and fractional
+    lengths are refused by name by both engines (the reference ran some, the compiled engine failed with a raw
+    broadcast error or took a (N,) mask for every row, and they disagreed); a (N,) mask is every row's in both."""
+    from kalmix.core import engine
+    from kalmix.core.compiled import engine as compiled
+
+    bank = make_bank(2, "kinematic", length_unit=0.3)
+    z = np.random.default_rng(0).normal(size=(10, 3, 2))
+    t = np.arange(10.0)[:, None].repeat(3, 1)
+    for kwargs, message in ((dict(learn=np.ones(10, bool)), r"learn: expected shape \(T, N\) = \(10, 3\)"),
+                            (dict(ahead_times=np.arange(10.0)), r"ahead_times: expected shape \(T, N\)"),
+                            (dict(ahead_frames=0), "ahead_frames: expected an integer >= 1"),
+                            (dict(lengths=[5.5, 3, 2]), "lengths: expected whole numbers of rows")):
+        for run in (engine.run, compiled.run):
+            with pytest.raises(ValueError, match=message):
+                run(bank, z, t, **kwargs)
+    mask = np.array([True, False, True])
+    assert np.array_equal(engine.run(bank, z, t, learn=mask).forecasts, compiled.run(bank, z, t, learn=mask).forecasts,
+                          equal_nan=True)

@@ -171,9 +171,30 @@ def check_run_arguments(bank: Bank, measurements, times, state, lengths):
         lengths = np.asarray(lengths)
         if lengths.shape != (n,):
             raise ValueError(f"lengths: expected shape (N,) = ({n},), got {lengths.shape}")
+        if not (np.issubdtype(lengths.dtype, np.integer) or (np.issubdtype(lengths.dtype, np.floating)
+                                                             and np.all(lengths == np.round(lengths)))):
+            raise ValueError(f"lengths: expected whole numbers of rows, got {lengths[:8]!r}")
     if state is not None:
         _check_state(bank, state, n)
     return z, times, lengths
+
+
+def check_run_options(shape, learn, ahead_times, ahead_frames):
+    """``learn`` and ``ahead_times`` of :func:`run` broadcast to ``shape`` = (T, N) (None stays None), and
+    ``ahead_frames`` an integer >= 1; ``ValueError`` naming the bad one. Both engines take them so."""
+    out = []
+    for name, value, dtype in (("learn", learn, bool), ("ahead_times", ahead_times, np.float64)):
+        if value is None:
+            out.append(None)
+            continue
+        try:
+            out.append(np.broadcast_to(np.asarray(value, dtype=dtype), shape))
+        except (ValueError, TypeError):
+            raise ValueError(f"{name}: expected shape (T, N) = {tuple(shape)} or one that broadcasts to it, "
+                             f"got {np.shape(value)}") from None
+    if isinstance(ahead_frames, bool) or not isinstance(ahead_frames, (int, np.integer)) or ahead_frames < 1:
+        raise ValueError(f"ahead_frames: expected an integer >= 1, got {ahead_frames!r}")
+    return out[0], out[1], int(ahead_frames)
 
 
 #: Per bank, the shapes (after the target axis) of the first array of each part of its state.
@@ -312,6 +333,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         record_covariance: bool = False, restart=None) -> EngineResult:
     """Reference loop over time (see the module docstring for the conventions)."""
     z, times, lengths = check_run_arguments(bank, measurements, times, state, lengths)
+    learn, ahead_times, ahead_frames = check_run_options(z.shape[:2], learn, ahead_times, ahead_frames)
     restart = check_restart(restart, z.shape[:2])
     t_count, n, p = z.shape
     state = init_bank_state(bank, n) if state is None else state

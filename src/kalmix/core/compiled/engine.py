@@ -14,7 +14,8 @@ import threading
 import numpy as np
 
 from ..calibration import CalibrationState
-from ..engine import Bank, BankState, EngineResult, check_restart, check_run_arguments, init_bank_state, tree_map
+from ..engine import (Bank, BankState, EngineResult, check_restart, check_run_arguments, check_run_options,
+                      init_bank_state, tree_map)
 from ..families import akf
 from ..lead import LeadState
 from ..screen import ScreenState
@@ -124,6 +125,7 @@ def _akf_piece(params, state, z, learn, lengths, out, offset, ahead, ahead_frame
 def prepare(bank: Bank, measurements, times, state, lengths, learn):
     """Contiguous float inputs, a fresh state if none, lengths, and the rows to learn (present ones only)."""
     z, times, lengths = check_run_arguments(bank, measurements, times, state, lengths)
+    learn, _, _ = check_run_options(z.shape[:2], learn, None, 1)
     z = _kernel_array(z)
     t_count, n, _ = z.shape
     times = _kernel_array(times)
@@ -162,6 +164,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     best-expert-in-hindsight needs), ``expert_ahead`` likewise for the ahead forecasts.
     """
     z, times, state, lengths, learn = prepare(bank, measurements, times, state, lengths, learn)
+    _, ahead_times, ahead_frames = check_run_options(z.shape[:2], None, ahead_times, ahead_frames)
     compile_ahead(bank)   # a fresh install: the AKF kernel compiles in a second process meanwhile
     t_count, n, p = z.shape
     if n > TARGET_GROUP:
