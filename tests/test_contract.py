@@ -331,3 +331,20 @@ def test_both_engines_check_learn_ahead_and_lengths_alike():
     mask = np.array([True, False, True])
     assert np.array_equal(engine.run(bank, z, t, learn=mask).forecasts, compiled.run(bank, z, t, learn=mask).forecasts,
                           equal_nan=True)
+
+
+def test_make_bank_names_what_it_cannot_take():
+    """Settings that were taken silently (a length unit outside the range every family stays finite in, for
+    banks without the AKF family; a NaN or negative fixed-share scale, read as 0; a negative scale factor; a seed
+    or AKF size of any type when the bank has no AKF family) or refused without their name."""
+    for kwargs, kind, message in (
+            (dict(kind="kinematic", length_unit=1e-200), ValueError, r"length_unit: expected a number in \[1e-100"),
+            (dict(length_unit=1e300), ValueError, "length_unit: expected a number in"),
+            (dict(rule="fixed_share", rule_options={"scale": float("nan")}), ValueError, r"rule_options\['scale'\]"),
+            (dict(rule="fixed_share", rule_options={"scale_factor": -1}), ValueError, "scale_factor"),
+            (dict(outlier_threshold="x"), TypeError, "outlier_threshold: expected a number > 1"),
+            (dict(level="x"), TypeError, r"level: expected a probability in \(0, 1\), got str"),
+            (dict(kind="kinematic", seed="x"), TypeError, "seed: expected an integer >= 0"),
+            (dict(kind="kinematic", n_akf=0), ValueError, "n_akf: expected an integer >= 1")):
+        with pytest.raises(kind, match=message):
+            make_bank(2, **kwargs)

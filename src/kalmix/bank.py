@@ -509,8 +509,10 @@ def make_bank(
     p = _check_int("measurement_dim", measurement_dim, 1)
     _check_choice("kind", kind, BANK_KINDS)
     _check_choice("rule", rule, tuple(aggregators.RULES))
-    unit = _check_positive("length_unit", length_unit)
+    unit = check_length_unit(length_unit)   # the range the families' numbers stay finite in
     tunit = _check_positive("time_unit", time_unit)
+    _check_int("seed", seed, 0)
+    _check_int("n_akf", n_akf, 1)
     for name, levels in (("process_levels", process_levels), ("measurement_levels", measurement_levels)):
         if np.ndim(levels) != 1 or len(levels) == 0:
             raise ValueError(f"{name}: expected a non-empty sequence of positive numbers, got {levels!r}")
@@ -525,6 +527,9 @@ def make_bank(
     for key in ("forgetting", "bound_forgetting"):
         if key in options:
             _check_positive(f"rule_options[{key!r}]", options[key], upper=1.0)
+    for key in ("scale", "scale_factor"):   # fixed share: 0 = the online scale (scale), a positive factor
+        if key in options:
+            _check_positive(f"rule_options[{key!r}]", options[key], allow_zero=key == "scale")
     if "share" in options:
         share = _check_positive("rule_options['share']", options["share"], allow_zero=True)
         if share >= 1:
@@ -561,6 +566,9 @@ def make_bank(
         akf = make_params(p, _check_int("n_akf", n_akf, 1), seed=seed, length_unit=unit,
                           **{**(akf_options or {}), "adapt_noise": False})
         families.append(Family("akf", akf))
+    if isinstance(outlier_threshold, bool) or not isinstance(outlier_threshold, numbers.Real):
+        raise TypeError(f"outlier_threshold: expected a number > 1 (inf: no screen), got "
+                        f"{type(outlier_threshold).__name__} {outlier_threshold!r}")
     threshold = float(outlier_threshold)
     if not threshold > 1:
         raise ValueError(f"outlier_threshold: expected a number > 1 (inf: no screen), got {outlier_threshold!r}")
@@ -568,6 +576,8 @@ def make_bank(
     from .core.lead import LeadParams
     from .core.screen import ScreenParams
 
+    if isinstance(level, bool) or not isinstance(level, numbers.Real):
+        raise TypeError(f"level: expected a probability in (0, 1), got {type(level).__name__} {level!r}")
     level = float(level)
     if not 0.0 < level < 1.0:
         raise ValueError(f"level: expected a probability in (0, 1), got {level!r}")
