@@ -510,3 +510,6 @@ def test_settings_and_rows_that_were_taken_silently_or_failed_late(tmp_path):
     with pytest.raises(ValueError, match=r"z: expected one row of coordinates, shape \(p,\), got shape \(2, 2\)"):
         engine.step_row("a", 4.0, np.ones((2, 2)))
     assert engine.step_row("a", 4.0, np.ones((1, 2))) is not None
+    with pytest.raises(ValueError, match="table: position column 'name' must hold numbers, got"):
+        TrackPredictor(StreamConfig(length_unit=0.5)).process_table(
+            pd.DataFrame({"track_id": ["a"], "time": [0.0], "x": [1.0], "name": ["car"]}))

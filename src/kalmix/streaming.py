@@ -898,7 +898,12 @@ class TrackPredictor:
         else:
             raise ValueError(f"table: expected the position columns {list(self.position_names)} (as before), got "
                              f"{names}")
-        values = table[names].to_numpy(np.float64)
+        try:
+            values = table[names].to_numpy(np.float64)
+        except (TypeError, ValueError):
+            bad = next(name for name in names if not pd.api.types.is_numeric_dtype(table[name]))
+            raise ValueError(f"table: position column {bad!r} must hold numbers, got {table[bad].dtype} values like "
+                             f"{table[bad].iloc[0]!r}") from None
         if np.isinf(values).any():
             i = int(np.flatnonzero(np.isinf(values).any(axis=-1))[0])
             raise ValueError(f"table: expected finite positions (NaN for a missing measurement), got {values[i]!r} "
