@@ -34,7 +34,8 @@ def _elementwise(function, arity=1):
     ufunc = np.frompyfunc(function, arity, 1)
 
     def apply(*arrays):
-        out = ufunc(*(np.asarray(a, dtype=np.float64) for a in arrays))
+        with np.errstate(all="ignore"):   # inf and NaN results are the C functions' answers, not accidents
+            out = ufunc(*(np.asarray(a, dtype=np.float64) for a in arrays))
         return np.asarray(out, dtype=np.float64)
 
     apply.__name__ = getattr(function, "__name__", "libm")
@@ -42,8 +43,20 @@ def _elementwise(function, arity=1):
     return apply
 
 
-exp = _elementwise(_exp_or_inf)
-log = _elementwise(_log_or_nan)
+_exp_any, _log_any = _elementwise(_exp_or_inf), _elementwise(_log_or_nan)
+_exp_plain, _log_plain = _elementwise(math.exp), _elementwise(math.log)
+
+
+def exp(a):
+    """``exp`` of the C library, element by element (inf where it overflows)."""
+    a = np.asarray(a, dtype=np.float64)
+    return _exp_plain(a) if a.size and np.nanmax(a) < 709.0 else _exp_any(a)
+
+
+def log(a):
+    """``log`` of the C library, element by element (-inf at 0, NaN below)."""
+    a = np.asarray(a, dtype=np.float64)
+    return _log_plain(a) if a.size and np.nanmin(a) > 0 else _log_any(a)
 sin = _elementwise(math.sin)
 cos = _elementwise(math.cos)
 atan2 = _elementwise(math.atan2, 2)

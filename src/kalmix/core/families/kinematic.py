@@ -151,13 +151,14 @@ def _predict(params: KinematicParams, state: KinematicState, delta: np.ndarray):
     mean = _matmul(f, state.mean)                                                  # (N, K, d, p)
     cov = _matmul(_matmul(f, state.cov), np.swapaxes(f, -1, -2))
     d, fact = params.order, (1.0, 1.0, 2.0)
-    q = params.process_noise[None, :]                                              # (1, K)
+    # entry (i, j) gains (q * delta**m) / (m * a! * b!), m = a + b + 1, a = d - 1 - i, b = d - 1 - j
+    m = np.add.outer(np.arange(d - 1, -1, -1), np.arange(d - 1, -1, -1)) + 1                  # (d, d)
+    denominator = m * np.array([fact[d - 1 - i] for i in range(d)])[:, None] * \
+        np.array([fact[d - 1 - j] for j in range(d)])[None, :]
     with np.errstate(over="ignore", invalid="ignore"):
-        for i in range(d):
-            for j in range(d):
-                a, b = d - 1 - i, d - 1 - j
-                m = a + b + 1
-                cov[..., i, j] = cov[..., i, j] + q * _power(delta, m)[:, None] / (m * fact[a] * fact[b])
+        powers = np.stack([_power(delta, k) for k in range(2 * d)], axis=-1)               # (N, 2d)
+        noise = params.process_noise[None, :, None, None] * powers[:, None, m] / denominator
+        cov = cov + noise
     return mean, _symmetrise(cov)
 
 
