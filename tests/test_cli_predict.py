@@ -635,3 +635,13 @@ def test_iso_8601_times_are_seconds_since_1970_in_files_on_stdin_and_as_parquet_
     piped_bad = _run(cli, ["predict", "-", *FAST], input=(tmp_path / "bad.csv").read_text())
     assert piped_bad.exit_code == 1 and "line 5: column 't' must hold a number or an ISO 8601" in piped_bad.stderr
     assert len(_read(piped_bad.stdout)) == 3                     # the rows before it are written
+
+
+@pytest.mark.parametrize("name, message", [("t.jsonl", "got the JSON-lines file"), ("t.tsv", "got the tab-separated")])
+def test_a_file_input_of_another_format_is_refused_by_name(cli, tmp_path, name, message):
+    """A .jsonl or .tsv INPUT was read as CSV: an error listing garbage 'columns'."""
+    path = tmp_path / name
+    path.write_text("track_id\ttime\tx\ty\na\t0\t1\t2\n")
+    for command in ("predict", "evaluate"):
+        result = _run(cli, [command, str(path)])
+        assert result.exit_code == 1 and message in result.stderr, result.output

@@ -21,7 +21,7 @@ import click
 import numpy as np
 
 from ._durable import Interrupted, Output, OutputClosed, count_rows
-from .predict import _columns, _file_format, _header, _output_columns
+from .predict import _columns, _header, _input_format, _output_columns
 
 #: A chunk is stepped in pieces of about this many rows (each track's rows split in order,
 #: so every piece holds every track of the chunk and the batch stays as wide): the progress
@@ -163,7 +163,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
         raise FileNotFoundError(f"INPUT: no such file {path!r}")
     if os.path.isdir(path):
         raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {path!r}")
-    in_fmt = "parquet" if _file_format(path) == "parquet" else "csv"
+    in_fmt = _input_format(path)
     columns = _columns(_header(path, in_fmt), time_column, position_columns, id_column)
     _check_resumed(run.engine, columns)
     run.open_output()

@@ -195,6 +195,18 @@ def _file_format(path):
     return "csv"
 
 
+def _input_format(path) -> str:
+    """``"parquet"`` or ``"csv"`` for a track file INPUT; ``ValueError`` for what is read otherwise."""
+    name = os.fspath(path).lower()
+    if _file_format(path) == "jsonl":
+        raise ValueError(f"INPUT: expected CSV (.csv, .csv.gz) or Parquet, got the JSON-lines file {path!r} (kalmix "
+                         f"predict reads JSON lines from stdin: 'kalmix predict - < {os.path.basename(path)}')")
+    if name.endswith((".tsv", ".tab", ".tsv.gz")):
+        raise ValueError(f"INPUT: expected CSV (comma-separated) or Parquet, got the tab-separated {path!r}; convert "
+                         "it first (e.g. pandas.read_csv(path, sep='\\t').to_csv('tracks.csv', index=False))")
+    return _file_format(path) if _file_format(path) == "parquet" else "csv"
+
+
 def _columns(header, time_column, position_columns, id_column):
     from ..io.tables import check_output_names, detect_columns
 
@@ -428,7 +440,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
                 raise FileNotFoundError(f"INPUT: no such file {input_path!r}")
             if os.path.isdir(input_path):
                 raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {input_path!r}")
-            fmt = "parquet" if _file_format(input_path) == "parquet" else "csv"
+            fmt = _input_format(input_path)
             columns = _columns(_header(input_path, fmt), time_column, position_columns, id_column)
             table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True)
             label = os.path.basename(input_path)
