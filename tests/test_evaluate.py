@@ -259,6 +259,8 @@ def test_plots_pick_a_track_with_scored_errors_and_the_imm_says_when_it_was_not_
     ok = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--json", str(tmp_path / "r.json"),
                                  "--plot", str(tmp_path / "e.png")])
     assert ok.exit_code == 0, ok.output
+    assert "no scored error (too few rows after the tuning part, or alone in their segments): track(s) a" in ok.stdout
+    assert "track a\n" not in ok.stdout                            # not a table of NaN
     assert (tmp_path / "e.png").read_bytes()[:4] == b"\x89PNG"
     assert "the grid's middle" in json.loads((tmp_path / "r.json").read_text())["tuned"]["IMM (filterpy)"]["untuned"]
     bad = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--no-peers", "--plot",

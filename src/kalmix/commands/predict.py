@@ -524,8 +524,15 @@ def format_result(result, per_track=True) -> str:
         lines.append(f"note: {name} ran on a subsample, the first rows of each segment: {entry['rows_evaluated']} of "
                      f"{entry['rows']} rows (a Python loop; its errors are not on the same pairs as the other rows)")
     if per_track:
+        unscored = []
         for track, summaries in result.per_track.items():
+            if not summaries.get("mixture", {}).get("one_step", {}).get("count", 1):
+                unscored.append(str(track))   # a table of NaN said nothing
+                continue
             lines += [""] + _table(f"track {track}", summaries, result.horizon)
+        if unscored:
+            lines += ["", f"no scored error (too few rows after the tuning part, or alone in their segments): track(s) "
+                          f"{', '.join(unscored[:20])}{' ...' if len(unscored) > 20 else ''}"]
     return "\n".join(lines)
 
 
