@@ -345,6 +345,7 @@ def _interleaved_feed(seed, n_tracks=5):
     return [ids[i] for i in order], np.array(times)[order], np.array(values)[order]
 
 
+@pytest.mark.filterwarnings("ignore:the time unit:RuntimeWarning")   # its adversarial times include that case
 @pytest.mark.parametrize("time_unit, lead", [(None, {}), (1.0, {}), (None, {"lead": 2.5}), (1.0, {"horizon": 3})])
 def test_step_rows_equal_stream_rows_by_definition(time_unit, lead):
     """Rows stepped in batches of any size (one run of the core each, two with a lead) give every row's
