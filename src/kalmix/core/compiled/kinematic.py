@@ -97,13 +97,23 @@ RESTART_NIS = float(_spec.RESTART_NIS)
 
 
 @nb.njit(inline="always", **_JIT)
-def _absurd(z, m_pred, s):
-    """The measurement is more than 1e6 standard deviations from the forecast (or the forecast is not finite)."""
+def _absurd(z, mean_k, m_pred, s):
+    """The measurement is more than 1e6 standard deviations from the forecast (or the forecast is not finite).
+    Asked only once the filter has learned a velocity (its velocity variance below the initial one): the second
+    row after a start is judged against the initial velocity spread, which a fast target in small length units
+    exceeds by far, and it would restart on every row. And only when the miss is at least half the motion the
+    filter forecast (``m_pred - mean_k``): a glitch, or the slope one left, is; the lag of a filter behind a
+    very fast target in small units is a small part of its motion."""
     nis = 0.0
+    miss = 0.0
+    move = 0.0
     for c in range(z.shape[0]):
         e = z[c] - m_pred[0, c]
         nis = nis + e * e / s
-    return not nis <= RESTART_NIS
+        miss = miss + e * e
+        d = m_pred[0, c] - mean_k[0, c]
+        move = move + d * d
+    return not nis <= RESTART_NIS and not miss <= 0.25 * move
 
 
 @nb.njit(inline="always", **_JIT)
@@ -158,7 +168,7 @@ def step_expert(order, delta, q, r, initial_k, max_variance, started, learn, fre
         for c in range(out.shape[0]):
             out[c] = np.nan
     if learn:
-        if fresh or not started or _absurd(z, m_pred, c_pred[0, 0] + r):
+        if fresh or not started or (cov_k[1, 1] < initial_k[1] and _absurd(z, mean_k, m_pred, c_pred[0, 0] + r)):
             _start(order, initial_k, z, mean_k, cov_k)
         else:
             _update(order, r, max_variance, z, mean_k, cov_k, m_pred, c_pred, work, gain, a)

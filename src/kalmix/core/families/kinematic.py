@@ -28,8 +28,11 @@ applies the Joseph-form update. The first measurement starts the filter at
 Time steps are clipped to ``max_step`` intervals so that an absurd gap cannot overflow
 the covariance; the variance cap keeps every number finite after very long gaps. A
 measurement more than 1e6 standard deviations from an expert's forecast (:data:`RESTART_NIS`)
-restarts that expert at it, as a first measurement: a glitch the filter took in cannot leave
-it a slope it would keep for thousands of rows.
+restarts that expert at it, as a first measurement, once the expert has learned a velocity (its
+velocity variance is below the initial one; the second row after a start is not judged) and when
+the miss is at least half the motion it forecast: a glitch the filter took in cannot leave it a
+slope it would keep for thousands of rows, and a filter lagging a very fast target (in small
+length units) is not restarted.
 """
 
 from __future__ import annotations
@@ -199,11 +202,19 @@ def update(params: KinematicParams, state: KinematicState, measurement: np.ndarr
     new_cov = new_cov / excess[..., None, None]
 
     # an innovation more than 1e6 of its standard deviations away (a glitch the filter took in) restarts it
+    # asked once the filter has learned a velocity (its velocity variance below the initial one: the second row
+    # after a start is judged against the initial velocity spread, which a fast target in small units exceeds),
+    # and only when the miss is at least half the forecast motion (a glitch, or the slope one left; not the lag
+    # of a filter behind a very fast target)
     with np.errstate(over="ignore", invalid="ignore"):
-        nis = np.zeros(s.shape)
+        nis, miss, move = np.zeros(s.shape), np.zeros(s.shape), np.zeros(s.shape)
+        motion = mean[..., 0, :] - state.mean[..., 0, :]
         for c in range(innovation.shape[-1]):
             nis = nis + innovation[..., c] * innovation[..., c] / s
-    absurd = ~(nis <= RESTART_NIS)                                                 # (N, K)
+            miss = miss + innovation[..., c] * innovation[..., c]
+            move = move + motion[..., c] * motion[..., c]
+    learned = state.cov[..., 1, 1] < params.initial_variance[None, :, 1]
+    absurd = learned & ~(nis <= RESTART_NIS) & ~(miss <= 0.25 * move)            # (N, K)
     start = (learn & ~state.initialised)[:, None] | ((learn & state.initialised)[:, None] & absurd)
     go = (learn & state.initialised)[:, None] & ~absurd
     first_mean = np.zeros_like(state.mean)
