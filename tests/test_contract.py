@@ -348,3 +348,28 @@ def test_make_bank_names_what_it_cannot_take():
             (dict(kind="kinematic", n_akf=0), ValueError, "n_akf: expected an integer >= 1")):
         with pytest.raises(kind, match=message):
             make_bank(2, **kwargs)
+
+
+def test_bit_for_bit_at_the_edges_a_review_found():
+    """Cases where the engines disagreed: 8 coordinates (the screen's distance summed in pairs in the spec), a
+    turn at an infinite angle (the spec's sin raised where the kernel gives NaN), fixed share whose running sum
+    of losses overflows (the kernel stored inf where the spec skipped the row)."""
+    from kalmix.core import engine
+    from kalmix.core.compiled import engine as compiled
+    from kalmix.streaming import _leaves
+
+    def same(bank, z, t):
+        a, b = engine.run(bank, z, t, record_experts=True), compiled.run(bank, z, t, record_experts=True)
+        for name in ("forecasts", "std", "experts", "weights"):
+            assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True), name
+        for (key, x), (_, y) in zip(_leaves(a.state), _leaves(b.state)):
+            assert np.array_equal(x, y, equal_nan=True), key
+
+    rng = np.random.default_rng(1)
+    z = np.cumsum(rng.normal(0, 1, (60, 3, 8)), 0) * 1.37 + rng.normal(0, 0.3, (60, 3, 8))
+    same(make_bank(8, "kinematic", outlier_threshold=3.0), z, np.cumsum(rng.uniform(0.5, 1.5, (60, 3)), 0))
+    angle = np.linspace(0, 3 * np.pi, 6)
+    same(make_bank(2, "turn", time_unit=1e308), np.stack([np.cos(angle), np.sin(angle)], -1)[:, None, :] * 10,
+         np.arange(6.0)[:, None])
+    z = (np.random.default_rng(0).normal(0, 1, 40).cumsum() * 6e153)[:, None, None]
+    same(make_bank(1, "kinematic", rule="fixed_share", outlier_threshold=np.inf), z, np.arange(40.0)[:, None])

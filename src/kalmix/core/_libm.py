@@ -50,13 +50,20 @@ _exp_plain, _log_plain = _elementwise(math.exp), _elementwise(math.log)
 def exp(a):
     """``exp`` of the C library, element by element (inf where it overflows)."""
     a = np.asarray(a, dtype=np.float64)
-    return _exp_plain(a) if a.size and np.nanmax(a) < 709.0 else _exp_any(a)
+    return _exp_plain(a) if a.size and np.max(a, initial=-np.inf, where=~np.isnan(a)) < 709.0 else _exp_any(a)
 
 
 def log(a):
     """``log`` of the C library, element by element (-inf at 0, NaN below)."""
     a = np.asarray(a, dtype=np.float64)
-    return _log_plain(a) if a.size and np.nanmin(a) > 0 else _log_any(a)
-sin = _elementwise(math.sin)
-cos = _elementwise(math.cos)
+    return _log_plain(a) if a.size and np.min(a, initial=np.inf, where=~np.isnan(a)) > 0 else _log_any(a)
+def _periodic(function):
+    def apply(x):
+        return function(x) if math.isfinite(x) else math.nan   # the C function's NaN (Python raises)
+    apply.__name__ = function.__name__
+    return apply
+
+
+sin = _elementwise(_periodic(math.sin))
+cos = _elementwise(_periodic(math.cos))
 atan2 = _elementwise(math.atan2, 2)

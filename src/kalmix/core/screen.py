@@ -21,6 +21,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .aggregators._common import ordered_sum
+
 __all__ = ["ScreenParams", "ScreenState", "init", "screen"]
 
 
@@ -61,7 +63,7 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
     dt = np.where(np.isfinite(dt) & (dt > 0), dt, 0.0)
     with np.errstate(over="ignore", invalid="ignore"):
         guess = state.position + state.velocity * dt[:, None]
-        distance = np.sqrt(np.sum((z - guess) ** 2, axis=-1))
+        distance = np.sqrt(ordered_sum((z - guess) ** 2))   # in index order, as the kernel adds
     checked = present & moving & (state.count >= params.warmup) & ~gap
     with np.errstate(invalid="ignore"):
         wild = checked & ~(distance <= params.threshold * state.scale)

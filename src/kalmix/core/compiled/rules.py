@@ -169,8 +169,8 @@ def _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b,
                 if not math.isfinite(loss):
                     worst = np.inf
                 worst = max(worst, loss)
-        if not math.isfinite(worst):
-            return  # an overflowing loss teaches nothing
+        if not math.isfinite(worst) or not math.isfinite(d[0] + sq / p):
+            return  # an overflowing loss (or running sum of losses) teaches nothing, as in the spec
         d[0] += sq / p
         e[0] += 1.0
         variance = scale * scale if scale > 0 else scale_factor * d[0] / e[0]
