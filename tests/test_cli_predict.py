@@ -645,3 +645,28 @@ def test_a_file_input_of_another_format_is_refused_by_name(cli, tmp_path, name, 
     for command in ("predict", "evaluate"):
         result = _run(cli, [command, str(path)])
         assert result.exit_code == 1 and message in result.stderr, result.output
+
+
+def test_iso_times_outside_the_clock_or_mixed_with_numbers_are_named(cli, tmp_path):
+    """From a review: a date outside the nanosecond clock (1600, a 9999 sentinel) stopped stdin without a line
+    and lost the rows before it, and a file named a valid row; 'now' was read as the clock's time; a column of
+    numbers and dates was refused naming a valid date (or taken, on stdin); NaT was missing in a file and an
+    error on stdin."""
+    rows = "id,time,x\na,2024-05-01T00:00:00Z,1\na,2024-05-01T00:00:01Z,2\na,{},3\n"
+    for value, file_message, stdin_message in (
+            ("1600-01-01T00:00:02Z", "row 2 (counted from 0 after the header) holds '1600-01-01T00:00:02Z'",
+             "line 4: column 'time' must hold a number or an ISO 8601 date-time"),
+            ("now", "holds 'now'", "line 4: column 'time' must hold a number or an ISO 8601 date-time"),
+            ("1714521602.5", "mixes numbers (row 2: '1714521602.5') and ISO 8601 date-times (row 0",
+             "line 4: column 'time' holds a number (1714521602.5) where the lines before hold date-times")):
+        path = tmp_path / "t.csv"
+        path.write_text(rows.format(value))
+        result = _run(cli, ["predict", str(path), "--length-unit", "1"])
+        assert result.exit_code == 1 and file_message in result.stderr, result.stderr
+        piped = _run(cli, ["predict", "-", "--length-unit", "1"], input=rows.format(value))
+        assert piped.exit_code == 1 and stdin_message in piped.stderr, piped.stderr
+        assert len(_read(piped.stdout)) == 2                      # the rows before it are written
+    path.write_text(rows.format("NaT"))
+    assert len(_read(_run(cli, ["predict", str(path), "--length-unit", "1"]).stdout)) == 2
+    piped = _run(cli, ["predict", "-", "--length-unit", "1"], input=rows.format("NaT"))
+    assert piped.exit_code == 0 and "line 4: no time, row skipped" in piped.stderr

@@ -247,7 +247,7 @@ def _parse_number(text, column, line_number):
                              f"{len(str(abs(text)))} digits") from None
     else:
         stripped = str(text).strip()
-        if stripped.lower() in ("", "nan", "na", "n/a", "null", "none"):
+        if stripped.lower() in ("", "nan", "na", "n/a", "null", "none", "nat"):
             return math.nan
         try:
             value = float(stripped)
@@ -449,6 +449,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
     run.open_output(run.out_fmt if run.output else ("jsonl" if is_json else "csv"))
     index = {name: i for i, name in enumerate(header)}
     counts: dict = {}
+    time_kind: dict = {}   # "kind": numbers or date-times, fixed by the first time
 
     def parse(raw, number):
         if is_json:
@@ -478,6 +479,10 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
             time = _parse_time(get(record, columns.time, number), columns.time, number)
             if not isinstance(time, str) and math.isnan(time):   # text: a date-time, see _dated
                 return number, None, time, None
+            kind = "date-time" if isinstance(time, str) else "number"
+            if time_kind.setdefault("kind", kind) != kind:   # one or the other, as in a file
+                raise ValueError(f"line {number}: column {columns.time!r} holds a {kind} ({time!r}) where the lines "
+                                 f"before hold {time_kind['kind']}s; expected one or the other")
         return number, track, time, [_parse_number(get(record, name, number), name, number)
                                      for name in columns.positions]
 

@@ -69,7 +69,7 @@ _AXES = (("x", "y", "z"), ("u_left", "u_right", "v"), ("u", "v", None), ("east",
          ("lat", "lng", "alt"))
 _PREFIXES = ("", "position_", "pos_", "position.", "pos.", "p", "pos", "position")
 _SINGLE = ("x", "position", "pos", "value")
-_MISSING_TEXT = frozenset({"", "nan", "na", "n/a", "nan.0", "null", "none", "<na>"})
+_MISSING_TEXT = frozenset({"", "nan", "na", "n/a", "nan.0", "null", "none", "<na>", "nat"})
 _FORMATS = ("csv", "parquet")
 
 
@@ -243,16 +243,22 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
 # --------------------------------------------------------------------------- validation
 def iso_seconds(text, errors: str = "raise"):
     """Seconds since 1970-01-01 UTC of ISO 8601 date-time text (a sequence, or one str; no offset = UTC);
-    ``ValueError`` when it is not such text (``errors="coerce"``: NaN there). Counted in nanoseconds whatever
-    the text's precision, element by element, and shared by the file and stdin paths, so both give the same
-    bits for the same text."""
+    ``ValueError`` naming the first value that is not such text or is outside 1677-2262 (the nanosecond
+    clock's range); ``errors="coerce"``: NaN there. Counted in nanoseconds whatever the text's precision, element
+    by element, and shared by the file and stdin paths, so both give the same bits for the same text. ``now``
+    and ``today``, which pandas reads as the clock's time, are not dates of the data."""
     one = isinstance(text, str)
-    when = pd.to_datetime(pd.Series([text] if one else text, dtype=object), format="ISO8601", utc=True,
-                          errors=errors)
-    when = when.dt.as_unit("ns")
+    series = pd.Series([text] if one else list(text), dtype=object)
+    given = series.notna().to_numpy()
+    words = series.astype(str).str.strip().str.lower().isin(("now", "today")).to_numpy() & given
+    when = pd.to_datetime(series.where(~words), format="ISO8601", utc=True, errors="coerce")
+    low, high = pd.Timestamp.min.tz_localize("UTC"), pd.Timestamp.max.tz_localize("UTC")
+    outside = ((when < low) | (when > high)).to_numpy()
+    bad = given & (when.isna().to_numpy() | outside | words)
+    if bad.any() and errors == "raise":
+        raise ValueError(f"not an ISO 8601 date-time between 1677 and 2262: {series[int(np.argmax(bad))]!r}")
+    when = when.where(~(outside | words)).dt.as_unit("ns")
     seconds = ((when - pd.Timestamp(0, tz="UTC")) / pd.Timedelta(seconds=1)).to_numpy(np.float64, na_value=np.nan)
-    if one and np.isnan(seconds[0]):
-        raise ValueError(f"not a date-time: {text!r}")
     return float(seconds[0]) if one else seconds
 
 
@@ -277,9 +283,14 @@ def _to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.n
         try:
             return iso_seconds(text)
         except (ValueError, TypeError, OverflowError):   # name the first value that is not a date-time
-            when = pd.to_datetime(text, format="ISO8601", utc=True, errors="coerce")
-            undated = when.isna().to_numpy() & ~missing
+            undated = np.isnan(iso_seconds(text, errors="coerce")) & ~missing
             bad = undated if undated.any() else bad
+    elif bad.any() and dates and not np.isnan(out).all():
+        dated = ~np.isnan(iso_seconds(s.where(bad).astype(object), errors="coerce"))
+        if dated.any():   # numbers and date-times in one column
+            i, j = int(np.argmax(~np.isnan(out))), int(np.argmax(dated))
+            raise ValueError(f"Column {name!r} mixes numbers (row {offset + i}: {s.iloc[i]!r}) and ISO 8601 "
+                             f"date-times (row {offset + j}: {s.iloc[j]!r}); expected one or the other")
     if bad.any():
         i = int(np.argmax(bad))
         what = "finite numbers (or, for a time column, ISO 8601 date-times like 2024-05-01T12:00:00.5Z)" \
