@@ -514,3 +514,21 @@ def test_settings_and_rows_that_were_taken_silently_or_failed_late(tmp_path):
     with pytest.raises(ValueError, match="table: position column 'name' must hold numbers, got"):
         TrackPredictor(StreamConfig(length_unit=0.5)).process_table(
             pd.DataFrame({"track_id": ["a"], "time": [0.0], "x": [1.0], "name": ["car"]}))
+
+
+def test_ids_that_are_missing_values_and_datetime_helpers():
+    """NaT, pd.NA and complex ids were taken (or failed raw, or failed at save); learned_time_unit and
+    next_row_times read datetime times as seconds, as process_table does."""
+    import pandas as pd
+
+    from kalmix.streaming import learned_time_unit, next_row_times
+
+    engine = TrackPredictor(StreamConfig(length_unit=0.5))
+    for bad, kind in ((pd.NaT, ValueError), (np.datetime64("NaT"), ValueError), (pd.NA, ValueError),
+                      (1 + 2j, TypeError)):
+        with pytest.raises(kind, match="track_id: expected a track id"):
+            engine.step_row(bad, 0.0, [1.0, 2.0])
+    table = pd.DataFrame({"track_id": ["a"] * 4, "x": range(4),
+                          "time": pd.Timestamp(0, tz="UTC") + pd.to_timedelta(np.arange(4) * 1.25, unit="s")})
+    assert learned_time_unit([table], StreamConfig(length_unit=0.5)) == 1.25
+    assert next_row_times([table.iloc[:2], table.iloc[2:]]) == [{"a": 2.5}, {}]

@@ -458,10 +458,16 @@ def _seconds(column) -> np.ndarray:
 def _track_key(value, where: str):
     """A track id as the predictor's key (numpy scalars as Python ones, as :meth:`TrackPredictor.process_table`
     and the state file hold them); ``TypeError``/``ValueError`` for what cannot be an id."""
-    if value is None or (isinstance(value, (float, np.floating)) and math.isnan(value)):
+    import pandas as pd
+
+    try:
+        missing = value is None or bool(pd.isna(value))   # None, NaN, NaT, pd.NA
+    except (TypeError, ValueError):
+        missing = False
+    if missing:
         raise ValueError(f"{where}: expected a track id (text or a number), got {value!r}")
     key = _id_to_json(value)
-    if isinstance(key, (tuple, frozenset)) or not isinstance(key, Hashable):
+    if isinstance(key, (tuple, frozenset, complex)) or not isinstance(key, Hashable):
         raise TypeError(f"{where}: expected a track id (text, a number, or a date), got {type(value).__name__} "
                         f"{value!r:.80}")
     return key
@@ -1092,7 +1098,7 @@ def learned_time_unit(tables, config: StreamConfig) -> float | None:
 
     scratch = TrackPredictor(replace(config, time_unit=None))
     for table in tables:
-        for track, time in zip(table["track_id"].to_numpy(), table["time"].to_numpy(np.float64)):
+        for track, time in zip(table["track_id"].to_numpy(), _seconds(table["time"])):
             scratch._advance(_id_to_json(track), float(time))
             if scratch.config.time_unit is not None:
                 return scratch.config.time_unit
@@ -1107,7 +1113,8 @@ def next_row_times(parts, after: dict | None = None) -> list[dict]:
     upcoming = dict(after or {})
     for part in reversed(parts):
         out.append(dict(upcoming))
-        upcoming.update({track: float(t) for track, t in part.groupby("track_id", sort=False)["time"].first().items()})
+        firsts = part.groupby("track_id", sort=False)["time"].first()
+        upcoming.update((track, float(t)) for track, t in zip(firsts.index, _seconds(firsts)))
     return out[::-1]
 
 

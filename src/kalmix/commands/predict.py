@@ -504,8 +504,8 @@ def format_result(result, per_track=True) -> str:
     if "length_unit" in bank and "time_unit" in bank:
         units = (f"the mixture's length unit {bank['length_unit']:.4g} and time unit {bank['time_unit']:.4g}, "
                  f"the AKF rows' length unit {result.length_unit:.4g}\n(kalmix predict --length-unit "
-                 f"{bank['length_unit']!r} --time-unit {bank['time_unit']!r}, and this command's other flags, runs the same "
-                 "mixture)")
+                 f"{bank['length_unit']!r} --time-unit {bank['time_unit']!r}, with this command's --experts, --seed, gap "
+                 "flags and --option but the gate's, runs the same mixture)")
     else:
         units = f"length unit {result.length_unit:.4g}"
     lines = [f"{result.dataset}: {len(streams.track_ids)} track(s), {n_rows} samples in {len(streams.lengths)} "
