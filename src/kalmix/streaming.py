@@ -546,6 +546,7 @@ class TrackPredictor:
         self.output: dict | None = None
         self.loaded_version: int | None = None  # format version of the file :meth:`load` read
         self._plain: tuple | None = None   # (bank, the bank without its lead head), see _without_lead
+        self._unit_source: tuple | None = None   # (track, unit) the time unit was learned from, until judged
 
     # -- set-up ---------------------------------------------------------------------
     def _ensure_params(self, measurement_dim: int) -> Bank:
@@ -565,7 +566,7 @@ class TrackPredictor:
     def _unit_step_taken_back(self, track, gaps: GapTracker) -> None:
         """Warn once when the step the time unit was learned from (a track's first) is taken back: a row came
         back before it, so that step's timestamp was wrong, and so is the unit (the bank stays as it is)."""
-        source = getattr(self, "_unit_source", None)
+        source = self._unit_source
         if source is not None and source[0] == track and gaps.glitches and (
                 not gaps.intervals or gaps.intervals[0] != source[1]):
             self._unit_source = None
@@ -702,8 +703,7 @@ class TrackPredictor:
             time = float(time)
         except (TypeError, ValueError):
             raise ValueError(f"time: expected a number, got {time!r:.80}") from None
-        track_id = _track_key(track_id, "track_id")
-        return self.step_rows([track_id], np.array([time]), z[None, :])[0]
+        return self._step_checked([_track_key(track_id, "track_id")], np.array([time]), z[None, :])[0]
 
     def step_rows(self, track_ids, times, values) -> list[RowPrediction | None]:
         """Rows that have already arrived, as :meth:`step_row` on each in turn, through one run of the core.
@@ -743,7 +743,10 @@ class TrackPredictor:
         if np.isinf(values).any():
             i = int(np.flatnonzero(np.isinf(values).any(axis=-1))[0])
             raise ValueError(f"values[{i}]: expected finite numbers (NaN for a missing measurement), got {values[i]!r}")
-        ids = [_track_key(track, f"track_ids[{i}]") for i, track in enumerate(ids)]
+        return self._step_checked([_track_key(track, f"track_ids[{i}]") for i, track in enumerate(ids)], times, values)
+
+    def _step_checked(self, ids, times, values) -> list[RowPrediction | None]:
+        """:meth:`step_rows` on arguments already checked: all or nothing, row by row until the time unit is known."""
         if not ids:
             return []
         saved = self.checkpoint(list(dict.fromkeys(ids)))

@@ -197,14 +197,14 @@ def _file_format(path):
 
 def _input_format(path) -> str:
     """``"parquet"`` or ``"csv"`` for a track file INPUT; ``ValueError`` for what is read otherwise."""
-    name = os.fspath(path).lower()
-    if _file_format(path) == "jsonl":
+    name, kind = os.fspath(path).lower(), _file_format(path)
+    if kind == "jsonl":
         raise ValueError(f"INPUT: expected CSV (.csv, .csv.gz) or Parquet, got the JSON-lines file {path!r} (kalmix "
                          f"predict reads JSON lines from stdin: 'kalmix predict - < {os.path.basename(path)}')")
     if name.endswith((".tsv", ".tab", ".tsv.gz")):
         raise ValueError(f"INPUT: expected CSV (comma-separated) or Parquet, got the tab-separated {path!r}; convert "
                          "it first (e.g. pandas.read_csv(path, sep='\\t').to_csv('tracks.csv', index=False))")
-    return _file_format(path) if _file_format(path) == "parquet" else "csv"
+    return kind
 
 
 def _columns(header, time_column, position_columns, id_column):

@@ -1,4 +1,5 @@
-"""The C library's ``exp``, ``log``, ``sin``, ``cos`` and ``atan2``, element by element, for the reference engine.
+"""The compiled kernels' arithmetic for the reference engine: sums in index order, and the C library's
+``exp``, ``log``, ``sin``, ``cos`` and ``atan2`` element by element.
 
 The compiled kernels call the C library's functions (numba lowers ``math.exp`` and the others
 to them); numpy's own vectorised ``np.exp``, ``np.sin``, ... may differ from them in the last
@@ -14,7 +15,14 @@ import math
 
 import numpy as np
 
-__all__ = ["exp", "log", "sin", "cos", "atan2"]
+__all__ = ["ordered_sum", "exp", "log", "sin", "cos", "atan2"]
+
+
+def ordered_sum(a, axis: int = -1, keepdims: bool = False):
+    """Sum over ``axis`` term by term in index order, ``((a_0 + a_1) + a_2) + ...``: the compiled kernels' order
+    (``a.sum`` adds in pairs and blocks, which rounds differently)."""
+    total = np.take(np.add.accumulate(a, axis=axis), -1, axis=axis)
+    return np.expand_dims(total, axis) if keepdims else total
 
 
 def _exp_or_inf(x):
@@ -57,6 +65,8 @@ def log(a):
     """``log`` of the C library, element by element (-inf at 0, NaN below)."""
     a = np.asarray(a, dtype=np.float64)
     return _log_plain(a) if a.size and np.min(a, initial=np.inf, where=~np.isnan(a)) > 0 else _log_any(a)
+
+
 def _periodic(function):
     def apply(x):
         return function(x) if math.isfinite(x) else math.nan   # the C function's NaN (Python raises)

@@ -32,8 +32,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._libm import exp
-from .aggregators._common import ordered_sum
+from ._libm import exp, ordered_sum
 
 __all__ = ["CalibrationParams", "CalibrationState", "init", "moments", "update", "z_score"]
 

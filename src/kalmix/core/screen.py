@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .aggregators._common import ordered_sum
+from ._libm import ordered_sum
 
 __all__ = ["ScreenParams", "ScreenState", "init", "screen"]
 

@@ -241,14 +241,13 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
 
 
 # --------------------------------------------------------------------------- validation
-def iso_seconds(text, errors: str = "raise"):
-    """Seconds since 1970-01-01 UTC of ISO 8601 date-time text (a sequence, or one str; no offset = UTC);
+def iso_seconds(text, errors: str = "raise") -> np.ndarray:
+    """Seconds since 1970-01-01 UTC of a sequence of ISO 8601 date-time texts (no offset = UTC);
     ``ValueError`` naming the first value that is not such text or is outside 1677-2262 (the nanosecond
     clock's range); ``errors="coerce"``: NaN there. Counted in nanoseconds whatever the text's precision, element
     by element, and shared by the file and stdin paths, so both give the same bits for the same text. ``now``
     and ``today``, which pandas reads as the clock's time, are not dates of the data."""
-    one = isinstance(text, str)
-    series = pd.Series([text] if one else list(text), dtype=object)
+    series = pd.Series(list(text), dtype=object)
     given = series.notna().to_numpy()
     words = series.astype(str).str.strip().str.lower().isin(("now", "today")).to_numpy() & given
     when = pd.to_datetime(series.where(~words), format="ISO8601", utc=True, errors="coerce")
@@ -258,8 +257,7 @@ def iso_seconds(text, errors: str = "raise"):
     if bad.any() and errors == "raise":
         raise ValueError(f"not an ISO 8601 date-time between 1677 and 2262: {series[int(np.argmax(bad))]!r}")
     when = when.where(~(outside | words)).dt.as_unit("ns")
-    seconds = ((when - pd.Timestamp(0, tz="UTC")) / pd.Timedelta(seconds=1)).to_numpy(np.float64, na_value=np.nan)
-    return float(seconds[0]) if one else seconds
+    return ((when - pd.Timestamp(0, tz="UTC")) / pd.Timedelta(seconds=1)).to_numpy(np.float64, na_value=np.nan)
 
 
 def _to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.ndarray:

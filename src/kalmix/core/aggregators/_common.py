@@ -2,14 +2,7 @@
 
 import numpy as np
 
-from .._libm import exp, log  # noqa: F401 - the kernels' exp and log, for the rules
-
-
-def ordered_sum(a, axis: int = -1, keepdims: bool = False):
-    """Sum over ``axis`` term by term in index order, ``((a_0 + a_1) + a_2) + ...``: the compiled kernels' order
-    (``a.sum`` adds in pairs and blocks, which rounds differently)."""
-    total = np.take(np.add.accumulate(a, axis=axis), -1, axis=axis)
-    return np.expand_dims(total, axis) if keepdims else total
+from .._libm import exp, log, ordered_sum  # noqa: F401 - the kernels' arithmetic, for the rules
 
 
 def normalise_awake(log_weights, awake):

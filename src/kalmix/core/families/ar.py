@@ -50,6 +50,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._libm import ordered_sum
 from .kinematic import _step   # the same clipped step in time units (params.time_unit, max_step; state.last_time)
 
 __all__ = ["ARParams", "ARState", "init_state", "forecast", "update", "ITERATED_STEPS"]
@@ -131,11 +132,8 @@ def _regressor(params: ARParams, state: ARState) -> np.ndarray:
 
 
 def _dot(a, b):
-    """Sum over the last axis, term by term in order (the kernel's order)."""
-    acc = a[..., 0] * b[..., 0]
-    for j in range(1, a.shape[-1]):
-        acc = acc + a[..., j] * b[..., j]
-    return acc
+    """Sum of ``a * b`` over the last axis, term by term in order (the kernel's order)."""
+    return ordered_sum(a * b)
 
 
 def _velocity_forecast(params: ARParams, state: ARState) -> np.ndarray:

@@ -41,6 +41,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._libm import ordered_sum
+
 __all__ = ["KinematicParams", "KinematicState", "init_state", "forecast", "update", "transition", "process_noise",
            "RESTART_NIS"]
 
@@ -103,20 +105,25 @@ def transition(order: int, delta: np.ndarray) -> np.ndarray:
     return f
 
 
-def process_noise(order: int, delta: np.ndarray) -> np.ndarray:
-    """:math:`Q(\\Delta)/q`, ``(..., d, d)``: entry ``(i, j)`` is :math:`\\Delta^{m} / (m\\, a!\\, b!)`.
+def _noise_terms(order: int):
+    """``(m, denominator)``, ``(d, d)``: entry ``(i, j)`` of :math:`Q(\\Delta)/q` is :math:`\\Delta^{m} /
+    (m\\, a!\\, b!)`, ``a = d - 1 - i``, ``b = d - 1 - j``, ``m = a + b + 1`` (the integral of the white noise
+    through ``a`` and ``b`` integrations); the denominator as the kernel multiplies it, ``(m * a!) * b!``."""
+    a = np.arange(order - 1, -1, -1)
+    fact = np.array([1.0, 1.0, 2.0])[a]
+    m = np.add.outer(a, a) + 1
+    return m, m * fact[:, None] * fact[None, :]
 
-    With ``a = d - 1 - i``, ``b = d - 1 - j``, ``m = a + b + 1`` (the integral of the
-    white noise through ``a`` and ``b`` integrations).
-    """
-    q = np.empty(delta.shape + (order, order))
-    fact = (1.0, 1.0, 2.0)
-    for i in range(order):
-        for j in range(order):
-            a, b = order - 1 - i, order - 1 - j
-            m = a + b + 1
-            q[..., i, j] = delta**m / (m * fact[a] * fact[b])
-    return q
+
+def _powers(delta: np.ndarray, order: int) -> np.ndarray:
+    """``delta ** k`` for ``k = 0 .. 2d - 1`` on a last axis, as the kernel computes them (repeated squaring)."""
+    return np.stack([_power(delta, k) for k in range(2 * order)], axis=-1)
+
+
+def process_noise(order: int, delta: np.ndarray) -> np.ndarray:
+    """:math:`Q(\\Delta)/q`, ``(..., d, d)`` (see :func:`_noise_terms`)."""
+    m, denominator = _noise_terms(order)
+    return _powers(np.asarray(delta, dtype=np.float64), order)[..., m] / denominator
 
 
 def _matmul(a, b):
@@ -153,15 +160,9 @@ def _predict(params: KinematicParams, state: KinematicState, delta: np.ndarray):
     f = transition(params.order, delta)[:, None]                                   # (N, 1, d, d)
     mean = _matmul(f, state.mean)                                                  # (N, K, d, p)
     cov = _matmul(_matmul(f, state.cov), np.swapaxes(f, -1, -2))
-    d, fact = params.order, (1.0, 1.0, 2.0)
-    # entry (i, j) gains (q * delta**m) / (m * a! * b!), m = a + b + 1, a = d - 1 - i, b = d - 1 - j
-    m = np.add.outer(np.arange(d - 1, -1, -1), np.arange(d - 1, -1, -1)) + 1                  # (d, d)
-    denominator = m * np.array([fact[d - 1 - i] for i in range(d)])[:, None] * \
-        np.array([fact[d - 1 - j] for j in range(d)])[None, :]
+    m, denominator = _noise_terms(params.order)   # entry (i, j) gains (q * delta**m) / denominator, in that order
     with np.errstate(over="ignore", invalid="ignore"):
-        powers = np.stack([_power(delta, k) for k in range(2 * d)], axis=-1)               # (N, 2d)
-        noise = params.process_noise[None, :, None, None] * powers[:, None, m] / denominator
-        cov = cov + noise
+        cov = cov + params.process_noise[None, :, None, None] * _powers(delta, params.order)[:, None, m] / denominator
     return mean, _symmetrise(cov)
 
 
@@ -207,12 +208,10 @@ def update(params: KinematicParams, state: KinematicState, measurement: np.ndarr
     # and only when the miss is at least half the forecast motion (a glitch, or the slope one left; not the lag
     # of a filter behind a very fast target)
     with np.errstate(over="ignore", invalid="ignore"):
-        nis, miss, move = np.zeros(s.shape), np.zeros(s.shape), np.zeros(s.shape)
+        squared = innovation * innovation
+        nis, miss = ordered_sum(squared / s[..., None]), ordered_sum(squared)
         motion = mean[..., 0, :] - state.mean[..., 0, :]
-        for c in range(innovation.shape[-1]):
-            nis = nis + innovation[..., c] * innovation[..., c] / s
-            miss = miss + innovation[..., c] * innovation[..., c]
-            move = move + motion[..., c] * motion[..., c]
+        move = ordered_sum(motion * motion)
     learned = state.cov[..., 1, 1] < params.initial_variance[None, :, 1]
     absurd = learned & ~(nis <= RESTART_NIS) & ~(miss <= 0.25 * move)            # (N, K)
     start = (learn & ~state.initialised)[:, None] | ((learn & state.initialised)[:, None] & absurd)
