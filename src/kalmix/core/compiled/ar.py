@@ -75,30 +75,43 @@ def _forecast(order, bias, m, delta, length_unit, max_velocity, weights_k, histo
 
 
 @nb.njit(inline="always", **_JIT)
-def _solve(m, a, b, low, y, out):
-    """``out = a^{-1} b`` by Cholesky (the spec's loops)."""
+def _solve_all(m, a, b, low, y, out, acc):
+    """``out[:, k] = a[:, :, k]^{-1} b[:, k]`` by Cholesky for every expert ``k`` at once (the spec's loops,
+    each expert's arithmetic in the same order; the experts innermost, so that their independent chains of
+    square roots and divisions overlap instead of each waiting on the last)."""
+    k_count = acc.shape[0]
     for i in range(m):
         for j in range(i + 1):
-            acc = a[i, j]
+            for k in range(k_count):
+                acc[k] = a[i, j, k]
             for l in range(j):
-                acc = acc - low[i, l] * low[j, l]
+                for k in range(k_count):
+                    acc[k] = acc[k] - low[i, l, k] * low[j, l, k]
             if i == j:
-                low[i, i] = math.sqrt(max(acc, 0.0))
+                for k in range(k_count):
+                    low[i, i, k] = math.sqrt(max(acc[k], 0.0))
             else:
-                low[i, j] = acc / low[j, j]
+                for k in range(k_count):
+                    low[i, j, k] = acc[k] / low[j, j, k]
     for i in range(m):
-        acc = b[i]
+        for k in range(k_count):
+            acc[k] = b[i, k]
         for l in range(i):
-            acc = acc - low[i, l] * y[l]
-        y[i] = acc / low[i, i]
+            for k in range(k_count):
+                acc[k] = acc[k] - low[i, l, k] * y[l, k]
+        for k in range(k_count):
+            y[i, k] = acc[k] / low[i, i, k]
     for i in range(m - 1, -1, -1):
-        acc = y[i]
+        for k in range(k_count):
+            acc[k] = y[i, k]
         for l in range(i + 1, m):
-            acc = acc - low[l, i] * out[l]
-        out[i] = acc / low[i, i]
+            for k in range(k_count):
+                acc[k] = acc[k] - low[l, i, k] * out[l, k]
+        for k in range(k_count):
+            out[i, k] = acc[k] / low[i, i, k]
 
 
-@nb.njit(**_JIT)
+@nb.njit(**KERNEL_JIT)
 def _start(order, m, persistence, initial_error, weights_k, info_k, target_k, history_k, scale, weight, error,
            count, jumps, n, k):
     """Fresh expert: prior weights, zero statistics and history, the error's pseudo-sample."""
@@ -117,54 +130,75 @@ def _start(order, m, persistence, initial_error, weights_k, info_k, target_k, hi
     jumps[n, k] = 0.0
 
 
-@nb.njit(**_JIT)
-def _learn(order, bias, m, lam, rho, persistence, jump_threshold, window, max_velocity, v, weights_k, info_k,
-           target_k, history_k, scale, weight, error, count, jumps, n, k, x, a, rhs, low, y):
-    """Expert ``k`` of target ``n`` learns the velocity ``v (p,)``: the jump test, then the fit (or not).
+@nb.njit(**KERNEL_JIT)
+def _learn(order, bias, m, forgetting, ridge, persistence, jump_threshold, window, max_velocity, v, weights_n,
+           info_n, target_n, history_n, scale, weight, error, count, jumps, n, x, a, rhs, low, y, sol, acc, go,
+           new_scale, informative):
+    """Every expert of target ``n`` learns the velocity ``v (p,)``: the jump test, then the fit (or not).
 
-    (Not inlined: numba's inliner lost some of its stores.)"""
+    Each expert's arithmetic is the spec's, in its order; the experts are only interleaved: first each one's
+    jump test and running statistics, then, coordinate by coordinate, the information matrices of those that
+    learn and one Cholesky solve over all of them (:func:`_solve_all`)."""
     p = v.shape[0]
-    squared = 0.0
-    for c in range(p):
-        _regressor(order, bias, history_k[c], x)
-        err = v[c] - _velocity(m, weights_k[c], x, max_velocity)
-        squared = err * err if c == 0 else squared + err * err
-    squared = squared / p
-    wild = squared > jump_threshold**2 * error[n, k]   # inf x 0 (no test, no error yet): not wild
-    jump = wild and jumps[n, k] < 1
-    jumps[n, k] = jumps[n, k] + 1.0 if jump else 0.0
-    if jump:
-        return
-    new_weight = lam * weight[n, k] + 1.0
+    k_count = forgetting.shape[0]
     vv = v[0] * v[0]
     for c in range(1, p):
         vv = vv + v[c] * v[c]
-    new_scale = scale[n, k] + (vv / p - scale[n, k]) / new_weight
+    for k in range(k_count):
+        squared = 0.0
+        for c in range(p):
+            _regressor(order, bias, history_n[k, c], x)
+            err = v[c] - _velocity(m, weights_n[k, c], x, max_velocity)
+            squared = err * err if c == 0 else squared + err * err
+        squared = squared / p
+        wild = squared > jump_threshold**2 * error[n, k]   # inf x 0 (no test, no error yet): not wild
+        jump = wild and jumps[n, k] < 1
+        jumps[n, k] = jumps[n, k] + 1.0 if jump else 0.0
+        go[k] = not jump
+        if jump:
+            continue
+        new_weight = forgetting[k] * weight[n, k] + 1.0
+        new_scale[k] = scale[n, k] + (vv / p - scale[n, k]) / new_weight
+        scale[n, k] = new_scale[k]
+        weight[n, k] = new_weight
+        new_count = min(count[n, k] + 1.0, window)
+        error[n, k] = error[n, k] + (squared - error[n, k]) / new_count
+        count[n, k] = new_count
     for c in range(p):
-        _regressor(order, bias, history_k[c], x)
-        largest = 0.0
-        for i in range(m):
-            for j in range(m):
-                info_k[c, i, j] = lam * info_k[c, i, j] + x[i] * x[j]
-            target_k[c, i] = lam * target_k[c, i] + x[i] * v[c]
-            largest = info_k[c, i, i] if i == 0 else max(largest, info_k[c, i, i])
-        ridge = rho * new_scale + 1e-9 * largest + 1e-12
-        informative = False
-        for i in range(m):
-            for j in range(m):
-                a[i, j] = info_k[c, i, j] + (ridge if i == j else 0.0)
-            rhs[i] = target_k[c, i] + ridge * (persistence if i == 0 else 0.0)
-            informative = informative or x[i] != 0.0
-        if informative:  # a zero regressor keeps the weights exactly (the spec's note)
-            _solve(m, a, rhs, low, y, weights_k[c])
-        for i in range(order - 1, 0, -1):
-            history_k[c, i] = history_k[c, i - 1]
-        history_k[c, 0] = v[c]
-    scale[n, k] = new_scale
-    weight[n, k] = new_weight
-    new_count = min(count[n, k] + 1.0, window)
-    error[n, k] = error[n, k] + (squared - error[n, k]) / new_count
-    count[n, k] = new_count
+        for k in range(k_count):
+            informative[k] = False
+            if not go[k]:  # a harmless system, solved and thrown away
+                for i in range(m):
+                    for j in range(m):
+                        a[i, j, k] = 1.0 if i == j else 0.0
+                    rhs[i, k] = 0.0
+                continue
+            lam = forgetting[k]
+            info_kc = info_n[k, c]
+            target_kc = target_n[k, c]
+            _regressor(order, bias, history_n[k, c], x)
+            largest = 0.0
+            for i in range(m):
+                for j in range(m):
+                    info_kc[i, j] = lam * info_kc[i, j] + x[i] * x[j]
+                target_kc[i] = lam * target_kc[i] + x[i] * v[c]
+                largest = info_kc[i, i] if i == 0 else max(largest, info_kc[i, i])
+            ridge_k = ridge[k] * new_scale[k] + 1e-9 * largest + 1e-12
+            for i in range(m):
+                for j in range(m):
+                    a[i, j, k] = info_kc[i, j] + (ridge_k if i == j else 0.0)
+                rhs[i, k] = target_kc[i] + ridge_k * (persistence if i == 0 else 0.0)
+                informative[k] = informative[k] or x[i] != 0.0
+        _solve_all(m, a, rhs, low, y, sol, acc)
+        for k in range(k_count):
+            if not go[k]:
+                continue
+            if informative[k]:  # a zero regressor keeps the weights exactly (the spec's note)
+                for i in range(m):
+                    weights_n[k, c, i] = sol[i, k]
+            for i in range(order - 1, 0, -1):
+                history_n[k, c, i] = history_n[k, c, i - 1]
+            history_n[k, c, 0] = v[c]
 
 
 def run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
@@ -177,16 +211,23 @@ def run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, pe
                jump_threshold, window, max_step, max_velocity,
                weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
                z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
-               np.empty(m), np.empty((m, m)), np.empty(m), np.zeros((m, m)), np.empty(m), np.empty(z.shape[2]),
-               np.empty(order))
+               np.empty(m), np.empty(z.shape[2]), np.empty(order), *learn_scratch(m, forgetting.shape[0]))
+
+
+def learn_scratch(m, k_count):
+    """:func:`_learn`'s scratch for ``k_count`` experts of ``m`` weights: a, rhs, low, y, sol, acc, go,
+    new_scale, informative."""
+    return (np.empty((m, m, k_count)), np.empty((m, k_count)), np.zeros((m, m, k_count)), np.empty((m, k_count)),
+            np.empty((m, k_count)), np.empty(k_count), np.empty(k_count, dtype=np.bool_), np.empty(k_count),
+            np.empty(k_count, dtype=np.bool_))
 
 
 @nb.njit(**KERNEL_JIT)
 def _run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
                jump_threshold, window, max_step, max_velocity,
                weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
-               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead, x, a, rhs, low, y, v,
-               h):
+               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead, x, v, h,
+               a, rhs, low, y, sol, acc, go, new_scale, informative):
     k_count = forgetting.shape[0]
     p = z.shape[2]
     m = order + (1 if bias else 0)
@@ -215,10 +256,9 @@ def _run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, p
                 elif delta > 0:
                     for c in range(p):
                         v[c] = _clip((z[t, n, c] - position[n, c]) / delta / length_unit, max_velocity)
-                    for k in range(k_count):
-                        _learn(order, bias, m, forgetting[k], ridge[k], persistence, jump_threshold, window,
-                               max_velocity, v, weights[n, k], info[n, k], target[n, k], history[n, k], scale, weight, error,
-                               count, jumps, n, k, x, a, rhs, low, y)
+                    _learn(order, bias, m, forgetting, ridge, persistence, jump_threshold, window, max_velocity, v,
+                           weights[n], info[n], target[n], history[n], scale, weight, error, count, jumps, n, x, a, rhs,
+                           low, y, sol, acc, go, new_scale, informative)
                 for c in range(p):
                     position[n, c] = z[t, n, c]
                 last_time[n] = times[t, n]
