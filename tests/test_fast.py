@@ -279,3 +279,30 @@ def test_a_failing_warm_up_does_not_break_the_run(monkeypatch, cold_cache):
 
     monkeypatch.setattr(cold_cache, "_tiny_run", broken)
     assert cold_cache.compile_ahead(make_bank(2, "mixed", n_akf=8, length_unit=0.3)) == 0
+
+
+def test_experts_of_one_fit_share_it_only_while_their_statistics_are_the_same():
+    """The experts-last kernel fits once for experts of the same forgetting and ridge whose RLS statistics
+    are the same bits (40 experts have 12 fits); a state where two of them differ (here, a hand-made one)
+    fits them apart, and both engines agree on every expert."""
+    z = _data(13, steps=120, targets=2)
+    params = make_params(3, 40, seed=4, adapt_noise=False)   # experts independent (as in a bank)
+    pairs = list(zip(params.forgetting.tolist(), params.ridge.tolist()))
+    k = next(i for i in range(1, 40) if pairs[i] in pairs[:i])   # an expert with an earlier twin
+    twin = pairs.index(pairs[k])
+    first = run_core(params, z[:60], backend="numpy").state
+    assert np.array_equal(first.gram[:, k], first.gram[:, twin])   # twins stay equal
+    assert len(set(pairs)) == 12
+    for name in ("gram", "cross"):   # the ridge enters the solution only
+        assert len({tuple(getattr(first, name)[0, i].ravel()) for i in range(40)}) == len(set(params.forgetting))
+    parted = first._replace(gram=first.gram.copy(), cross=first.cross.copy())
+    parted.gram[:, k] *= 3.0
+    parted.cross[:, k] *= 0.5
+    options = dict(expert_predictions=True, horizon=2)
+    reference = run_core(params, z[60:], parted, backend="numpy", **options)
+    _compare(reference, run_core(params, z[60:], parted, backend="numba", **options))
+    together = run_core(params, z[60:], first, backend="numba", **options)
+    moved = np.abs(reference.expert_predictions[:, :, k] - together.expert_predictions[:, :, k]).max()
+    assert moved > 1e-3 * np.abs(together.expert_predictions[:, :, k]).max()   # the parted twin went its own way
+    np.testing.assert_array_equal(together.expert_predictions[:, :, twin],
+                                  run_core(params, z[60:], parted, backend="numba", **options).expert_predictions[:, :, twin])

@@ -107,6 +107,37 @@ def _store_experts(j, mean, cov, gram, cross, transition, offset, process_noise,
                     cross[j, k, i, c] = cr[i, c, k]
 
 
+# ---------------------------------------------------------------- shared fits
+@jit
+def _shared_fits(forgetting, ridge, gm, cr, slot, first):
+    """Experts whose RLS fits are the same computation: same forgetting and ridge, and the same bits in
+    their statistics. They learn from the same regressors (a target's history), so they stay equal and
+    their fit, and the guard on it, is done once. ``slot[k]`` is expert k's fit; ``first[u]`` the expert
+    whose statistics fit u starts from. Returns the number of fits."""
+    experts = slot.shape[0]
+    d, p = gm.shape[0], cr.shape[0]
+    count = 0
+    for k in range(experts):
+        slot[k] = -1
+        for u in range(count):
+            r = first[u]
+            same = forgetting[r] == forgetting[k] and ridge[r] == ridge[k]
+            for a in range(d):
+                for c in range(d):
+                    same = same and gm[a, c, r] == gm[a, c, k]
+            for i in range(p):
+                for c in range(d):
+                    same = same and cr[i, c, r] == cr[i, c, k]
+            if same:
+                slot[k] = u
+                break
+        if slot[k] < 0:
+            first[count] = k
+            slot[k] = count
+            count += 1
+    return count
+
+
 # ---------------------------------------------------------------- system matrices
 @jit
 def _rls_fit(xi, features, forgetting, ridge, prior, gram, cross, new_gram, shifted, work, theta, acc):
@@ -665,6 +696,28 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records):
     ep = np.empty((p, k_count))
     _load_experts(j, mean, cov, gram, cross, transition, offset, process_noise, measurement_noise,
                   expert_predictions, mu, cv, gm, cr, trans, off, q, r, ep, rls)
+    # experts of one fit learn as one (rls): its statistics, solution and guarded dynamics, ``fits`` wide
+    slot = np.empty(k_count, dtype=np.int64)
+    first = np.empty(k_count, dtype=np.int64)
+    fits = _shared_fits(forgetting, ridge, gm, cr, slot, first) if rls else k_count
+    fit_forgetting = np.empty(fits)
+    fit_ridge = np.empty(fits)
+    fit_gm = np.empty((d, d, fits))
+    fit_cr = np.empty((p, d, fits))
+    fit_trans = np.empty((n, n, fits))
+    fit_off = np.empty((n, fits))
+    fit_acc = np.empty(fits)
+    if rls:
+        for u in range(fits):
+            k = first[u]
+            fit_forgetting[u] = forgetting[k]
+            fit_ridge[u] = ridge[k]
+            for a in range(d):
+                for c in range(d):
+                    fit_gm[a, c, u] = gm[a, c, k]
+            for i in range(p):
+                for c in range(d):
+                    fit_cr[i, c, u] = cr[i, c, k]
     # scratch
     acc = np.empty(k_count)
     z = np.empty(p)
@@ -741,11 +794,11 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records):
                 far = far or not abs(delta[i]) <= feature_limit
                 finite = finite and math.isfinite(delta[i])
             if far and finite:
-                _reanchor_target(j, k_count, n, p, order, z, delta, prior, origin, history, gram, cross, mu, gm,
-                                 cr, trans, off)
+                _reanchor_target(j, k_count, n, p, order, z, delta, prior, origin, history, gram, cross, mu, fit_gm,
+                                 fit_cr, trans, off)
             elif far:
                 _restart_target(j, k_count, n, p, prior, process_init, measurement_init, initialised, origin,
-                                history, gram, cross, gm, cr, trans, off, q, r, ep, gate_weights, gate_input,
+                                history, gram, cross, fit_gm, fit_cr, trans, off, q, r, ep, gate_weights, gate_input,
                                 weights, responsibilities, eta)
         start = valid and not initialised[j]
         learn = valid and initialised[j]
@@ -806,10 +859,17 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records):
                     for i in range(p):
                         xi[lag * p + i] = history[j, lag, i]
                 xi[n] = 1.0
-                _rls_fit(xi, features, forgetting, ridge, prior, gm, cr, new_gram, shifted, work, theta, acc)
-                _guard(theta, prior, p, order, bound, guard_gammas, fast_guard, trans, off, undecided, candidate,
-                       entries, minor, coef, poly_work, poly_saved, norm, inside_low, inside_high,
+                _rls_fit(xi, features, fit_forgetting, fit_ridge, prior, fit_gm, fit_cr, new_gram, shifted, work,
+                         theta, fit_acc)
+                _guard(theta, prior, p, order, bound, guard_gammas, fast_guard, fit_trans, fit_off, undecided,
+                       candidate, entries, minor, coef, poly_work, poly_saved, norm, inside_low, inside_high,
                        one_theta, one_a, one_u, power, product, one_coef)
+                for a in range(n):
+                    for c in range(n):
+                        for k in range(k_count):
+                            trans[a, c, k] = fit_trans[a, c, slot[k]]
+                    for k in range(k_count):
+                        off[a, k] = fit_off[a, slot[k]]
 
         # 4. Kalman update, (re)start, predict, using C = [I 0] and, for rls / fixed
         # dynamics, the companion form of A (only its first p rows are free).
@@ -868,6 +928,14 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records):
                 for i in range(p):
                     out_q[t, j, k, i] = q[i, k]
                     out_r[t, j, k, i] = r[i, k]
+    if rls:
+        for k in range(k_count):
+            for a in range(d):
+                for c in range(d):
+                    gm[a, c, k] = fit_gm[a, c, slot[k]]
+            for i in range(p):
+                for c in range(d):
+                    cr[i, c, k] = fit_cr[i, c, slot[k]]
     _store_experts(j, mean, cov, gram, cross, transition, offset, process_noise, measurement_noise,
                    expert_predictions, mu, cv, gm, cr, trans, off, q, r, ep, rls)
 
