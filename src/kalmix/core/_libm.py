@@ -1,5 +1,5 @@
-"""The compiled kernels' arithmetic for the reference engine: sums in index order, and the C library's
-``exp``, ``log``, ``sin``, ``cos`` and ``atan2`` element by element.
+"""The compiled kernels' arithmetic for the reference engine: sums and matrix products in index order,
+and the C library's ``exp``, ``log``, ``sin``, ``cos`` and ``atan2`` element by element.
 
 The compiled kernels call the C library's functions (numba lowers ``math.exp`` and the others
 to them); numpy's own vectorised ``np.exp``, ``np.sin``, ... may differ from them in the last
@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-__all__ = ["ordered_sum", "exp", "log", "sin", "cos", "atan2"]
+__all__ = ["ordered_sum", "ordered_matmul", "exp", "log", "sin", "cos", "atan2"]
 
 
 def ordered_sum(a, axis: int = -1, keepdims: bool = False):
@@ -23,6 +23,15 @@ def ordered_sum(a, axis: int = -1, keepdims: bool = False):
     (``a.sum`` adds in pairs and blocks, which rounds differently)."""
     total = np.take(np.add.accumulate(a, axis=axis), -1, axis=axis)
     return np.expand_dims(total, axis) if keepdims else total
+
+
+def ordered_matmul(a, b):
+    """``a @ b`` on the last two axes, each entry summed over the inner index in order from 0 (the compiled
+    kernels' loops, ``acc = 0; acc += a[i, l] * b[l, j]``, which ``@`` need not follow)."""
+    out = np.zeros(np.broadcast_shapes(a.shape[:-2], b.shape[:-2]) + (a.shape[-2], b.shape[-1]))
+    for l in range(a.shape[-1]):
+        out = out + a[..., :, l:l + 1] * b[..., l:l + 1, :]
+    return out
 
 
 def _exp_or_inf(x):

@@ -42,7 +42,7 @@ import numpy as np
 
 from . import dynamics as dyn
 from . import gating as gate
-from .kalman import kalman_predict, kalman_update
+from ._libm import ordered_matmul, ordered_sum
 
 __all__ = ["MixtureParams", "MixtureState", "StepOutput", "init_state", "step", "predict", "observation_matrix"]
 
@@ -157,15 +157,6 @@ def observation_matrix(params: MixtureParams) -> np.ndarray:
     return c
 
 
-def _diag_embed(diagonal: np.ndarray, size: int) -> np.ndarray:
-    """``(..., q)`` diagonal -> ``(..., size, size)`` with it in the top-left block."""
-    out = np.zeros(diagonal.shape[:-1] + (size, size))
-    q = diagonal.shape[-1]
-    idx = np.arange(q)
-    out[..., idx, idx] = diagonal
-    return out
-
-
 def _initial_mean(params: MixtureParams, features: np.ndarray) -> np.ndarray:
     """:math:`\\hat x_0 = [s; s - v_i; s - 2 v_i; \\dots]` per expert, ``(N, K, n)``."""
     velocity = params.initial_velocity / params.feature_scale  # (K, p)
@@ -210,6 +201,110 @@ def _where(mask: np.ndarray, new: np.ndarray, old: np.ndarray) -> np.ndarray:
     return np.where(mask.reshape(mask.shape + (1,) * (new.ndim - 1)), new, old)
 
 
+# ---------------------------------------------------------------- the experts' Kalman filter
+# C = [I 0]: the measurement is the first p state entries. Written in the compiled kernels' operations and
+# order (kalmix.core._numba_kernels: _kalman_update, _predict_companion / _predict_full, _add_process_noise;
+# kalmix.core._numba_linalg.cholesky_inverse), vectorised over targets and experts, so that both engines give
+# the same bits; kalmix.core.kalman holds the general batched filter.
+def _mirror_upper(matrix: np.ndarray) -> np.ndarray:
+    """The upper triangle (diagonal included) kept, the lower one its mirror image."""
+    upper = np.triu(np.ones(matrix.shape[-2:], dtype=bool))
+    return np.where(upper, matrix, np.swapaxes(matrix, -1, -2))
+
+
+def _cholesky_inverse(spd: np.ndarray, jitter: float) -> np.ndarray:
+    """:math:`S^{-1}` of ``(..., m, m)`` matrices: S symmetrised, its diagonal raised by ``jitter`` times its mean
+    diagonal, :math:`S = L L^T`, :math:`L^{-1}` by forward substitution, :math:`S^{-1} = L^{-T} L^{-1}` (a matrix
+    that is not positive definite gives NaN)."""
+    m = spd.shape[-1]
+    diagonal = np.arange(m)
+    trace = ordered_sum(np.diagonal(spd, axis1=-2, axis2=-1), axis=-1)
+    work = 0.5 * (spd + np.swapaxes(spd, -1, -2))
+    work[..., diagonal, diagonal] += jitter * (trace / m)[..., None]
+    low = np.zeros_like(work)
+    for j in range(m):
+        acc = work[..., j, j]
+        for l in range(j):
+            acc = acc - low[..., j, l] * low[..., j, l]
+        low[..., j, j] = np.sqrt(acc)
+        for i in range(j + 1, m):
+            acc = work[..., i, j]
+            for l in range(j):
+                acc = acc - low[..., i, l] * low[..., j, l]
+            low[..., i, j] = acc / low[..., j, j]
+    inverse_low = np.zeros_like(work)
+    for c in range(m):
+        for i in range(c, m):
+            acc = np.full(work.shape[:-2], 1.0 if i == c else 0.0)
+            for l in range(c, i):
+                acc = acc - low[..., i, l] * inverse_low[..., l, c]
+            inverse_low[..., i, c] = acc / low[..., i, i]
+    inverse = np.empty_like(work)
+    for i in range(m):
+        for j in range(i, m):
+            acc = np.zeros(work.shape[:-2])
+            for l in range(j, m):
+                acc = acc + inverse_low[..., l, i] * inverse_low[..., l, j]
+            inverse[..., i, j] = inverse[..., j, i] = acc
+    return inverse
+
+
+def _filter_update(mean: np.ndarray, cov: np.ndarray, features: np.ndarray, measurement_noise: np.ndarray,
+                   kappa: float) -> tuple[np.ndarray, np.ndarray]:
+    """Measurement update of every expert, Joseph form.
+
+    .. math:: K = P C^T S^{-1},\ S = C P C^T + R; \quad \hat x \leftarrow \hat x + K (s - C \hat x); \quad
+              P \leftarrow (I - K C) P (I - K C)^T + K R K^T = P - K P_{:p} - W K^T,\
+              W = (I - K C) P C^T - K R
+
+    ``mean (N, K, n)``, ``cov (N, K, n, n)``, ``features (N, p)``, ``measurement_noise (N, K, p)``.
+    """
+    p = features.shape[-1]
+    residual = features[:, None, :] - mean[..., :p]
+    r_diagonal = measurement_noise / kappa**2
+    innovation = cov[..., :p, :p].copy()
+    innovation[..., np.arange(p), np.arange(p)] += r_diagonal
+    gain = ordered_matmul(cov[..., :, :p], _cholesky_inverse(innovation, 1e-12))          # (N, K, n, p)
+    new_mean = mean + ordered_matmul(gain, residual[..., None])[..., 0]
+    w = (cov[..., :, :p] - ordered_matmul(gain, cov[..., :p, :p])) - gain * r_diagonal[..., None, :]
+    correction = np.zeros_like(cov)
+    for l in range(p):
+        correction = correction + (gain[..., :, l:l + 1] * cov[..., l:l + 1, :] + w[..., :, l:l + 1] * gain[..., None, :, l])
+    return new_mean, _mirror_upper(cov - correction)
+
+
+def _filter_predict(params: MixtureParams, mean: np.ndarray, cov: np.ndarray, transition: np.ndarray,
+                    offset: np.ndarray, process_noise: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:math:`\hat x \leftarrow A \hat x + u`, :math:`P \leftarrow A P A^T + Q + \epsilon I`, then the variance cap.
+
+    For a companion A = [Theta; I 0] (rls and fixed dynamics) only its first p rows are multiplied:
+    :math:`P \leftarrow [[G \Theta^T, G_{:, :n-p}], [G_{:, :n-p}^T, P_{:n-p, :n-p}]]`, :math:`G = \Theta P`;
+    a general A (literal dynamics) gives :math:`(A P A^T + (A P A^T)^T) / 2`. Returns the mean, the
+    covariance and which experts reached the cap (:func:`_cap_variance`).
+    """
+    p, n = params.measurement_dim, params.state_dim
+    with np.errstate(over="ignore", invalid="ignore"):
+        if params.dynamics != "literal":
+            theta = transition[..., :p, :]
+            top = ordered_matmul(theta, mean[..., None])[..., 0] + offset[..., :p]
+            new_mean = np.concatenate([top, mean[..., :n - p] + offset[..., p:]], axis=-1)
+            g = ordered_matmul(theta, cov)
+            new_cov = np.empty_like(cov)
+            new_cov[..., :p, :p] = _mirror_upper(ordered_matmul(g, np.swapaxes(theta, -1, -2)))
+            new_cov[..., :p, p:] = g[..., :n - p]
+            new_cov[..., p:, :p] = np.swapaxes(g[..., :n - p], -1, -2)
+            new_cov[..., p:, p:] = _mirror_upper(cov[..., :n - p, :n - p])
+        else:
+            new_mean = ordered_matmul(transition, mean[..., None])[..., 0] + offset
+            spread = ordered_matmul(ordered_matmul(transition, cov), np.swapaxes(transition, -1, -2))
+            new_cov = 0.5 * (spread + np.swapaxes(spread, -1, -2))
+        added = np.full(mean.shape, params.state_jitter + 0.0)
+        added[..., :p] = params.state_jitter + process_noise / params.feature_scale**2
+        new_cov[..., np.arange(n), np.arange(n)] += added
+        new_cov, held = _cap_variance(new_cov, params.max_variance)
+    return np.where(held[..., None], mean, new_mean), new_cov, held
+
+
 def _cap_variance(cov: np.ndarray, max_variance: float) -> tuple[np.ndarray, np.ndarray]:
     """Scale :math:`P` down where its largest variance exceeds ``max_variance``; also return where.
 
@@ -218,7 +313,7 @@ def _cap_variance(cov: np.ndarray, max_variance: float) -> tuple[np.ndarray, np.
     """
     largest = np.diagonal(cov, axis1=-2, axis2=-1).max(axis=-1)
     factor = np.minimum(1.0, max_variance / largest)
-    return cov * factor[..., None, None], factor < 1.0
+    return cov * factor[..., None, None], factor != 1.0
 
 
 def _missed(params: MixtureParams, mean: np.ndarray, features: np.ndarray) -> np.ndarray:
@@ -269,8 +364,15 @@ def _update_dynamics(params, state, features, learn):
     if params.dynamics == "literal":
         previous = state.history[:, 0]
         ok = learn & np.isfinite(previous).all(axis=-1)
-        matrix = dyn.literal_transition(features, np.where(ok[:, None], previous, 1.0), observation_matrix(params))
-        matrix = np.broadcast_to(matrix[:, None], state.transition.shape)
+        # eq. (6)/(7) (dyn.literal_transition) with C = [I 0], so G = I: A = [s_k s_{k-1}^T / (|s_{k-1}|^2 + eps), 0;
+        # 0, 0], in the kernels' order
+        previous = np.where(ok[:, None], previous, 1.0)
+        with np.errstate(over="ignore", invalid="ignore"):
+            denominator = ordered_sum(previous * previous, axis=-1) + 1e-12
+            top = features[:, :, None] * previous[:, None, :] / denominator[:, None, None]
+        p = params.measurement_dim
+        matrix = np.zeros(state.transition.shape)
+        matrix[..., :p, :p] = top[:, None]
         return state.gram, state.cross, _where(ok, matrix, state.transition), state.offset
     ok = learn & np.isfinite(state.history).all(axis=(-1, -2))
     xi = dyn.regressor(np.where(ok[:, None, None], state.history, 0.0))  # (N, d)
@@ -355,21 +457,17 @@ def step(params: MixtureParams, state: MixtureState, measurement: np.ndarray) ->
     gram, cross, transition, offset = _update_dynamics(params, state, features, learn)
 
     # 4. Kalman update of x_{k|k-1}, (re)start, predict x_{k+1|k}
-    observed = np.where(learn[:, None], features, np.nan)
-    mean, cov, _ = kalman_update(
-        state.mean, state.cov, np.broadcast_to(observed[:, None, :], errors.shape),
-        observation_matrix(params), _diag_embed(measurement_noise / kappa**2, params.measurement_dim),
-    )
-    p0 = params.initial_variance[:, None, None] / kappa**2 * np.eye(params.state_dim)
+    with np.errstate(all="ignore"):   # targets that do not learn are computed, then left as they were
+        updated_mean, updated_cov = _filter_update(state.mean, state.cov, features, measurement_noise, kappa)
+    mean = _where(learn, updated_mean, state.mean)
+    cov = _where(learn, updated_cov, state.cov)
+    n = params.state_dim
+    p0 = np.where(np.eye(n, dtype=bool), (params.initial_variance / kappa**2)[:, None, None], 0.0)
     fresh = start[:, None] | (learn[:, None] & _missed(params, state.mean, features))  # (N, K)
     mean = np.where(fresh[..., None], _initial_mean(params, features), mean)
     cov = np.where(fresh[..., None, None], np.broadcast_to(p0, cov.shape), cov)
-    process_cov = _diag_embed(process_noise / kappa**2, params.state_dim)
-    process_cov = process_cov + params.state_jitter * np.eye(params.state_dim)
-    predicted, cov = kalman_predict(mean, cov, transition, process_cov, offset)
-    cov, held = _cap_variance(cov, params.max_variance)
     # an expert whose P reached the cap stops extrapolating: its mean is held (it stays finite)
-    mean = np.where(held[..., None], mean, predicted)
+    mean, cov, _ = _filter_predict(params, mean, cov, transition, offset, process_noise)
     initialised = state.initialised | start
     expert_predictions = _where(initialised, _expert_outputs(params, origin, mean), state.expert_predictions)
 
@@ -411,7 +509,7 @@ def step(params: MixtureParams, state: MixtureState, measurement: np.ndarray) ->
 
 
 def _output(state: MixtureState) -> StepOutput:
-    prediction = np.einsum("nk,nkp->np", state.weights, state.expert_predictions)
+    prediction = ordered_sum(state.weights[..., None] * state.expert_predictions, axis=1)
     prediction = np.where(state.initialised[:, None], prediction, np.nan)
     return StepOutput(prediction, state.expert_predictions, state.weights, state.responsibilities, state.eta)
 
@@ -431,8 +529,8 @@ def predict(params: MixtureParams, state: MixtureState, horizon: int = 1) -> tup
     """
     mean = state.mean
     for _ in range(horizon - 1):
-        mean = np.einsum("nkij,nkj->nki", state.transition, mean) + state.offset
+        mean = ordered_matmul(state.transition, mean[..., None])[..., 0] + state.offset
     experts = _expert_outputs(params, state.origin, mean)
-    prediction = np.einsum("nk,nkp->np", state.weights, experts)
+    prediction = ordered_sum(state.weights[..., None] * experts, axis=1)
     prediction = np.where(state.initialised[:, None], prediction, np.nan)
     return prediction, experts

@@ -41,6 +41,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._libm import ordered_matmul as _matmul
 from .._libm import ordered_sum
 
 __all__ = ["KinematicParams", "KinematicState", "init_state", "forecast", "update", "transition", "process_noise",
@@ -124,15 +125,6 @@ def process_noise(order: int, delta: np.ndarray) -> np.ndarray:
     """:math:`Q(\\Delta)/q`, ``(..., d, d)`` (see :func:`_noise_terms`)."""
     m, denominator = _noise_terms(order)
     return _powers(np.asarray(delta, dtype=np.float64), order)[..., m] / denominator
-
-
-def _matmul(a, b):
-    """``a @ b``, each entry summed over the inner index in order from 0 (the compiled kernel's loops, which
-    ``@`` need not follow: the same bits in both engines)."""
-    out = np.zeros(np.broadcast_shapes(a.shape[:-2], b.shape[:-2]) + (a.shape[-2], b.shape[-1]))
-    for l in range(a.shape[-1]):
-        out = out + a[..., :, l:l + 1] * b[..., l:l + 1, :]
-    return out
 
 
 def _power(x, m: int):
