@@ -9,7 +9,7 @@ from kalmix.bank import make_bank
 from kalmix.core import engine
 from kalmix.core.compiled import engine as ce
 from kalmix.core.families import ar
-from kalmix.core.testing import _close, adversarial_tracks
+from kalmix.core.testing import adversarial_tracks
 from kalmix.streaming import StreamConfig, TrackPredictor
 
 
@@ -63,8 +63,8 @@ def test_spec_and_compiled_agree_with_bias_and_ahead_times(rule):
     reference = engine.run(bank, z, t, ahead_times=ahead)
     compiled = ce.run(bank, z, t, ahead_times=ahead)
     assert np.isfinite(compiled.forecasts[1:]).all() and np.isfinite(compiled.ahead).all()
-    _close(compiled.forecasts, reference.forecasts, 1e-9)
-    _close(compiled.ahead, reference.ahead, 1e-9)
+    np.testing.assert_array_equal(compiled.forecasts, reference.forecasts)
+    np.testing.assert_array_equal(compiled.ahead, reference.ahead)
 
 
 def test_without_a_jump_test_a_zero_running_error_flags_no_jump():
@@ -94,8 +94,8 @@ def test_ar_family_property_both_engines_on_adversarial_tracks(seed, p):
     reference = engine.run(bank, z, t, record_experts=True)
     compiled = ce.run(bank, z, t, record_experts=True)
     assert np.isfinite(reference.forecasts[1:]).all() and np.isfinite(compiled.forecasts[1:]).all()
-    _close(compiled.experts, reference.experts, 1e-9)
-    _close(compiled.forecasts, reference.forecasts, 1e-9)
+    np.testing.assert_array_equal(compiled.experts, reference.experts)
+    np.testing.assert_array_equal(compiled.forecasts, reference.forecasts)
 
 
 @pytest.mark.parametrize("rule", ["boa", "mlpoly"])
@@ -106,7 +106,7 @@ def test_mixture_of_the_ar_experts_is_the_same_on_both_engines(rule):
     for p, seed in ((1, 0), (2, 1)):
         z, t = adversarial_tracks(seed=seed, t_count=240, p=p)
         bank = make_bank(p, "ar", rule=rule, length_unit=0.3)
-        _close(ce.run(bank, z, t).forecasts, engine.run(bank, z, t).forecasts, 1e-9)
+        np.testing.assert_array_equal(ce.run(bank, z, t).forecasts, engine.run(bank, z, t).forecasts)
 
 
 def _hand_state(params, weights, history, position=(1.0, -2.0)):
@@ -182,8 +182,8 @@ def test_iterated_forecasts_are_the_same_on_both_engines_at_any_lead():
         reference = engine.run(bank, z, t, ahead_times=ahead, record_experts=True)
         compiled = ce.run(bank, z, t, ahead_times=ahead, record_experts=True)
         assert np.isfinite(compiled.ahead[np.isfinite(z).all(axis=-1)]).all()
-        _close(compiled.ahead, reference.ahead, 1e-9)
-        _close(compiled.experts, reference.experts, 1e-9)
+        np.testing.assert_array_equal(compiled.ahead, reference.ahead)
+        np.testing.assert_array_equal(compiled.experts, reference.experts)
 
 
 def test_forecast_variance_is_the_running_velocity_error_over_the_step():

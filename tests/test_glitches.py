@@ -8,7 +8,7 @@ from hypothesis import given, settings, strategies as st
 from kalmix.bank import make_bank
 from kalmix.core import engine
 from kalmix.core.compiled import engine as ce
-from kalmix.core.testing import _close, adversarial_tracks, check_bank
+from kalmix.core.testing import adversarial_tracks, check_bank
 from kalmix.streaming import StreamConfig, TrackPredictor
 
 
@@ -97,7 +97,7 @@ def test_akf_bank_paths_agree_on_adversarial_tracks(n_akf):
     reference = engine.run(bank, z, t).forecasts
     compiled = ce.run(bank, z, t).forecasts
     assert np.isfinite(reference[1:]).all() and np.isfinite(compiled[1:]).all()
-    _close(compiled, reference, 1e-9)
+    np.testing.assert_array_equal(compiled, reference)
 
 
 def test_predict_reports_outliers_and_keeps_them_out_of_the_state():
@@ -126,7 +126,7 @@ def test_mixed_bank_property_both_engines_on_adversarial_tracks(seed, p, rule):
     reference = engine.run(bank, z, t).forecasts
     compiled = ce.run(bank, z, t).forecasts
     assert np.isfinite(reference[1:]).all() and np.isfinite(compiled[1:]).all()
-    _close(compiled, reference, 1e-9)
+    np.testing.assert_array_equal(compiled, reference)
 
 
 def test_a_fast_noise_free_line_is_not_taken_for_a_glitch():

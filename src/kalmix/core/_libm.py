@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-__all__ = ["ordered_sum", "ordered_matmul", "exp", "log", "sin", "cos", "atan2"]
+__all__ = ["ordered_sum", "ordered_matmul", "exp", "expm1", "log", "sin", "cos", "atan2"]
 
 
 def ordered_sum(a, axis: int = -1, keepdims: bool = False):
@@ -74,6 +74,16 @@ def log(a):
     """``log`` of the C library, element by element (-inf at 0, NaN below)."""
     a = np.asarray(a, dtype=np.float64)
     return _log_plain(a) if a.size and np.min(a, initial=np.inf, where=~np.isnan(a)) > 0 else _log_any(a)
+
+
+def _expm1_or_inf(x):
+    try:
+        return math.expm1(x)
+    except OverflowError:
+        return math.inf
+
+
+expm1 = _elementwise(_expm1_or_inf)
 
 
 def _periodic(function):

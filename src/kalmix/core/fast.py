@@ -3,10 +3,11 @@
 :func:`run_fast` is :func:`kalmix.core.run.run_core` with the whole loop over time
 compiled: each target is advanced through all its steps by one numba function that
 does, for every expert, exactly the operations of :func:`kalmix.core.mixture.step`
-(same formulas, same order: Joseph-form update, Cholesky inverses with the same
-jitter, scipy's log-sum-exp, the splitmix64 random gate). Targets are independent, so
-they run on threads, in ranges, without synchronisation. Results agree with the
-numpy reference to rounding (tested at 1e-9 relative).
+(same formulas, same order: the Joseph-form update, Cholesky inverses with the same
+jitter, the log-sum-exp with the largest score split out, the splitmix64 random gate,
+the C library's exp / expm1 / log). Targets are independent, so they run on threads,
+in ranges, without synchronisation. Results are the numpy reference's bits (tested:
+every output and state field).
 
 Two kernels, chosen by the bank size: from ``VECTOR_MIN_EXPERTS`` experts on, the
 experts-last kernel (:mod:`._numba_kernels`) keeps each target's expert state with the

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _libm
+
 __all__ = [
     "gating_features",
     "softmax_gate",
@@ -62,10 +64,9 @@ def softmax_gate(gate_weights: np.ndarray, inputs: np.ndarray, temperature: floa
     inputs : ndarray, shape (..., m)
     temperature : float
     """
-    logits = np.einsum("...km,...m->...k", gate_weights, inputs)
-    from scipy.special import softmax   # here: scipy.special takes 0.2 s to import, and most runs never get here
-
-    return softmax(logits / temperature, axis=-1)
+    logits = _libm.ordered_sum(gate_weights * inputs[..., None, :], axis=-1) / temperature
+    scores = _libm.exp(logits - logits.max(axis=-1, keepdims=True))
+    return scores / _libm.ordered_sum(scores, axis=-1, keepdims=True)
 
 
 def log_expert_likelihood(errors: np.ndarray, scale: np.ndarray) -> np.ndarray:
@@ -81,8 +82,8 @@ def log_expert_likelihood(errors: np.ndarray, scale: np.ndarray) -> np.ndarray:
         :math:`\\sigma_i`.
     """
     p = errors.shape[-1]
-    squared = np.einsum("...kp,...kp->...k", errors, errors)
-    return -p * np.log(scale) - squared / (2.0 * scale**2)
+    squared = _libm.ordered_sum(errors * errors, axis=-1)
+    return -p * _libm.log(scale) - squared / (2.0 * scale**2)
 
 
 #: Floor of the log joint scores of :func:`posterior`: an error whose square overflows
@@ -97,14 +98,17 @@ def posterior(weights: np.ndarray, log_likelihood: np.ndarray) -> np.ndarray:
 
     Finite and normalised even when every likelihood underflows in linear space, and when
     squared errors overflow (log scores are floored at :data:`LOG_FLOOR`). The largest score
-    is subtracted first, so that the normalisation does not round at the scores' magnitude
-    (scores of -1e12 would leave the weights off by 1e-4).
+    is split out first, so that the normalisation does not round at the scores' magnitude
+    (scores of -1e12 would leave the weights off by 1e-4):
+    :math:`h_i = e_i / (1 + \sum_{j \ne top} e_j)`, :math:`e_i = e^{a_i - a_{top}}`, the
+    compiled kernels' operations in their order (and the C library's ``exp`` and ``log``).
     """
-    log_joint = np.maximum(np.log(np.maximum(weights, 1e-300)) + log_likelihood, LOG_FLOOR)
-    log_joint = log_joint - log_joint.max(axis=-1, keepdims=True)
-    from scipy.special import logsumexp
-
-    return np.exp(log_joint - logsumexp(log_joint, axis=-1, keepdims=True))
+    log_joint = np.maximum(_libm.log(np.maximum(weights, 1e-300)) + log_likelihood, LOG_FLOOR)
+    top = np.argmax(log_joint, axis=-1)[..., None]
+    scores = _libm.exp(log_joint - np.take_along_axis(log_joint, top, axis=-1))
+    k = np.arange(log_joint.shape[-1])
+    rest = _libm.ordered_sum(np.where(k == top, 0.0, scores), axis=-1, keepdims=True)
+    return scores * (1.0 / (1.0 + rest))
 
 
 def paper_gate_update(gate_weights, rate, responsibilities, weights, inputs):
@@ -153,8 +157,8 @@ def learning_rate(valid_steps, last_error, initial: float, minimum: float, decay
         :math:`\\varepsilon`, squared prediction error (summed over coordinates) of the
         currently dominant expert.
     """
-    base = minimum + (initial - minimum) * np.exp(-np.asarray(valid_steps) / decay_steps)
-    return base * -np.expm1(-sensitivity * np.minimum(last_error, ERROR_CAP))
+    base = minimum + (initial - minimum) * _libm.exp(-np.asarray(valid_steps, dtype=np.float64) / decay_steps)
+    return base * -_libm.expm1(-sensitivity * np.minimum(last_error, ERROR_CAP))
 
 
 def adapt_noise(noise, initial, rate, responsibilities, shrink: float, floor: float, reinflation: float):
@@ -215,4 +219,4 @@ def random_weights(seed: int, stream_ids: np.ndarray, steps: np.ndarray, n_exper
         key = _splitmix64(key ^ (np.asarray(steps, dtype=np.uint64)[:, None] * np.uint64(0x9E37)))
         key = _splitmix64(key ^ np.arange(n_experts, dtype=np.uint64)[None, :])
     uniform = (key >> np.uint64(11)).astype(np.float64) * (1.0 / (1 << 53)) + 1e-12
-    return uniform / uniform.sum(axis=-1, keepdims=True)
+    return uniform / _libm.ordered_sum(uniform, axis=-1, keepdims=True)

@@ -431,7 +431,7 @@ def step(params: MixtureParams, state: MixtureState, measurement: np.ndarray) ->
         dominant = np.argmax(state.weights, axis=-1)
         dominant_error = np.take_along_axis(errors, dominant[:, None, None], axis=1)[:, 0]
         eta = gate.learning_rate(
-            state.valid_steps, np.sum(dominant_error**2, axis=-1),
+            state.valid_steps, ordered_sum(dominant_error**2, axis=-1),
             params.eta_initial, params.eta_minimum, params.eta_decay_steps, params.eta_sensitivity,
         )
     rate = np.where(learn, eta, 0.0)
