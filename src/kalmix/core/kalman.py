@@ -16,6 +16,7 @@ import numpy as np
 __all__ = [
     "symmetrize",
     "cholesky_inverse",
+    "cholesky_lower",
     "cholesky_solve_rows",
     "kalman_predict",
     "kalman_update",
@@ -58,6 +59,25 @@ def cholesky_inverse(spd: np.ndarray, jitter: float = 1e-12) -> tuple[np.ndarray
     return inverse, log_det
 
 
+def cholesky_lower(spd: np.ndarray) -> np.ndarray:
+    """Cholesky factors :math:`L` (``(..., m, m)``, lower triangle) of the lower triangles of ``spd``, entry by
+    entry in the compiled kernels' order (:func:`kalmix.core._numba_linalg.cholesky_lower`); NaN where a
+    matrix is not positive definite."""
+    m = spd.shape[-1]
+    lower = np.zeros(spd.shape)
+    for j in range(m):
+        acc = spd[..., j, j]
+        for k in range(j):
+            acc = acc - lower[..., j, k] * lower[..., j, k]
+        lower[..., j, j] = np.sqrt(acc)
+        for i in range(j + 1, m):
+            acc = spd[..., i, j]
+            for k in range(j):
+                acc = acc - lower[..., i, k] * lower[..., j, k]
+            lower[..., i, j] = acc / lower[..., j, j]
+    return lower
+
+
 def cholesky_solve_rows(spd: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """``rhs @ spd^{-1}`` for symmetric positive definite ``spd``: each row of ``rhs`` solved.
 
@@ -83,18 +103,8 @@ def cholesky_solve_rows(spd: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """
     m = spd.shape[-1]
     shape = np.broadcast_shapes(spd.shape[:-2], rhs.shape[:-2])
-    lower = np.zeros(shape + (m, m))
     with np.errstate(invalid="ignore", divide="ignore"):
-        for j in range(m):
-            acc = spd[..., j, j]
-            for k in range(j):
-                acc = acc - lower[..., j, k] * lower[..., j, k]
-            lower[..., j, j] = np.sqrt(acc)
-            for i in range(j + 1, m):
-                acc = spd[..., i, j]
-                for k in range(j):
-                    acc = acc - lower[..., i, k] * lower[..., j, k]
-                lower[..., i, j] = acc / lower[..., j, j]
+        lower = np.broadcast_to(cholesky_lower(spd), shape + (m, m))
         out = np.zeros(shape + rhs.shape[-2:])
         for i in range(m):  # L y = b
             acc = rhs[..., :, i]

@@ -43,6 +43,7 @@ import numpy as np
 from . import dynamics as dyn
 from . import gating as gate
 from ._libm import ordered_matmul, ordered_sum
+from .kalman import cholesky_lower
 
 __all__ = ["MixtureParams", "MixtureState", "StepOutput", "init_state", "step", "predict", "observation_matrix"]
 
@@ -221,17 +222,7 @@ def _cholesky_inverse(spd: np.ndarray, jitter: float) -> np.ndarray:
     trace = ordered_sum(np.diagonal(spd, axis1=-2, axis2=-1), axis=-1)
     work = 0.5 * (spd + np.swapaxes(spd, -1, -2))
     work[..., diagonal, diagonal] += jitter * (trace / m)[..., None]
-    low = np.zeros_like(work)
-    for j in range(m):
-        acc = work[..., j, j]
-        for l in range(j):
-            acc = acc - low[..., j, l] * low[..., j, l]
-        low[..., j, j] = np.sqrt(acc)
-        for i in range(j + 1, m):
-            acc = work[..., i, j]
-            for l in range(j):
-                acc = acc - low[..., i, l] * low[..., j, l]
-            low[..., i, j] = acc / low[..., j, j]
+    low = cholesky_lower(work)
     inverse_low = np.zeros_like(work)
     for c in range(m):
         for i in range(c, m):
