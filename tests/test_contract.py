@@ -373,3 +373,18 @@ def test_bit_for_bit_at_the_edges_a_review_found():
          np.arange(6.0)[:, None])
     z = (np.random.default_rng(0).normal(0, 1, 40).cumsum() * 6e153)[:, None, None]
     same(make_bank(1, "kinematic", rule="fixed_share", outlier_threshold=np.inf), z, np.arange(40.0)[:, None])
+
+
+def test_signs_of_zero_and_a_guard_on_the_bound_in_banks():
+    """Subnormal and -0.0 input give the same bytes in both engines (sums from 0.0 as the kernels add), and an
+    AKF bank whose guard bound is 1 (candidates on the bound at every fit) passes the contract."""
+    from kalmix.core import engine
+    from kalmix.core.compiled import engine as ce
+
+    bank = make_bank(1, "kinematic", rule="mlpoly", lead=2.0)
+    z = np.array([-1.5e-323, -0.0, 5e-324, 1e-323, -5e-324, 0.0])[:, None, None]
+    t = np.arange(6.0)[:, None]
+    a, b = engine.run(bank, z, t), ce.run(bank, z, t)
+    for name in ("forecasts", "lead"):
+        assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), name
+    check_bank(make_bank(2, "akf", n_akf=9, akf_options={"spectral_radius_bound": 1.0}), *benign_tracks(0))

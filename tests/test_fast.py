@@ -300,3 +300,59 @@ def test_experts_of_one_fit_share_it_only_while_their_statistics_are_the_same():
     assert moved > 1e-3 * np.abs(together.expert_predictions[:, :, k]).max()   # the parted twin went its own way
     np.testing.assert_array_equal(together.expert_predictions[:, :, twin],
                                   run_core(params, z[60:], parted, backend="numba", **options).expert_predictions[:, :, twin])
+
+
+def _same_bytes(a, b, name):
+    """Bit for bit including the sign of zeros (np.array_equal takes -0.0 == 0.0)."""
+    a, b = np.asarray(a), np.asarray(b)
+    assert a.shape == b.shape and a.tobytes() == b.tobytes(), name
+
+
+@pytest.mark.parametrize("n_experts", SIZES)
+def test_a_guard_on_the_bound_decides_alike(n_experts):
+    """With a bound of 1 the prior's roots at 1 put candidates on the bound at every fit: both engines take
+    the eigenvalues of the complex companion and the modulus as sqrt(re^2 + im^2), so they shrink alike
+    (numpy's real solver, or numba's abs of a complex number, round the radius to another last bit)."""
+    z = np.cumsum(np.random.default_rng(2).normal(0, 1, (80, 2, 1)), axis=0)
+    params = make_params(1, n_experts, order=2, adapt_noise=False, spectral_radius_bound=1.0, seed=1)
+    _compare(run_core(params, z, backend="numpy"), run_core(params, z, backend="numba"))
+
+
+@pytest.mark.parametrize("n_experts", SIZES)
+def test_hand_made_states_with_nan_run_alike(n_experts):
+    """A NaN variance (the variance cap skips it, as the kernels' max does), a NaN gate weight (the dominant
+    expert is found by the kernels' scan) and a NaN RLS statistic (no exception in the spec's guard)."""
+    rng = np.random.default_rng(0)
+    z = np.cumsum(rng.normal(size=(30, 1, 2)), axis=0)
+    params = make_params(2, n_experts, seed=1, adapt_noise=False)
+    state = run_core(params, z, backend="numpy").state
+    later = np.concatenate([np.full((2, 1, 2), np.nan), z[-1] + np.cumsum(rng.normal(size=(6, 1, 2)), axis=0)])
+    cov, weights, gram = state.cov.copy(), state.weights.copy(), state.gram.copy()
+    cov[0, 3, 1, 1] = np.nan
+    weights[0, 2] = np.nan
+    gram[0, 1, 0, 0] = np.nan
+    for broken in (state._replace(cov=cov), state._replace(weights=weights), state._replace(gram=gram)):
+        options = dict(expert_predictions=True, diagnostics=True)
+        _compare(run_core(params, later, broken, backend="numpy", **options),
+                 run_core(params, later, broken, backend="numba", **options))
+
+
+def test_signs_of_zero_are_the_kernels_too():
+    """Sums start from 0.0 as the kernels' loops do, and twins whose statistics differ only in the sign of a
+    zero keep their own fits: the same bytes, not only equal values."""
+    params = make_params(5, 9, dynamics="literal", gating="random", order=2, adapt_noise=True, seed=1338)
+    z = np.cumsum(np.random.default_rng(1338).normal(0, 1, (80, 3, 5)), axis=0) * 5e-324 * 3   # subnormal
+    _same_bytes(run_core(params, z, backend="numpy").predictions, run_core(params, z, backend="numba").predictions,
+                "predictions")
+    params = make_params(2, 12, seed=1, adapt_noise=False)
+    state = run_core(params, np.cumsum(np.random.default_rng(0).normal(size=(30, 1, 2)), axis=0),
+                     backend="numpy").state
+    lam, rho = params.forgetting, params.ridge
+    twin = next(k for k in range(1, 12) if lam[k] == lam[0] and rho[k] == rho[0])
+    gram, cross = state.gram.copy(), state.cross.copy()
+    gram[0, twin], cross[0, twin] = gram[0, 0], cross[0, 0]
+    gram[0, 0, 0, 1], gram[0, twin, 0, 1] = 0.0, -0.0
+    state = state._replace(gram=gram, cross=cross)
+    missing = np.full((2, 1, 2), np.nan)
+    _same_bytes(run_core(params, missing, state, backend="numpy").state.gram,
+                run_core(params, missing, state, backend="numba").state.gram, "gram")

@@ -15,14 +15,26 @@ import math
 
 import numpy as np
 
-__all__ = ["ordered_sum", "ordered_matmul", "exp", "expm1", "log", "sin", "cos", "atan2"]
+__all__ = ["ordered_sum", "ordered_matmul", "first_max", "exp", "expm1", "log", "sin", "cos", "atan2"]
 
 
-def ordered_sum(a, axis: int = -1, keepdims: bool = False):
-    """Sum over ``axis`` term by term in index order, ``((a_0 + a_1) + a_2) + ...``: the compiled kernels' order
-    (``a.sum`` adds in pairs and blocks, which rounds differently)."""
+def ordered_sum(a, axis: int = -1, keepdims: bool = False, from_zero: bool = True):
+    """Sum over ``axis`` term by term in index order from 0.0, ``((0 + a_0) + a_1) + ...``: the compiled kernels'
+    ``acc = 0.0; acc += ...`` (``a.sum`` adds in pairs and blocks, which rounds differently). ``from_zero=False``
+    starts from the first term, ``(a_0 + a_1) + ...``, for the kernels that do; the two differ only in the sign
+    of a sum of -0.0 terms."""
     total = np.take(np.add.accumulate(a, axis=axis), -1, axis=axis)
+    if from_zero:
+        total = 0.0 + total
     return np.expand_dims(total, axis) if keepdims else total
+
+
+def first_max(a, axis: int = -1):
+    """Index of the largest entry along ``axis`` as the kernels scan for it: from entry 0, moving on only to a
+    strictly larger one (so the first of equal ones; a NaN is never larger, and a NaN entry 0 stays)."""
+    a = np.moveaxis(np.asarray(a, dtype=np.float64), axis, -1)
+    index = np.argmax(np.where(np.isnan(a), -np.inf, a), axis=-1)
+    return np.where(np.isnan(a[..., 0]), 0, index)
 
 
 def ordered_matmul(a, b):

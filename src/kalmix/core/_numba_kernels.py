@@ -109,6 +109,12 @@ def _store_experts(j, mean, cov, gram, cross, transition, offset, process_noise,
 
 # ---------------------------------------------------------------- shared fits
 @jit
+def _same_bits(x, y):
+    """Equal, and of the same sign (+0.0 and -0.0 differ; NaN equals nothing)."""
+    return x == y and math.copysign(1.0, x) == math.copysign(1.0, y)
+
+
+@jit
 def _shared_fits(forgetting, ridge, gm, cr, slot, first):
     """Experts whose RLS fits are the same computation: same forgetting and ridge, and the same bits in
     their statistics. They learn from the same regressors (a target's history), so they stay equal and
@@ -124,10 +130,10 @@ def _shared_fits(forgetting, ridge, gm, cr, slot, first):
             same = forgetting[r] == forgetting[k] and ridge[r] == ridge[k]
             for a in range(d):
                 for c in range(d):
-                    same = same and gm[a, c, r] == gm[a, c, k]
+                    same = same and _same_bits(gm[a, c, r], gm[a, c, k])
             for i in range(p):
                 for c in range(d):
-                    same = same and cr[i, c, r] == cr[i, c, k]
+                    same = same and _same_bits(cr[i, c, r], cr[i, c, k])
             if same:
                 slot[k] = u
                 break

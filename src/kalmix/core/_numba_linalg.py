@@ -272,4 +272,7 @@ def radius_le_eig(theta, transition, p, n, bound, scratch):
     """Spectral radius of the companion of one expert's ``theta`` <= ``bound``, from its eigenvalues."""
     companion(theta, p, n, transition, scratch)
     values = np.linalg.eigvals(transition[:n, :n].astype(np.complex128))
-    return np.max(np.abs(values)) <= bound
+    largest = 0.0   # the modulus as sqrt(re^2 + im^2), as the spec computes it (numba's abs and numpy's differ)
+    for value in values:
+        largest = max(largest, value.real * value.real + value.imag * value.imag)
+    return math.sqrt(largest) <= bound

@@ -133,8 +133,22 @@ def companion_from_theta(theta: np.ndarray, order: int) -> tuple[np.ndarray, np.
 
 
 def spectral_radius(matrix: np.ndarray) -> np.ndarray:
-    """Largest eigenvalue modulus of ``(..., n, n)`` matrices."""
-    return np.abs(np.linalg.eigvals(matrix)).max(axis=-1)
+    """Largest eigenvalue modulus of ``(..., n, n)`` matrices; NaN for one with a NaN or inf.
+
+    Computed as the compiled guard computes it: the eigenvalues of the matrix as complex numbers (LAPACK's
+    complex solver; the real one can round them differently) and the modulus as
+    :math:`\sqrt{\max(re^2 + im^2)}` (numpy's and numba's ``abs`` of a complex number differ in the last
+    bit). A candidate on the bound (the prior's roots at 1 with a bound of 1) is otherwise accepted by one
+    engine and shrunk by the other.
+    """
+    matrix = np.asarray(matrix)
+    finite = np.isfinite(matrix).all(axis=(-1, -2))
+    radius = np.full(matrix.shape[:-2], np.nan)
+    if finite.any():
+        values = np.linalg.eigvals(matrix[finite].astype(np.complex128))
+        with np.errstate(over="ignore"):
+            radius[finite] = np.sqrt(np.max(values.real * values.real + values.imag * values.imag, axis=-1))
+    return radius
 
 
 def guard_theta(theta, prior, order: int, bound: float):

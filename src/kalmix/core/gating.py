@@ -104,7 +104,7 @@ def posterior(weights: np.ndarray, log_likelihood: np.ndarray) -> np.ndarray:
     compiled kernels' operations in their order (and the C library's ``exp`` and ``log``).
     """
     log_joint = np.maximum(_libm.log(np.maximum(weights, 1e-300)) + log_likelihood, LOG_FLOOR)
-    top = np.argmax(log_joint, axis=-1)[..., None]
+    top = _libm.first_max(log_joint)[..., None]
     scores = _libm.exp(log_joint - np.take_along_axis(log_joint, top, axis=-1))
     k = np.arange(log_joint.shape[-1])
     rest = _libm.ordered_sum(np.where(k == top, 0.0, scores), axis=-1, keepdims=True)

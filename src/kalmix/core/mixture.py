@@ -42,7 +42,7 @@ import numpy as np
 
 from . import dynamics as dyn
 from . import gating as gate
-from ._libm import ordered_matmul, ordered_sum
+from ._libm import first_max, ordered_matmul, ordered_sum
 from .kalman import cholesky_lower
 
 __all__ = ["MixtureParams", "MixtureState", "StepOutput", "init_state", "step", "predict", "observation_matrix"]
@@ -302,7 +302,8 @@ def _cap_variance(cov: np.ndarray, max_variance: float) -> tuple[np.ndarray, np.
     Only reached after very long runs of missing measurements, where the prediction
     is meaningless anyway; it keeps every number finite and :math:`P` positive definite.
     """
-    largest = np.diagonal(cov, axis1=-2, axis2=-1).max(axis=-1)
+    diagonal = np.diagonal(cov, axis1=-2, axis2=-1)
+    largest = np.max(np.where(np.isnan(diagonal), -np.inf, diagonal), axis=-1)   # the kernels skip a NaN
     factor = np.minimum(1.0, max_variance / largest)
     return cov * factor[..., None, None], factor != 1.0
 
@@ -419,7 +420,7 @@ def step(params: MixtureParams, state: MixtureState, measurement: np.ndarray) ->
         errors = z[:, None, :] - state.expert_predictions
         log_lik = gate.log_expert_likelihood(errors, params.expert_scale)
         responsibilities = gate.posterior(state.weights, log_lik)
-        dominant = np.argmax(state.weights, axis=-1)
+        dominant = first_max(state.weights)
         dominant_error = np.take_along_axis(errors, dominant[:, None, None], axis=1)[:, 0]
         eta = gate.learning_rate(
             state.valid_steps, ordered_sum(dominant_error**2, axis=-1),

@@ -132,8 +132,8 @@ def _regressor(params: ARParams, state: ARState) -> np.ndarray:
 
 
 def _dot(a, b):
-    """Sum of ``a * b`` over the last axis, term by term in order (the kernel's order)."""
-    return ordered_sum(a * b)
+    """Sum of ``a * b`` over the last axis, term by term in order from the first (the kernels' order)."""
+    return ordered_sum(a * b, from_zero=False)
 
 
 def _velocity_forecast(params: ARParams, state: ARState) -> np.ndarray:
