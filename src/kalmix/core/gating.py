@@ -65,7 +65,8 @@ def softmax_gate(gate_weights: np.ndarray, inputs: np.ndarray, temperature: floa
     temperature : float
     """
     logits = _libm.ordered_sum(gate_weights * inputs[..., None, :], axis=-1) / temperature
-    scores = _libm.exp(logits - logits.max(axis=-1, keepdims=True))
+    top = np.take_along_axis(logits, _libm.first_max(logits)[..., None], axis=-1)   # the kernels' running max
+    scores = _libm.exp(logits - top)
     return scores / _libm.ordered_sum(scores, axis=-1, keepdims=True)
 
 

@@ -265,13 +265,13 @@ def _filter_update(mean: np.ndarray, cov: np.ndarray, features: np.ndarray, meas
 
 
 def _filter_predict(params: MixtureParams, mean: np.ndarray, cov: np.ndarray, transition: np.ndarray,
-                    offset: np.ndarray, process_noise: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    offset: np.ndarray, process_noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:math:`\hat x \leftarrow A \hat x + u`, :math:`P \leftarrow A P A^T + Q + \epsilon I`, then the variance cap.
 
     For a companion A = [Theta; I 0] (rls and fixed dynamics) only its first p rows are multiplied:
     :math:`P \leftarrow [[G \Theta^T, G_{:, :n-p}], [G_{:, :n-p}^T, P_{:n-p, :n-p}]]`, :math:`G = \Theta P`;
-    a general A (literal dynamics) gives :math:`(A P A^T + (A P A^T)^T) / 2`. Returns the mean, the
-    covariance and which experts reached the cap (:func:`_cap_variance`).
+    a general A (literal dynamics) gives :math:`(A P A^T + (A P A^T)^T) / 2`. An expert whose P reaches the
+    cap (:func:`_cap_variance`) stops extrapolating: its mean is held (it stays finite).
     """
     p, n = params.measurement_dim, params.state_dim
     with np.errstate(over="ignore", invalid="ignore"):
@@ -293,7 +293,7 @@ def _filter_predict(params: MixtureParams, mean: np.ndarray, cov: np.ndarray, tr
         added[..., :p] = params.state_jitter + process_noise / params.feature_scale**2
         new_cov[..., np.arange(n), np.arange(n)] += added
         new_cov, held = _cap_variance(new_cov, params.max_variance)
-    return np.where(held[..., None], mean, new_mean), new_cov, held
+    return np.where(held[..., None], mean, new_mean), new_cov
 
 
 def _cap_variance(cov: np.ndarray, max_variance: float) -> tuple[np.ndarray, np.ndarray]:
@@ -458,8 +458,7 @@ def step(params: MixtureParams, state: MixtureState, measurement: np.ndarray) ->
     fresh = start[:, None] | (learn[:, None] & _missed(params, state.mean, features))  # (N, K)
     mean = np.where(fresh[..., None], _initial_mean(params, features), mean)
     cov = np.where(fresh[..., None, None], np.broadcast_to(p0, cov.shape), cov)
-    # an expert whose P reached the cap stops extrapolating: its mean is held (it stays finite)
-    mean, cov, _ = _filter_predict(params, mean, cov, transition, offset, process_noise)
+    mean, cov = _filter_predict(params, mean, cov, transition, offset, process_noise)
     initialised = state.initialised | start
     expert_predictions = _where(initialised, _expert_outputs(params, origin, mean), state.expert_predictions)
 
