@@ -46,11 +46,15 @@ def ordered_matmul(a, b):
     return out
 
 
-def _exp_or_inf(x):
-    try:
-        return math.exp(x)
-    except OverflowError:   # the C function gives inf
-        return math.inf
+def _or_inf(function):
+    """``function`` giving inf where Python raises OverflowError (the C function gives inf)."""
+    def apply(x):
+        try:
+            return function(x)
+        except OverflowError:
+            return math.inf
+    apply.__name__ = function.__name__
+    return apply
 
 
 def _log_or_nan(x):
@@ -72,7 +76,7 @@ def _elementwise(function, arity=1):
     return apply
 
 
-_exp_any, _log_any = _elementwise(_exp_or_inf), _elementwise(_log_or_nan)
+_exp_any, _log_any = _elementwise(_or_inf(math.exp)), _elementwise(_log_or_nan)
 _exp_plain, _log_plain = _elementwise(math.exp), _elementwise(math.log)
 
 
@@ -88,14 +92,7 @@ def log(a):
     return _log_plain(a) if a.size and np.min(a, initial=np.inf, where=~np.isnan(a)) > 0 else _log_any(a)
 
 
-def _expm1_or_inf(x):
-    try:
-        return math.expm1(x)
-    except OverflowError:
-        return math.inf
-
-
-expm1 = _elementwise(_expm1_or_inf)
+expm1 = _elementwise(_or_inf(math.expm1))
 
 
 def _periodic(function):

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._libm import ordered_sum
+
 __all__ = [
     "symmetrize",
     "cholesky_inverse",
@@ -48,14 +50,33 @@ def cholesky_inverse(spd: np.ndarray, jitter: float = 1e-12) -> tuple[np.ndarray
     -------
     inverse : ndarray, shape (..., m, m)
     log_det : ndarray, shape (...)
+
+    Entry by entry in the compiled kernels' order (:func:`kalmix.core._numba_linalg.cholesky_inverse`: the
+    mean diagonal summed in order, :math:`L^{-1}` by forward substitution, the upper triangle of
+    :math:`L^{-T} L^{-1}` mirrored), so that the AKF's filter gives the same bits in both engines; a matrix
+    that is not positive definite gives NaN.
     """
     m = spd.shape[-1]
-    eye = np.eye(m)
-    scale = np.trace(spd, axis1=-2, axis2=-1)[..., None, None] / m
-    lower = np.linalg.cholesky(symmetrize(spd) + jitter * scale * eye)
-    lower_inv = np.linalg.solve(lower, np.broadcast_to(eye, lower.shape))
-    inverse = np.swapaxes(lower_inv, -1, -2) @ lower_inv
-    log_det = 2.0 * np.sum(np.log(np.diagonal(lower, axis1=-2, axis2=-1)), axis=-1)
+    trace = ordered_sum(np.diagonal(spd, axis1=-2, axis2=-1), axis=-1)
+    work = symmetrize(spd)
+    work[..., np.arange(m), np.arange(m)] += jitter * (trace / m)[..., None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        low = cholesky_lower(work)
+        inverse_low = np.zeros_like(work)
+        for c in range(m):
+            for i in range(c, m):
+                acc = np.full(work.shape[:-2], 1.0 if i == c else 0.0)
+                for l in range(c, i):
+                    acc = acc - low[..., i, l] * inverse_low[..., l, c]
+                inverse_low[..., i, c] = acc / low[..., i, i]
+        inverse = np.empty_like(work)
+        for i in range(m):
+            for j in range(i, m):
+                acc = np.zeros(work.shape[:-2])
+                for l in range(j, m):
+                    acc = acc + inverse_low[..., l, i] * inverse_low[..., l, j]
+                inverse[..., i, j] = inverse[..., j, i] = acc
+        log_det = 2.0 * np.sum(np.log(np.diagonal(low, axis1=-2, axis2=-1)), axis=-1)
     return inverse, log_det
 
 

@@ -43,7 +43,7 @@ import numpy as np
 from . import dynamics as dyn
 from . import gating as gate
 from ._libm import first_max, ordered_matmul, ordered_sum
-from .kalman import cholesky_lower
+from .kalman import cholesky_inverse
 
 __all__ = ["MixtureParams", "MixtureState", "StepOutput", "init_state", "step", "predict", "observation_matrix"]
 
@@ -205,39 +205,12 @@ def _where(mask: np.ndarray, new: np.ndarray, old: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------- the experts' Kalman filter
 # C = [I 0]: the measurement is the first p state entries. Written in the compiled kernels' operations and
 # order (kalmix.core._numba_kernels: _kalman_update, _predict_companion / _predict_full, _add_process_noise;
-# kalmix.core._numba_linalg.cholesky_inverse), vectorised over targets and experts, so that both engines give
+# kalmix.core.kalman.cholesky_inverse), vectorised over targets and experts, so that both engines give
 # the same bits; kalmix.core.kalman holds the general batched filter.
 def _mirror_upper(matrix: np.ndarray) -> np.ndarray:
     """The upper triangle (diagonal included) kept, the lower one its mirror image."""
     upper = np.triu(np.ones(matrix.shape[-2:], dtype=bool))
     return np.where(upper, matrix, np.swapaxes(matrix, -1, -2))
-
-
-def _cholesky_inverse(spd: np.ndarray, jitter: float) -> np.ndarray:
-    """:math:`S^{-1}` of ``(..., m, m)`` matrices: S symmetrised, its diagonal raised by ``jitter`` times its mean
-    diagonal, :math:`S = L L^T`, :math:`L^{-1}` by forward substitution, :math:`S^{-1} = L^{-T} L^{-1}` (a matrix
-    that is not positive definite gives NaN)."""
-    m = spd.shape[-1]
-    diagonal = np.arange(m)
-    trace = ordered_sum(np.diagonal(spd, axis1=-2, axis2=-1), axis=-1)
-    work = 0.5 * (spd + np.swapaxes(spd, -1, -2))
-    work[..., diagonal, diagonal] += jitter * (trace / m)[..., None]
-    low = cholesky_lower(work)
-    inverse_low = np.zeros_like(work)
-    for c in range(m):
-        for i in range(c, m):
-            acc = np.full(work.shape[:-2], 1.0 if i == c else 0.0)
-            for l in range(c, i):
-                acc = acc - low[..., i, l] * inverse_low[..., l, c]
-            inverse_low[..., i, c] = acc / low[..., i, i]
-    inverse = np.empty_like(work)
-    for i in range(m):
-        for j in range(i, m):
-            acc = np.zeros(work.shape[:-2])
-            for l in range(j, m):
-                acc = acc + inverse_low[..., l, i] * inverse_low[..., l, j]
-            inverse[..., i, j] = inverse[..., j, i] = acc
-    return inverse
 
 
 def _filter_update(mean: np.ndarray, cov: np.ndarray, features: np.ndarray, measurement_noise: np.ndarray,
@@ -255,7 +228,7 @@ def _filter_update(mean: np.ndarray, cov: np.ndarray, features: np.ndarray, meas
     r_diagonal = measurement_noise / kappa**2
     innovation = cov[..., :p, :p].copy()
     innovation[..., np.arange(p), np.arange(p)] += r_diagonal
-    gain = ordered_matmul(cov[..., :, :p], _cholesky_inverse(innovation, 1e-12))          # (N, K, n, p)
+    gain = ordered_matmul(cov[..., :, :p], cholesky_inverse(innovation, 1e-12)[0])          # (N, K, n, p)
     new_mean = mean + ordered_matmul(gain, residual[..., None])[..., 0]
     w = (cov[..., :, :p] - ordered_matmul(gain, cov[..., :p, :p])) - gain * r_diagonal[..., None, :]
     correction = np.zeros_like(cov)

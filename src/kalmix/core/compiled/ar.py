@@ -211,10 +211,10 @@ def run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, pe
                jump_threshold, window, max_step, max_velocity,
                weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
                z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
-               np.empty(m), np.empty(z.shape[2]), np.empty(order), *learn_scratch(m, forgetting.shape[0]))
+               np.empty(m), np.empty(z.shape[2]), np.empty(order), *_learn_scratch(m, forgetting.shape[0]))
 
 
-def learn_scratch(m, k_count):
+def _learn_scratch(m, k_count):
     """:func:`_learn`'s scratch for ``k_count`` experts of ``m`` weights: a, rhs, low, y, sol, acc, go,
     new_scale, informative."""
     return (np.empty((m, m, k_count)), np.empty((m, k_count)), np.zeros((m, m, k_count)), np.empty((m, k_count)),
