@@ -22,9 +22,13 @@ CHECK = textwrap.dedent("""
     from kalmix.core.compiled import gpu
     from kalmix.core.testing import adversarial_tracks, benign_tracks
     worst = 0.0
+    glitched, times = benign_tracks(seed=1, t_count=40)
+    glitched[3, 0] += 1e3      # a glitch in the warm-up: the audit's cold restart at row 7
+    glitched[5, 1] += 1e3
+    glitched[7, 1] = np.nan    # ... waits for row 8
     for rule in ("boa", "mlpoly", "fixed_share"):
         bank = make_bank(2, "kinematic", rule=rule, length_unit=0.3)
-        for z, t in (benign_tracks(seed=1, t_count=40), adversarial_tracks(seed=2, t_count=40)):
+        for z, t in (benign_tracks(seed=1, t_count=40), adversarial_tracks(seed=2, t_count=40), (glitched, times)):
             ref = engine.run(bank, z, t, ahead_times=t + 1.0)
             cut = 15
             first = gpu.run(bank, z[:cut], t[:cut], ahead_times=t[:cut] + 1.0)

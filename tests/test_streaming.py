@@ -118,9 +118,10 @@ def test_version_4_files_resume_as_they_ran(tmp_path):
     first.save(tmp_path / "s.npz")
     archive = dict(np.load(tmp_path / "s.npz"))
     meta = json.loads(str(archive["meta"]))
-    assert meta["format_version"] == 6
+    assert meta["format_version"] == 7
     meta["format_version"] = 4
-    del archive["state/lead/issued"]
+    for name in ("state/lead/issued", "state/screen/low", "state/screen/high"):
+        del archive[name]
     del meta["config"]["rule_options"]
     np.savez(tmp_path / "v4.npz", **{**archive, "meta": np.array(json.dumps(meta))})
     second = TrackPredictor.load(tmp_path / "v4.npz")
@@ -146,7 +147,8 @@ def test_version_5_files_resume_without_issued_intervals(tmp_path):
     assert np.isfinite(archive["state/lead/issued"]).any()   # forecasts were pending at the save
     meta = json.loads(str(archive["meta"]))
     meta["format_version"] = 5
-    del archive["state/lead/issued"]
+    for name in ("state/lead/issued", "state/screen/low", "state/screen/high"):
+        del archive[name]
     np.savez(tmp_path / "v5.npz", **{**archive, "meta": np.array(json.dumps(meta))})
     second = TrackPredictor.load(tmp_path / "v5.npz")
     assert second.loaded_version == 5
@@ -160,6 +162,29 @@ def test_version_5_files_resume_without_issued_intervals(tmp_path):
     bound = np.exp(second.params.calibration_params.rate * second.params.lead.capacity)
     ok = np.isfinite(resumed)
     assert np.all(resumed[ok] <= bound * uninterrupted[ok]) and np.all(resumed[ok] >= uninterrupted[ok] / bound)
+
+
+def test_version_6_files_resume_without_the_warm_up_audit(tmp_path):
+    """Version 6 state files had no warm-up audit in the screen: a track past its warm-up resumes as it ran (its
+    audit never comes); one still in it is audited over the rest of it, as a fresh one would be."""
+    import json
+
+    table = _table()
+    for cut in (70, 4):
+        whole = [r.next for r in _rows(TrackPredictor(StreamConfig(**CONFIG)), table)]
+        first = TrackPredictor(StreamConfig(**CONFIG))
+        part = [r.next for r in _rows(first, table.iloc[:cut])]
+        first.save(tmp_path / "s.npz")
+        archive = dict(np.load(tmp_path / "s.npz"))
+        meta = json.loads(str(archive["meta"]))
+        meta["format_version"] = 6
+        for name in ("state/screen/low", "state/screen/high"):
+            del archive[name]
+        np.savez(tmp_path / "v6.npz", **{**archive, "meta": np.array(json.dumps(meta))})
+        second = TrackPredictor.load(tmp_path / "v6.npz")
+        assert second.loaded_version == 6
+        part += [r.next for r in _rows(second, table.iloc[cut:])]
+        assert np.array_equal(np.array(part), np.array(whole), equal_nan=True), cut
 
 
 def test_load_rejects_other_files(tmp_path):

@@ -82,6 +82,9 @@ from .core.engine import Bank, BankState, init_bank_state, tree_map
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Checkpoint", "auto_length_unit",
            "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
 
+#: 7: the glitch screen keeps its warm-up's extreme distances for the warm-up audit
+#: (:mod:`kalmix.core.screen`); version 3-6 files are resumed with the audit still to come for a
+#: track whose warm-up is not over (as a fresh one), and a track past it is not audited.
 #: 6: one state per track for a bank of expert families (kalmix.core.engine) with its
 #: calibration and lead head (whose pending forecasts keep the interval they were issued with),
 #: gap trackers with the time-glitch bookkeeping, the output the file belongs to (``kalmix
@@ -91,8 +94,8 @@ __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Che
 #: ``bound_forgetting`` 1.0, as they ran. Version 3 files (no calibration yet) are resumed with a
 #: fresh calibration as well; files of versions 1 and 2 held the previous single-mixture state and
 #: cannot be resumed.
-STATE_FORMAT_VERSION = 6
-_READABLE_VERSIONS = (3, 4, 5, 6)
+STATE_FORMAT_VERSION = 7
+_READABLE_VERSIONS = (3, 4, 5, 6, 7)
 _MAGIC = "kalmix-track-predictor"
 #: Number of first non-gap time steps whose median is a track's reference interval.
 REFERENCE_INTERVALS = 16
@@ -1068,7 +1071,8 @@ class TrackPredictor:
                 template = engine._fresh()
                 version = meta["format_version"]
                 fresh = lambda name: ((version == 3 and name.startswith("state/calibration/"))  # noqa: E731
-                                      or (version <= 5 and name == "state/lead/issued"))
+                                      or (version <= 5 and name == "state/lead/issued")
+                                  or (version <= 6 and name in ("state/screen/low", "state/screen/high")))
                 stacked = {name: (np.broadcast_to(expected, (count, *expected.shape[1:])) if fresh(name)
                                   else archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name))
                            for name, expected in _leaves(template)}

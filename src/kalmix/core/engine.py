@@ -51,6 +51,7 @@ from . import screen as glitch
 from .families import akf, ar, kinematic, turn
 
 __all__ = ["Family", "Bank", "BankState", "EngineResult", "StepOutput", "init_bank_state", "run", "step", "forecast",
+           "cold_start",
            "FAMILY_KINDS", "FAMILY_MODULES", "check_run_arguments"]
 
 #: Family kinds: kinematic CV / CA, adaptive AR of the velocity and coordinated turns in real time,
@@ -284,6 +285,26 @@ class StepOutput(NamedTuple):
     lead_covariance: np.ndarray | None = None
 
 
+def cold_start(bank: Bank, state: BankState, cold) -> BankState:
+    """``state`` with the rule, the calibration and the lead head's rule and calibration of the ``cold (N,)``
+    targets as new (the screen's cold restart, :mod:`kalmix.core.screen`); a lead forecast still pending is
+    dropped by the restart itself."""
+    cold = np.asarray(cold, dtype=bool)
+    if not cold.any():
+        return state
+    n, k, p = len(cold), bank.n_experts, bank.measurement_dim
+
+    def fresh(new, old):
+        return type(old)(*(np.where(cold.reshape((-1,) + (1,) * (o.ndim - 1)), a, o) for a, o in zip(new, old)))
+
+    rule = lambda old: fresh(bank.rule_module.init(bank.rule_params, n, k), old)  # noqa: E731
+    cal = lambda old: fresh(calibration.init(bank.calibration_params, n, k, p), old)  # noqa: E731
+    head = state.lead
+    if head is not None:
+        head = head._replace(rule=rule(head.rule), calibration=cal(head.calibration))
+    return state._replace(rule=rule(state.rule), calibration=cal(state.calibration), lead=head)
+
+
 def step(bank: Bank, state: BankState, measurement, time, learn=None, active=None, ahead_time=None,
          ahead_frames: int = 1, restart=None):
     """One row for every target: forecast it, then learn it. Returns ``(state, StepOutput)``.
@@ -301,8 +322,9 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
     present = np.isfinite(z).all(axis=-1) & active
     learn = present if learn is None else (np.asarray(learn, dtype=bool) & present)
     gap = np.zeros(n, dtype=bool) if restart is None else (np.asarray(restart, dtype=bool) & active)
-    screened, accept, restart = glitch.screen(bank.screen_params, state.screen, np.where(learn[:, None], z, 0.0),
-                                              time, learn, gap)
+    screened, accept, restart, cold = glitch.screen(bank.screen_params, state.screen,
+                                                    np.where(learn[:, None], z, 0.0), time, learn, gap)
+    state = cold_start(bank, state, cold)
     learn = learn & accept
     experts = expert_forecasts(bank, state, time)
     awake = np.isfinite(experts).all(axis=-1)

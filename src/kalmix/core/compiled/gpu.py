@@ -59,8 +59,8 @@ def gpu_available() -> bool:
 def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
            rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
            threshold, max_rejects, warmup, window, position, velocity, seen, spread, count, rejects, outliers,
-           points, cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale, variance, n_errors,
-           log_scale, z, times, lengths, learn, out, out_std, ahead_times, out_ahead, out_ahead_std):
+           points, low, high, cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale, cal_initial,
+           variance, n_errors, log_scale, z, times, lengths, learn, out, out_std, ahead_times, out_ahead, out_ahead_std):
     n = cuda.grid(1)
     if n >= z.shape[1]:
         return
@@ -94,10 +94,21 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
     errors_n = n_errors[:, n]
     for t in range(lengths[n]):
         code = screen_row(threshold, max_rejects, warmup, window, position, velocity, seen, spread, count,
-                          rejects, outliers, points, n, z[t, n], times[t, n], learn[t, n], False)
+                          rejects, outliers, points, low, high, n, z[t, n], times[t, n], learn[t, n], False)
+        if code == 4:   # a cold restart: the rule and the calibration start again too (all start at 0)
+            for k in range(k_count):
+                a[k, n] = 0.0
+                b[k, n] = 0.0
+                c[k, n] = 0.0
+                errors_n[k] = 0.0
+                for ci in range(p):
+                    var_n[k, ci] = cal_initial
+            dn[0] = 0.0
+            en[0] = 0.0
+            ls[0] = 0.0
         # every expert's forecast of the row, and its learning from the same extrapolation
         learning = code != 0
-        fresh = code == 2 or not initialised[n]
+        fresh = code == 2 or code == 4 or not initialised[n]
         for k in range(k_count):
             delta = delta_of(times[t, n], last_time[n], time_unit[k], max_step)
             step_expert(orders[k], delta, q[k], r[k], initial[k], max_variance, initialised[n], learning, fresh,
@@ -217,7 +228,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         device["mean"], device["cov"], device["last_time"], device["initialised"],
         *_rule_scalars(bank), device["a"], device["b"], device["c"], device["d"], device["e"],
         float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window), *screen_dev,
-        *pack_calibration(bank.calibration_params), device["variance"], device["n_errors"], device["log_scale"],
+        *pack_calibration(bank.calibration_params), float(bank.calibration_params.initial_variance), device["variance"], device["n_errors"], device["log_scale"],
         device["z"], device["times"], device["lengths"], device["learn"], out, out_std, device["ahead_times"],
         out_ahead, out_ahead_std)
     cuda.synchronize()

@@ -9,34 +9,38 @@ from __future__ import annotations
 import math
 
 import numba as nb
+import numpy as np
 
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
 
 configure_cache()
 
-#: :func:`screen_row` results (GAP: a restart asked for on a missing row).
-SKIP, ACCEPT, RESTART, GAP = 0, 1, 2, 3
+#: :func:`screen_row` results (GAP: a restart asked for on a missing row; COLD: the first present row after a
+#: warm-up that held a glitch, where the families, the rule and the calibration all start again).
+SKIP, ACCEPT, RESTART, GAP, COLD = 0, 1, 2, 3, 4
 
 
 @nb.njit(inline="always", **_JIT)
 def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
-               outliers, points, n, z, time, present, gap):
+               outliers, points, low, high, n, z, time, present, gap):
     """Screen target ``n``'s row ``z`` at ``time``: SKIP (missing or outlier), ACCEPT, RESTART (the screen's or
-    a ``gap``), or GAP (a gap on a missing row: start again from the next row)."""
+    a ``gap``), GAP (a gap on a missing row: start again from the next row) or COLD (see :data:`COLD`)."""
     p = z.shape[0]
-    if gap:
+    cold = points[n] < 0   # the warm-up held a glitch: everything starts again at the next present row
+    if gap or (cold and present):
         for c in range(p):
             velocity[n, c] = 0.0
         rejects[n] = 0.0
         if not present:
-            points[n] = 0.0
+            if not cold:
+                points[n] = 0.0
             return GAP
         points[n] = 1.0
         for c in range(p):
             position[n, c] = z[c]
         last_time[n] = time
-        return RESTART
+        return COLD if cold else RESTART
     if not present:
         return SKIP
     started = points[n] >= 1
@@ -49,7 +53,7 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
         diff = z[c] - (position[n, c] + velocity[n, c] * dt)
         acc += diff * diff
     distance = math.sqrt(acc)
-    wild = moving and count[n] >= warmup and not (distance <= threshold * scale[n])
+    wild = moving and count[n] >= warmup and scale[n] > 0 and not (distance <= threshold * scale[n])
     rejected = 0.0
     if wild:
         rejected = rejects[n] + 1.0
@@ -63,13 +67,26 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
             velocity[n, c] = 0.0
         points[n] = 1.0
     else:
+        audit = False
         if moving and math.isfinite(distance):
             count[n] = min(count[n] + 1.0, window)
             scale[n] = scale[n] + (distance - scale[n]) / count[n]
+            if not math.isnan(high[n]):   # the warm-up's extreme distances, until its audit (NaN: done)
+                low[n] = min(low[n], distance)
+                high[n] = max(high[n], distance)
+                if count[n] >= warmup:
+                    audit = high[n] > threshold * low[n]
+                    low[n] = np.nan
+                    high[n] = np.nan
         if started and dt > 0:
             for c in range(p):
                 velocity[n, c] = (z[c] - position[n, c]) / dt
         points[n] = min(points[n] + 1.0, 2.0)
+        if audit:   # a glitch in the warm-up: learn the scale again, start everything again at the next row
+            count[n] = 0.0
+            scale[n] = 0.0
+            outliers[n] += 1.0
+            points[n] = -1.0
     rejects[n] = 0.0
     for c in range(p):
         position[n, c] = z[c]
@@ -79,12 +96,15 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
 
 @nb.njit(**KERNEL_JIT)
 def screen_block(lo, hi, threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
-                 outliers, points, z, times, lengths, present, gaps, accept, restart, started):
-    """Every row of a block; ``started[t, n]``: target ``n`` had an accepted row (since a restart) before row t."""
+                 outliers, points, low, high, z, times, lengths, present, gaps, accept, restart, started, cold):
+    """Every row of a block; ``started[t, n]``: target ``n`` had an accepted row (since a restart) before row t;
+    ``cold[t, n]``: a COLD row (the rule and the calibration start again before it)."""
     for n in range(lo, hi):
         for t in range(lengths[n]):
             started[t, n] = points[n] >= 1.0
             code = screen_row(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count,
-                              rejects, outliers, points, n, z[t, n], times[t, n], present[t, n], gaps[t, n])
-            accept[t, n] = code == ACCEPT or code == RESTART
-            restart[t, n] = code == RESTART or code == GAP
+                              rejects, outliers, points, low, high, n, z[t, n], times[t, n], present[t, n],
+                              gaps[t, n])
+            accept[t, n] = code == ACCEPT or code == RESTART or code == COLD
+            restart[t, n] = code == RESTART or code == GAP or code == COLD
+            cold[t, n] = code == COLD
