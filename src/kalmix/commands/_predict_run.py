@@ -88,8 +88,9 @@ class Run:
             click.echo(f"kalmix: warning: {engine.time_glitches - self.glitches0} row(s) came back in time after "
                        "a jump ahead: the jump's timestamp was taken as wrong and the track went on", err=True)
         if engine is not None and engine.outliers > self.outliers0:
-            click.echo(f"kalmix: {engine.outliers - self.outliers0} outlier row(s) not learned (glitches far from "
-                       "their track's extrapolation; their predictions are still written)", err=True)
+            click.echo(f"kalmix: {engine.outliers - self.outliers0} outlier(s): glitches far from their track's "
+                       "extrapolation, not learned (one in a track's first rows: the track started again after it); "
+                       "their predictions are still written", err=True)
         if self.rows and not self.measured and self.stopped is None:
             click.echo(f"kalmix: warning: none of the {self.rows} input row(s) has a position (every value empty "
                        "or NaN): nothing was learned and every prediction is empty", err=True)
