@@ -1,6 +1,7 @@
 """Ablation of aggregation rules x banks on the shipped recordings (one-step RMS, last 80 % of each track).
 
 Run: python -m benchmarks.ablation [--datasets hawkeye_ball cycling skillcorner paper] [--json out.json]
+     [--configs [LABEL ...]] [--two-level]   (``--configs`` with no label: none of CONFIGS)
 (``paper``: the paper's simulated stereo target, seeds 0-4 as five tracks of 1000 frames.)
 Every bank (with the glitch screen at its default threshold unless the row says otherwise)
 runs through the compiled engine on the segments ``kalmix predict`` makes
@@ -82,7 +83,44 @@ CONFIGS = {
 }
 
 
-def run_dataset(name, configs, max_samples=None):
+#: Second-level aggregation (``--two-level``): BOA (bound forgetting .99) over the forecasts of BOA mixtures of
+#: sub-banks (each BOA, bound forgetting .99), in the numpy spec (kalmix.core.aggregators.boa); not a bank
+#: kind of kalmix, an experiment.
+TWO_LEVEL = {
+    "2-level BOA over (default, kinematic28)": ("mixed+ar+turn", "kinematic"),
+    "2-level BOA over (default, kinematic28, ar48)": ("mixed+ar+turn", "kinematic", "ar"),
+    "2-level BOA over (default, kinematic28, ar48, kinematic+ar+turn, akf40)": (
+        "mixed+ar+turn", "kinematic", "ar", "kinematic+ar+turn", "akf"),
+}
+
+
+def two_level(values, times, lengths, unit, tunit, combos):
+    """Each combination's forecasts ``(T, N, p)``: BOA over its sub-banks' BOA mixtures, row by row."""
+    from kalmix.core.aggregators import boa
+
+    forecasts = {}
+    for kind in sorted({kind for combo in combos.values() for kind in combo}):
+        bank = make_bank(values.shape[2], kind=kind, rule="boa", length_unit=unit, time_unit=tunit,
+                         rule_options={"bound_forgetting": 0.99})
+        forecasts[kind] = ce.run(bank, values, times, lengths=lengths).forecasts
+    params = boa.Params(bound_forgetting=0.99)
+    out = {}
+    for label, combo in combos.items():
+        x = np.stack([forecasts[kind] for kind in combo], axis=2)   # (T, N, K, p)
+        state = boa.init(params, x.shape[1], x.shape[2])
+        mixed = np.full_like(values, np.nan)
+        for row in range(len(values)):
+            awake = np.isfinite(x[row]).all(axis=-1)
+            w = boa.weights(params, state, awake)
+            mixed[row] = np.where(awake.any(axis=-1)[:, None],
+                                  np.einsum("nk,nkp->np", w, np.where(awake[..., None], x[row], 0.0)), np.nan)
+            learn = np.isfinite(values[row]).all(axis=-1) & awake.any(axis=-1)
+            state = boa.update(params, state, x[row], np.where(learn[:, None], values[row], 0.0), awake, learn)
+        out[label] = mixed
+    return out
+
+
+def run_dataset(name, configs, max_samples=None, two_levels=None):
     table = paper_table() if name == "paper" else load_dataset(name)
     streams = split_streams(table, max_samples=max_samples)
     values, times = streams.values, streams.times
@@ -123,6 +161,12 @@ def run_dataset(name, configs, max_samples=None):
                            outliers=outliers)
         print(f"{name:12s} {label:42s} rms {rms:.5g}  mean|e| {mae:.4g}  best expert {np.sqrt(best):.5g}  "
               f"outliers {outliers:.0f}  {seconds:.1f}s", flush=True)
+    if two_levels:
+        for label, forecasts in two_level(values, times, streams.lengths, unit, tunit, two_levels).items():
+            err = values - forecasts
+            rms = float(np.sqrt(np.nanmean(np.where(scored[..., None], err, np.nan) ** 2)))
+            rows[label] = dict(rms=rms)
+            print(f"{name:12s} {label:42s} rms {rms:.5g}", flush=True)
     return dict(unit=unit, time_unit=tunit, rows=rows)
 
 
@@ -136,11 +180,13 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--datasets", nargs="+", default=["hawkeye_ball", "cycling", "skillcorner", "paper"])
     parser.add_argument("--max-samples", type=int, default=None)
-    parser.add_argument("--configs", nargs="+", default=None)
+    parser.add_argument("--configs", nargs="*", default=None)
     parser.add_argument("--json", default=None)
+    parser.add_argument("--two-level", action="store_true", help="also the second-level rows (TWO_LEVEL)")
     args = parser.parse_args(argv)
-    configs = CONFIGS if not args.configs else {k: CONFIGS[k] for k in args.configs}
-    out = {name: run_dataset(name, configs, args.max_samples) for name in args.datasets}
+    configs = CONFIGS if args.configs is None else {k: CONFIGS[k] for k in args.configs}
+    out = {name: run_dataset(name, configs, args.max_samples, TWO_LEVEL if args.two_level else None)
+           for name in args.datasets}
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(out, fh, indent=1)
