@@ -83,8 +83,9 @@ __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Che
            "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
 
 #: 7: the glitch screen keeps its warm-up's extreme distances for the warm-up audit
-#: (:mod:`kalmix.core.screen`); version 3-6 files are resumed with the audit still to come for a
-#: track whose warm-up is not over (as a fresh one), and a track past it is not audited.
+#: (:mod:`kalmix.core.screen`); version 3-6 files are resumed with a track still in its warm-up
+#: audited over the rest of it only (the distances before the save are not known), and a track
+#: past it not audited.
 #: 6: one state per track for a bank of expert families (kalmix.core.engine) with its
 #: calibration and lead head (whose pending forecasts keep the interval they were issued with),
 #: gap trackers with the time-glitch bookkeeping, the output the file belongs to (``kalmix
@@ -1072,7 +1073,8 @@ class TrackPredictor:
                 version = meta["format_version"]
                 fresh = lambda name: ((version == 3 and name.startswith("state/calibration/"))  # noqa: E731
                                       or (version <= 5 and name == "state/lead/issued")
-                                  or (version <= 6 and name in ("state/screen/low", "state/screen/high")))
+                                  or (version <= 6 and name in ("state/screen/low", "state/screen/low2",
+                                                                "state/screen/high")))
                 stacked = {name: (np.broadcast_to(expected, (count, *expected.shape[1:])) if fresh(name)
                                   else archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name))
                            for name, expected in _leaves(template)}

@@ -324,21 +324,22 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
     gap = np.zeros(n, dtype=bool) if restart is None else (np.asarray(restart, dtype=bool) & active)
     screened, accept, restart, cold = glitch.screen(bank.screen_params, state.screen,
                                                     np.where(learn[:, None], z, 0.0), time, learn, gap)
-    state = cold_start(bank, state, cold)
     learn = learn & accept
     experts = expert_forecasts(bank, state, time)
     awake = np.isfinite(experts).all(axis=-1)
     weights, mix, cov = lead_head.forecast(bank, state, experts)
-    go = learn & ~restart
+    go = learn & ~restart & ~cold
     rule_state = bank.rule_module.update(bank.rule_params, state.rule, experts, z, awake, go)
     cal_state = calibration.update(bank.calibration_params, state.calibration, weights, experts, awake, z, go)
     families = tuple(_family_update(f, s, z, time, learn, active, restart)
                      for f, s in zip(bank.families, state.families))
-    new = BankState(families, rule_state, screened, cal_state, state.lead)
+    # a cold restart (the screen's warm-up audit): the row was forecast by the old rule and calibration; what is
+    # forecast after it (ahead, lead) and everything later by new ones
+    new = cold_start(bank, BankState(families, rule_state, screened, cal_state, state.lead), cold)
     out = StepOutput(mix, cov, experts, weights)
     if bank.lead is not None:
         target = time + bank.lead.time if ahead_time is None else np.broadcast_to(ahead_time, (n,))
-        head = lead_head.learn(bank, state.lead, z, time, go)
+        head = lead_head.learn(bank, new.lead, z, time, go)
         later = expert_forecasts(bank, new, target, bank.lead.frames)
         _, lead_mix, lead_cov = lead_head.forecast(bank, head, later)
         head = lead_head.push(bank, head, later, target, learn & (state.screen.points >= 1), restart, lead_mix,

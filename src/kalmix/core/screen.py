@@ -12,20 +12,25 @@ switch, a relocation): that row is accepted as a **restart** (the families start
 from it, as after a time gap; the rule keeps what it learned).
 
 The screen sees only measurements and times, so it is the same whatever the bank, and
-it needs no knowledge of the data's units: ``s`` is learned per target. It tests a row only
-once ``s`` is positive (a target at rest through its warm-up, the same position on every
-row, has ``s = 0``: every move would be an outlier).
+it needs no knowledge of the data's units: ``s`` is learned per target. A target at rest
+through its warm-up (the same position on every row: a moored vessel, quantised positions)
+has ``s = 0``: a glitch is then an outlier, and a real start is too, until the third moving
+row restarts the target; that restart also learns ``s`` again (else every move would be an
+outlier for good).
 
 **The warm-up audit.** The rows that teach ``s`` are not tested, so a glitch among a
 target's first ~7 rows would be learned by everything: the scale, the experts (whose fits
 keep it), the rule (BOA's cumulative variance, which never forgets, would freeze its
 learning rates) and the calibration. So once ``s`` has its ``warmup`` distances, they are
-audited: if the largest is more than ``threshold`` times the smallest, the warm-up held a
-glitch (a glitch of size G puts 2 or 3 of them at G to 2G, and leaves the others clean). Then
-the glitch is counted as an outlier, ``s`` is learned again, and at the target's next present
-row (a **cold** restart) the families, the rule and the calibration all start again, as for
-a new target. The audit is done once per target (a target at rest that then moves looks like
-a glitch to it, and restarts once).
+audited: if the largest is more than ``threshold`` times the second smallest non-zero one,
+the warm-up held a glitch. (A glitch of size G puts two or three of the distances at G to
+2G and leaves the others clean; the second smallest, not the smallest, so that one tiny
+distance of 1-D data does not pass for the track's scale; non-zero, so that a distance of
+exactly 0, which quantised positions give often, does not either.) Then the glitch is
+counted as an outlier, ``s`` is learned again, the rule and the calibration start again
+before the row is forecast, as for a new target (a **cold** restart; they do not learn the
+row), and the families at the target's next present row. Every warm-up is audited: a
+target's first one, and those after an audit or a restart at rest.
 """
 
 from __future__ import annotations
@@ -55,8 +60,9 @@ class ScreenState(NamedTuple):
     rejects: np.ndarray    # (N,) outliers in a row
     outliers: np.ndarray   # (N,) outliers so far
     points: np.ndarray     # (N,) accepted rows since the (re)start, capped at 2 (2: the velocity is known);
-    #                        -1: the warm-up held a glitch, start again at the next present row
-    low: np.ndarray        # (N,) smallest distance of the warm-up (NaN once audited)
+    #                        -1: the warm-up held a glitch, a cold restart at the next row
+    low: np.ndarray        # (N,) smallest non-zero distance of the warm-up (NaN once audited)
+    low2: np.ndarray       # (N,) second smallest non-zero distance of the warm-up (NaN once audited)
     high: np.ndarray       # (N,) largest distance of the warm-up (NaN once audited)
 
 
@@ -64,7 +70,7 @@ def init(n_targets: int, measurement_dim: int) -> ScreenState:
     return ScreenState(np.full((n_targets, measurement_dim), np.nan), np.zeros((n_targets, measurement_dim)),
                        np.full(n_targets, np.nan), np.zeros(n_targets), np.zeros(n_targets),
                        np.zeros(n_targets), np.zeros(n_targets), np.zeros(n_targets),
-                       np.full(n_targets, np.inf), np.zeros(n_targets))
+                       np.full(n_targets, np.inf), np.full(n_targets, np.inf), np.zeros(n_targets))
 
 
 def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None):
@@ -72,13 +78,13 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
 
     ``gap (N,)`` asks for a restart at this row (a time gap): the row is not tested; if it
     is missing, the screen (and the families) start again from the next present row.
-    ``cold``: a restart row after a warm-up that held a glitch (see the module docstring),
-    where the rule and the calibration start again too (a subset of ``restart``).
+    ``cold``: an accepted row that ends a warm-up which held a glitch (see the module
+    docstring): the rule and the calibration start again before it is forecast, and do not
+    learn it; the families start again at the target's next present row (a restart).
     """
     gap = np.zeros(len(present), dtype=bool) if gap is None else np.asarray(gap, dtype=bool)
-    pending = state.points < 0    # the warm-up held a glitch: everything starts again at the next present row
-    cold = pending & present
-    gap = gap | cold
+    pending = state.points < 0    # the warm-up held a glitch: the families start again at the next present row
+    gap = gap | (pending & present)
     started = state.points >= 1
     moving = state.points >= 2
     dt = np.where(started, time - state.time, 0.0)
@@ -86,11 +92,12 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
     with np.errstate(over="ignore", invalid="ignore"):
         guess = state.position + state.velocity * dt[:, None]
         distance = np.sqrt(ordered_sum((z - guess) ** 2))   # in index order, as the kernel adds
-    checked = present & moving & (state.count >= params.warmup) & (state.scale > 0) & ~gap
+    checked = present & moving & (state.count >= params.warmup) & ~gap
     with np.errstate(invalid="ignore"):
         wild = checked & ~(distance <= params.threshold * state.scale)
     rejects = np.where(wild, state.rejects + 1, 0.0)
-    restart = (wild & (rejects >= params.max_rejects)) | gap
+    moved = wild & (rejects >= params.max_rejects)
+    restart = moved | gap
     outlier = wild & ~restart
     accept = present & ~outlier
     # accepted, not a restart: learn the distance and the velocity
@@ -101,27 +108,32 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
         step = (z - state.position) / np.where(dt > 0, dt, 1.0)[:, None]
     velocity = np.where((accept & started & ~restart & (dt > 0))[:, None], step, state.velocity)
     velocity = np.where(restart[:, None], 0.0, velocity)
-    # the warm-up audit: once the scale is learned, a warm-up whose largest distance is more than ``threshold``
-    # times its smallest held a glitch (the scale learned it): the scale is learned again, and the families
-    # start again from the next present row
+    # the warm-up audit (see the module docstring): the two smallest non-zero distances and the largest
     auditing = learn & ~np.isnan(state.high)
-    low = np.where(auditing, np.minimum(state.low, distance), state.low)
+    nonzero = auditing & (distance > 0)
+    smaller = nonzero & (distance < state.low)
+    between = nonzero & ~smaller & (distance < state.low2)
+    low2 = np.where(smaller, state.low, np.where(between, distance, state.low2))
+    low = np.where(smaller, distance, state.low)
     high = np.where(auditing, np.maximum(state.high, distance), state.high)
     audited = auditing & (count >= params.warmup)
-    with np.errstate(invalid="ignore"):
-        glitch = audited & (high > params.threshold * low)
+    glitch = audited & (high > params.threshold * low2)
+    # a restart of a target whose scale is 0 (at rest through its warm-up, now moving) learns the scale again
+    rewarm = glitch | (moved & ~(state.scale > 0))
     points = np.where(restart, np.where(present, 1.0, np.where(pending, -1.0, 0.0)),
                       np.where(accept, np.minimum(state.points + 1, 2.0), state.points))
+    done = lambda value: np.where(rewarm, value[0], np.where(audited, np.nan, value[1]))  # noqa: E731
     new = ScreenState(
         position=np.where(accept[:, None], z, state.position),
         velocity=velocity,
         time=np.where(accept, time, state.time),
-        scale=np.where(glitch, 0.0, scale),
-        count=np.where(glitch, 0.0, count),
+        scale=np.where(rewarm, 0.0, scale),
+        count=np.where(rewarm, 0.0, count),
         rejects=np.where(present | gap, np.where(restart, 0.0, rejects), state.rejects),
         outliers=state.outliers + outlier + glitch,
         points=np.where(glitch, -1.0, points),
-        low=np.where(audited, np.nan, low),
-        high=np.where(audited, np.nan, high),
+        low=done((np.inf, low)),
+        low2=done((np.inf, low2)),
+        high=done((0.0, high)),
     )
-    return new, accept, restart, cold
+    return new, accept, restart, glitch

@@ -155,15 +155,11 @@ def _copy(state):
     return type(state)(*(np.array(x, dtype=np.float64, copy=True, order="C") for x in state))
 
 
-def _cold_start(bank: Bank, targets, rule, calibration, head) -> None:
-    """In place: the packed rule, calibration (and lead head's) of ``targets (N,)`` as new
-    (:func:`kalmix.core.engine.cold_start`)."""
+def _cold_start(bank: Bank, targets, rule, calibration) -> None:
+    """In place: the packed rule and calibration of ``targets (N,)`` as new (a lead head's at the screen's cold
+    restart, :func:`kalmix.core.engine.cold_start`)."""
     fresh = init_bank_state(bank, 1)
-    new_rule, new_cal = pack_rule(bank, fresh.rule, 1), fresh.calibration
-    pairs = [*zip(rule, new_rule), *zip(calibration, new_cal)]
-    if head is not None:
-        pairs += [*zip(head[0], new_rule), *zip(head[1], new_cal)]
-    for array, value in pairs:
+    for array, value in [*zip(rule, pack_rule(bank, fresh.rule, 1)), *zip(calibration, fresh.calibration)]:
         array[targets] = value[0]
 
 
@@ -205,6 +201,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     a, b, c, d, e = pack_rule(bank, state.rule, n)
     rule_args = _rule_scalars(bank)
     cal_args = pack_calibration(bank.calibration_params)
+    initial_variance = float(bank.calibration_params.initial_variance)
     cal = _copy(state.calibration)
     if lead is not None:
         lead_rule = pack_rule(bank, state.lead.rule, n)
@@ -280,24 +277,23 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
             for i in range(len(bank.families)):
                 run_family(i)
         w_block = np.full((rows, n, k), np.nan) if record_experts else empty3
-        go = lb & ~restart
-        # the rule and the heads, in pieces cut before the screen's cold restarts (rare: at most one a target),
-        # whose targets' rules and calibrations start again there
-        cuts = sorted({0, *np.flatnonzero(cold.any(axis=1)).tolist()}) + [rows]
-        for r0, r1 in zip(cuts[:-1], cuts[1:]):
-            if cold[r0].any():
-                _cold_start(bank, cold[r0], (a, b, c, d, e), cal, None if lead is None else (lead_rule, lead_cal))
-            rs = slice(r0, r1)
-            at = slice(begin + r0, begin + r1)
-            piece = np.clip(lens - r0, 0, r1 - r0).astype(np.int64)
-            over_targets(crules.run_block, n, *rule_args, a, b, c, d, e, *cal_args, *cal, buffer[rs], zb[rs], piece,
-                         go[rs], forecasts[at], std[at], covariance[at] if record_covariance else empty4,
-                         w_block[rs] if record_experts else empty3, ahead_buffer[rs] if with_ahead else empty4,
-                         ahead[at] if with_ahead else empty3, ahead_std[at] if with_ahead else empty3)
-            if lead is not None:
+        go = lb & ~restart & ~cold
+        over_targets(crules.run_block, n, *rule_args, a, b, c, d, e, *cal_args, *cal, buffer, zb, lens, go,
+                     forecasts[begin:end], std[begin:end], covariance[begin:end] if record_covariance else empty4,
+                     w_block, ahead_buffer if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3,
+                     ahead_std[begin:end] if with_ahead else empty3, cold, initial_variance)
+        if lead is not None:
+            # in pieces cut before the screen's cold rows (rare: one a warm-up with a glitch), where the lead
+            # head's rule and calibration start again (a cold row scores no pending forecast)
+            cuts = sorted({0, *np.flatnonzero(cold.any(axis=1)).tolist()}) + [rows]
+            for r0, r1 in zip(cuts[:-1], cuts[1:]):
+                if cold[r0].any():
+                    _cold_start(bank, cold[r0], lead_rule, lead_cal)
+                rs, at = slice(r0, r1), slice(begin + r0, begin + r1)
                 over_targets(clead.run_block, n, *rule_args, *lead_rule, *cal_args, *lead_cal, ahead_b[rs],
-                             float(lead.tolerance), due, pending, issued, ahead_buffer[rs], zb[rs], tb[rs], piece,
-                             lb[rs], (lb & started)[rs], restart[rs], lead_out[at], lead_std[at],
+                             float(lead.tolerance), due, pending, issued, ahead_buffer[rs], zb[rs], tb[rs],
+                             np.clip(lens - r0, 0, r1 - r0).astype(np.int64), go[rs], (lb & started)[rs],
+                             restart[rs], lead_out[at], lead_std[at],
                              lead_covariance[at] if record_covariance else empty4)
         if record_experts:
             experts_out[begin:end] = buffer

@@ -46,7 +46,7 @@ THREADS_PER_BLOCK = 128
 _kernel_cache = {}
 forecast_expert, step_expert, delta_of = ckin.forecast_expert, ckin.step_expert, ckin._delta
 screen_row = cscreen.screen_row
-forecast_row, write_row, learn_rule = crules.forecast_row, crules.write_row, crules._learn
+forecast_row, write_row, learn_rule, cold_row = crules.forecast_row, crules.write_row, crules._learn, crules.cold_row
 
 
 def gpu_available() -> bool:
@@ -59,8 +59,9 @@ def gpu_available() -> bool:
 def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
            rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
            threshold, max_rejects, warmup, window, position, velocity, seen, spread, count, rejects, outliers,
-           points, low, high, cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale, cal_initial,
-           variance, n_errors, log_scale, z, times, lengths, learn, out, out_std, ahead_times, out_ahead, out_ahead_std):
+           points, low, low2, high, cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale,
+           cal_initial, variance, n_errors, log_scale, z, times, lengths, learn, out, out_std, ahead_times, out_ahead,
+           out_ahead_std):
     n = cuda.grid(1)
     if n >= z.shape[1]:
         return
@@ -94,21 +95,10 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
     errors_n = n_errors[:, n]
     for t in range(lengths[n]):
         code = screen_row(threshold, max_rejects, warmup, window, position, velocity, seen, spread, count,
-                          rejects, outliers, points, low, high, n, z[t, n], times[t, n], learn[t, n], False)
-        if code == 4:   # a cold restart: the rule and the calibration start again too (all start at 0)
-            for k in range(k_count):
-                a[k, n] = 0.0
-                b[k, n] = 0.0
-                c[k, n] = 0.0
-                errors_n[k] = 0.0
-                for ci in range(p):
-                    var_n[k, ci] = cal_initial
-            dn[0] = 0.0
-            en[0] = 0.0
-            ls[0] = 0.0
+                          rejects, outliers, points, low, low2, high, n, z[t, n], times[t, n], learn[t, n], False)
         # every expert's forecast of the row, and its learning from the same extrapolation
-        learning = code != 0
-        fresh = code == 2 or code == 4 or not initialised[n]
+        learning = code == 1 or code == 2 or code == 4
+        fresh = code == 2 or not initialised[n]
         for k in range(k_count):
             delta = delta_of(times[t, n], last_time[n], time_unit[k], max_step)
             step_expert(orders[k], delta, q[k], r[k], initial[k], max_variance, initialised[n], learning, fresh,
@@ -124,6 +114,8 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
                           cal_level, z_level, cal_max_variance, max_log_scale)
             learn_rule(rule, forgetting, share, scale, scale_factor, bound_forgetting, a[:, n], b[:, n], c[:, n], dn,
                        en, x, z[t, n], awake, awake_count, w, mix, rr)
+        if code == 4:   # a cold restart: forecast by the old rule and calibration, which start again
+            cold_row(a[:, n], b[:, n], c[:, n], dn, en, var_n, errors_n, ls, cal_initial)
         if want_ahead:
             for k in range(k_count):
                 if initialised[n]:
@@ -228,7 +220,8 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         device["mean"], device["cov"], device["last_time"], device["initialised"],
         *_rule_scalars(bank), device["a"], device["b"], device["c"], device["d"], device["e"],
         float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window), *screen_dev,
-        *pack_calibration(bank.calibration_params), float(bank.calibration_params.initial_variance), device["variance"], device["n_errors"], device["log_scale"],
+        *pack_calibration(bank.calibration_params), float(bank.calibration_params.initial_variance),
+        device["variance"], device["n_errors"], device["log_scale"],
         device["z"], device["times"], device["lengths"], device["learn"], out, out_std, device["ahead_times"],
         out_ahead, out_ahead_std)
     cuda.synchronize()

@@ -16,31 +16,40 @@ from ._cache import KERNEL_JIT, configure_cache
 
 configure_cache()
 
-#: :func:`screen_row` results (GAP: a restart asked for on a missing row; COLD: the first present row after a
-#: warm-up that held a glitch, where the families, the rule and the calibration all start again).
+#: :func:`screen_row` results (GAP: a restart asked for on a missing row; COLD: an accepted row that ends a
+#: warm-up which held a glitch: the rule and the calibration start again before it, the families at the next
+#: present row, a RESTART).
 SKIP, ACCEPT, RESTART, GAP, COLD = 0, 1, 2, 3, 4
 
 
 @nb.njit(inline="always", **_JIT)
+def _pending(n, low, low2, high):
+    """Target ``n``'s next warm-up is audited (:mod:`kalmix.core.screen`)."""
+    low[n] = np.inf
+    low2[n] = np.inf
+    high[n] = 0.0
+
+
+@nb.njit(inline="always", **_JIT)
 def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
-               outliers, points, low, high, n, z, time, present, gap):
+               outliers, points, low, low2, high, n, z, time, present, gap):
     """Screen target ``n``'s row ``z`` at ``time``: SKIP (missing or outlier), ACCEPT, RESTART (the screen's or
-    a ``gap``), GAP (a gap on a missing row: start again from the next row) or COLD (see :data:`COLD`)."""
+    a ``gap``), GAP (a gap on a missing row: start again from the next row), COLD or COLD_GAP (see above)."""
     p = z.shape[0]
-    cold = points[n] < 0   # the warm-up held a glitch: everything starts again at the next present row
-    if gap or (cold and present):
+    pending = points[n] < 0   # the warm-up held a glitch: the families start again at the next present row
+    if gap or (pending and present):
         for c in range(p):
             velocity[n, c] = 0.0
         rejects[n] = 0.0
         if not present:
-            if not cold:
+            if not pending:
                 points[n] = 0.0
             return GAP
         points[n] = 1.0
         for c in range(p):
             position[n, c] = z[c]
         last_time[n] = time
-        return COLD if cold else RESTART
+        return RESTART
     if not present:
         return SKIP
     started = points[n] >= 1
@@ -53,7 +62,7 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
         diff = z[c] - (position[n, c] + velocity[n, c] * dt)
         acc += diff * diff
     distance = math.sqrt(acc)
-    wild = moving and count[n] >= warmup and scale[n] > 0 and not (distance <= threshold * scale[n])
+    wild = moving and count[n] >= warmup and not (distance <= threshold * scale[n])
     rejected = 0.0
     if wild:
         rejected = rejects[n] + 1.0
@@ -66,45 +75,58 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
         for c in range(p):
             velocity[n, c] = 0.0
         points[n] = 1.0
+        if not scale[n] > 0:   # at rest through its warm-up, now moving: learn the scale again
+            count[n] = 0.0
+            scale[n] = 0.0
+            _pending(n, low, low2, high)
     else:
-        audit = False
+        glitch = False
         if moving and math.isfinite(distance):
             count[n] = min(count[n] + 1.0, window)
             scale[n] = scale[n] + (distance - scale[n]) / count[n]
-            if not math.isnan(high[n]):   # the warm-up's extreme distances, until its audit (NaN: done)
-                low[n] = min(low[n], distance)
+            if not math.isnan(high[n]):   # the warm-up audit (see kalmix.core.screen)
+                if distance > 0:
+                    if distance < low[n]:
+                        low2[n] = low[n]
+                        low[n] = distance
+                    elif distance < low2[n]:
+                        low2[n] = distance
                 high[n] = max(high[n], distance)
                 if count[n] >= warmup:
-                    audit = high[n] > threshold * low[n]
+                    glitch = high[n] > threshold * low2[n]
                     low[n] = np.nan
+                    low2[n] = np.nan
                     high[n] = np.nan
         if started and dt > 0:
             for c in range(p):
                 velocity[n, c] = (z[c] - position[n, c]) / dt
         points[n] = min(points[n] + 1.0, 2.0)
-        if audit:   # a glitch in the warm-up: learn the scale again, start everything again at the next row
+        if glitch:   # the warm-up held a glitch: learn the scale again; restart cold
             count[n] = 0.0
             scale[n] = 0.0
             outliers[n] += 1.0
             points[n] = -1.0
+            _pending(n, low, low2, high)
     rejects[n] = 0.0
     for c in range(p):
         position[n, c] = z[c]
     last_time[n] = time
-    return RESTART if is_restart else ACCEPT
+    if is_restart:
+        return RESTART
+    return COLD if points[n] < 0 else ACCEPT
 
 
 @nb.njit(**KERNEL_JIT)
 def screen_block(lo, hi, threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
-                 outliers, points, low, high, z, times, lengths, present, gaps, accept, restart, started, cold):
+                 outliers, points, low, low2, high, z, times, lengths, present, gaps, accept, restart, started, cold):
     """Every row of a block; ``started[t, n]``: target ``n`` had an accepted row (since a restart) before row t;
     ``cold[t, n]``: a COLD row (the rule and the calibration start again before it)."""
     for n in range(lo, hi):
         for t in range(lengths[n]):
             started[t, n] = points[n] >= 1.0
             code = screen_row(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count,
-                              rejects, outliers, points, low, high, n, z[t, n], times[t, n], present[t, n],
+                              rejects, outliers, points, low, low2, high, n, z[t, n], times[t, n], present[t, n],
                               gaps[t, n])
             accept[t, n] = code == ACCEPT or code == RESTART or code == COLD
-            restart[t, n] = code == RESTART or code == GAP or code == COLD
+            restart[t, n] = code == RESTART or code == GAP
             cold[t, n] = code == COLD
