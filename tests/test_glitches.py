@@ -91,68 +91,82 @@ def test_the_warm_up_audit_in_both_engines_resumed_anywhere(kind, rule, lead):
         assert np.array_equal(np.concatenate([first.forecasts, second.forecasts]), fast.forecasts, equal_nan=True)
 
 
-@pytest.mark.parametrize("start, outliers", [(5, 0), (7, 2), (30, 2)])
-def test_a_target_at_rest_that_starts_to_move(start, outliers):
-    """A target at rest, the same position on every row (a moored vessel, quantised positions), until ``start``.
+@pytest.mark.parametrize("start", [5, 7, 30])
+@pytest.mark.parametrize("unit", [1.0, 0.01])
+def test_a_target_at_rest_that_starts_to_move(start, unit):
+    """A target at rest, the same position on every row (a moored vessel, a ball before a kick, quantised
+    positions), until ``start``; in metres or in centimetres as metres (unit 0.01: the "same" position then
+    differs by rounding, ~1e-15).
 
-    Through its whole warm-up (start 7, 30) the screen's scale is 0, so every move is an outlier. The first two
-    moving rows were, and the third restarted the track, but its scale stayed 0: two rows of three were rejected
-    for good (42 of 83; errors up to 5.8). A restart at scale 0 now learns the scale again. Moving within the
-    warm-up (start 5): its distances are 0, 0, 0, 1, 0.3, no glitch for the audit (the second smallest non-zero
-    one is the track's scale, not the 0s)."""
+    Through its whole warm-up (start 7, 30) the screen's scale was 0, so every move was an outlier: two rows of
+    three were rejected, for good (42 of 83; errors up to 5.8). Testing the second and third moves at scale 0
+    and restarting there cost a kick from rest 3.2x its RMS. The screen now tests a row only once its scale is
+    above rounding, and the audit takes no distance of 0 (or rounding) for the track's scale."""
     t = np.arange(90, dtype=float)[:, None]
-    z = np.zeros((90, 1, 2))
-    z[start:, 0, 0] = 1.0 + np.arange(90 - start) * 0.5 + np.sin(np.arange(90 - start))
-    bank = make_bank(2, "kinematic", length_unit=0.3, time_unit=1.0)
+    z = np.full((90, 1, 2), [17.0, 3.0]) * unit
+    z[start:, 0, 0] += (1.0 + np.arange(90 - start) * 0.5 + np.sin(np.arange(90 - start))) * unit
+    bank = make_bank(2, "kinematic", length_unit=0.3 * unit, time_unit=1.0)
     result = ce.run(bank, z, t)
-    assert result.state.screen.outliers.tolist() == [outliers]
-    assert result.state.screen.count[0] > 20
-    errors = np.abs(result.forecasts - z)[start + 12:, 0]
+    assert result.state.screen.outliers.tolist() == [0]
+    errors = np.abs(result.forecasts - z)[start + 12:, 0] / unit
     assert errors.max() < 3.0       # tracked: the motion's own extrapolation error is ~1
     np.testing.assert_array_equal(result.forecasts, engine.run(bank, z, t).forecasts)
 
 
-@pytest.mark.parametrize("size", [1e3, 1e6])
-def test_a_glitch_on_a_target_at_rest_is_an_outlier(size):
-    """At rest (scale 0) a glitch is an outlier (any move is), and the real start later is tracked."""
-    from kalmix.bank import DEFAULT_BANK
+def test_a_slow_pixel_target_is_not_rejected():
+    """A target moving one pixel every 10 or 20 rows (distances 0 but at a step): its scale stays ~0 for the
+    screen, which tests nothing; it was rejected twice and restarted at every step (15.5 outliers a track)."""
+    t = np.arange(200, dtype=float)[:, None]
+    for every in (10, 20):
+        z = np.stack([100.0 + np.arange(200) // every, np.full(200, 50.0)], axis=-1)[:, None]
+        assert ce.run(make_bank(2, "kinematic", length_unit=1.0, time_unit=1.0), z, t).state.screen.outliers == 0
 
-    rng = np.random.default_rng(0)
-    t = np.arange(150, dtype=float)[:, None]
-    z = np.full((150, 1, 2), [5.0, 7.0])
-    z[60:, 0] += (np.cumsum(np.cumsum(rng.normal(0, .05, (90, 2)), 0), 0) + np.arange(90)[:, None] * .5
-                  + rng.normal(0, .3, (90, 2)))
-    glitched = z.copy()
-    glitched[40, 0] += size
-    bank = make_bank(2, length_unit=0.3, time_unit=1.0, **DEFAULT_BANK)
-    hit, clean = ce.run(bank, glitched, t), ce.run(bank, z, t)
-    np.testing.assert_allclose(hit.forecasts[41, 0], [5.0, 7.0], atol=1e-3)
-    rms = lambda r: np.sqrt(np.mean((r.forecasts[65:] - z[65:]) ** 2))  # noqa: E731
-    assert rms(hit) <= 1.01 * rms(clean)
-    assert hit.state.screen.outliers[0] == clean.state.screen.outliers[0] + 1
+
+def test_no_screen_rejects_nothing():
+    """``outlier_threshold=inf``: nothing is an outlier, not even a move of a target at rest (inf x 0 is NaN)."""
+    t = np.arange(60, dtype=float)[:, None]
+    z = np.zeros((60, 1, 2))
+    z[30:, 0, 0] = np.arange(30) * 0.5
+    bank = make_bank(2, "kinematic", length_unit=0.3, time_unit=1.0, outlier_threshold=np.inf)
+    assert ce.run(bank, z, t).state.screen.outliers == 0
 
 
 @pytest.mark.parametrize("p", [1, 2, 3])
 def test_clean_tracks_are_not_taken_for_glitches(p):
-    """The audit on clean tracks (2,000 each): quantised positions (integer pixels, where distances of exactly 0
-    are common) and 1-D random walks (where one of five distances is often tiny). With the smallest distance
-    as the track's scale it fired on 30-80 % of the pixel tracks and 0.45 % of the 1-D walks. (A slow pixel
-    track that has not moved by a pixel through its warm-up is at rest for the screen: its first two moving
-    rows are outliers, then it restarts, as a relocation.)"""
+    """The audit on clean tracks (2,000 of each): quantised positions (integer pixels, and the same in tenths,
+    where a distance of 0 is rounding, ~1e-15) and random walks. With 0 taken for the track's scale it fired on
+    30-80 % of the pixel tracks and 5-30 % of the tenths; now on none. On 1-D walks, where one of five distances
+    is now and then tiny, it fires on 0.57 % of tracks (20,000 measured; a cold restart at their 7th row), on
+    none for p = 2, 3: the price of comparing with the smallest distance, which catches two glitches in one
+    warm-up (the second smallest missed them)."""
+    from kalmix.core import screen
+
     rng = np.random.default_rng(p)
     n, t_count = 2000, 20
     t = np.broadcast_to(np.arange(t_count, dtype=float)[:, None], (t_count, n))
     speed = rng.uniform(0.3, 2, (1, n, p)) * rng.choice([-1, 1], (1, n, p))
     pixels = np.round(100 + np.arange(t_count)[:, None, None] * speed + rng.normal(0, 0.2, (t_count, n, p)))
     walks = np.cumsum(rng.normal(0, 1, (t_count, n, p)), axis=0) * 0.5 + rng.normal(0, 0.3, (t_count, n, p))
-    from kalmix.core import screen
-
-    for z in (pixels, walks):
+    for z, most in ((pixels, 0), (pixels / 10, 0), (walks, 0.015 * n if p == 1 else 0)):
         state, audits = screen.init(n, p), 0
         for row in range(t_count):
             state, _, _, cold = screen.screen(screen.ScreenParams(), state, z[row], t[row], np.ones(n, bool))
             audits += int(cold.sum())
-        assert audits == 0
+        assert audits <= most
+
+
+@pytest.mark.parametrize("rows, size", [((2, 3), 1e3), ((3, 6), 1e3), ((3,), 1e300), ((5,), 1e200)])
+def test_two_glitches_or_one_beyond_1e154_in_the_warm_up(rows, size):
+    """Two glitches spoil four of the five distances (a two-row glitch too); a glitch beyond ~1.3e154 makes its
+    distance overflow, and it was neither learned nor audited (errors ~1e290 at row 149)."""
+    from kalmix.bank import DEFAULT_BANK
+
+    z, t = _warm_up_track()
+    bank = make_bank(2, length_unit=0.3, time_unit=1.0, **DEFAULT_BANK)
+    glitched = z.copy()
+    glitched[list(rows)] += size
+    rms = lambda r: np.sqrt(np.mean((r.forecasts[20:] - z[20:]) ** 2))  # noqa: E731
+    assert rms(ce.run(bank, glitched, t)) <= 1.02 * rms(ce.run(bank, z, t))
 
 
 def test_a_second_glitch_in_the_second_warm_up_is_found_too():

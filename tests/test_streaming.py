@@ -120,7 +120,7 @@ def test_version_4_files_resume_as_they_ran(tmp_path):
     meta = json.loads(str(archive["meta"]))
     assert meta["format_version"] == 7
     meta["format_version"] = 4
-    for name in ("state/lead/issued", "state/screen/low", "state/screen/low2", "state/screen/high"):
+    for name in ("state/lead/issued", "state/screen/low", "state/screen/high"):
         del archive[name]
     del meta["config"]["rule_options"]
     np.savez(tmp_path / "v4.npz", **{**archive, "meta": np.array(json.dumps(meta))})
@@ -147,7 +147,7 @@ def test_version_5_files_resume_without_issued_intervals(tmp_path):
     assert np.isfinite(archive["state/lead/issued"]).any()   # forecasts were pending at the save
     meta = json.loads(str(archive["meta"]))
     meta["format_version"] = 5
-    for name in ("state/lead/issued", "state/screen/low", "state/screen/low2", "state/screen/high"):
+    for name in ("state/lead/issued", "state/screen/low", "state/screen/high"):
         del archive[name]
     np.savez(tmp_path / "v5.npz", **{**archive, "meta": np.array(json.dumps(meta))})
     second = TrackPredictor.load(tmp_path / "v5.npz")
@@ -178,7 +178,7 @@ def test_version_6_files_resume_without_the_warm_up_audit(tmp_path):
         archive = dict(np.load(tmp_path / "s.npz"))
         meta = json.loads(str(archive["meta"]))
         meta["format_version"] = 6
-        for name in ("state/screen/low", "state/screen/low2", "state/screen/high"):
+        for name in ("state/screen/low", "state/screen/high"):
             del archive[name]
         np.savez(tmp_path / "v6.npz", **{**archive, "meta": np.array(json.dumps(meta))})
         second = TrackPredictor.load(tmp_path / "v6.npz")

@@ -12,25 +12,26 @@ switch, a relocation): that row is accepted as a **restart** (the families start
 from it, as after a time gap; the rule keeps what it learned).
 
 The screen sees only measurements and times, so it is the same whatever the bank, and
-it needs no knowledge of the data's units: ``s`` is learned per target. A target at rest
-through its warm-up (the same position on every row: a moored vessel, quantised positions)
-has ``s = 0``: a glitch is then an outlier, and a real start is too, until the third moving
-row restarts the target; that restart also learns ``s`` again (else every move would be an
-outlier for good).
+it needs no knowledge of the data's units: ``s`` is learned per target. A distance below
+``ZERO`` (1e-9) of the last accepted position's largest coordinate is rounding, i.e. 0. The screen tests a row
+only once ``s`` is above that: a target at rest through its warm-up (the same position on
+every row: a moored vessel, a ball before a kick, quantised positions) has ``s = 0``, and
+every move would be an outlier; its first moves are learned instead (so a glitch on a
+target at rest is learned too: with no motion there is no scale to judge it by).
 
 **The warm-up audit.** The rows that teach ``s`` are not tested, so a glitch among a
 target's first ~7 rows would be learned by everything: the scale, the experts (whose fits
 keep it), the rule (BOA's cumulative variance, which never forgets, would freeze its
 learning rates) and the calibration. So once ``s`` has its ``warmup`` distances, they are
-audited: if the largest is more than ``threshold`` times the second smallest non-zero one,
-the warm-up held a glitch. (A glitch of size G puts two or three of the distances at G to
-2G and leaves the others clean; the second smallest, not the smallest, so that one tiny
-distance of 1-D data does not pass for the track's scale; non-zero, so that a distance of
-exactly 0, which quantised positions give often, does not either.) Then the glitch is
-counted as an outlier, ``s`` is learned again, the rule and the calibration start again
-before the row is forecast, as for a new target (a **cold** restart; they do not learn the
-row), and the families at the target's next present row. Every warm-up is audited: a
-target's first one, and those after an audit or a restart at rest.
+audited: if the largest is more than ``threshold`` times the smallest non-zero one (or is
+not finite: a glitch beyond 1e154 overflows it), the warm-up held a glitch. (A glitch of size
+G puts two or three of the distances at G to 2G and leaves the others clean; non-zero,
+because quantised positions give distances of exactly 0.) Then the glitch is counted as an
+outlier, ``s`` is learned again, and the row is a **cold restart**: it is forecast by the
+rule and the calibration the target had, which then start again, as for a new target (they
+do not learn the row; what is forecast after it uses the new ones), and the families start
+again at the target's next present row. Every warm-up is audited: a target's first, and the
+one after an audit.
 """
 
 from __future__ import annotations
@@ -41,7 +42,11 @@ import numpy as np
 
 from ._libm import ordered_sum
 
-__all__ = ["ScreenParams", "ScreenState", "init", "screen"]
+__all__ = ["ScreenParams", "ScreenState", "init", "screen", "ZERO"]
+
+#: A distance below this fraction of the last accepted position's largest coordinate (in absolute value) is
+#: rounding: 0.
+ZERO = 1e-9
 
 
 class ScreenParams(NamedTuple):
@@ -60,9 +65,8 @@ class ScreenState(NamedTuple):
     rejects: np.ndarray    # (N,) outliers in a row
     outliers: np.ndarray   # (N,) outliers so far
     points: np.ndarray     # (N,) accepted rows since the (re)start, capped at 2 (2: the velocity is known);
-    #                        -1: the warm-up held a glitch, a cold restart at the next row
-    low: np.ndarray        # (N,) smallest non-zero distance of the warm-up (NaN once audited)
-    low2: np.ndarray       # (N,) second smallest non-zero distance of the warm-up (NaN once audited)
+    #                        -1: the warm-up held a glitch, the families start again at the next present row
+    low: np.ndarray        # (N,) smallest non-zero distance of the warm-up (inf before one; NaN once audited)
     high: np.ndarray       # (N,) largest distance of the warm-up (NaN once audited)
 
 
@@ -70,7 +74,7 @@ def init(n_targets: int, measurement_dim: int) -> ScreenState:
     return ScreenState(np.full((n_targets, measurement_dim), np.nan), np.zeros((n_targets, measurement_dim)),
                        np.full(n_targets, np.nan), np.zeros(n_targets), np.zeros(n_targets),
                        np.zeros(n_targets), np.zeros(n_targets), np.zeros(n_targets),
-                       np.full(n_targets, np.inf), np.full(n_targets, np.inf), np.zeros(n_targets))
+                       np.full(n_targets, np.inf), np.zeros(n_targets))
 
 
 def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None):
@@ -83,8 +87,8 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
     learn it; the families start again at the target's next present row (a restart).
     """
     gap = np.zeros(len(present), dtype=bool) if gap is None else np.asarray(gap, dtype=bool)
-    pending = state.points < 0    # the warm-up held a glitch: the families start again at the next present row
-    gap = gap | (pending & present)
+    pending_restart = state.points < 0   # the warm-up held a glitch: the families start again at the next row
+    gap = gap | (pending_restart & present)
     started = state.points >= 1
     moving = state.points >= 2
     dt = np.where(started, time - state.time, 0.0)
@@ -92,12 +96,13 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
     with np.errstate(over="ignore", invalid="ignore"):
         guess = state.position + state.velocity * dt[:, None]
         distance = np.sqrt(ordered_sum((z - guess) ** 2))   # in index order, as the kernel adds
-    checked = present & moving & (state.count >= params.warmup) & ~gap
     with np.errstate(invalid="ignore"):
+        # the last accepted position's largest coordinate (a glitch must not set it); the max is exact in any order
+        tiny = ZERO * np.where(moving, np.max(np.abs(np.where(moving[:, None], state.position, 0.0)), axis=-1), 0.0)
+        checked = present & moving & (state.count >= params.warmup) & (state.scale > tiny) & ~gap
         wild = checked & ~(distance <= params.threshold * state.scale)
     rejects = np.where(wild, state.rejects + 1, 0.0)
-    moved = wild & (rejects >= params.max_rejects)
-    restart = moved | gap
+    restart = (wild & (rejects >= params.max_rejects)) | gap
     outlier = wild & ~restart
     accept = present & ~outlier
     # accepted, not a restart: learn the distance and the velocity
@@ -108,32 +113,28 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
         step = (z - state.position) / np.where(dt > 0, dt, 1.0)[:, None]
     velocity = np.where((accept & started & ~restart & (dt > 0))[:, None], step, state.velocity)
     velocity = np.where(restart[:, None], 0.0, velocity)
-    # the warm-up audit (see the module docstring): the two smallest non-zero distances and the largest
-    auditing = learn & ~np.isnan(state.high)
-    nonzero = auditing & (distance > 0)
-    smaller = nonzero & (distance < state.low)
-    between = nonzero & ~smaller & (distance < state.low2)
-    low2 = np.where(smaller, state.low, np.where(between, distance, state.low2))
-    low = np.where(smaller, distance, state.low)
+    # the warm-up audit (see the module docstring): the smallest non-zero distance and the largest (inf for one
+    # that overflowed)
+    pending = ~np.isnan(state.high)
+    auditing = learn & pending
+    with np.errstate(invalid="ignore"):
+        low = np.where(auditing & (distance > tiny), np.minimum(state.low, distance), state.low)
     high = np.where(auditing, np.maximum(state.high, distance), state.high)
+    high = np.where(accept & moving & ~restart & pending & ~np.isfinite(distance), np.inf, high)
     audited = auditing & (count >= params.warmup)
-    glitch = audited & (high > params.threshold * low2)
-    # a restart of a target whose scale is 0 (at rest through its warm-up, now moving) learns the scale again
-    rewarm = glitch | (moved & ~(state.scale > 0))
-    points = np.where(restart, np.where(present, 1.0, np.where(pending, -1.0, 0.0)),
+    glitch = audited & (high > params.threshold * low)
+    points = np.where(restart, np.where(present, 1.0, np.where(pending_restart, -1.0, 0.0)),
                       np.where(accept, np.minimum(state.points + 1, 2.0), state.points))
-    done = lambda value: np.where(rewarm, value[0], np.where(audited, np.nan, value[1]))  # noqa: E731
     new = ScreenState(
         position=np.where(accept[:, None], z, state.position),
         velocity=velocity,
         time=np.where(accept, time, state.time),
-        scale=np.where(rewarm, 0.0, scale),
-        count=np.where(rewarm, 0.0, count),
+        scale=np.where(glitch, 0.0, scale),
+        count=np.where(glitch, 0.0, count),
         rejects=np.where(present | gap, np.where(restart, 0.0, rejects), state.rejects),
         outliers=state.outliers + outlier + glitch,
         points=np.where(glitch, -1.0, points),
-        low=done((np.inf, low)),
-        low2=done((np.inf, low2)),
-        high=done((0.0, high)),
+        low=np.where(glitch, np.inf, np.where(audited, np.nan, low)),
+        high=np.where(glitch, 0.0, np.where(audited, np.nan, high)),
     )
     return new, accept, restart, glitch

@@ -59,7 +59,7 @@ def gpu_available() -> bool:
 def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
            rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
            threshold, max_rejects, warmup, window, position, velocity, seen, spread, count, rejects, outliers,
-           points, low, low2, high, cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale,
+           points, low, high, cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale,
            cal_initial, variance, n_errors, log_scale, z, times, lengths, learn, out, out_std, ahead_times, out_ahead,
            out_ahead_std):
     n = cuda.grid(1)
@@ -95,7 +95,7 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
     errors_n = n_errors[:, n]
     for t in range(lengths[n]):
         code = screen_row(threshold, max_rejects, warmup, window, position, velocity, seen, spread, count,
-                          rejects, outliers, points, low, low2, high, n, z[t, n], times[t, n], learn[t, n], False)
+                          rejects, outliers, points, low, high, n, z[t, n], times[t, n], learn[t, n], False)
         # every expert's forecast of the row, and its learning from the same extrapolation
         learning = code == 1 or code == 2 or code == 4
         fresh = code == 2 or not initialised[n]

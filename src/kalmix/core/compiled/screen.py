@@ -11,6 +11,7 @@ import math
 import numba as nb
 import numpy as np
 
+from ..screen import ZERO
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
 
@@ -23,18 +24,10 @@ SKIP, ACCEPT, RESTART, GAP, COLD = 0, 1, 2, 3, 4
 
 
 @nb.njit(inline="always", **_JIT)
-def _pending(n, low, low2, high):
-    """Target ``n``'s next warm-up is audited (:mod:`kalmix.core.screen`)."""
-    low[n] = np.inf
-    low2[n] = np.inf
-    high[n] = 0.0
-
-
-@nb.njit(inline="always", **_JIT)
 def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
-               outliers, points, low, low2, high, n, z, time, present, gap):
+               outliers, points, low, high, n, z, time, present, gap):
     """Screen target ``n``'s row ``z`` at ``time``: SKIP (missing or outlier), ACCEPT, RESTART (the screen's or
-    a ``gap``), GAP (a gap on a missing row: start again from the next row), COLD or COLD_GAP (see above)."""
+    a ``gap``), GAP (a gap on a missing row: start again from the next row) or COLD (see above)."""
     p = z.shape[0]
     pending = points[n] < 0   # the warm-up held a glitch: the families start again at the next present row
     if gap or (pending and present):
@@ -62,7 +55,12 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
         diff = z[c] - (position[n, c] + velocity[n, c] * dt)
         acc += diff * diff
     distance = math.sqrt(acc)
-    wild = moving and count[n] >= warmup and not (distance <= threshold * scale[n])
+    size = 0.0
+    if moving:
+        for c in range(p):
+            size = max(size, abs(position[n, c]))
+    tiny = ZERO * size   # a distance below it is rounding: 0
+    wild = moving and count[n] >= warmup and scale[n] > tiny and not (distance <= threshold * scale[n])
     rejected = 0.0
     if wild:
         rejected = rejects[n] + 1.0
@@ -75,28 +73,21 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
         for c in range(p):
             velocity[n, c] = 0.0
         points[n] = 1.0
-        if not scale[n] > 0:   # at rest through its warm-up, now moving: learn the scale again
-            count[n] = 0.0
-            scale[n] = 0.0
-            _pending(n, low, low2, high)
     else:
         glitch = False
         if moving and math.isfinite(distance):
             count[n] = min(count[n] + 1.0, window)
             scale[n] = scale[n] + (distance - scale[n]) / count[n]
             if not math.isnan(high[n]):   # the warm-up audit (see kalmix.core.screen)
-                if distance > 0:
-                    if distance < low[n]:
-                        low2[n] = low[n]
-                        low[n] = distance
-                    elif distance < low2[n]:
-                        low2[n] = distance
+                if distance > tiny:
+                    low[n] = min(low[n], distance)
                 high[n] = max(high[n], distance)
                 if count[n] >= warmup:
-                    glitch = high[n] > threshold * low2[n]
+                    glitch = high[n] > threshold * low[n]
                     low[n] = np.nan
-                    low2[n] = np.nan
                     high[n] = np.nan
+        elif moving and not math.isnan(high[n]):   # a distance that overflowed: a glitch beyond 1e154
+            high[n] = np.inf
         if started and dt > 0:
             for c in range(p):
                 velocity[n, c] = (z[c] - position[n, c]) / dt
@@ -106,7 +97,8 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
             scale[n] = 0.0
             outliers[n] += 1.0
             points[n] = -1.0
-            _pending(n, low, low2, high)
+            low[n] = np.inf   # the next warm-up is audited too
+            high[n] = 0.0
     rejects[n] = 0.0
     for c in range(p):
         position[n, c] = z[c]
@@ -118,14 +110,14 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
 
 @nb.njit(**KERNEL_JIT)
 def screen_block(lo, hi, threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
-                 outliers, points, low, low2, high, z, times, lengths, present, gaps, accept, restart, started, cold):
+                 outliers, points, low, high, z, times, lengths, present, gaps, accept, restart, started, cold):
     """Every row of a block; ``started[t, n]``: target ``n`` had an accepted row (since a restart) before row t;
     ``cold[t, n]``: a COLD row (the rule and the calibration start again before it)."""
     for n in range(lo, hi):
         for t in range(lengths[n]):
             started[t, n] = points[n] >= 1.0
             code = screen_row(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count,
-                              rejects, outliers, points, low, low2, high, n, z[t, n], times[t, n], present[t, n],
+                              rejects, outliers, points, low, high, n, z[t, n], times[t, n], present[t, n],
                               gaps[t, n])
             accept[t, n] = code == ACCEPT or code == RESTART or code == COLD
             restart[t, n] = code == RESTART or code == GAP
