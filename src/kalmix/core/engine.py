@@ -21,6 +21,9 @@ same numbers fast, and is what every command uses):
   the screen's restarts: the row is forecast by the old state, the families start from
   it (from the next present row if it is missing), the rule and the calibration keep
   what they learned (a warm start);
+- a row that ends a warm-up which held a glitch (the screen's audit) is a **cold** restart
+  (:func:`cold_start`): forecast by the old state, then the rule, the calibration and the
+  lead head's start again, without learning it; the families at the next present row;
 - output ``forecasts[t]`` is the mixture's forecast of row ``t`` made *before* seeing
   it (so the one-step error is ``measurements[t] - forecasts[t]``), ``std[t]`` its
   calibrated standard deviation per coordinate (:mod:`kalmix.core.calibration`); with
@@ -51,8 +54,7 @@ from . import screen as glitch
 from .families import akf, ar, kinematic, turn
 
 __all__ = ["Family", "Bank", "BankState", "EngineResult", "StepOutput", "init_bank_state", "run", "step", "forecast",
-           "cold_start",
-           "FAMILY_KINDS", "FAMILY_MODULES", "check_run_arguments"]
+           "cold_start", "FAMILY_KINDS", "FAMILY_MODULES", "check_run_arguments"]
 
 #: Family kinds: kinematic CV / CA, adaptive AR of the velocity and coordinated turns in real time,
 #: and the paper's AKF (frame-based).
