@@ -83,8 +83,8 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
     ``gap (N,)`` asks for a restart at this row (a time gap): the row is not tested; if it
     is missing, the screen (and the families) start again from the next present row.
     ``cold``: an accepted row that ends a warm-up which held a glitch (see the module
-    docstring): the rule and the calibration start again before it is forecast, and do not
-    learn it; the families start again at the target's next present row (a restart).
+    docstring): it is forecast by the rule and the calibration, which then start again without
+    learning it; the families start again at the target's next present row (a restart).
     """
     gap = np.zeros(len(present), dtype=bool) if gap is None else np.asarray(gap, dtype=bool)
     pending_restart = state.points < 0   # the warm-up held a glitch: the families start again at the next row

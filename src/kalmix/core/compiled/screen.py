@@ -18,8 +18,8 @@ from ._cache import KERNEL_JIT, configure_cache
 configure_cache()
 
 #: :func:`screen_row` results (GAP: a restart asked for on a missing row; COLD: an accepted row that ends a
-#: warm-up which held a glitch: the rule and the calibration start again before it, the families at the next
-#: present row, a RESTART).
+#: warm-up which held a glitch: it is forecast by the rule and the calibration, which then start again without
+#: learning it; the families start again at the next present row, a RESTART).
 SKIP, ACCEPT, RESTART, GAP, COLD = 0, 1, 2, 3, 4
 
 
@@ -112,7 +112,7 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
 def screen_block(lo, hi, threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
                  outliers, points, low, high, z, times, lengths, present, gaps, accept, restart, started, cold):
     """Every row of a block; ``started[t, n]``: target ``n`` had an accepted row (since a restart) before row t;
-    ``cold[t, n]``: a COLD row (the rule and the calibration start again before it)."""
+    ``cold[t, n]``: a COLD row (the rule and the calibration start again once it is forecast)."""
     for n in range(lo, hi):
         for t in range(lengths[n]):
             started[t, n] = points[n] >= 1.0
