@@ -98,7 +98,7 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
         distance = np.sqrt(ordered_sum((z - guess) ** 2))   # in index order, as the kernel adds
     with np.errstate(invalid="ignore"):
         # the last accepted position's largest coordinate (a glitch must not set it); the max is exact in any order
-        tiny = ZERO * np.where(moving, np.max(np.abs(np.where(moving[:, None], state.position, 0.0)), axis=-1), 0.0)
+        tiny = ZERO * np.max(np.abs(np.where(moving[:, None], state.position, 0.0)), axis=-1)
         checked = present & moving & (state.count >= params.warmup) & (state.scale > tiny) & ~gap
         wild = checked & ~(distance <= params.threshold * state.scale)
     rejects = np.where(wild, state.rejects + 1, 0.0)
@@ -106,7 +106,8 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
     outlier = wild & ~restart
     accept = present & ~outlier
     # accepted, not a restart: learn the distance and the velocity
-    learn = accept & moving & ~restart & np.isfinite(distance)
+    kept = accept & moving & ~restart
+    learn = kept & np.isfinite(distance)
     count = np.where(learn, np.minimum(state.count + 1, params.window), state.count)
     with np.errstate(invalid="ignore", divide="ignore"):
         scale = np.where(learn, state.scale + (distance - state.scale) / np.where(learn, count, 1.0), state.scale)
@@ -120,7 +121,7 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
     with np.errstate(invalid="ignore"):
         low = np.where(auditing & (distance > tiny), np.minimum(state.low, distance), state.low)
     high = np.where(auditing, np.maximum(state.high, distance), state.high)
-    high = np.where(accept & moving & ~restart & pending & ~np.isfinite(distance), np.inf, high)
+    high = np.where(kept & pending & ~np.isfinite(distance), np.inf, high)
     audited = auditing & (count >= params.warmup)
     glitch = audited & (high > params.threshold * low)
     points = np.where(restart, np.where(present, 1.0, np.where(pending_restart, -1.0, 0.0)),

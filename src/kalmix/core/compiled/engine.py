@@ -155,14 +155,6 @@ def _copy(state):
     return type(state)(*(np.array(x, dtype=np.float64, copy=True, order="C") for x in state))
 
 
-def _cold_start(bank: Bank, targets, rule, calibration) -> None:
-    """In place: the packed rule and calibration of ``targets (N,)`` as new (a lead head's at the screen's cold
-    restart, :func:`kalmix.core.engine.cold_start`)."""
-    fresh = init_bank_state(bank, 1)
-    for array, value in [*zip(rule, pack_rule(bank, fresh.rule, 1)), *zip(calibration, fresh.calibration)]:
-        array[targets] = value[0]
-
-
 def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
         ahead_times=None, ahead_frames: int = 1, record_experts: bool = False, score=None,
         score_ahead=None, record_covariance: bool = False, restart=None) -> EngineResult:
@@ -283,18 +275,10 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
                      w_block, ahead_buffer if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3,
                      ahead_std[begin:end] if with_ahead else empty3, cold, initial_variance)
         if lead is not None:
-            # in pieces cut before the screen's cold rows (rare: one a warm-up with a glitch), where the lead
-            # head's rule and calibration start again (a cold row scores no pending forecast)
-            cuts = sorted({0, *np.flatnonzero(cold.any(axis=1)).tolist()}) + [rows]
-            for r0, r1 in zip(cuts[:-1], cuts[1:]):
-                if cold[r0].any():
-                    _cold_start(bank, cold[r0], lead_rule, lead_cal)
-                rs, at = slice(r0, r1), slice(begin + r0, begin + r1)
-                over_targets(clead.run_block, n, *rule_args, *lead_rule, *cal_args, *lead_cal, ahead_b[rs],
-                             float(lead.tolerance), due, pending, issued, ahead_buffer[rs], zb[rs], tb[rs],
-                             np.clip(lens - r0, 0, r1 - r0).astype(np.int64), go[rs], (lb & started)[rs],
-                             restart[rs], lead_out[at], lead_std[at],
-                             lead_covariance[at] if record_covariance else empty4)
+            over_targets(clead.run_block, n, *rule_args, *lead_rule, *cal_args, *lead_cal, ahead_b,
+                         float(lead.tolerance), due, pending, issued, ahead_buffer, zb, tb, lens, go, lb & started,
+                         restart, lead_out[begin:end], lead_std[begin:end],
+                         lead_covariance[begin:end] if record_covariance else empty4, cold, initial_variance)
         if record_experts:
             experts_out[begin:end] = buffer
             weights_out[begin:end] = w_block

@@ -10,7 +10,7 @@ import numpy as np
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
 from .calibration import calibrate_issued_row
-from .rules import _copy_matrix, _learn, forecast_row, scratch, write_row
+from .rules import _copy_matrix, _learn, cold_row, forecast_row, scratch, write_row
 
 configure_cache()
 
@@ -20,23 +20,24 @@ __all__ = ["run_block"]
 def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
               due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep, restart,
-              out, out_std, out_cov):
+              out, out_std, out_cov, cold, initial_variance):
     """For every row: score the pending forecasts due at its time (``learn & ~restart`` rows), forecast
     ``due_times`` from ``ahead_experts`` with the lead weights, keep that forecast if a slot is free
     (``keep & ~restart`` rows: learned, not a target's first) with the interval it was issued with
-    (``issued``: its mean and standard deviations, the miss the calibration learns from). Targets
-    ``lo .. hi - 1``."""
+    (``issued``: its mean and standard deviations, the miss the calibration learns from). On a ``cold``
+    row (the screen's cold restart, which scores nothing) the lead rule and calibration first start
+    again (the variances at ``initial_variance``). Targets ``lo .. hi - 1``."""
     _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
                due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep, restart,
-               out, out_std, out_cov, *scratch(ahead_experts.shape[2], z.shape[2]))
+               out, out_std, out_cov, cold, float(initial_variance), *scratch(ahead_experts.shape[2], z.shape[2]))
 
 
 @nb.njit(**KERNEL_JIT)
 def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
                due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep, restart,
-               out, out_std, out_cov, awake, w, logw, r, mix, cov):
+               out, out_std, out_cov, cold, initial_variance, awake, w, logw, r, mix, cov):
     k_count = ahead_experts.shape[2]
     p = z.shape[2]
     slots = due.shape[1]
@@ -48,6 +49,8 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
         for t in range(lengths[n]):
             now = times[t, n]
             y = z[t, n]
+            if cold[t, n]:
+                cold_row(a[n], b[n], c[n], dn, en, variance[n], n_errors[n], ls, initial_variance)
             go = learn[t, n] and not restart[t, n]
             if go:
                 for s in range(slots):
