@@ -49,8 +49,11 @@ def over_targets(kernel, n_targets: int, *args) -> None:
     if threads == 1 or n_targets < 2 * MIN_CHUNK or getattr(_local, "inline", False):
         kernel(0, n_targets, *args)
         return
-    # a few ranges per thread, taken in turn, so that targets of unequal lengths still share the work
-    pieces = min(4 * threads, math.ceil(n_targets / MIN_CHUNK))
+    # a few ranges per thread, taken in turn, so that targets of unequal lengths still share the work; as many
+    # for each thread (7 ranges on 2 threads left one thread 4/7 of the work: 100 targets of 1,000 rows, default
+    # bank, 2 cores, 1.23 s a run; 6 ranges 1.11 s), each of at least MIN_CHUNK targets
+    per_thread = min(4, n_targets // (MIN_CHUNK * threads))
+    pieces = threads * per_thread if per_thread else n_targets // MIN_CHUNK
     edges = [round(i * n_targets / pieces) for i in range(pieces + 1)]
     _drain([(lo, hi) for lo, hi in zip(edges[:-1], edges[1:]) if hi > lo], lambda r: kernel(r[0], r[1], *args),
            threads)
