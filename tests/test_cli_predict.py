@@ -637,6 +637,38 @@ def test_iso_8601_times_are_seconds_since_1970_in_files_on_stdin_and_as_parquet_
     assert len(_read(piped_bad.stdout)) == 3                     # the rows before it are written
 
 
+@pytest.mark.parametrize("chunk_rows", ["200000", "7"])
+def test_a_learned_time_unit_is_the_files_first_step_in_file_order_as_on_stdin(cli, tmp_path, chunk_rows):
+    """Without --time-unit, the unit is the data's first time step. A file's rows are stepped track by track,
+    and it was learned from the first track's first step (1.0 here), while a stream of the same rows learns
+    the first step to arrive (track 101's 0.3): the lead columns differed between the file and stdin. The
+    file's unit is now the first step in file order, in one chunk or across chunks."""
+    rng = np.random.default_rng(4)
+    rows = []
+    for track, start, step in ((100, 0.0, 1.0), (101, 0.1, 0.3), (102, 0.2, 0.7)):
+        t = start + step * np.arange(30)
+        xy = np.cumsum(rng.normal(size=(30, 2)), 0) * 0.01
+        rows += [(track, round(t[i], 6), *xy[i]) for i in range(30)]
+    feed = pd.DataFrame(rows, columns=["object_id", "t", "px", "py"]).sort_values("t", kind="stable")
+    path = _write_csv(feed, tmp_path / "in.csv")
+    args = [*FAST, "--lead", "0.5", "--state"]
+    file = _run(cli, ["predict", path, "--chunk-rows", chunk_rows, *args, str(tmp_path / "f.npz")])
+    piped = _run(cli, ["predict", "-", *args, str(tmp_path / "s.npz")], input=feed.to_csv(index=False))
+    assert file.exit_code == 0 and piped.exit_code == 0, file.output + piped.output
+    file, piped = _sorted(_read(file.stdout)), _sorted(_read(piped.stdout))
+    lead = ["lead_px", "lead_py", "lead_std_px", "lead_std_py"]
+    assert np.isfinite(file[lead].to_numpy()).sum() > 300
+    np.testing.assert_array_equal(piped[["object_id", "t", "segment", *lead]], file[["object_id", "t", "segment", *lead]])
+    units = [_saved_time_unit(tmp_path / name) for name in ("f.npz", "s.npz")]
+    assert units == [pytest.approx(0.3, abs=1e-12)] * 2
+
+
+def _saved_time_unit(path):
+    from kalmix.streaming import TrackPredictor
+
+    return TrackPredictor.load(path).config.time_unit
+
+
 @pytest.mark.parametrize("name, message", [("t.jsonl", "got the JSON-lines file"), ("t.tsv", "got the tab-separated")])
 def test_a_file_input_of_another_format_is_refused_by_name(cli, tmp_path, name, message):
     """A .jsonl or .tsv INPUT was read as CSV: an error listing garbage 'columns'."""

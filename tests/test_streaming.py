@@ -557,3 +557,37 @@ def test_ids_that_are_missing_values_and_datetime_helpers():
                           "time": pd.Timestamp(0, tz="UTC") + pd.to_timedelta(np.arange(4) * 1.25, unit="s")})
     assert learned_time_unit([table], StreamConfig(length_unit=0.5)) == 1.25
     assert next_row_times([table.iloc[:2], table.iloc[2:]]) == [{"a": 2.5}, {}]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_fixing_the_time_unit_before_the_rows_that_start_tracks_changes_nothing(seed, tmp_path):
+    """``kalmix predict`` fixes a learned time unit from a chunk in file order before stepping the chunk track
+    by track (:meth:`TrackPredictor.learn_time_unit`). The rows before the first step only start tracks, so
+    that gives the numbers of learning it at that step: every output and state leaf, the same bits, on
+    interleaved tracks of different steps with a lead. And ``in_file_order`` gives back a read file's order."""
+    from kalmix.io import in_file_order, read_tracks
+
+    rng = np.random.default_rng(seed)
+    rows = []
+    for track in range(4):
+        n = int(rng.integers(2, 30))
+        t = np.round(np.cumsum(rng.uniform(0.05, 3.0, size=n)) + rng.uniform(0, 4), 3)
+        xy = np.cumsum(rng.normal(size=(n, 2)), 0) * rng.uniform(0.01, 10)
+        rows += [(track, t[i], *xy[i]) for i in range(n)]
+    table = pd.DataFrame(rows, columns=["track_id", "time", "x", "y"]).sort_values("time", kind="stable")
+    table = table.reset_index(drop=True)
+    config = dict(n_experts=6, seed=3, length_unit=0.05, lead=0.7)
+    learned = TrackPredictor(StreamConfig(**config))
+    expected = learned.process_table(table)
+    fixed = TrackPredictor(StreamConfig(**config))
+    unit = fixed.learn_time_unit(table)
+    assert unit == learned.config.time_unit and unit is not None
+    pd.testing.assert_frame_equal(fixed.process_table(table), expected, check_exact=True)
+    for track in learned.states:
+        for a, b in zip(_leaves_of(fixed.states[track]), _leaves_of(learned.states[track])):
+            assert np.array_equal(a, b, equal_nan=True)
+    table.to_csv(tmp_path / "t.csv", index=False)
+    read = read_tracks(tmp_path / "t.csv")
+    assert not read["time"].is_monotonic_increasing   # sorted by track
+    pd.testing.assert_frame_equal(in_file_order(read).reset_index(drop=True), table, check_dtype=False)
+    assert fixed.learn_time_unit(table.iloc[::-1]) == unit    # once known, it stays

@@ -13,12 +13,11 @@ a whole is derived here the same way, before the shuffle:
 - the **length unit** (``auto``): the rule of :func:`kalmix.streaming.auto_length_unit` on the
   *first chunk*, the first ``chunk_rows`` rows of the data in order (files in sorted path
   order, rows in file order), exactly the chunk a single-machine run reads first;
-- the **time unit** (when not given): the first interval the gap rule keeps, scanning that
-  chunk in the order single-machine ``predict`` steps it (its pieces, see
-  :func:`kalmix.streaming.learned_time_unit`); the partitions then get it fixed from the
-  start. A single-machine run learns it during its first piece, so the only rows it steps
-  before knowing it are rows that start a segment, whose predictions and states do not
-  depend on it (tested).
+- the **time unit** (when not given): the first interval the gap rule keeps, scanning the
+  data's rows in file order, as a stream of them learns it (and single-machine ``predict``,
+  see :meth:`kalmix.streaming.TrackPredictor.learn_time_unit`); the partitions then get it
+  fixed from the start. The rows before that interval only start tracks, whose predictions
+  and states do not depend on it (tested).
 
 Everything else is per track (the gap rule, repeated timestamps, the states), so it does not
 matter which worker holds a track. Rows of one track are put in order the same way: the rows
@@ -311,8 +310,7 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
         The length unit; why it fell back to 1 (else None); the time unit (None: no track has a
         positive time step); the first chunk's first rows (a sample of the data's types).
     """
-    from .commands._predict_run import pieces
-    from .io import to_arrays
+    from .io import in_file_order, to_arrays
     from .streaming import _length_unit_rule, learned_time_unit
 
     canon = _engine_columns(columns)
@@ -333,9 +331,8 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
     if derive_length:
         unit, why = _length_unit_rule(to_arrays(first, columns.positions).values)
     time_unit = config.time_unit
-    if time_unit is None:  # one gap rule over the chunks' pieces in order, reading on only until it is learned
-        time_unit = learned_time_unit((piece for chunk in itertools.chain([first], read) for piece in pieces(chunk)),
-                                      config)
+    if time_unit is None:  # one gap rule over the chunks' rows in file order, reading on only until it is learned
+        time_unit = learned_time_unit((in_file_order(chunk) for chunk in itertools.chain([first], read)), config)
     return unit, why, time_unit, first.iloc[:3]
 
 

@@ -877,8 +877,9 @@ class TrackPredictor:
             self.rollback(saved)
             raise
 
-    def _unit_row(self, ids, times) -> int | None:
-        """The row of a table at which the time unit would be learned (None: not in this table)."""
+    def _first_step(self, ids, times) -> tuple | None:
+        """``(row, track, step)``: the row of these rows, in this order, at which the time unit would be learned,
+        its track and the step learned (None: no such row). Nothing is changed."""
         trackers: dict = {}
         for i in range(len(ids)):
             track = _id_to_json(ids[i])
@@ -886,8 +887,36 @@ class TrackPredictor:
                 trackers[track] = self.gaps[track].copy() if track in self.gaps else GapTracker()
             trackers[track].advance(float(times[i]), self.config)
             if trackers[track].intervals:
-                return i
+                return i, track, trackers[track].intervals[0]
         return None
+
+    def _unit_row(self, ids, times) -> int | None:
+        """The row of a table at which the time unit would be learned (None: not in this table)."""
+        found = self._first_step(ids, times)
+        return None if found is None else found[0]
+
+    def learn_time_unit(self, table) -> float | None:
+        """Fix the time unit, if it is not known yet, from a table's rows in the order they arrived, without
+        stepping them; returns the time unit (None: still unknown).
+
+        :meth:`process_table` learns it from the first step of a track in its table's row order,
+        and a stream from the first in arrival order. A file's rows are stepped track by track
+        (:func:`kalmix.io.iter_track_chunks` sorts them), so ``kalmix predict`` fixes the unit
+        first from the chunk in file order (:func:`kalmix.io.in_file_order`): the unit a stream
+        of the same rows learns. The rows before that step only start tracks, and what they
+        leave does not depend on the unit, so fixing it before them gives the same numbers.
+
+        Parameters
+        ----------
+        table : pandas.DataFrame
+            ``track_id`` and ``time`` columns, in arrival order (later rows continue the tracks
+            this predictor has seen).
+        """
+        if self.config.time_unit is None:
+            found = self._first_step(table["track_id"].to_numpy(), _seconds(table["time"]))
+            if found is not None:
+                self._learn_time_unit(found[2], found[1])
+        return self.config.time_unit
 
     def _process_table(self, table, position_names, next_times):
         import pandas as pd

@@ -157,7 +157,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     import pandas as pd
     from tqdm import tqdm
 
-    from ..io import iter_track_chunks, to_arrays
+    from ..io import in_file_order, iter_track_chunks, to_arrays
     from ..streaming import _length_unit_rule, next_row_times
 
     if not os.path.exists(path):
@@ -198,6 +198,8 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
             mark = engine.checkpoint(pd.unique(chunk["track_id"]))
             committed = False
             try:
+                if engine.config.time_unit is None:   # as a stream of the file's rows learns it
+                    engine.learn_time_unit(in_file_order(chunk))
                 frames = []
                 parts = pieces(chunk)
                 for piece, later in zip(parts, next_row_times(parts, ahead[index] if index < len(ahead) else {})):

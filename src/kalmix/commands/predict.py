@@ -262,7 +262,7 @@ def _local_only(given, output):
               help="Aggregation rule [default: boa].")
 @click.option("--time-unit", default=None, type=click.FloatRange(min=0, min_open=True),
               help="Typical sampling interval (time units) that scales the CV/CA experts' noise "
-                   "[default: the data's first positive time step].")
+                   "[default: the first positive time step of a track, in the order the rows come].")
 @click.option("--experts", "n_experts", default=None, type=click.IntRange(min=1),
               help="Experts of the AKF family [default: 40].")
 @click.option("--seed", default=None, type=click.IntRange(0, MAX_SEED), help="Seed of the bank [default: 0].")

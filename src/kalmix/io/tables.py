@@ -52,6 +52,7 @@ __all__ = [
     "check_output_names",
     "read_tracks",
     "iter_track_chunks",
+    "in_file_order",
     "to_arrays",
     "from_arrays",
     "split_on_gaps",
@@ -360,7 +361,37 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
         warnings.warn(f"{int(dup.sum())} row(s) repeat a timestamp within their track; kept the "
                       "last row of each repeated time", RuntimeWarning, stacklevel=3)
         out = out[~dup]
-    return out.reset_index(drop=True)
+    # each track's rows (now in time order) take that track's places in the file, in order: a track sorted
+    # here, or a repeated time dropped, keeps the places of its tracks' rows among the others
+    places = out.index.to_numpy()
+    codes = pd.factorize(out["track_id"], sort=False)[0]   # non-decreasing: the tracks are contiguous
+    out = out.reset_index(drop=True)
+    out.attrs["file_order"] = _RowOrder(places[np.lexsort((places, codes))])
+    return out
+
+
+class _RowOrder:
+    """A normalised table's rows by their place in the file (``rows[k]``: the table row of the k-th), in
+    ``DataFrame.attrs``: pandas copies attrs into every frame derived from a table, so this one is shared,
+    not copied (it describes only the table it was made for; :func:`in_file_order` checks the length)."""
+
+    def __init__(self, places):
+        self.rows = np.argsort(places, kind="stable")
+
+    def __deepcopy__(self, memo):
+        return self
+
+
+def in_file_order(table: pd.DataFrame) -> pd.DataFrame:
+    """A table :func:`read_tracks` or :func:`iter_track_chunks` gave (sorted by track, then time) with its rows
+    back in the order the file had them, the order a stream of the same rows arrives in; a track whose times
+    went back in the file keeps them sorted, in the places of its rows. Any other table as it is."""
+    order = table.attrs.get("file_order")
+    if not isinstance(order, _RowOrder) or len(order.rows) != len(table):
+        return table
+    out = table.iloc[order.rows]
+    del out.attrs["file_order"]   # its own attrs: the order describes ``table``, not ``out``
+    return out
 
 
 # --------------------------------------------------------------------------- reading
