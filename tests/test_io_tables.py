@@ -35,9 +35,36 @@ def write(tmp_path, text, name="tracks.csv"):
     (["lat", "lon", "time"], TrackColumns("time", ("lat", "lon"), None)),
     (["u_left", "u_right", "v", "t"], TrackColumns("t", ("u_left", "u_right", "v"), None)),
     ([" x ", " y "], TrackColumns(None, (" x ", " y "), None)),
+    # the logs of the users' domains: AIS (MarineCadastre), ADS-B (OpenSky), storm best tracks (IBTrACS)
+    (["MMSI", "BaseDateTime", "LAT", "LON", "SOG"], TrackColumns("BaseDateTime", ("LAT", "LON"), "MMSI")),
+    (["time", "icao24", "lat", "lon", "callsign"], TrackColumns("time", ("lat", "lon"), "icao24")),
+    (["SID", "SEASON", "ISO_TIME", "LAT", "LON"], TrackColumns("ISO_TIME", ("LAT", "LON"), "SID")),
 ])
 def test_detect_columns(columns, expected):
     assert detect_columns(columns) == expected
+
+
+def test_a_file_whose_id_or_time_column_is_not_found_is_told_so(tmp_path):
+    """An AIS file with its vessel column named 'vessel' was one track, every vessel's rows mixed, without a
+    word: ``kalmix predict`` and ``evaluate`` now say which columns they left unused (nothing when every
+    column is in use)."""
+    from kalmix.cli import build
+    from click.testing import CliRunner
+    from kalmix.io.tables import column_notes
+
+    assert column_notes(detect_columns(["t", "x", "y"]), ["t", "x", "y"]) == []
+    assert column_notes(detect_columns(["x", "y"]), ["x", "y"]) == []
+    notes = column_notes(detect_columns(["vessel", "when", "lat", "lon"]), ["vessel", "when", "lat", "lon"])
+    assert len(notes) == 2 and "pass --id" in notes[0] and "pass --time" in notes[1]
+    assert all("'vessel', 'when'" in note for note in notes)
+    rows = "".join(f"{v},{t},{t * 0.1 + v},{v}\n" for t in range(6) for v in (1, 2))
+    path = write(tmp_path, "vessel,t,x,y\n" + rows)
+    for command in (["predict", str(path), "--length-unit", "1"], ["evaluate", str(path), "--no-peers"]):
+        result = CliRunner().invoke(build(), command)
+        assert "no track id column found" in result.stderr and "unused columns: 'vessel'" in result.stderr
+        assert "no time column" not in result.stderr
+    result = CliRunner().invoke(build(), ["predict", str(path), "--length-unit", "1", "--id", "vessel"])
+    assert result.exit_code == 0 and "no track id" not in result.stderr
 
 
 def test_detect_columns_explicit_wins():

@@ -109,7 +109,8 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
     """
     from distributed import KilledWorker
 
-    from ..dask_predict import read_archive
+    from ..dask_predict import archive_files, read_archive
+    from ..io.tables import _header, column_notes
     from .predict import _positions
 
     started = time.perf_counter()
@@ -117,6 +118,8 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
     try:
         frame, columns, fmt = read_archive(input_path, time=time_column, positions=_positions(position_columns),
                                            track_id=id_column)
+        for note in column_notes(columns, _header(archive_files(input_path)[0][0], fmt)):
+            _note(note)
         with _client(scheduler, workers) as client:
             total, work = _compute(client, frame, columns, fmt, partial, settings, unit, chunk_rows, progress,
                                    scheduler, partitions)

@@ -208,10 +208,12 @@ def _input_format(path) -> str:
 
 
 def _columns(header, time_column, position_columns, id_column):
-    from ..io.tables import check_output_names, detect_columns
+    from ..io.tables import check_output_names, column_notes, detect_columns
 
     columns = detect_columns(header, time=time_column, positions=_positions(position_columns), track_id=id_column)
     check_output_names(columns)
+    for note in column_notes(columns, header):
+        click.echo(f"kalmix: {note}", err=True)
     return columns
 
 

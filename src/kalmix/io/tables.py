@@ -60,10 +60,15 @@ __all__ = [
 
 _TIME_NAMES = ("time", "t", "timestamp", "seconds", "time_s", "t_s", "sec", "secs", "ts",
                "elapsed", "datetime", "date_time", "frame", "frame_id", "frame_idx",
-               "frame_index", "frame_number", "step")
+               "frame_index", "frame_number", "step",
+               # AIS (MarineCadastre), storm best tracks (IBTrACS), and other logs
+               "basedatetime", "iso_time", "time_utc", "utc", "timestamp_utc", "datetime_utc")
 _ID_NAMES = ("track_id", "id", "track", "object_id", "target", "target_id", "trackid",
              "obj_id", "object", "agent_id", "trajectory_id", "traj_id", "player_id",
-             "vehicle_id", "ped_id")
+             "vehicle_id", "ped_id",
+             # vessels (AIS), aircraft (ADS-B), storms (IBTrACS), animals (Movebank)
+             "mmsi", "imo", "vessel_id", "ship_id", "icao24", "icao", "aircraft_id", "flight_id", "callsign",
+             "sid", "storm_id", "individual-local-identifier", "individual_id", "animal_id", "tag_id")
 # Axis name sets in order of preference; an optional third axis is taken when present.
 _AXES = (("x", "y", "z"), ("u_left", "u_right", "v"), ("u", "v", None), ("east", "north", "up"),
          ("e", "n", "u"), ("lat", "lon", "alt"), ("latitude", "longitude", "altitude"),
@@ -239,6 +244,24 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
     taken.add(time)
     track_id = first(_ID_NAMES, track_id)
     return TrackColumns(time=time, positions=positions, track_id=track_id)
+
+
+def column_notes(columns: TrackColumns, header: Sequence[str]) -> list[str]:
+    """What a user should hear about the columns :func:`detect_columns` found in ``header``: no track id
+    column (every row one track) or no time column (row order), when the file has columns left unused that
+    may be them. Empty when every column is in use."""
+    unused = [str(c) for c in header if str(c) not in {columns.time, columns.track_id, *columns.positions}]
+    if not unused:
+        return []
+    left = ", ".join(repr(c) for c in unused[:8]) + (", ..." if len(unused) > 8 else "")
+    notes = []
+    if columns.track_id is None:
+        notes.append(f"no track id column found (looked for {', '.join(_ID_NAMES[:4])}, mmsi, icao24, ...): "
+                     f"every row is one track; pass --id COLUMN if the file holds several (unused columns: {left})")
+    if columns.time is None:
+        notes.append(f"no time column found (looked for {', '.join(_TIME_NAMES[:4])}, frame, ...): rows are "
+                     f"one time unit apart, in file order; pass --time COLUMN (unused columns: {left})")
+    return notes
 
 
 # --------------------------------------------------------------------------- validation
