@@ -663,6 +663,26 @@ def test_a_learned_time_unit_is_the_files_first_step_in_file_order_as_on_stdin(c
     assert units == [pytest.approx(0.3, abs=1e-12)] * 2
 
 
+@pytest.mark.parametrize("bank", ["akf", "mixed"])
+def test_a_restart_before_the_time_unit_is_known_is_the_same_in_a_file_and_on_stdin(cli, tmp_path, bank):
+    """With an absolute --max-gap a track's second row can restart it before any step fixes the time unit.
+    A stream steps that row with the unit unknown; the file fixed the unit first, and the row's lead differed
+    (a review's case). The file now steps the rows before the unit's step in file order first, as a stream."""
+    text = "id,t,x,y\n0,0,-0.96,6.43\n0,10,-0.07,3.43\n0,10.3,-1.26,0.95\n0,10.6,-1.0,0.5\n1,10.9,2.0,1.0\n"
+    path = tmp_path / "gap.csv"
+    path.write_text(text)
+    args = ["--bank", bank, "--lead", "0.5", "--max-gap", "3", "--length-unit", "1", "--no-progress"]
+    file = _read(_run(cli, ["predict", str(path), *args]).stdout)
+    piped = _read(_run(cli, ["predict", "-", *args], input=text).stdout)
+    lead = ["segment", "lead_x", "lead_y", "lead_std_x", "lead_std_y"]
+    assert np.isfinite(file["lead_std_x"]).sum() >= 3
+    np.testing.assert_array_equal(_by_id(piped)[lead], _by_id(file)[lead])
+
+
+def _by_id(frame):
+    return frame.sort_values(["id", "t"], kind="stable").reset_index(drop=True)
+
+
 def _saved_time_unit(path):
     from kalmix.streaming import TrackPredictor
 

@@ -559,35 +559,68 @@ def test_ids_that_are_missing_values_and_datetime_helpers():
     assert next_row_times([table.iloc[:2], table.iloc[2:]]) == [{"a": 2.5}, {}]
 
 
-@pytest.mark.parametrize("seed", range(4))
-def test_fixing_the_time_unit_before_the_rows_that_start_tracks_changes_nothing(seed, tmp_path):
-    """``kalmix predict`` fixes a learned time unit from a chunk in file order before stepping the chunk track
-    by track (:meth:`TrackPredictor.learn_time_unit`). The rows before the first step only start tracks, so
-    that gives the numbers of learning it at that step: every output and state leaf, the same bits, on
-    interleaved tracks of different steps with a lead. And ``in_file_order`` gives back a read file's order."""
+def _arrival_tables():
+    """Tables in arrival order: interleaved tracks of different steps, with a lead, a horizon, an absolute
+    max_gap (a restart before the unit is known), and a time glitch before the first step (a review's)."""
+    out = []
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        rows = []
+        for track in range(4):
+            n = int(rng.integers(2, 30))
+            t = np.round(np.cumsum(rng.uniform(0.05, 3.0, size=n)) + rng.uniform(0, 4), 3)
+            xy = np.cumsum(rng.normal(size=(n, 2)), 0) * rng.uniform(0.01, 10)
+            rows += [(track, t[i], *xy[i]) for i in range(n)]
+        table = pd.DataFrame(rows, columns=["track_id", "time", "x", "y"]).sort_values("time", kind="stable")
+        settings = ({"lead": 0.7}, {"horizon": 2}, {"lead": 0.7, "max_gap": 0.5}, {"horizon": 3, "max_gap": 1.0})
+        out.append((table.reset_index(drop=True), settings[seed]))
+    glitch = pd.DataFrame({"track_id": list("aabbabab"), "time": [10.0, 5.0, 0.0, 2.0, 5.5, 4.0, 6.0, 6.0],
+                           "x": [0.0, 1.0, 2.0, 3.0, 1.5, 2.5, 1.0, 3.0], "y": [0.0, 0.5, 1.0, 0.0, 1.0, 2.0, 0.3, 1.0]})
+    out.append((glitch, {"horizon": 2}))
+    one = pd.DataFrame({"track_id": [0] * 4, "time": [0.0, 10.0, 10.3, 10.6], "x": [-0.96, -0.07, -1.26, -1.0],
+                        "y": [6.43, 3.43, 0.95, 0.5]})
+    out.append((one, {"lead": 0.5, "max_gap": 3.0, "bank": "akf"}))
+    return out
+
+
+@pytest.mark.parametrize("case", range(6))
+def test_the_rows_before_the_time_unit_then_the_rest_by_track_give_the_stream_numbers(case, tmp_path):
+    """``kalmix predict`` steps a file's rows track by track. While the time unit is unknown it steps the rows
+    before the first step in file order, fixes the unit from that step (``learn_time_unit``), then steps the
+    rest track by track: every output and state leaf has the bits of stepping the rows in arrival order. (The
+    first version fixed the unit before those rows; a restart by an absolute max_gap, or a horizon after a
+    time glitch, then differed.) And ``in_file_order`` gives back a read file's order."""
+    import warnings
+
     from kalmix.io import in_file_order, read_tracks
 
-    rng = np.random.default_rng(seed)
-    rows = []
-    for track in range(4):
-        n = int(rng.integers(2, 30))
-        t = np.round(np.cumsum(rng.uniform(0.05, 3.0, size=n)) + rng.uniform(0, 4), 3)
-        xy = np.cumsum(rng.normal(size=(n, 2)), 0) * rng.uniform(0.01, 10)
-        rows += [(track, t[i], *xy[i]) for i in range(n)]
-    table = pd.DataFrame(rows, columns=["track_id", "time", "x", "y"]).sort_values("time", kind="stable")
-    table = table.reset_index(drop=True)
-    config = dict(n_experts=6, seed=3, length_unit=0.05, lead=0.7)
-    learned = TrackPredictor(StreamConfig(**config))
-    expected = learned.process_table(table)
-    fixed = TrackPredictor(StreamConfig(**config))
-    unit = fixed.learn_time_unit(table)
-    assert unit == learned.config.time_unit and unit is not None
-    pd.testing.assert_frame_equal(fixed.process_table(table), expected, check_exact=True)
+    table, settings = _arrival_tables()[case]
+    config = dict(n_experts=6, seed=3, length_unit=0.05, **settings)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # the glitch case's time glitch
+        learned = TrackPredictor(StreamConfig(**config))
+        expected = learned.process_table(table)
+        stepped = TrackPredictor(StreamConfig(**config))
+        row = stepped.time_unit_row(table)
+        assert row is not None
+        head, rest = table.iloc[:row], table.iloc[row:]
+        by_track = rest.sort_values("track_id", kind="stable")
+        parts = [stepped.process_table(head, next_times=rest.groupby("track_id")["time"].first().to_dict())]
+        assert stepped.config.time_unit is None
+        assert stepped.learn_time_unit(rest) == learned.config.time_unit
+        parts.append(stepped.process_table(by_track))
+    got = pd.concat(parts, ignore_index=True)
+    order = np.lexsort((got["time"], got["track_id"]))
+    want = expected.iloc[np.lexsort((expected["time"], expected["track_id"]))]
+    pd.testing.assert_frame_equal(got.iloc[order].reset_index(drop=True), want.reset_index(drop=True),
+                                  check_exact=True)
     for track in learned.states:
-        for a, b in zip(_leaves_of(fixed.states[track]), _leaves_of(learned.states[track])):
+        for a, b in zip(_leaves_of(stepped.states[track]), _leaves_of(learned.states[track])):
             assert np.array_equal(a, b, equal_nan=True)
-    table.to_csv(tmp_path / "t.csv", index=False)
-    read = read_tracks(tmp_path / "t.csv")
-    assert not read["time"].is_monotonic_increasing   # sorted by track
-    pd.testing.assert_frame_equal(in_file_order(read).reset_index(drop=True), table, check_dtype=False)
-    assert fixed.learn_time_unit(table.iloc[::-1]) == unit    # once known, it stays
+    if case == 0:
+        table.to_csv(tmp_path / "t.csv", index=False)
+        read = read_tracks(tmp_path / "t.csv")
+        assert not read["time"].is_monotonic_increasing   # sorted by track
+        pd.testing.assert_frame_equal(in_file_order(read).reset_index(drop=True), table, check_dtype=False)
+        assert in_file_order(read.sort_values("time")).equals(read.sort_values("time"))   # not the table it was
+        assert stepped.learn_time_unit(table.iloc[::-1]) == learned.config.time_unit    # once known, it stays

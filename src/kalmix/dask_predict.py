@@ -16,8 +16,9 @@ a whole is derived here the same way, before the shuffle:
 - the **time unit** (when not given): the first interval the gap rule keeps, scanning the
   data's rows in file order, as a stream of them learns it (and single-machine ``predict``,
   see :meth:`kalmix.streaming.TrackPredictor.learn_time_unit`); the partitions then get it
-  fixed from the start. The rows before that interval only start tracks, whose predictions
-  and states do not depend on it (tested).
+  fixed from the start. The rows before that interval that start tracks do not depend on it
+  (tested); a row after a track's first before it (a restart by an absolute ``max_gap``, a
+  row after a time glitch) can, and the run warns (``--time-unit`` makes the runs agree).
 
 Everything else is per track (the gap rule, repeated timestamps, the states), so it does not
 matter which worker holds a track. Rows of one track are put in order the same way: the rows
@@ -332,7 +333,14 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
         unit, why = _length_unit_rule(to_arrays(first, columns.positions).values)
     time_unit = config.time_unit
     if time_unit is None:  # one gap rule over the chunks' rows in file order, reading on only until it is learned
-        time_unit = learned_time_unit((in_file_order(chunk) for chunk in itertools.chain([first], read)), config)
+        continued: list = []
+        time_unit = learned_time_unit((in_file_order(chunk) for chunk in itertools.chain([first], read)), config,
+                                      continued)
+        if continued and time_unit is not None:
+            warnings.warn(f"track(s) {continued[:5]} have rows after their first before the time unit is learned "
+                          f"(the first step, {time_unit:.6g}): a single machine and a stream step them with a unit "
+                          "of 1, this run with the learned unit, so their predictions there can differ; pass "
+                          "--time-unit to make them agree", RuntimeWarning, stacklevel=2)
     return unit, why, time_unit, first.iloc[:3]
 
 

@@ -895,16 +895,28 @@ class TrackPredictor:
         found = self._first_step(ids, times)
         return None if found is None else found[0]
 
-    def learn_time_unit(self, table) -> float | None:
-        """Fix the time unit, if it is not known yet, from a table's rows in the order they arrived, without
-        stepping them; returns the time unit (None: still unknown).
+    def time_unit_row(self, table) -> int | None:
+        """The position in ``table`` (``track_id`` and ``time`` columns, rows in arrival order, continuing the
+        tracks this predictor has seen) of the row whose step fixes the time unit; None if the unit is known
+        or no row of the table fixes it. See :meth:`learn_time_unit`."""
+        if self.config.time_unit is not None:
+            return None
+        found = self._first_step(table["track_id"].to_numpy(), _seconds(table["time"]))
+        return None if found is None else found[0]
 
-        :meth:`process_table` learns it from the first step of a track in its table's row order,
-        and a stream from the first in arrival order. A file's rows are stepped track by track
-        (:func:`kalmix.io.iter_track_chunks` sorts them), so ``kalmix predict`` fixes the unit
-        first from the chunk in file order (:func:`kalmix.io.in_file_order`): the unit a stream
-        of the same rows learns. The rows before that step only start tracks, and what they
-        leave does not depend on the unit, so fixing it before them gives the same numbers.
+    def learn_time_unit(self, table) -> float | None:
+        """Fix the time unit, if it is not known yet, from the first step of a table's rows in arrival order,
+        without stepping them; returns the time unit (None: still unknown).
+
+        Stepping the rows one by one learns the unit at that step, and the rows before it run
+        with a unit of 1. So this gives the same numbers as stepping the table when every row
+        before that step has been stepped already (:meth:`time_unit_row` tells where it is):
+        ``kalmix predict`` steps a file's rows track by track (:func:`kalmix.io.iter_track_chunks`
+        sorts a chunk), so it steps the rows before that step in file order
+        (:func:`kalmix.io.in_file_order`), fixes the unit here, then steps the rest track by
+        track: the numbers of a stream of the same rows. (Called before those rows instead, the
+        numbers differ where they depend on the unit: a restart before the unit is known, by an
+        absolute ``max_gap``, or a ``horizon`` after a time glitch.)
 
         Parameters
         ----------
@@ -1116,7 +1128,7 @@ class TrackPredictor:
         return engine
 
 
-def learned_time_unit(tables, config: StreamConfig) -> float | None:
+def learned_time_unit(tables, config: StreamConfig, continued: list | None = None) -> float | None:
     """The time unit :meth:`TrackPredictor.process_table` learns from ``tables`` fed in this order.
 
     Only the gap rule runs (no bank): the unit is the first interval a track's
@@ -1130,15 +1142,23 @@ def learned_time_unit(tables, config: StreamConfig) -> float | None:
         ``track_id`` and ``time`` columns, in the order ``process_table`` would get them.
     config : StreamConfig
         The gap rule's settings (``max_gap``, ``max_gap_factor``); its ``time_unit`` is ignored.
+    continued : list, optional
+        Receives the tracks that have a row before that step other than their first (a restart by
+        an absolute ``max_gap``, a row after a time glitch): such a row's numbers can depend on
+        the unit, which a run that steps it before knowing the unit takes as 1.
     """
     from dataclasses import replace
 
     scratch = TrackPredictor(replace(config, time_unit=None))
     for table in tables:
         for track, time in zip(table["track_id"].to_numpy(), _seconds(table["time"])):
-            scratch._advance(_id_to_json(track), float(time))
+            key = _id_to_json(track)
+            seen = key in scratch.gaps
+            _, new = scratch._advance(key, float(time))
             if scratch.config.time_unit is not None:
                 return scratch.config.time_unit
+            if seen and new is not None and continued is not None and key not in continued:
+                continued.append(key)
     return None
 
 

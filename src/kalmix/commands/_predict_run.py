@@ -157,7 +157,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     import pandas as pd
     from tqdm import tqdm
 
-    from ..io import in_file_order, iter_track_chunks, to_arrays
+    from ..io import iter_track_chunks, to_arrays
     from ..streaming import _length_unit_rule, next_row_times
 
     if not os.path.exists(path):
@@ -198,14 +198,16 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
             mark = engine.checkpoint(pd.unique(chunk["track_id"]))
             committed = False
             try:
-                if engine.config.time_unit is None:   # as a stream of the file's rows learns it
-                    engine.learn_time_unit(in_file_order(chunk))
+                parts, unit_at, arrived = _unit_parts(engine, chunk)
                 frames = []
-                parts = pieces(chunk)
-                for piece, later in zip(parts, next_row_times(parts, ahead[index] if index < len(ahead) else {})):
+                for k, (piece, later) in enumerate(zip(parts, next_row_times(parts, ahead[index] if index < len(ahead)
+                                                                             else {}))):
+                    if k == unit_at:
+                        engine.learn_time_unit(arrived)
                     frames.append(engine.process_table(piece, names, later))
                     bar.update(len(piece))
-                    run.guard.tick()
+                    if k >= (unit_at or 0):   # the rows before the time unit's step go with the next part
+                        run.guard.tick()
                 frame = _output_columns(merge(frames, chunk), columns, columns.positions)
                 with run.guard.deferred():
                     run.sink.write_frame(frame)
@@ -218,6 +220,28 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                         engine.rollback(mark)
                 raise
             bar.update(chunk.attrs.get("file_rows", len(chunk)) - len(chunk))
+
+
+def _unit_parts(engine, chunk):
+    """A chunk's parts to step in turn (:func:`pieces`), and, while the time unit is unknown and a step of
+    the chunk fixes it, the part before which to fix it and the rows from that step on in file order.
+
+    A stream learns the unit at the first step to arrive, so the rows before that step in file
+    order are one part, stepped in file order with the unit unknown; then the unit is fixed
+    from that step (:meth:`TrackPredictor.learn_time_unit`), and the rest is stepped track by
+    track: the numbers of a stream of the file's rows.
+    """
+    from ..io import in_file_order
+
+    arrived = in_file_order(chunk[["track_id", "time"]]) if engine.config.time_unit is None else None
+    row = None if arrived is None else engine.time_unit_row(arrived)
+    if row is None:
+        return pieces(chunk), None, None
+    if not row:
+        return pieces(chunk), 0, arrived
+    before = np.zeros(len(chunk), dtype=bool)
+    before[arrived.index[:row]] = True
+    return [chunk.loc[arrived.index[:row]], *pieces(chunk[~before])], 1, arrived.iloc[row:]
 
 
 def _lookahead(chunks) -> list[dict]:

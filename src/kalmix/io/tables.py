@@ -410,7 +410,8 @@ def in_file_order(table: pd.DataFrame) -> pd.DataFrame:
     back in the order the file had them, the order a stream of the same rows arrives in; a track whose times
     went back in the file keeps them sorted, in the places of its rows. Any other table as it is."""
     order = table.attrs.get("file_order")
-    if not isinstance(order, _RowOrder) or len(order.rows) != len(table):
+    if (not isinstance(order, _RowOrder) or len(order.rows) != len(table)
+            or not table.index.equals(pd.RangeIndex(len(table)))):   # a frame reordered from it, not the table
         return table
     out = table.iloc[order.rows]
     del out.attrs["file_order"]   # its own attrs: the order describes ``table``, not ``out``
