@@ -396,7 +396,8 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
 class _RowOrder:
     """A normalised table's rows by their place in the file (``rows[k]``: the table row of the k-th), in
     ``DataFrame.attrs``: pandas copies attrs into every frame derived from a table, so this one is shared,
-    not copied (it describes only the table it was made for; :func:`in_file_order` checks the length)."""
+    not copied (it describes only the table it was made for: :func:`in_file_order` checks its length and
+    that its index is still the table's 0 .. n - 1)."""
 
     def __init__(self, places):
         self.rows = np.argsort(places, kind="stable")
