@@ -12,7 +12,6 @@ a call over few targets runs in the calling thread.
 
 from __future__ import annotations
 
-import math
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
