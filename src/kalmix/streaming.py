@@ -899,10 +899,14 @@ class TrackPredictor:
         """The position in ``table`` (``track_id`` and ``time`` columns, rows in arrival order, continuing the
         tracks this predictor has seen) of the row whose step fixes the time unit; None if the unit is known
         or no row of the table fixes it. See :meth:`learn_time_unit`."""
+        found = self._table_first_step(table)
+        return None if found is None else found[0]
+
+    def _table_first_step(self, table) -> tuple | None:
+        """:meth:`_first_step` of a table's rows while the time unit is unknown (None once it is known)."""
         if self.config.time_unit is not None:
             return None
-        found = self._first_step(table["track_id"].to_numpy(), _seconds(table["time"]))
-        return None if found is None else found[0]
+        return self._first_step(table["track_id"].to_numpy(), _seconds(table["time"]))
 
     def learn_time_unit(self, table) -> float | None:
         """Fix the time unit, if it is not known yet, from the first step of a table's rows in arrival order,
@@ -924,10 +928,9 @@ class TrackPredictor:
             ``track_id`` and ``time`` columns, in arrival order (later rows continue the tracks
             this predictor has seen).
         """
-        if self.config.time_unit is None:
-            found = self._first_step(table["track_id"].to_numpy(), _seconds(table["time"]))
-            if found is not None:
-                self._learn_time_unit(found[2], found[1])
+        found = self._table_first_step(table)
+        if found is not None:
+            self._learn_time_unit(found[2], found[1])
         return self.config.time_unit
 
     def _process_table(self, table, position_names, next_times):

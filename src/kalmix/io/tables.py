@@ -384,23 +384,17 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
         warnings.warn(f"{int(dup.sum())} row(s) repeat a timestamp within their track; kept the "
                       "last row of each repeated time", RuntimeWarning, stacklevel=3)
         out = out[~dup]
-    # each track's rows (now in time order) take that track's places in the file, in order: a track sorted
-    # here, or a repeated time dropped, keeps the places of its tracks' rows among the others
-    places = out.index.to_numpy()
-    codes = pd.factorize(out["track_id"], sort=False)[0]   # non-decreasing: the tracks are contiguous
-    out = out.reset_index(drop=True)
-    out.attrs["file_order"] = _RowOrder(places[np.lexsort((places, codes))])
-    return out
+    out.attrs["file_order"] = _RowOrder(out.index.to_numpy())   # each row's place in the file (read on demand)
+    return out.reset_index(drop=True)
 
 
 class _RowOrder:
-    """A normalised table's rows by their place in the file (``rows[k]``: the table row of the k-th), in
-    ``DataFrame.attrs``: pandas copies attrs into every frame derived from a table, so this one is shared,
-    not copied (it describes only the table it was made for: :func:`in_file_order` checks its length and
-    that its index is still the table's 0 .. n - 1)."""
+    """A normalised table's rows' places in the file, in ``DataFrame.attrs``: pandas copies attrs into every
+    frame derived from a table, so this one is shared, not copied (it describes only the table it was made
+    for: :func:`in_file_order` checks its length and that its index is still the table's 0 .. n - 1)."""
 
     def __init__(self, places):
-        self.rows = np.argsort(places, kind="stable")
+        self.places = places
 
     def __deepcopy__(self, memo):
         return self
@@ -411,10 +405,14 @@ def in_file_order(table: pd.DataFrame) -> pd.DataFrame:
     back in the order the file had them, the order a stream of the same rows arrives in; a track whose times
     went back in the file keeps them sorted, in the places of its rows. Any other table as it is."""
     order = table.attrs.get("file_order")
-    if (not isinstance(order, _RowOrder) or len(order.rows) != len(table)
+    if (not isinstance(order, _RowOrder) or len(order.places) != len(table)
             or not table.index.equals(pd.RangeIndex(len(table)))):   # a frame reordered from it, not the table
         return table
-    out = table.iloc[order.rows]
+    # each track's rows (in time order) take that track's places in the file, in order: a track sorted on
+    # reading, or a repeated time dropped, keeps the places of its rows among the others
+    codes = pd.factorize(table["track_id"], sort=False)[0]   # non-decreasing: the tracks are contiguous
+    places = order.places[np.lexsort((order.places, codes))]
+    out = table.iloc[np.argsort(places, kind="stable")]
     del out.attrs["file_order"]   # its own attrs: the order describes ``table``, not ``out``
     return out
 
