@@ -175,6 +175,22 @@ def test_the_intervals_are_calibrated_and_reported():
     assert "mixture, one-step weights" in result.overall
 
 
+def test_the_intervals_are_scored_on_the_rows_of_the_one_step_errors():
+    """With gaps that cut the tracks into segments, the coverage counts the rows the one-step RMS scores: not a
+    segment's first (the track layout forecasts it across the gap from the segment before; the RMS cannot)."""
+    rng = np.random.default_rng(5)
+    frames = []
+    for track in range(3):
+        steps = np.where(rng.uniform(size=300) < 0.05, 10.0, 1.0)   # ~15 gaps of 10 intervals per track
+        t = np.cumsum(steps)
+        xy = np.cumsum(rng.normal(0, 1, (300, 2)), 0)
+        frames.append(pd.DataFrame({"track_id": track, "time": t, "x": xy[:, 0], "y": xy[:, 1]}))
+    result = evaluate_table(pd.concat(frames), n_experts=4, peers=False, tune_units=False)
+    assert result.streams.values.shape[1] > 20   # segments
+    one_step = result.overall["mixture"]["one_step"]
+    assert 2 * result.tuned["mixture"]["calibration"]["one_step"]["count"] == one_step["count"]   # rows, values
+
+
 def test_plot_intervals_writes_a_png(tmp_path):
     path = tmp_path / "t.csv"
     _turning_tracks().to_csv(path, index=False)

@@ -262,7 +262,10 @@ def _run_bank(bank, streams, horizon, scored, warm=True, restart_gaps=True):
     plain = back(result.ahead)
     ahead = back(result.lead) if result.lead is not None else plain
     ahead_std = back(result.lead_std) if result.lead is not None else back(result.ahead_std)
-    calibration = {"one_step": _calibration(values - forecasts, std, cov, scored)}
+    # the rows the one-step RMS scores (_errors): not a segment's first, which the segment layout cannot predict
+    # (the track layout forecasts it from the previous segment, across the gap: that is not scored either)
+    predictable = scored & (np.arange(len(scored)) >= 1)[:, None]
+    calibration = {"one_step": _calibration(values - forecasts, std, cov, predictable)}
     if horizon > 1:
         calibration["horizon"] = _calibration(_shift(values, horizon) - ahead, ahead_std,
                                               back(result.lead_covariance), _shift(scored, horizon, False))
