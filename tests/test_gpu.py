@@ -26,13 +26,20 @@ CHECK = textwrap.dedent("""
     glitched[3, 0] += 1e3      # a glitch in the warm-up: the audit's cold restart at row 7
     glitched[5, 1] += 1e3
     glitched[7, 1] = np.nan    # ... waits for row 8
+    # steps of 1 to 20 time units: across those over the reach (8) the CA experts sleep, here and ahead
+    sparse, _ = benign_tracks(seed=3, t_count=40)
+    steps = np.random.default_rng(3).choice([1.0, 1.0, 2.0, 6.0, 20.0], size=sparse.shape[:2])
+    sparse_times = np.cumsum(steps, axis=0)
     for rule in ("boa", "mlpoly", "fixed_share"):
         bank = make_bank(2, "kinematic", rule=rule, length_unit=0.3)
-        for z, t in (benign_tracks(seed=1, t_count=40), adversarial_tracks(seed=2, t_count=40), (glitched, times)):
-            ref = engine.run(bank, z, t, ahead_times=t + 1.0)
+        assert bank.far_experts() is not None
+        for z, t in (benign_tracks(seed=1, t_count=40), adversarial_tracks(seed=2, t_count=40), (glitched, times),
+                     (sparse, sparse_times)):
+            lead = 7.0 if t is sparse_times else 1.0
+            ref = engine.run(bank, z, t, ahead_times=t + lead)
             cut = 15
-            first = gpu.run(bank, z[:cut], t[:cut], ahead_times=t[:cut] + 1.0)
-            second = gpu.run(bank, z[cut:], t[cut:], first.state, ahead_times=t[cut:] + 1.0)  # resumed
+            first = gpu.run(bank, z[:cut], t[:cut], ahead_times=t[:cut] + lead)
+            second = gpu.run(bank, z[cut:], t[cut:], first.state, ahead_times=t[cut:] + lead)  # resumed
             # a standard deviation comes from differences of positions: its rounding scales with them
             size = np.maximum(1.0, np.abs(np.nan_to_num(ref.forecasts)))
             size_ahead = np.maximum(1.0, np.abs(np.nan_to_num(ref.ahead)))

@@ -335,6 +335,13 @@ BANK_KINDS = ("mixed", "kinematic", "akf", "ar", "kinematic+ar", "mixed+ar", "tu
 #: bound forgets at 0.99 a row: with the original rule (1.0) one kick of hawkeye_ball's ball capped every
 #: learning rate for the rest of the track (RMS 0.02007 against 0.01956; neutral on the other recordings).
 DEFAULT_RULE_OPTIONS = {"boa": {"bound_forgetting": 0.99}}
+#: make_bank's ``reach``, in time units, measured on AIS-like tracks (benchmarks/irregular_sampling.py; one-step
+#: RMS bridged / with the default gap rule, whose segments make the time unit 3.9 s against reports every 10 s):
+#: none 26.54 / 21.16 m; 1.5 units 10.19 / 20.79; 3 and 5: 10.30 / 21.48; 8 to 16: 10.30 / 21.16; 20: 26.54 /
+#: 21.16. 8 is over the default gap rule's 3 reference intervals, so it changes nothing on tracks sampled at a
+#: steady rate (a shorter reach would, on every missing frame: not measured on the recordings).
+DEFAULT_REACH = 8.0
+
 #: Process-noise levels q of the kinematic experts, in length_unit^2 per time_unit^3 (CV).
 KINEMATIC_PROCESS_LEVELS = tuple(10.0**e for e in range(-3, 4))
 #: Measurement-noise levels r of the kinematic experts, in length_unit^2.
@@ -435,6 +442,7 @@ def make_bank(
     ar_ridge=AR_RIDGE,
     ar_options: dict | None = None,
     turn_gains=TURN_GAINS,
+    reach: float | None = DEFAULT_REACH,
 ):
     """Build and validate a bank of expert families and its aggregation rule.
 
@@ -502,6 +510,13 @@ def make_bank(
         Other :class:`kalmix.core.families.ar.ARParams` fields (``bias``, ``jump_threshold``, ...).
     turn_gains : sequence of float
         The turn family's experts: fractions >= 0 of the last turn rate carried forward.
+    reach : float or None
+        In time units: across a longer step (from a target's last learned row to the
+        forecast's time) only the CV experts make the one-step forecast, when the bank has
+        some (see :mod:`kalmix.core.engine`, "Reach"); None: every expert at every step.
+        The default (:data:`DEFAULT_REACH`, 8) is over the default gap rule's threshold (3
+        reference intervals): on tracks it restarts at gaps it only changes the forecasts of
+        the restart rows; it matters on irregularly sampled tracks that are not cut.
     """
     from .core import aggregators
     from .core.engine import Bank, Family
@@ -581,6 +596,8 @@ def make_bank(
     level = float(level)
     if not 0.0 < level < 1.0:
         raise ValueError(f"level: expected a probability in (0, 1), got {level!r}")
+    if reach is not None:
+        reach = _check_positive("reach", reach)
     lead_params = None
     if lead is not None:
         lead_time = _check_positive("lead", lead)
@@ -592,7 +609,7 @@ def make_bank(
                        length_unit=unit, time_unit=tunit, seed=seed, n_akf=n_akf, lead=lead, level=level,
                        process_levels=[float(v) for v in process_levels],
                        measurement_levels=[float(v) for v in measurement_levels],
-                       rule_options=options, akf_options=dict(akf_options or {}))
+                       rule_options=options, akf_options=dict(akf_options or {}), reach=reach)
     if "turn" in parts:
         description.update(turn_gains=[float(v) for v in turn_gains])
     if "ar" in parts:
@@ -603,7 +620,7 @@ def make_bank(
                 screen_params=ScreenParams(threshold=threshold,
                                            max_rejects=_check_int("outlier_rejects", outlier_rejects, 1)),
                 calibration_params=CalibrationParams(initial_variance=unit * unit, level=level),
-                lead=lead_params)
+                lead=lead_params, reach=np.inf if reach is None else reach * tunit)
 
 
 #: The default bank and rule of ``kalmix predict`` / ``evaluate`` / :class:`kalmix.streaming.TrackPredictor`,

@@ -76,7 +76,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .archive import open_archive, write_archive
-from .bank import DEFAULT_BANK, check_horizon, check_length_unit, make_bank, make_params
+from .bank import DEFAULT_BANK, DEFAULT_REACH, check_horizon, check_length_unit, make_bank, make_params
 from .core.engine import Bank, BankState, init_bank_state, tree_map
 
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Checkpoint", "auto_length_unit",
@@ -208,6 +208,9 @@ class StreamConfig:
         experts' noise; ``None``: learned from the data, the first positive time step
         between two rows of one track (in row order, so a file and a stream of the same
         rows learn the same unit).
+    reach : float or None
+        In time units: across a longer step only the CV experts make the one-step forecast
+        (``reach`` of :func:`kalmix.bank.make_bank`); None: every expert at every step.
     """
 
     n_experts: int = 40
@@ -222,6 +225,7 @@ class StreamConfig:
     time_unit: float | None = None
     rule_options: dict = field(default_factory=dict)
     lead: float | None = None
+    reach: float | None = DEFAULT_REACH
 
     def __post_init__(self):
         import numbers
@@ -229,7 +233,7 @@ class StreamConfig:
         from .bank import BANK_KINDS
 
         self.horizon = check_horizon(self.horizon)
-        for name in ("lead", "time_unit", "max_gap", "max_gap_factor"):
+        for name in ("lead", "time_unit", "max_gap", "max_gap_factor", "reach"):
             value = getattr(self, name)
             if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)):
                 raise TypeError(f"{name}: expected a number, got {type(value).__name__} {value!r:.80}")
@@ -259,7 +263,7 @@ class StreamConfig:
         unit = self.time_unit if self.time_unit is not None else (self.lead if self.lead is not None else 1.0)
         make_bank(1, self.bank, rule=self.rule, length_unit=self.length_unit, time_unit=unit,
                   seed=self.seed, n_akf=self.n_experts, akf_options=self.options, lead=self.lead_time(),
-                  rule_options=self.rule_options)
+                  rule_options=self.rule_options, reach=self.reach)
 
     def lead_time(self) -> float | None:
         """The lead head's lead in time-column units: ``lead``, or ``horizon`` time units, or None."""
@@ -565,7 +569,7 @@ class TrackPredictor:
         c = self.config
         return make_bank(measurement_dim, c.bank, rule=c.rule, length_unit=c.length_unit,
                          time_unit=1.0 if c.time_unit is None else c.time_unit, seed=c.seed, n_akf=c.n_experts,
-                         akf_options=c.options, lead=c.lead_time(), rule_options=c.rule_options)
+                         akf_options=c.options, lead=c.lead_time(), rule_options=c.rule_options, reach=c.reach)
 
     def _unit_step_taken_back(self, track, gaps: GapTracker) -> None:
         """Warn once when the step the time unit was learned from (a track's first) is taken back: a row came

@@ -16,7 +16,7 @@ import warnings
 import click
 import numpy as np
 
-from ..bank import BANK_KINDS, DEFAULT_BANK, GATE_OPTIONS, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED, recipe_parts
+from ..bank import BANK_KINDS, DEFAULT_BANK, DEFAULT_REACH, GATE_OPTIONS, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED, recipe_parts
 
 _LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres). "
                      "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
@@ -107,6 +107,32 @@ def _length_unit(text):
     if not low <= value <= high:
         raise click.BadParameter(expected, param_hint="--length-unit")
     return value
+
+
+_REACH_HELP = ("Across a time step longer than this many time units only the constant-velocity experts make the "
+               "one-step prediction (the others extrapolate fits made on the usual steps); 'none': every expert "
+               f"at every step [default: {DEFAULT_REACH:g}].")
+
+
+def _reach(text):
+    """--reach: None (not given), a number of time units > 0, or 'none' (-> math.inf, no reach)."""
+    if text is None:
+        return None
+    if str(text).lower() in ("none", "inf", "never"):
+        return math.inf
+    expected = f"expected a number of time units > 0 or 'none', got {text!r}"
+    try:
+        value = float(text)
+    except ValueError:
+        raise click.BadParameter(expected, param_hint="--reach") from None
+    if not (math.isfinite(value) and value > 0):
+        raise click.BadParameter(expected, param_hint="--reach")
+    return value
+
+
+def _reach_setting(value):
+    """The reach a bank takes: None for 'none' (math.inf here), the default when not given."""
+    return DEFAULT_REACH if value is None else (None if math.isinf(value) else value)
 
 
 def _max_gap(text):
@@ -272,6 +298,7 @@ def _local_only(given, output):
 @click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP + " 'none' never splits.")
 @click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True),
               help="Gap threshold as a multiple of the reference interval (median of a track's first 16 steps).")
+@click.option("--reach", default=None, help=_REACH_HELP)
 @click.option("--state", "state_path", default=None, type=click.Path(dir_okay=False),
               help="State file: resumed from if it exists, written on exit and every --save-every rows.")
 @click.option("--save-every", default=10_000, show_default=True, type=click.IntRange(min=1),
@@ -293,8 +320,8 @@ def _local_only(given, output):
               help="--engine dask: partitions of the shuffle by track [default: the input's, at least "
                    "4 per worker thread].")
 def predict(input_path, time_column, position_columns, id_column, horizon, lead, output, bank_kind, rule, time_unit,
-            n_experts, seed, length_unit, max_gap, max_gap_factor, state_path, save_every, chunk_rows, progress,
-            mixture_options, engine_kind, scheduler, workers, partitions):
+            n_experts, seed, length_unit, max_gap, max_gap_factor, reach, state_path, save_every, chunk_rows,
+            progress, mixture_options, engine_kind, scheduler, workers, partitions):
     """Predict the next position of every track in INPUT (CSV, Parquet, or - for stdin).
 
     Output: the input's id and time columns, 'segment', pred_<position> and std_<position>:
@@ -321,6 +348,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
 
     unit = _length_unit(length_unit)
     gap, never = _max_gap(max_gap)
+    reach = _reach(reach)
     options = _mixture_options(mixture_options, bank=True)
     out_fmt = _file_format(output) if output else "csv"
     given = _given(("save_every", "scheduler", "workers", "partitions"))
@@ -343,6 +371,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
                                       ("--lead", lead, stored.lead),
                                       ("--bank", bank_kind, stored.bank), ("--rule", rule, stored.rule),
                                       ("--time-unit", time_unit, stored.time_unit),
+                                      ("--reach", reach, math.inf if stored.reach is None else stored.reach),
                                       ("--option", options or None, stored.options)):
                 if given is not None and given != have:
                     raise ValueError(f"{name}: the state file {state_path} was made with {have}, got {given}; "
@@ -356,7 +385,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
                              f"got --lead {lead:g} and --horizon {horizon}")
         settings = dict(n_experts=40 if n_experts is None else n_experts, seed=0 if seed is None else seed,
                         horizon=horizon, lead=lead, max_gap=gap, max_gap_factor=math.inf if never else max_gap_factor,
-                        options=options, time_unit=time_unit)
+                        options=options, time_unit=time_unit, reach=_reach_setting(reach))
         if bank_kind is not None:
             settings["bank"] = bank_kind
         if rule is not None:
@@ -393,6 +422,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
 @click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP + " 'none' never splits.")
 @click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True),
               help="Gap threshold as a multiple of the reference interval (median of a track's first 16 steps).")
+@click.option("--reach", default=None, help=_REACH_HELP)
 @click.option("--max-samples", default=None, type=click.IntRange(min=3),
               help="Use only the first N samples of each track (quicker).")
 @click.option("--tracks", default=None, help="Comma-separated track ids to keep.")
@@ -409,8 +439,8 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
 @click.option("--per-track/--no-per-track", default=True, show_default=True, help="Print the per-track tables.")
 @click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
 def evaluate(input_path, dataset, time_column, position_columns, id_column, horizon, n_experts, seed, length_unit,
-             tuning_fraction, max_gap, max_gap_factor, max_samples, tracks, peers, json_path, plot_path, intervals_path,
-             plot_track, per_track, mixture_options):
+             tuning_fraction, max_gap, max_gap_factor, reach, max_samples, tracks, peers, json_path, plot_path,
+             intervals_path, plot_track, per_track, mixture_options):
     """Compare the mixture's prediction errors with the predictors you would use instead.
 
     Every predictor runs online over each track segment; the first --tuning-fraction of each
@@ -423,6 +453,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
 
     unit = _length_unit(length_unit)
     gap, never = _max_gap(max_gap)
+    reach = _reach(reach)
     options = _mixture_options(mixture_options)
     with _user_errors():
         if (input_path is None) == (dataset is None):
@@ -463,6 +494,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
                                 tuning_fraction=tuning_fraction, max_gap=gap,
                                 max_gap_factor=math.inf if never else max_gap_factor, max_samples=max_samples,
                                 tracks=wanted, peers=peers, options=options,
+                                bank_options={**DEFAULT_BANK, "reach": _reach_setting(reach)},
                                 log=lambda message: click.echo(f"kalmix: {message}", err=True))
         result.dataset = label
         click.echo(format_result(result, per_track=per_track))
@@ -507,7 +539,7 @@ def format_result(result, per_track=True) -> str:
         units = (f"the mixture's length unit {bank['length_unit']:.4g} and time unit {bank['time_unit']:.4g}, "
                  f"the AKF rows' length unit {result.length_unit:.4g}\n(kalmix predict --length-unit "
                  f"{bank['length_unit']!r} --time-unit {bank['time_unit']!r}, with this command's --experts, --seed, gap "
-                 "flags and --option but the gate's, runs the same mixture)")
+                 "flags, --reach and --option but the gate's, runs the same mixture)")
     else:
         units = f"length unit {result.length_unit:.4g}"
     lines = [f"{result.dataset}: {len(streams.track_ids)} track(s), {n_rows} samples in {len(streams.lengths)} "

@@ -38,6 +38,15 @@ same numbers fast, and is what every command uses):
 
 An expert sleeps (is left out of the weights and of the rule's learning) while its
 forecast is not finite, e.g. before its first measurement.
+
+**Reach.** The one-step weights are learned mostly on typical steps. Across a step longer than
+the bank's ``reach`` (time-column units, from the target's last learned row to the forecast's
+time, once it has two learned rows: :func:`span`), the experts that extrapolate a fitted derivative or model (CA, AR, turn, the frame-based
+AKF) can be off by orders of magnitude where the constant-velocity ones are still fine, and a
+small weight on them ruins the mixture. There, only the CV experts (:data:`LONG_STEP_KINDS`)
+forecast for the one-step weights (the others sleep for that forecast), if any is awake; the
+experts themselves learn the row as usual, and the lead head, which learns its own weights on
+its own horizon, sees every expert (:func:`within_reach`).
 """
 
 from __future__ import annotations
@@ -54,13 +63,16 @@ from . import screen as glitch
 from .families import akf, ar, kinematic, turn
 
 __all__ = ["Family", "Bank", "BankState", "EngineResult", "StepOutput", "init_bank_state", "run", "step", "forecast",
-           "cold_start", "FAMILY_KINDS", "FAMILY_MODULES", "check_run_arguments"]
+           "cold_start", "FAMILY_KINDS", "FAMILY_MODULES", "LONG_STEP_KINDS", "span", "within_reach",
+           "check_run_arguments"]
 
 #: Family kinds: kinematic CV / CA, adaptive AR of the velocity and coordinated turns in real time,
 #: and the paper's AKF (frame-based).
 FAMILY_KINDS = ("cv", "ca", "ar", "turn", "akf")
 #: Each kind's module (:mod:`kalmix.core.families`).
 FAMILY_MODULES = {"cv": kinematic, "ca": kinematic, "ar": ar, "turn": turn, "akf": akf}
+#: The kinds whose one-step forecasts are used across a step longer than the bank's reach.
+LONG_STEP_KINDS = ("cv",)
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,10 +103,19 @@ class Bank:
     screen_params: glitch.ScreenParams = glitch.ScreenParams()
     calibration_params: calibration.CalibrationParams = calibration.CalibrationParams()
     lead: lead_head.LeadParams | None = None   # the lead head (kalmix.core.lead), if any
+    reach: float = np.inf   # time-column units; across a longer step only LONG_STEP_KINDS forecast (see above)
 
     @property
     def n_experts(self) -> int:
         return sum(f.n_experts for f in self.families)
+
+    def far_experts(self) -> np.ndarray | None:
+        """``(K,)`` bool: the experts that sleep across a step over the reach; None when none ever does
+        (an infinite reach, or a bank without experts of :data:`LONG_STEP_KINDS` or without others)."""
+        if not np.isfinite(self.reach):
+            return None
+        far = np.concatenate([np.full(f.n_experts, f.kind not in LONG_STEP_KINDS) for f in self.families])
+        return far if far.any() and not far.all() else None
 
     @property
     def rule_module(self):
@@ -272,9 +293,36 @@ def forecast(bank: Bank, state: BankState, time, frames: int = 1, *, lead: bool 
     if lead and state.lead is None:
         raise ValueError("lead=True: this bank has no lead head (make_bank(..., lead=...))")
     n = len(state.screen.time)
-    experts = expert_forecasts(bank, state, np.broadcast_to(np.asarray(time, dtype=np.float64), (n,)), frames)
+    time = np.broadcast_to(np.asarray(time, dtype=np.float64), (n,))
+    experts = expert_forecasts(bank, state, time, frames)
+    if not lead:
+        experts = within_reach(bank, experts, span(state.screen, time))
     _, mean, cov = lead_head.forecast(bank, state.lead if lead else state, experts)
     return mean, cov
+
+
+def span(screen: glitch.ScreenState, time):
+    """Time from each target's last learned row (the screen's) to ``time``; NaN while the target has fewer than
+    two learned rows since its (re)start: from one position no expert extrapolates anything yet."""
+    return np.where(screen.points >= 2, time - screen.time, np.nan)
+
+
+def within_reach(bank: Bank, experts, span):
+    """``experts (..., K, p)`` as the one-step weights see them: where the ``span (...)`` (time from the
+    target's last learned row to the forecast's time) is over ``bank.reach``, the experts not of
+    :data:`LONG_STEP_KINDS` are NaN (asleep), if one of those kinds is awake there. Returns ``experts``
+    itself when nothing changes (the compiled engine passes blocks of rows ``(T, N, K, p)``)."""
+    far = bank.far_experts()
+    if far is None:
+        return experts
+    with np.errstate(invalid="ignore"):
+        beyond = np.asarray(span) > bank.reach
+    if not beyond.any():
+        return experts
+    beyond = beyond & np.isfinite(experts[..., ~far, :]).all(axis=-1).any(axis=-1)
+    if not beyond.any():
+        return experts
+    return np.where((beyond[..., None] & far)[..., None], np.nan, experts)
 
 
 class StepOutput(NamedTuple):
@@ -328,11 +376,12 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
                                                     np.where(learn[:, None], z, 0.0), time, learn, gap)
     learn = learn & accept
     experts = expert_forecasts(bank, state, time)
-    awake = np.isfinite(experts).all(axis=-1)
-    weights, mix, cov = lead_head.forecast(bank, state, experts)
+    mixed = within_reach(bank, experts, span(state.screen, time))
+    awake = np.isfinite(mixed).all(axis=-1)
+    weights, mix, cov = lead_head.forecast(bank, state, mixed)
     go = learn & ~restart & ~cold
-    rule_state = bank.rule_module.update(bank.rule_params, state.rule, experts, z, awake, go)
-    cal_state = calibration.update(bank.calibration_params, state.calibration, weights, experts, awake, z, go)
+    rule_state = bank.rule_module.update(bank.rule_params, state.rule, mixed, z, awake, go)
+    cal_state = calibration.update(bank.calibration_params, state.calibration, weights, mixed, awake, z, go)
     families = tuple(_family_update(f, s, z, time, learn, active, restart)
                      for f, s in zip(bank.families, state.families))
     # a cold restart (the screen's warm-up audit): the row was forecast by the old rule and calibration; what is
@@ -391,7 +440,9 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
             experts_out[t] = np.where(on[..., None], out.experts, np.nan)
             weights_out[t] = np.where(on, out.weights, np.nan)
         if with_ahead:
-            _, mean, cov = lead_head.forecast(bank, state, out.ahead_experts)
+            target = (times[t] + bank.lead.time) if ahead_times is None else ahead_times[t]
+            mixed = within_reach(bank, out.ahead_experts, span(state.screen, target))
+            _, mean, cov = lead_head.forecast(bank, state, mixed)
             ahead[t] = np.where(on, mean, np.nan)
             ahead_std[t] = np.where(on, _std(cov), np.nan)
             if ahead_experts is not None:

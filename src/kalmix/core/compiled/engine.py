@@ -15,7 +15,7 @@ import numpy as np
 
 from ..calibration import CalibrationState
 from ..engine import (Bank, BankState, EngineResult, check_restart, check_run_arguments, check_run_options,
-                      init_bank_state, tree_map)
+                      init_bank_state, tree_map, within_reach)
 from ..families import akf
 from ..lead import LeadState
 from ..screen import ScreenState
@@ -233,8 +233,9 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         restart = np.zeros((rows, n), dtype=bool)
         started = np.zeros((rows, n), dtype=bool)
         cold = np.zeros((rows, n), dtype=bool)
+        before, after = np.full((rows, n), np.nan), np.full((rows, n), np.nan)
         over_targets(cscreen.screen_block, n, *screen_args, *scr, zb, tb, lens, learn[begin:end], gaps[begin:end],
-                     accept, restart, started, cold)
+                     accept, restart, started, cold, before, after)
         lb = learn[begin:end] & accept
         buffer = np.full((rows, n, k, p), np.nan)
         ahead_buffer = np.full((rows, n, k, p), np.nan) if with_ahead else None
@@ -268,11 +269,22 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         else:
             for i in range(len(bank.families)):
                 run_family(i)
+        if record_experts:
+            experts_out[begin:end] = buffer
+            if with_ahead:
+                ahead_experts_out[begin:end] = ahead_buffer
+        if sums is not None:
+            _accumulate(sums[0], sums[1], buffer, zb, score[begin:end])
+            if with_ahead and score_ahead is not None:
+                _accumulate_ahead(sums[2], sums[3], ahead_buffer, z, begin, end, ahead_frames, score_ahead)
+        # the one-step weights see the experts within reach (the spec's within_reach); the lead head all of them
+        mixed = within_reach(bank, buffer, tb - before)
+        mixed_ahead = within_reach(bank, ahead_buffer, ahead_b - after) if with_ahead else None
         w_block = np.full((rows, n, k), np.nan) if record_experts else empty3
         go = lb & ~restart & ~cold
-        over_targets(crules.run_block, n, *rule_args, a, b, c, d, e, *cal_args, *cal, buffer, zb, lens, go,
+        over_targets(crules.run_block, n, *rule_args, a, b, c, d, e, *cal_args, *cal, mixed, zb, lens, go,
                      forecasts[begin:end], std[begin:end], covariance[begin:end] if record_covariance else empty4,
-                     w_block, ahead_buffer if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3,
+                     w_block, mixed_ahead if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3,
                      ahead_std[begin:end] if with_ahead else empty3, cold, initial_variance)
         if lead is not None:
             over_targets(clead.run_block, n, *rule_args, *lead_rule, *cal_args, *lead_cal, ahead_b,
@@ -280,14 +292,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
                          restart, lead_out[begin:end], lead_std[begin:end],
                          lead_covariance[begin:end] if record_covariance else empty4, cold, initial_variance)
         if record_experts:
-            experts_out[begin:end] = buffer
             weights_out[begin:end] = w_block
-            if with_ahead:
-                ahead_experts_out[begin:end] = ahead_buffer
-        if sums is not None:
-            _accumulate(sums[0], sums[1], buffer, zb, score[begin:end])
-            if with_ahead and score_ahead is not None:
-                _accumulate_ahead(sums[2], sums[3], ahead_buffer, z, begin, end, ahead_frames, score_ahead)
     head = None
     if lead is not None:
         head = LeadState(unpack_rule(bank, *lead_rule), CalibrationState(*lead_cal), due, pending, issued)

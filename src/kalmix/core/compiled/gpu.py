@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 import os
 
+import numba as nb
 import numpy as np
 
 from ..calibration import CalibrationState
@@ -29,6 +30,7 @@ from ..screen import ScreenState
 from . import kinematic as ckin
 from . import rules as crules
 from . import screen as cscreen
+from ._cache import JIT as _JIT
 from .calibration import calibrate_row
 from .calibration import pack_params as pack_calibration
 
@@ -56,7 +58,28 @@ def gpu_available() -> bool:
     return bool(os.environ.get("NUMBA_ENABLE_CUDASIM") == "1" or cuda.is_available())
 
 
-def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
+@nb.njit(inline="always", **_JIT)
+def _sleep_beyond(orders, x, span, reach):
+    """The spec's :func:`kalmix.core.engine.within_reach` on one target: across a ``span`` over ``reach`` the CA
+    experts (order 3) sleep (NaN) if a CV expert (order 2) has a forecast."""
+    if not span > reach:
+        return
+    k_count, p = x.shape
+    cv = False
+    for k in range(k_count):
+        if orders[k] == 2:
+            finite = True
+            for ci in range(p):
+                finite = finite and math.isfinite(x[k, ci])
+            cv = cv or finite
+    if cv:
+        for k in range(k_count):
+            if orders[k] != 2:
+                for ci in range(p):
+                    x[k, ci] = math.nan
+
+
+def _body(orders, q, r, initial, time_unit, max_step, max_variance, reach, mean, cov, last_time, initialised,
            rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
            threshold, max_rejects, warmup, window, position, velocity, seen, spread, count, rejects, outliers,
            points, low, high, cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale,
@@ -94,6 +117,7 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
     var_n = variance[:, :, n]
     errors_n = n_errors[:, n]
     for t in range(lengths[n]):
+        before = seen[n] if points[n] >= 2.0 else math.nan   # the spec's engine.span
         code = screen_row(threshold, max_rejects, warmup, window, position, velocity, seen, spread, count,
                           rejects, outliers, points, low, high, n, z[t, n], times[t, n], learn[t, n], False)
         # every expert's forecast of the row, and its learning from the same extrapolation
@@ -106,6 +130,7 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
         if learning:
             initialised[n] = True
             last_time[n] = times[t, n]
+        _sleep_beyond(orders, x, times[t, n] - before, reach)
         awake_count = forecast_row(rule, forgetting, share, a[:, n], b[:, n], c[:, n], dn[0], x, awake, w, logw,
                                    mix, var_n, ls[0], cal_max_variance, sigma)
         write_row(awake_count, mix, sigma, out[t, n], out_std[t, n])
@@ -125,6 +150,7 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, mean, cov, l
                 else:
                     for ci in range(p):
                         x[k, ci] = math.nan
+            _sleep_beyond(orders, x, ahead_times[t, n] - (seen[n] if points[n] >= 2.0 else math.nan), reach)
             awake_count = forecast_row(rule, forgetting, share, a[:, n], b[:, n], c[:, n], dn[0], x, awake, w, logw,
                                        mix, var_n, ls[0], cal_max_variance, sigma)
             write_row(awake_count, mix, sigma, out_ahead[t, n], out_ahead_std[t, n])
@@ -217,7 +243,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     launched = time.perf_counter()
     kernel[blocks, threads_per_block](
         device["orders"], device["q"], device["r"], device["initial"], device["tu"], max_step, max_variance,
-        device["mean"], device["cov"], device["last_time"], device["initialised"],
+        float(bank.reach), device["mean"], device["cov"], device["last_time"], device["initialised"],
         *_rule_scalars(bank), device["a"], device["b"], device["c"], device["d"], device["e"],
         float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window), *screen_dev,
         *pack_calibration(bank.calibration_params), float(bank.calibration_params.initial_variance),

@@ -110,15 +110,20 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
 
 @nb.njit(**KERNEL_JIT)
 def screen_block(lo, hi, threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
-                 outliers, points, low, high, z, times, lengths, present, gaps, accept, restart, started, cold):
+                 outliers, points, low, high, z, times, lengths, present, gaps, accept, restart, started, cold,
+                 before, after):
     """Every row of a block; ``started[t, n]``: target ``n`` had an accepted row (since a restart) before row t;
-    ``cold[t, n]``: a COLD row (the rule and the calibration start again once it is forecast)."""
+    ``cold[t, n]``: a COLD row (the rule and the calibration start again once it is forecast); ``before[t, n]``:
+    the time of the last accepted row before row t, ``after[t, n]`` after it (NaN while fewer than two: the
+    spec's :func:`kalmix.core.engine.span`)."""
     for n in range(lo, hi):
         for t in range(lengths[n]):
             started[t, n] = points[n] >= 1.0
+            before[t, n] = last_time[n] if points[n] >= 2.0 else np.nan
             code = screen_row(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count,
                               rejects, outliers, points, low, high, n, z[t, n], times[t, n], present[t, n],
                               gaps[t, n])
             accept[t, n] = code == ACCEPT or code == RESTART or code == COLD
             restart[t, n] = code == RESTART or code == GAP
             cold[t, n] = code == COLD
+            after[t, n] = last_time[n] if points[n] >= 2.0 else np.nan
