@@ -7,6 +7,8 @@ import pandas as pd
 import pytest
 
 from kalmix.bank import DEFAULT_BANK, DEFAULT_REACH, make_bank
+
+REACH = 8.0   # what the README advises on tracks sampled at irregular intervals
 from kalmix.core import engine
 from kalmix.core.compiled import engine as ce
 
@@ -27,8 +29,8 @@ def _far_columns(bank):
 @pytest.mark.parametrize("run", [engine.run, ce.run], ids=["spec", "compiled"])
 def test_across_a_long_step_only_the_cv_experts_weigh(run):
     z, t = _sparse_track()
-    bank = make_bank(2, **DEFAULT_BANK, length_unit=0.5, time_unit=1.0, n_akf=4)
-    assert bank.reach == DEFAULT_REACH * 1.0
+    bank = make_bank(2, **DEFAULT_BANK, length_unit=0.5, time_unit=1.0, n_akf=4, reach=REACH)
+    assert bank.reach == REACH * 1.0
     result = run(bank, z, t, record_experts=True)
     step = np.diff(t, axis=0, prepend=np.nan)
     far = _far_columns(bank)
@@ -50,14 +52,14 @@ def test_the_reach_changes_only_the_one_step_weights():
     z, t = _sparse_track(seed=1, rows=200)
     common = dict(**DEFAULT_BANK, length_unit=0.5, time_unit=1.0, n_akf=4, lead=3.0)
     near, everyone = (ce.run(make_bank(2, reach=reach, **common), z, t, record_experts=True)
-                      for reach in (DEFAULT_REACH, None))
+                      for reach in (REACH, None))
     assert np.array_equal(near.experts, everyone.experts, equal_nan=True)
     assert np.array_equal(near.lead, everyone.lead, equal_nan=True)
     assert np.array_equal(near.lead_std, everyone.lead_std, equal_nan=True)
     step = np.diff(t, axis=0, prepend=np.nan)
     late = (np.arange(len(t))[:, None] > 40) & np.isfinite(near.forecasts).all(-1)
     rms = lambda f, rows: float(np.sqrt(np.mean((f - z)[rows] ** 2)))  # noqa: E731
-    long_rows = late & (step > DEFAULT_REACH)
+    long_rows = late & (step > REACH)
     assert rms(near.forecasts, long_rows) < rms(everyone.forecasts, long_rows)
     assert not np.array_equal(near.forecasts, everyone.forecasts, equal_nan=True)
 
@@ -87,9 +89,14 @@ def test_span_needs_two_learned_rows():
     assert engine.span(state.screen, 5.0)[0] == 4.0
 
 
+def test_the_default_bank_has_no_reach():
+    assert DEFAULT_REACH is None and make_bank(2, **DEFAULT_BANK).reach == math.inf
+    assert make_bank(2, **DEFAULT_BANK).far_experts() is None
+
+
 def test_forecast_at_a_time_uses_the_reach_as_the_row_forecast_does():
     z, t = _sparse_track(seed=3, rows=60)
-    bank = make_bank(2, **DEFAULT_BANK, length_unit=0.5, time_unit=1.0, n_akf=4)
+    bank = make_bank(2, **DEFAULT_BANK, length_unit=0.5, time_unit=1.0, n_akf=4, reach=REACH)
     state = engine.init_bank_state(bank, 2)
     for i in range(40):
         state, _ = engine.step(bank, state, z[i], t[i])
@@ -141,13 +148,13 @@ def _predict(tmp_path, *extra, name="out.csv"):
 
 
 def test_cli_reach_none_and_a_number(tmp_path):
-    """--reach none gives every expert a say at every step: worse here (AR / CA / turn / AKF extrapolated over
-    18 report intervals); --reach 8 is the default."""
+    """--reach 8 lets only the CV experts predict across the 180 s steps: better here than every expert (AR /
+    CA / turn / AKF extrapolated over 18 report intervals), which is the default (--reach none)."""
     table = _reports()
-    default = _predict(tmp_path)[1]
-    assert default.equals(_predict(tmp_path, "--reach", "8", name="eight.csv")[1])
-    off = _predict(tmp_path, "--reach", "none", name="off.csv")[1]
-    assert not default.equals(off)
+    off = _predict(tmp_path)[1]
+    assert off.equals(_predict(tmp_path, "--reach", "none", name="none.csv")[1])
+    eight = _predict(tmp_path, "--reach", "8", name="eight.csv")[1]
+    assert not eight.equals(off)
 
     def rms(out):
         merged = table.merge(out, on=["vessel", "t"])
@@ -156,7 +163,7 @@ def test_cli_reach_none_and_a_number(tmp_path):
         ok = np.isfinite(nxt).all(1) & np.isfinite(pred).all(1) & (merged.groupby("vessel").cumcount() > 30)
         return float(np.sqrt(np.mean((nxt[ok] - pred[ok]) ** 2)))
 
-    assert rms(default) < 0.8 * rms(off)
+    assert rms(eight) < 0.8 * rms(off)
 
 
 @pytest.mark.parametrize("bad", ["0", "-2", "abc", "nan"])
@@ -190,3 +197,25 @@ def test_evaluate_takes_the_reach(tmp_path):
         import json
         rms[reach] = json.loads(out.read_text())["overall"]["mixture"]["one_step"]["rms"]
     assert rms["8"] < 0.8 * rms["none"]
+
+
+def test_compiled_equals_the_spec_across_long_steps_restarts_and_missing_rows():
+    """Bit for bit, with long steps right after restarts (a target with one learned row has no span) and
+    after missing rows, ahead times past the reach, and a lead head."""
+    z, t = _sparse_track(seed=4, rows=150)
+    z[30:33, 0] = np.nan
+    restart = np.zeros(t.shape, dtype=bool)
+    restart[[20, 60, 61, 100], 0] = True
+    restart[[45, 90], 1] = True
+    t[[21, 46, 91], [0, 1, 1]] = t[[20, 45, 90], [0, 1, 1]] + 30.0   # a long step right after a restart
+    t = np.maximum.accumulate(t, axis=0)
+    t[1:] += np.cumsum(np.diff(t, axis=0) <= 0, axis=0) * 1e-3   # keep the times increasing
+    bank = make_bank(2, **DEFAULT_BANK, length_unit=0.5, time_unit=1.0, n_akf=4, lead=2.0, reach=REACH)
+    ahead = t + np.where(np.arange(len(t))[:, None] % 3 == 0, 12.0, 1.0)
+    ref = engine.run(bank, z, t, ahead_times=ahead, restart=restart, record_experts=True)
+    fast = ce.run(bank, z, t, ahead_times=ahead, restart=restart, record_experts=True)
+    for name in ("forecasts", "std", "ahead", "ahead_std", "lead", "lead_std", "weights", "experts"):
+        assert np.array_equal(getattr(ref, name), getattr(fast, name), equal_nan=True), name
+    plain = ce.run(make_bank(2, **{**DEFAULT_BANK, "reach": None}, length_unit=0.5, time_unit=1.0, n_akf=4,
+                             lead=2.0), z, t, ahead_times=ahead, restart=restart)
+    assert not np.array_equal(plain.ahead, fast.ahead, equal_nan=True)   # the reach was crossed

@@ -335,12 +335,14 @@ BANK_KINDS = ("mixed", "kinematic", "akf", "ar", "kinematic+ar", "mixed+ar", "tu
 #: bound forgets at 0.99 a row: with the original rule (1.0) one kick of hawkeye_ball's ball capped every
 #: learning rate for the rest of the track (RMS 0.02007 against 0.01956; neutral on the other recordings).
 DEFAULT_RULE_OPTIONS = {"boa": {"bound_forgetting": 0.99}}
-#: make_bank's ``reach``, in time units, measured on AIS-like tracks (benchmarks/irregular_sampling.py; one-step
-#: RMS bridged / with the default gap rule, whose segments make the time unit 3.9 s against reports every 10 s):
-#: none 26.54 / 21.16 m; 1.5 units 10.19 / 20.79; 3 and 5: 10.30 / 21.48; 8 to 16: 10.30 / 21.16; 20: 26.54 /
-#: 21.16. 8 is over the default gap rule's 3 reference intervals, so it changes nothing on tracks sampled at a
-#: steady rate (a shorter reach would, on every missing frame: not measured on the recordings).
-DEFAULT_REACH = 8.0
+#: make_bank's ``reach`` (time units): off by default, as no value wins everywhere. Measured (one-step RMS;
+#: benchmarks/irregular_sampling.py, benchmarks/lead_and_intervals.py): on AIS-like tracks bridged across their
+#: reports (--max-gap none) reach 1.5 to 16 takes the mixture from 26.5 m to 10.2-10.3 m (restarting at gaps:
+#: 21.2 m); but skillcorner bridged across its gaps goes from 8.2 to 22.4 (across a lost player's gap, staying
+#: near the last position, as the frame-based AKF does, beats extrapolating a velocity), and H = 10 forecasts
+#: with the one-step weights get worse on the paper scenario (22.6 -> 66.2), cycling and skillcorner (the lead
+#: head, the default for H-step forecasts, is not affected). Use reach 8 on tracks sampled at irregular intervals.
+DEFAULT_REACH = None
 
 #: Process-noise levels q of the kinematic experts, in length_unit^2 per time_unit^3 (CV).
 KINEMATIC_PROCESS_LEVELS = tuple(10.0**e for e in range(-3, 4))
@@ -514,9 +516,8 @@ def make_bank(
         In time units: across a longer step (from a target's last learned row to the
         forecast's time) only the CV experts make the one-step forecast, when the bank has
         some (see :mod:`kalmix.core.engine`, "Reach"); None: every expert at every step.
-        The default (:data:`DEFAULT_REACH`, 8) is over the default gap rule's threshold (3
-        reference intervals): on tracks it restarts at gaps it only changes the forecasts of
-        the restart rows; it matters on irregularly sampled tracks that are not cut.
+        Off by default (:data:`DEFAULT_REACH`: what it wins and loses); 8 suits tracks sampled
+        at irregular intervals and not cut at gaps (``--max-gap none``).
     """
     from .core import aggregators
     from .core.engine import Bank, Family

@@ -111,7 +111,8 @@ def _length_unit(text):
 
 _REACH_HELP = ("Across a time step longer than this many time units only the constant-velocity experts make the "
                "one-step prediction (the others extrapolate fits made on the usual steps); 'none': every expert "
-               f"at every step [default: {DEFAULT_REACH:g}].")
+               "at every step. 8 suits tracks sampled at irregular intervals, with --max-gap none "
+               "[default: none].")
 
 
 def _reach(text):

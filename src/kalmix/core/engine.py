@@ -39,14 +39,15 @@ same numbers fast, and is what every command uses):
 An expert sleeps (is left out of the weights and of the rule's learning) while its
 forecast is not finite, e.g. before its first measurement.
 
-**Reach.** The one-step weights are learned mostly on typical steps. Across a step longer than
-the bank's ``reach`` (time-column units, from the target's last learned row to the forecast's
-time, once it has two learned rows: :func:`span`), the experts that extrapolate a fitted derivative or model (CA, AR, turn, the frame-based
-AKF) can be off by orders of magnitude where the constant-velocity ones are still fine, and a
-small weight on them ruins the mixture. There, only the CV experts (:data:`LONG_STEP_KINDS`)
-forecast for the one-step weights (the others sleep for that forecast), if any is awake; the
-experts themselves learn the row as usual, and the lead head, which learns its own weights on
-its own horizon, sees every expert (:func:`within_reach`).
+**Reach** (off unless the bank has one: ``make_bank(..., reach=...)``). The one-step weights
+are learned mostly on a track's usual steps. Across a step longer than the bank's ``reach``
+(time-column units, from the target's last learned row to the forecast's time, once it has two
+learned rows: :func:`span`), only the CV experts (:data:`LONG_STEP_KINDS`) forecast for the
+one-step weights (the others sleep for that forecast), if any is awake: on tracks sampled at
+irregular intervals the experts that extrapolate a fitted derivative or model (CA, AR, turn,
+the frame-based AKF) can be off by orders of magnitude there. The experts themselves learn the
+row as usual, and the lead head, which learns its own weights on its own horizon, sees every
+expert (:func:`within_reach`).
 """
 
 from __future__ import annotations
