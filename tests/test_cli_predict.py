@@ -91,12 +91,18 @@ def test_csv_gz_input(cli, tmp_path):
     assert result.exit_code == 0 and len(_read(result.stdout)) == len(data)
 
 
-def test_stdin_csv_streaming_equals_batch(cli, tmp_path):
+@pytest.mark.parametrize("extra", [[], ["--max-gap", "none", "--reach", "1.5"]], ids=["default", "reach"])
+def test_stdin_csv_streaming_equals_batch(cli, tmp_path, extra):
+    """With a reach, across the missing row and the gap only the CV experts predict, in a file and on stdin."""
     data = _tracks()
     path = _write_csv(data, tmp_path / "in.csv")
-    batch = _read(_run(cli, ["predict", path, *FAST, "-H", "3"]).stdout)
+    batch = _read(_run(cli, ["predict", path, *FAST, "-H", "3", *extra]).stdout)
+    if extra:
+        plain = _read(_run(cli, ["predict", path, *FAST, "-H", "3", "--max-gap", "none"]).stdout)
+        assert not np.allclose(plain["pred_px"], batch["pred_px"], equal_nan=True)
     interleaved = data.sort_values(["t", "object_id"], kind="stable")  # a live feed: rows of all tracks mixed
-    stream = _run(cli, ["predict", "-", *FAST, "-H", "3"], input=interleaved.to_csv(index=False, na_rep=""))
+    stream = _run(cli, ["predict", "-", *FAST, "-H", "3", *extra],
+                  input=interleaved.to_csv(index=False, na_rep=""))
     assert stream.exit_code == 0, stream.output
     stream = _sorted(_read(stream.stdout))
     assert list(stream.columns) == list(batch.columns)
