@@ -185,10 +185,11 @@ def test_the_intervals_are_scored_on_the_rows_of_the_one_step_errors():
         t = np.cumsum(steps)
         xy = np.cumsum(rng.normal(0, 1, (300, 2)), 0)
         frames.append(pd.DataFrame({"track_id": track, "time": t, "x": xy[:, 0], "y": xy[:, 1]}))
-    result = evaluate_table(pd.concat(frames), n_experts=4, peers=False, tune_units=False)
+    result = evaluate_table(pd.concat(frames), n_experts=4, peers=False, tune_units=False, horizon=3)
     assert result.streams.values.shape[1] > 20   # segments
-    one_step = result.overall["mixture"]["one_step"]
-    assert 2 * result.tuned["mixture"]["calibration"]["one_step"]["count"] == one_step["count"]   # rows, values
+    errors, calibration = result.overall["mixture"], result.tuned["mixture"]["calibration"]
+    assert 2 * calibration["one_step"]["count"] == errors["one_step"]["count"]   # rows, values
+    assert 2 * calibration["horizon"]["count"] == errors["horizon"]["count"]
 
 
 def test_plot_intervals_writes_a_png(tmp_path):
