@@ -106,8 +106,8 @@ def test_forecast_at_a_time_uses_the_reach_as_the_row_forecast_does():
     assert np.array_equal(mean, out.forecast) and np.array_equal(cov, out.covariance)
 
 
-@pytest.mark.parametrize("bad,error", [(0.0, ValueError), (-1.0, ValueError), (math.inf, ValueError),
-                                       ("3", TypeError), (True, TypeError)])
+@pytest.mark.parametrize("bad,error", [(0.0, ValueError), (-1.0, ValueError), (-math.inf, ValueError),
+                                       (math.nan, ValueError), ("3", TypeError), (True, TypeError)])
 def test_reach_is_checked(bad, error):
     with pytest.raises(error, match="reach"):
         make_bank(2, reach=bad)
@@ -118,6 +118,7 @@ def test_reach_is_in_time_units_and_in_the_description():
     assert bank.reach == 25.0 and bank.description["reach"] == 2.5
     assert make_bank(2, **bank.description).reach == 25.0   # a saved bank is rebuilt from its description
     assert make_bank(2, reach=None).reach == math.inf
+    assert make_bank(2, reach=math.inf).reach == math.inf and make_bank(2, reach=math.inf).description["reach"] is None
 
 
 # ------------------------------------------------------------------------------------------------ command line
@@ -178,6 +179,7 @@ def test_cli_reach_is_kept_in_the_state(tmp_path):
     assert first.exit_code == 0, first.output
     again, _ = _predict(tmp_path, "--reach", "4", "--state", state, name="again.csv")
     assert again.exit_code == 1 and "--reach" in again.output and "new --state" in again.output
+    assert "made with none, got 4.0" in again.output
 
 
 def test_evaluate_takes_the_reach(tmp_path):

@@ -118,11 +118,11 @@ def test_version_4_files_resume_as_they_ran(tmp_path):
     first.save(tmp_path / "s.npz")
     archive = dict(np.load(tmp_path / "s.npz"))
     meta = json.loads(str(archive["meta"]))
-    assert meta["format_version"] == 7
+    assert meta["format_version"] == 8
     meta["format_version"] = 4
     for name in ("state/lead/issued", "state/screen/low", "state/screen/high"):
         del archive[name]
-    del meta["config"]["rule_options"]
+    del meta["config"]["rule_options"], meta["config"]["reach"]
     np.savez(tmp_path / "v4.npz", **{**archive, "meta": np.array(json.dumps(meta))})
     second = TrackPredictor.load(tmp_path / "v4.npz")
     assert second.config.rule_options == {"bound_forgetting": 1.0}
@@ -185,6 +185,32 @@ def test_version_6_files_resume_without_the_warm_up_audit(tmp_path):
         assert second.loaded_version == 6
         part += [r.next for r in _rows(second, table.iloc[cut:])]
         assert np.array_equal(np.array(part), np.array(whole), equal_nan=True), cut
+
+
+def test_version_7_files_resume_without_a_reach(tmp_path):
+    """Version 7 settings had no reach: such a file resumes without one (as it ran), bit for bit; today's files
+    keep the reach they were made with."""
+    import json
+
+    table = _table()
+    whole = [r.next for r in _rows(TrackPredictor(StreamConfig(**CONFIG)), table)]
+    first = TrackPredictor(StreamConfig(**CONFIG))
+    part = [r.next for r in _rows(first, table.iloc[:70])]
+    first.save(tmp_path / "s.npz")
+    archive = dict(np.load(tmp_path / "s.npz"))
+    meta = json.loads(str(archive["meta"]))
+    assert meta["config"]["reach"] is None
+    meta["format_version"] = 7
+    del meta["config"]["reach"]
+    np.savez(tmp_path / "v7.npz", **{**archive, "meta": np.array(json.dumps(meta))})
+    second = TrackPredictor.load(tmp_path / "v7.npz")
+    assert second.loaded_version == 7 and second.config.reach is None
+    part += [r.next for r in _rows(second, table.iloc[70:])]
+    assert np.array_equal(np.array(part), np.array(whole), equal_nan=True)
+    reaching = TrackPredictor(StreamConfig(**{**CONFIG, "reach": 8.0}))
+    _rows(reaching, table.iloc[:10])
+    reaching.save(tmp_path / "r.npz")
+    assert TrackPredictor.load(tmp_path / "r.npz").config.reach == 8.0
 
 
 def test_load_rejects_other_files(tmp_path):

@@ -515,7 +515,7 @@ def make_bank(
     reach : float or None
         In time units: across a longer step (from a target's last learned row to the
         forecast's time) only the CV experts make the one-step forecast, when the bank has
-        some (see :mod:`kalmix.core.engine`, "Reach"); None: every expert at every step.
+        some (see :mod:`kalmix.core.engine`, "Reach"); None (or inf): every expert at every step.
         Off by default (:data:`DEFAULT_REACH`: what it wins and loses); 8 suits tracks sampled
         at irregular intervals and not cut at gaps (``--max-gap none``).
     """
@@ -597,8 +597,11 @@ def make_bank(
     level = float(level)
     if not 0.0 < level < 1.0:
         raise ValueError(f"level: expected a probability in (0, 1), got {level!r}")
-    if reach is not None:
+    if reach is not None and not (isinstance(reach, numbers.Real) and not isinstance(reach, bool)
+                                  and reach == math.inf):
         reach = _check_positive("reach", reach)
+    else:
+        reach = None   # inf: off, as None
     lead_params = None
     if lead is not None:
         lead_time = _check_positive("lead", lead)

@@ -82,6 +82,8 @@ from .core.engine import Bank, BankState, init_bank_state, tree_map
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Checkpoint", "auto_length_unit",
            "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
 
+#: 8: the settings hold the bank's reach (``StreamConfig.reach``); version 3-7 files are resumed
+#: without one (none), as they ran.
 #: 7: the glitch screen keeps its warm-up's extreme distances for the warm-up audit
 #: (:mod:`kalmix.core.screen`); version 3-6 files are resumed with a track still in its warm-up
 #: audited over the rest of it only (the distances before the save are not known), and a track
@@ -95,8 +97,8 @@ __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Che
 #: ``bound_forgetting`` 1.0, as they ran. Version 3 files (no calibration yet) are resumed with a
 #: fresh calibration as well; files of versions 1 and 2 held the previous single-mixture state and
 #: cannot be resumed.
-STATE_FORMAT_VERSION = 7
-_READABLE_VERSIONS = (3, 4, 5, 6, 7)
+STATE_FORMAT_VERSION = 8
+_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8)
 _MAGIC = "kalmix-track-predictor"
 #: Number of first non-gap time steps whose median is a track's reference interval.
 REFERENCE_INTERVALS = 16
@@ -1100,6 +1102,8 @@ class TrackPredictor:
                 if config.get("options"):   # gate arguments were taken, without effect, before they were refused
                     from .bank import GATE_OPTIONS
                     config["options"] = {k: v for k, v in config["options"].items() if k not in GATE_OPTIONS}
+                if meta["format_version"] < 8:
+                    config.setdefault("reach", None)   # no reach then, whatever today's default
                 if meta["format_version"] < 5 and config.get("rule") == "boa":
                     config["rule_options"] = {"bound_forgetting": 1.0, **config.get("rule_options", {})}
                 engine = cls(StreamConfig(**config), meta.get("position_names"))

@@ -375,6 +375,8 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
                                       ("--reach", reach, math.inf if stored.reach is None else stored.reach),
                                       ("--option", options or None, stored.options)):
                 if given is not None and given != have:
+                    if name == "--reach":
+                        have, given = (("none" if math.isinf(v) else v) for v in (have, given))
                     raise ValueError(f"{name}: the state file {state_path} was made with {have}, got {given}; "
                                      "use a new --state file to change it")
         kind = bank_kind or (engine.config.bank if engine is not None else DEFAULT_BANK["kind"])
