@@ -167,6 +167,12 @@ def test_cli_reach_none_and_a_number(tmp_path):
     assert rms(eight) < 0.8 * rms(off)
 
 
+def test_cli_reach_with_a_bank_without_cv_experts_warns(tmp_path):
+    result, out = _predict(tmp_path, "--reach", "8", "--bank", "ar")
+    assert result.exit_code == 0 and "--reach" in result.output and "changes nothing" in result.output
+    assert out.equals(_predict(tmp_path, "--bank", "ar", name="plain.csv")[1])
+
+
 @pytest.mark.parametrize("bad", ["0", "-2", "abc", "nan"])
 def test_cli_reach_refuses_bad_values(tmp_path, bad):
     result, _ = _predict(tmp_path, "--reach", bad)

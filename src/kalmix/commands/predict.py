@@ -383,6 +383,9 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
         if "akf" not in recipe_parts(kind) and (n_experts is not None or options):
             raise ValueError(f"{'--experts' if n_experts is not None else '--option'}: sets the AKF family, "
                              f"and --bank {kind} has none (use --bank mixed, mixed+ar, mixed+ar+turn or akf)")
+        if reach is not None and math.isfinite(reach) and "kinematic" not in recipe_parts(kind):
+            warnings.warn(f"--reach: --bank {kind} has no constant-velocity experts to keep across long steps, "
+                          "so the reach changes nothing")
         if lead is not None and horizon != 1:
             raise ValueError(f"--lead and --horizon: give one of them (--horizon H is the lead of H time units), "
                              f"got --lead {lead:g} and --horizon {horizon}")
