@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from kalmix import MixturePredictor
-from kalmix.streaming import GapTracker, StreamConfig, TrackPredictor, auto_length_unit
+from kalmix.streaming import STATE_FORMAT_VERSION, GapTracker, StreamConfig, TrackPredictor, auto_length_unit
 
 
 def _table(seed=0, scale=0.01):
@@ -29,6 +29,8 @@ def _rows(engine, table):
 
 
 CONFIG = dict(n_experts=6, seed=3, length_unit=0.01, horizon=3)
+#: State members that older files lack: the lead's issued intervals (before 6), the warm-up audit's (before 7).
+OLDER_MEMBERS = ("state/lead/issued", "state/screen/low", "state/screen/high")
 
 
 def test_rows_equal_batched_table():
@@ -106,53 +108,51 @@ def test_save_and_resume_is_bit_for_bit(tmp_path):
     assert second.config == StreamConfig(**CONFIG, time_unit=0.1)  # learned from the first time step, kept
 
 
-def test_version_4_files_resume_as_they_ran(tmp_path):
-    """Version 4 state files were written when BOA's bound did not forget: resumed with bound_forgetting 1."""
+def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
+    """Rows of a predictor over the whole table, and of one over its first ``cut`` rows, saved, made into a
+    version-``version`` file (without the archive ``members`` and the ``settings``), loaded and run over the
+    rest: ``(whole, resumed, loaded predictor, the saved archive)``."""
     import json
 
-    original = dict(CONFIG, rule_options={"bound_forgetting": 1.0})
     table = _table()
-    whole = [r.next for r in _rows(TrackPredictor(StreamConfig(**original)), table)]
-    first = TrackPredictor(StreamConfig(**original))
-    part = [r.next for r in _rows(first, table.iloc[:70])]
+    whole = _rows(TrackPredictor(StreamConfig(**config)), table)
+    first = TrackPredictor(StreamConfig(**config))
+    part = _rows(first, table.iloc[:cut])
     first.save(tmp_path / "s.npz")
-    archive = dict(np.load(tmp_path / "s.npz"))
-    meta = json.loads(str(archive["meta"]))
-    assert meta["format_version"] == 8
-    meta["format_version"] = 4
-    for name in ("state/lead/issued", "state/screen/low", "state/screen/high"):
-        del archive[name]
-    del meta["config"]["rule_options"], meta["config"]["reach"]
-    np.savez(tmp_path / "v4.npz", **{**archive, "meta": np.array(json.dumps(meta))})
-    second = TrackPredictor.load(tmp_path / "v4.npz")
+    saved = dict(np.load(tmp_path / "s.npz"))
+    meta = json.loads(str(saved["meta"]))
+    assert meta["format_version"] == STATE_FORMAT_VERSION == 8
+    meta["format_version"] = version
+    for name in settings:
+        del meta["config"][name]
+    older = {name: value for name, value in saved.items() if name not in members and name != "meta"}
+    np.savez(tmp_path / "older.npz", **older, meta=np.array(json.dumps(meta)))
+    second = TrackPredictor.load(tmp_path / "older.npz")
+    assert second.loaded_version == version
+    return whole, part + _rows(second, table.iloc[cut:]), second, saved
+
+
+def _next(rows):
+    return np.array([r.next for r in rows])
+
+
+def test_version_4_files_resume_as_they_ran(tmp_path):
+    """Version 4 state files were written when BOA's bound did not forget: resumed with bound_forgetting 1."""
+    original = dict(CONFIG, rule_options={"bound_forgetting": 1.0})
+    whole, resumed, second, _ = _as_older_file(tmp_path, original, 70, 4, OLDER_MEMBERS,
+                                               ("rule_options", "reach"))
     assert second.config.rule_options == {"bound_forgetting": 1.0}
-    part += [r.next for r in _rows(second, table.iloc[70:])]
-    assert np.array_equal(np.array(part), np.array(whole), equal_nan=True)
+    assert np.array_equal(_next(resumed), _next(whole), equal_nan=True)
     # the default now forgets the bound, and that changes the forecasts
-    default = [r.next for r in _rows(TrackPredictor(StreamConfig(**CONFIG)), table)]
-    assert not np.array_equal(np.array(default), np.array(whole), equal_nan=True)
+    default = _rows(TrackPredictor(StreamConfig(**CONFIG)), _table())
+    assert not np.array_equal(_next(default), _next(whole), equal_nan=True)
 
 
 def test_version_5_files_resume_without_issued_intervals(tmp_path):
     """Version 5 state files kept no issued interval with a pending lead forecast: they resume (those
     forecasts are scored against today's interval, as they were then), the one-step forecasts as they ran."""
-    import json
-
-    table = _table()
-    whole = _rows(TrackPredictor(StreamConfig(**CONFIG)), table)
-    first = TrackPredictor(StreamConfig(**CONFIG))
-    part = _rows(first, table.iloc[:70])
-    first.save(tmp_path / "s.npz")
-    archive = dict(np.load(tmp_path / "s.npz"))
-    assert np.isfinite(archive["state/lead/issued"]).any()   # forecasts were pending at the save
-    meta = json.loads(str(archive["meta"]))
-    meta["format_version"] = 5
-    for name in ("state/lead/issued", "state/screen/low", "state/screen/high"):
-        del archive[name]
-    np.savez(tmp_path / "v5.npz", **{**archive, "meta": np.array(json.dumps(meta))})
-    second = TrackPredictor.load(tmp_path / "v5.npz")
-    assert second.loaded_version == 5
-    part += _rows(second, table.iloc[70:])
+    whole, part, second, saved = _as_older_file(tmp_path, CONFIG, 70, 5, OLDER_MEMBERS)
+    assert np.isfinite(saved["state/lead/issued"]).any()   # forecasts were pending at the save
     for field in ("next", "next_std", "ahead"):   # the lead's weights do not depend on the intervals
         assert np.array_equal(np.array([getattr(r, field) for r in part]),
                               np.array([getattr(r, field) for r in whole]), equal_nan=True), field
@@ -167,48 +167,19 @@ def test_version_5_files_resume_without_issued_intervals(tmp_path):
 def test_version_6_files_resume_without_the_warm_up_audit(tmp_path):
     """Version 6 state files had no warm-up audit in the screen: a track past its warm-up resumes as it ran (its
     audit never comes); one still in it (clean, here) is audited over the rest of it only."""
-    import json
-
-    table = _table()
     for cut in (70, 4):
-        whole = [r.next for r in _rows(TrackPredictor(StreamConfig(**CONFIG)), table)]
-        first = TrackPredictor(StreamConfig(**CONFIG))
-        part = [r.next for r in _rows(first, table.iloc[:cut])]
-        first.save(tmp_path / "s.npz")
-        archive = dict(np.load(tmp_path / "s.npz"))
-        meta = json.loads(str(archive["meta"]))
-        meta["format_version"] = 6
-        for name in ("state/screen/low", "state/screen/high"):
-            del archive[name]
-        np.savez(tmp_path / "v6.npz", **{**archive, "meta": np.array(json.dumps(meta))})
-        second = TrackPredictor.load(tmp_path / "v6.npz")
-        assert second.loaded_version == 6
-        part += [r.next for r in _rows(second, table.iloc[cut:])]
-        assert np.array_equal(np.array(part), np.array(whole), equal_nan=True), cut
+        whole, resumed, _, _ = _as_older_file(tmp_path, CONFIG, cut, 6, OLDER_MEMBERS[1:])
+        assert np.array_equal(_next(resumed), _next(whole), equal_nan=True), cut
 
 
 def test_version_7_files_resume_without_a_reach(tmp_path):
     """Version 7 settings had no reach: such a file resumes without one (as it ran), bit for bit; today's files
     keep the reach they were made with."""
-    import json
-
-    table = _table()
-    whole = [r.next for r in _rows(TrackPredictor(StreamConfig(**CONFIG)), table)]
-    first = TrackPredictor(StreamConfig(**CONFIG))
-    part = [r.next for r in _rows(first, table.iloc[:70])]
-    first.save(tmp_path / "s.npz")
-    archive = dict(np.load(tmp_path / "s.npz"))
-    meta = json.loads(str(archive["meta"]))
-    assert meta["config"]["reach"] is None
-    meta["format_version"] = 7
-    del meta["config"]["reach"]
-    np.savez(tmp_path / "v7.npz", **{**archive, "meta": np.array(json.dumps(meta))})
-    second = TrackPredictor.load(tmp_path / "v7.npz")
-    assert second.loaded_version == 7 and second.config.reach is None
-    part += [r.next for r in _rows(second, table.iloc[70:])]
-    assert np.array_equal(np.array(part), np.array(whole), equal_nan=True)
+    whole, resumed, second, saved = _as_older_file(tmp_path, CONFIG, 70, 7, settings=("reach",))
+    assert second.config.reach is None
+    assert np.array_equal(_next(resumed), _next(whole), equal_nan=True)
     reaching = TrackPredictor(StreamConfig(**{**CONFIG, "reach": 8.0}))
-    _rows(reaching, table.iloc[:10])
+    _rows(reaching, _table().iloc[:10])
     reaching.save(tmp_path / "r.npz")
     assert TrackPredictor.load(tmp_path / "r.npz").config.reach == 8.0
 
