@@ -8,7 +8,8 @@ after 180 s). :func:`kalmix.experiments.evaluate.evaluate_table` with its peers:
 the default gap rule (a step over 3 reference intervals restarts the track: here the 30 s and
 180 s steps) and with no gap restart (``--max-gap none``, the experts predict across every
 step), each without and with ``--reach 8`` (across a step over 8 time units only the CV experts
-predict). For the bridged runs it also splits the default mixture's one-step errors (the engine on
+predict). For the bridged run it also gives the one-step RMS with the time unit forced to 3-180 s, for
+reach none, 8 and 1.5. For the bridged runs it also splits the default mixture's one-step errors (the engine on
 evaluation's rule for the units) between the long steps (> 60 s) and the others, and gives each family's best
 expert and its weight there.
 """
@@ -86,6 +87,26 @@ def _long_steps(table, result, reach=None):
     return out
 
 
+def _time_units(table, result, units=(3.0, 10.58, 30.0, 60.0, 180.0), reaches=(None, 8.0, 1.5)):
+    """The default bank on the bridged tracks with the time unit forced (the evaluation's length unit and tuning
+    part), one-step RMS per (time unit, reach)."""
+    from kalmix.core.compiled import engine
+    from kalmix.io import to_arrays
+
+    arrays = to_arrays(table)
+    z, t = arrays.values, arrays.times
+    tuning = np.arange(len(z))[:, None] < 0.2 * np.isfinite(t).sum(axis=0)[None, :]
+    out = {}
+    for time_unit in units:
+        for reach in reaches:
+            bank = make_bank(2, **DEFAULT_BANK, length_unit=result.tuned["length_unit"]["rule"], time_unit=time_unit,
+                             reach=reach)
+            run = engine.run(bank, z, t)
+            scored = ~tuning & np.isfinite(run.forecasts).all(-1) & np.isfinite(z).all(-1)
+            out[f"time unit {time_unit:g}, reach {reach}"] = float(np.sqrt(np.mean((run.forecasts - z)[scored] ** 2)))
+    return out
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", default=None)
@@ -101,6 +122,9 @@ def main(argv=None):
         print(f"{name}: {s['segments']} segments; mixture {s['mixture']:.4g} m, best expert {s['best_expert']:.4g}, "
               f"best peer {s['best_peer']} {s['best_peer_rms']:.4g}; 95 % coverage {100 * s['coverage_95']:.1f} %, "
               f"mean NEES {s['mean_nees']:.3g}")
+        if math.isinf(factor) and reach is None:
+            report["bridged, by time unit and reach"] = units = _time_units(table, result)
+            print("  " + "; ".join(f"{key}: {value:.4g} m" for key, value in units.items()))
         if math.isinf(factor):
             report[f"{name}, by step"] = split = _long_steps(table, result, reach)
             print(f"  mixture on steps > {LONG_STEP:g} s: {split['mixture_long']:.4g} m ({split['rows_long']} rows), "
