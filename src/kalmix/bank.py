@@ -597,11 +597,7 @@ def make_bank(
     level = float(level)
     if not 0.0 < level < 1.0:
         raise ValueError(f"level: expected a probability in (0, 1), got {level!r}")
-    if reach is not None and not (isinstance(reach, numbers.Real) and not isinstance(reach, bool)
-                                  and reach == math.inf):
-        reach = _check_positive("reach", reach)
-    else:
-        reach = None   # inf: off, as None
+    reach = None if reach is None or reach == math.inf else _check_positive("reach", reach)   # inf: off
     lead_params = None
     if lead is not None:
         lead_time = _check_positive("lead", lead)

@@ -219,6 +219,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     sums = [np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k))] if score is not None else None
 
     offsets = [cols.start for cols in bank.slices()]
+    reaching = bank.far_experts() is not None   # else no expert ever sleeps for a long step
     costliest_first = sorted(range(len(bank.families)), key=lambda i: -_family_cost(bank.families[i]))
     side_by_side = families_in_parallel(n) and t_count * n >= SIDE_BY_SIDE_MIN_ROWS
     per_row = n * k * p * 8 * (2 if with_ahead else 1)
@@ -278,8 +279,10 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
             if with_ahead and score_ahead is not None:
                 _accumulate_ahead(sums[2], sums[3], ahead_buffer, z, begin, end, ahead_frames, score_ahead)
         # the one-step weights see the experts within reach (the spec's within_reach); the lead head all of them
-        mixed = within_reach(bank, buffer, tb - before)
-        mixed_ahead = within_reach(bank, ahead_buffer, ahead_b - after) if with_ahead else None
+        mixed, mixed_ahead = buffer, ahead_buffer
+        if reaching:
+            mixed = within_reach(bank, buffer, tb - before)
+            mixed_ahead = within_reach(bank, ahead_buffer, ahead_b - after) if with_ahead else None
         w_block = np.full((rows, n, k), np.nan) if record_experts else empty3
         go = lb & ~restart & ~cold
         over_targets(crules.run_block, n, *rule_args, a, b, c, d, e, *cal_args, *cal, mixed, zb, lens, go,
