@@ -219,7 +219,8 @@ def test_compiled_equals_the_spec_across_long_steps_restarts_and_missing_rows():
     t = np.maximum.accumulate(t, axis=0)
     t[1:] += np.cumsum(np.diff(t, axis=0) <= 0, axis=0) * 1e-3   # keep the times increasing
     bank = make_bank(2, **DEFAULT_BANK, length_unit=0.5, time_unit=1.0, n_akf=4, lead=2.0, reach=REACH)
-    ahead = t + np.where(np.arange(len(t))[:, None] % 3 == 0, 12.0, 1.0)
+    row = np.arange(len(t))[:, None] % 3
+    ahead = t + np.where(row == 0, 12.0, np.where(row == 1, REACH - 0.5, 1.0))   # past, just within, well within
     ref = engine.run(bank, z, t, ahead_times=ahead, restart=restart, record_experts=True)
     fast = ce.run(bank, z, t, ahead_times=ahead, restart=restart, record_experts=True)
     for name in ("forecasts", "std", "ahead", "ahead_std", "lead", "lead_std", "weights", "experts"):
