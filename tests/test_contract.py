@@ -135,6 +135,33 @@ def test_boa_competes_with_the_best_convex_combination():
     assert np.abs(mixture - y[0]).max() < 1e-2 and w[3] < 0.01 and w[1] == w.max()
 
 
+def test_boa_delay_divides_the_second_order_rate_and_the_lead_head_takes_its_rows():
+    """BOA with delay D: eta_k = min(1 / (2 B_k), sqrt(ln K / (D V_k))) (the range bound unchanged). A bank's lead
+    head of H rows learns with D = H (make_bank), its one-step rule with D = 1. (Compiled = reference with a
+    delayed lead head: test_contract_with_a_lead_head_and_gap_restarts.)"""
+    from kalmix.core import engine
+    from kalmix.core.aggregators import boa
+
+    state = boa.State(np.zeros((1, 3)), np.array([[4.0, 0.01, 0.0]]), np.array([[0.1, 0.1, 0.1]]))
+    for delay in (1.0, 4.0):
+        eta = boa.learning_rates(state, 3, delay)[0]
+        expected = np.minimum(1 / (2 * 0.1), np.sqrt(np.log(3) / (delay * np.array([4.0, 0.01]))))
+        np.testing.assert_allclose(eta[:2], expected, rtol=1e-15)
+        assert eta[2] == eta[:2].max()   # an uninformed expert takes the largest informed rate
+    assert boa.learning_rates(state, 3, 4.0)[0, 0] == pytest.approx(boa.learning_rates(state, 3)[0, 0] / 2)
+    assert boa.learning_rates(state, 3, 4.0)[0, 1] == 5.0   # capped by 1 / (2 B): no delay there
+
+    z, t = benign_tracks(seed=1)
+    bank = make_bank(2, "kinematic", length_unit=0.3, lead=4.0)
+    assert bank.lead.frames == 4 and bank.lead_rule_params.delay == 4.0 and bank.rule_params.delay == 1.0
+    one = make_bank(2, "kinematic", length_unit=0.3, lead=4.0, lead_delay=1.0)
+    assert one.lead_rule_params.delay == 1.0
+    delayed, plain = engine.run(bank, z, t), engine.run(one, z, t)
+    assert np.array_equal(delayed.forecasts, plain.forecasts, equal_nan=True)   # the one-step rule is the same
+    assert np.array_equal(delayed.state.rule.regret, plain.state.rule.regret)
+    assert not np.allclose(delayed.lead, plain.lead, equal_nan=True)   # the lead head's is not
+
+
 def test_rules_are_scale_free():
     """BOA and ML-Poly give the same weights when the data are multiplied by 1e6."""
     z, t = benign_tracks(seed=3)

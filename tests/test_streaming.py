@@ -111,9 +111,12 @@ def test_save_and_resume_is_bit_for_bit(tmp_path):
 def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     """Rows of a predictor over the whole table, and of one over its first ``cut`` rows, saved, made into a
     version-``version`` file (without the archive ``members`` and the ``settings``), loaded and run over the
-    rest: ``(whole, resumed, loaded predictor, the saved archive)``."""
+    rest: ``(whole, resumed, loaded predictor, the saved archive)``. Both run as such a file ran: before
+    version 9, the lead head learned at the one-step rate (``lead_delay`` 1, a setting those files lack)."""
     import json
 
+    if version < 9:
+        config, settings = {**config, "lead_delay": 1.0}, (*settings, "lead_delay")
     table = _table()
     whole = _rows(TrackPredictor(StreamConfig(**config)), table)
     first = TrackPredictor(StreamConfig(**config))
@@ -121,7 +124,7 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     first.save(tmp_path / "s.npz")
     saved = dict(np.load(tmp_path / "s.npz"))
     meta = json.loads(str(saved["meta"]))
-    assert meta["format_version"] == STATE_FORMAT_VERSION == 8
+    assert meta["format_version"] == STATE_FORMAT_VERSION == 9
     meta["format_version"] = version
     for name in settings:
         del meta["config"][name]
@@ -182,6 +185,24 @@ def test_version_7_files_resume_without_a_reach(tmp_path):
     _rows(reaching, _table().iloc[:10])
     reaching.save(tmp_path / "r.npz")
     assert TrackPredictor.load(tmp_path / "r.npz").config.reach == 8.0
+
+
+def test_version_8_files_resume_with_the_lead_learning_at_the_one_step_rate(tmp_path):
+    """Version 8 settings had no lead delay: such a file resumes with the lead head's rule at the one-step rate
+    (lead_delay 1, as it ran), bit for bit, lead forecasts included; today's default (the lead's rows) differs."""
+    whole, resumed, second, _ = _as_older_file(tmp_path, CONFIG, 70, 8)
+    assert second.config.lead_delay == 1.0 and second.params.lead_rule_params.delay == 1.0
+    for field in ("next", "ahead"):
+        assert np.array_equal(np.array([getattr(r, field) for r in resumed]),
+                              np.array([getattr(r, field) for r in whole]), equal_nan=True), field
+    today = TrackPredictor(StreamConfig(**CONFIG))
+    rows = _rows(today, _table())
+    assert today.params.lead.frames == 3 and today.params.lead_rule_params.delay == 3.0
+    assert np.array_equal(_next(rows), _next(whole), equal_nan=True)   # the one-step rule did not change
+    ahead = np.array([r.ahead for r in rows])
+    assert not np.array_equal(ahead, np.array([r.ahead for r in whole]), equal_nan=True)
+    today.save(tmp_path / "today.npz")
+    assert TrackPredictor.load(tmp_path / "today.npz").config.lead_delay is None
 
 
 def test_load_rejects_other_files(tmp_path):

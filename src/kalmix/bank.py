@@ -438,6 +438,7 @@ def make_bank(
     outlier_threshold: float = 1000.0,
     outlier_rejects: int = 3,
     lead: float | None = None,
+    lead_delay: float | None = None,
     level: float = 0.95,
     ar_orders=AR_ORDERS,
     ar_forgetting=AR_FORGETTING,
@@ -484,7 +485,8 @@ def make_bank(
     rule_options : dict, optional
         The rule's parameters (e.g. ``{"forgetting": 0.999, "share": 0.01}``), over
         :data:`DEFAULT_RULE_OPTIONS` (BOA: ``bound_forgetting`` 0.99; give
-        ``{"bound_forgetting": 1.0}`` for the original rule).
+        ``{"bound_forgetting": 1.0}`` for the original rule). A lead head's rule is the same, except
+        BOA's ``delay``, multiplied by the lead's frames (:attr:`kalmix.core.engine.Bank.lead_rule_params`).
     akf_options : dict, optional
         Other :func:`make_params` arguments of the AKF family's experts (``dynamics``,
         ``order``, the noise ranges, ...); those of the gate (:data:`GATE_OPTIONS`) are
@@ -500,6 +502,12 @@ def make_bank(
         units after each row (``round(lead / time_unit)`` rows for frame-based experts),
         with weights and intervals learned on their own, delayed errors; a row within half
         a ``time_unit`` of a forecast's time scores it.
+    lead_delay : float, optional
+        The lead head's rule learns with BOA's ``delay`` multiplied by this (see
+        :mod:`kalmix.core.aggregators.boa`): a forecast is scored that many rows after it is
+        made. Default: the lead's rows, ``round(lead / time_unit)``; 1 is the one-step
+        rule's learning rate (as state files before format 9 ran). Only BOA has a delay; ignored
+        without a ``lead``.
     level : float
         The central interval whose coverage the calibration aims at
         (:mod:`kalmix.core.calibration`); intervals are ``±z(level) std``.
@@ -546,6 +554,8 @@ def make_bank(
     for key in ("scale", "scale_factor"):   # fixed share: 0 = the online scale (scale), a positive factor
         if key in options:
             _check_positive(f"rule_options[{key!r}]", options[key], allow_zero=key == "scale")
+    if "delay" in options and not _check_positive("rule_options['delay']", options["delay"]) >= 1:
+        raise ValueError(f"rule_options['delay']: expected a number >= 1, got {options['delay']!r}")
     if "share" in options:
         share = _check_positive("rule_options['share']", options["share"], allow_zero=True)
         if share >= 1:
@@ -604,9 +614,15 @@ def make_bank(
         if lead_time / tunit > MAX_HORIZON:
             raise ValueError(f"lead: expected at most {MAX_HORIZON} time units ({MAX_HORIZON * tunit:g}), "
                              f"got {lead!r}")
-        lead_params = LeadParams(time=lead_time, frames=max(1, int(round(lead_time / tunit))), tolerance=0.5 * tunit)
+        frames = max(1, int(round(lead_time / tunit)))
+        delay = float(frames) if lead_delay is None else _check_positive("lead_delay", lead_delay)
+        if not delay >= 1:
+            raise ValueError(f"lead_delay: expected a number >= 1 (rows between a forecast and its score), "
+                             f"got {lead_delay!r}")
+        lead_params = LeadParams(time=lead_time, frames=frames, tolerance=0.5 * tunit, delay=delay)
     description = dict(kind=kind, rule=rule, outlier_threshold=threshold, outlier_rejects=int(outlier_rejects),
-                       length_unit=unit, time_unit=tunit, seed=seed, n_akf=n_akf, lead=lead, level=level,
+                       length_unit=unit, time_unit=tunit, seed=seed, n_akf=n_akf, lead=lead,
+                       lead_delay=None if lead_params is None else lead_params.delay, level=level,
                        process_levels=[float(v) for v in process_levels],
                        measurement_levels=[float(v) for v in measurement_levels],
                        rule_options=options, akf_options=dict(akf_options or {}), reach=reach)

@@ -82,6 +82,8 @@ from .core.engine import Bank, BankState, init_bank_state, tree_map
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Checkpoint", "auto_length_unit",
            "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
 
+#: 9: the settings hold the lead head's delay (``StreamConfig.lead_delay``: BOA's learning rate over a lead
+#: of H rows is divided by sqrt(H)); version 3-8 files are resumed with a delay of 1, as they ran.
 #: 8: the settings hold the bank's reach (``StreamConfig.reach``); version 3-7 files are resumed
 #: without one (none), as they ran.
 #: 7: the glitch screen keeps its warm-up's extreme distances for the warm-up audit
@@ -97,8 +99,8 @@ __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Che
 #: ``bound_forgetting`` 1.0, as they ran. Version 3 files (no calibration yet) are resumed with a
 #: fresh calibration as well; files of versions 1 and 2 held the previous single-mixture state and
 #: cannot be resumed.
-STATE_FORMAT_VERSION = 8
-_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8)
+STATE_FORMAT_VERSION = 9
+_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9)
 _MAGIC = "kalmix-track-predictor"
 #: Number of first non-gap time steps whose median is a track's reference interval.
 REFERENCE_INTERVALS = 16
@@ -213,6 +215,8 @@ class StreamConfig:
     reach : float or None
         In time units: across a longer step only the CV experts make the one-step forecast
         (``reach`` of :func:`kalmix.bank.make_bank`); None: every expert at every step.
+    lead_delay : float or None
+        ``lead_delay`` of :func:`kalmix.bank.make_bank` (None: the lead's rows); only with a lead.
     """
 
     n_experts: int = 40
@@ -228,6 +232,7 @@ class StreamConfig:
     rule_options: dict = field(default_factory=dict)
     lead: float | None = None
     reach: float | None = DEFAULT_REACH
+    lead_delay: float | None = None
 
     def __post_init__(self):
         import numbers
@@ -235,7 +240,7 @@ class StreamConfig:
         from .bank import BANK_KINDS
 
         self.horizon = check_horizon(self.horizon)
-        for name in ("lead", "time_unit", "max_gap", "max_gap_factor", "reach"):
+        for name in ("lead", "time_unit", "max_gap", "max_gap_factor", "reach", "lead_delay"):
             value = getattr(self, name)
             if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)):
                 raise TypeError(f"{name}: expected a number, got {type(value).__name__} {value!r:.80}")
@@ -265,7 +270,7 @@ class StreamConfig:
         unit = self.time_unit if self.time_unit is not None else (self.lead if self.lead is not None else 1.0)
         make_bank(1, self.bank, rule=self.rule, length_unit=self.length_unit, time_unit=unit,
                   seed=self.seed, n_akf=self.n_experts, akf_options=self.options, lead=self.lead_time(),
-                  rule_options=self.rule_options, reach=self.reach)
+                  rule_options=self.rule_options, reach=self.reach, lead_delay=self.lead_delay)
 
     def lead_time(self) -> float | None:
         """The lead head's lead in time-column units: ``lead``, or ``horizon`` time units, or None."""
@@ -571,7 +576,8 @@ class TrackPredictor:
         c = self.config
         return make_bank(measurement_dim, c.bank, rule=c.rule, length_unit=c.length_unit,
                          time_unit=1.0 if c.time_unit is None else c.time_unit, seed=c.seed, n_akf=c.n_experts,
-                         akf_options=c.options, lead=c.lead_time(), rule_options=c.rule_options, reach=c.reach)
+                         akf_options=c.options, lead=c.lead_time(), rule_options=c.rule_options, reach=c.reach,
+                         lead_delay=c.lead_delay)
 
     def _unit_step_taken_back(self, track, gaps: GapTracker) -> None:
         """Warn once when the step the time unit was learned from (a track's first) is taken back: a row came
@@ -1104,6 +1110,8 @@ class TrackPredictor:
                     config["options"] = {k: v for k, v in config["options"].items() if k not in GATE_OPTIONS}
                 if meta["format_version"] < 8:
                     config.setdefault("reach", None)   # no reach then, whatever today's default
+                if meta["format_version"] < 9:
+                    config.setdefault("lead_delay", 1.0)   # the lead head learned at the one-step rate then
                 if meta["format_version"] < 5 and config.get("rule") == "boa":
                     config["rule_options"] = {"bound_forgetting": 1.0, **config.get("rule_options", {})}
                 engine = cls(StreamConfig(**config), meta.get("position_names"))

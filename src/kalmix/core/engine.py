@@ -122,6 +122,16 @@ class Bank:
     def rule_module(self):
         return aggregators.RULES[self.rule]
 
+    @property
+    def lead_rule_params(self):
+        """The lead head's rule parameters: the rule's, with a delayed-feedback rule's ``delay`` (BOA's)
+        multiplied by the lead's (:class:`~kalmix.core.lead.LeadParams`; ``make_bank``: its frames, the
+        forecasts the head issues per feedback it receives)."""
+        params = self.rule_params
+        if self.lead is None or "delay" not in params._fields:
+            return params
+        return params._replace(delay=params.delay * self.lead.delay)
+
     def slices(self) -> list[slice]:
         """Each family's columns in the ``(N, K, p)`` expert axis."""
         out, start = [], 0
@@ -298,7 +308,7 @@ def forecast(bank: Bank, state: BankState, time, frames: int = 1, *, lead: bool 
     experts = expert_forecasts(bank, state, time, frames)
     if not lead:
         experts = within_reach(bank, experts, span(state.screen, time))
-    _, mean, cov = lead_head.forecast(bank, state.lead if lead else state, experts)
+    _, mean, cov = lead_head.forecast(bank, state.lead if lead else state, experts, lead=lead)
     return mean, cov
 
 
@@ -393,7 +403,7 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
         target = time + bank.lead.time if ahead_time is None else np.broadcast_to(ahead_time, (n,))
         head = lead_head.learn(bank, new.lead, z, time, go)
         later = expert_forecasts(bank, new, target, bank.lead.frames)
-        _, lead_mix, lead_cov = lead_head.forecast(bank, head, later)
+        _, lead_mix, lead_cov = lead_head.forecast(bank, head, later, lead=True)
         head = lead_head.push(bank, head, later, target, learn & (state.screen.points >= 1), restart, lead_mix,
                               _std(lead_cov))
         new = new._replace(lead=head)

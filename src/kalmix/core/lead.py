@@ -35,6 +35,7 @@ class LeadParams(NamedTuple):
     frames: int          # the same lead in rows, for frame-based families
     tolerance: float     # a row within this of a forecast's time scores it
     capacity: int = 16   # pending forecasts kept per target
+    delay: float = 1.0   # the rule's delay factor (BOA: its learning rate / sqrt(delay)); make_bank: ``frames``
 
 
 class LeadState(NamedTuple):
@@ -47,7 +48,7 @@ class LeadState(NamedTuple):
 
 def init(bank, n_targets: int) -> LeadState:
     k, p, c = bank.n_experts, bank.measurement_dim, bank.lead.capacity
-    return LeadState(bank.rule_module.init(bank.rule_params, n_targets, k),
+    return LeadState(bank.rule_module.init(bank.lead_rule_params, n_targets, k),
                      calibration.init(bank.calibration_params, n_targets, k, p),
                      np.full((n_targets, c), np.nan), np.full((n_targets, c, k, p), np.nan),
                      np.full((n_targets, c, 2, p), np.nan))
@@ -66,10 +67,10 @@ def learn(bank, state: LeadState, measurement, time, go) -> LeadState:
             continue
         experts = state.pending[:, c]
         awake = np.isfinite(experts).all(axis=-1)
-        w = bank.rule_module.weights(bank.rule_params, rule, awake)
+        w = bank.rule_module.weights(bank.lead_rule_params, rule, awake)
         cal = calibration.update(bank.calibration_params, cal, w, experts, awake, measurement, matched[:, c],
                                  state.issued[:, c])
-        rule = bank.rule_module.update(bank.rule_params, rule, experts, measurement, awake, matched[:, c])
+        rule = bank.rule_module.update(bank.lead_rule_params, rule, experts, measurement, awake, matched[:, c])
     # keep the others in order
     order = np.argsort(done, axis=1, kind="stable")
     kept = np.take_along_axis(np.where(done, np.nan, due), order, axis=1)
@@ -79,12 +80,12 @@ def learn(bank, state: LeadState, measurement, time, go) -> LeadState:
     return LeadState(rule, cal, kept, np.where(free, np.nan, pending), np.where(free, np.nan, issued))
 
 
-def forecast(bank, state, experts):
+def forecast(bank, state, experts, *, lead: bool = False):
     """Weights ``(N, K)``, mean ``(N, p)`` and covariance ``(N, p, p)`` of ``experts (N, K, p)`` under a head:
-    ``state`` has a ``rule`` and a ``calibration`` state (a :class:`LeadState`, or a bank's state for the
-    one-step forecasts)."""
+    ``state`` has a ``rule`` and a ``calibration`` state: a :class:`LeadState` with ``lead`` (its rule runs
+    with :attr:`~kalmix.core.engine.Bank.lead_rule_params`), or a bank's state for the one-step forecasts."""
     awake = np.isfinite(experts).all(axis=-1)
-    w = bank.rule_module.weights(bank.rule_params, state.rule, awake)
+    w = bank.rule_module.weights(bank.lead_rule_params if lead else bank.rule_params, state.rule, awake)
     mean, cov = calibration.moments(bank.calibration_params, state.calibration, w, experts, awake)
     return w, mean, cov
 

@@ -6,7 +6,7 @@ Parameter-free in the scale of the data: with the linearised regret
 .. math::
 
     V_k \\leftarrow \\rho V_k + r_k^2,\\quad B_k \\leftarrow \\max(\\beta B_k, |r_k|),\\quad
-    \\eta_k = \\min\\Big(\\frac{1}{2 B_k}, \\sqrt{\\frac{\\ln K}{V_k}}\\Big),
+    \\eta_k = \\min\\Big(\\frac{1}{2 B_k}, \\sqrt{\\frac{\\ln K / D}{V_k}}\\Big),
 
     \\tilde R_k \\leftarrow \\rho \\tilde R_k + r_k - \\eta_k r_k^2,\\qquad
     w_k \\propto \\pi_k\\, \\eta_k \\exp(\\eta_k \\tilde R_k),
@@ -18,6 +18,14 @@ competes with the best convex combination of the experts. :math:`\\beta < 1`
 relocation) otherwise caps :math:`\\eta_k \\le 1/(2B_k)` for the rest of the track and the
 weights stay near uniform long after the event. An expert with no regret yet
 (:math:`V_k = 0`) takes the largest learning rate of the others (1 when none has one).
+
+:math:`D` (``delay``, 1 by default) is the number of forecasts issued per feedback received: a
+forecast H rows ahead is scored H rows after it is made, so the H - 1 forecasts issued in
+between use weights that have not yet seen its error. Exponential weights with delayed feedback
+keep their regret bound when the learning rate is divided by :math:`\\sqrt{D}`, D = H
+(Joulani, György & Szepesvári 2013; Quanrud & Khashabi 2015); the lead head's rule runs with
+``delay = frames`` of its lead. Only the second-order rate is scaled: the range bound
+:math:`\\eta_k \\le 1/(2 B_k)` keeps :math:`\\eta_k |r_k| \\le 1/2`, which the delay does not change.
 """
 
 from __future__ import annotations
@@ -36,6 +44,7 @@ class Params(NamedTuple):
     forgetting: float = 1.0   # rho in (0, 1]
     share: float = 0.0        # alpha in [0, 1)
     bound_forgetting: float = 1.0   # beta in (0, 1]
+    delay: float = 1.0        # D >= 1: forecasts issued per feedback (the lead head's frames)
 
 
 class State(NamedTuple):
@@ -49,18 +58,23 @@ def init(params: Params, n_targets: int, n_experts: int) -> State:
     return State(zeros, zeros.copy(), zeros.copy())
 
 
-def learning_rates(state: State, n_experts: int) -> np.ndarray:
+def _log_experts(n_experts: int, delay: float) -> float:
+    """:math:`\\ln K / D`, the numerator of the second-order rate (exactly :math:`\\ln K` for D = 1)."""
+    return math.log(max(n_experts, 2)) / delay
+
+
+def learning_rates(state: State, n_experts: int, delay: float = 1.0) -> np.ndarray:
     """:math:`\\eta_k`, with the uninformed experts at the largest informed rate (1 if none)."""
     informed = state.variance > 0
     with np.errstate(divide="ignore", invalid="ignore"):
-        eta = np.minimum(1.0 / (2.0 * state.bound), np.sqrt(math.log(max(n_experts, 2)) / state.variance))
+        eta = np.minimum(1.0 / (2.0 * state.bound), np.sqrt(_log_experts(n_experts, delay) / state.variance))
     eta = np.where(informed, eta, 0.0)
     top = eta.max(axis=-1, keepdims=True)
     return np.where(informed, eta, np.where(top > 0, top, 1.0))
 
 
 def weights(params: Params, state: State, awake: np.ndarray) -> np.ndarray:
-    eta = learning_rates(state, state.regret.shape[-1])
+    eta = learning_rates(state, state.regret.shape[-1], params.delay)
     w = normalise_awake(log(eta) + eta * state.regret, awake)
     count = awake.sum(axis=-1, keepdims=True)
     floor = np.where(awake, params.share / np.maximum(count, 1), 0.0)
@@ -77,7 +91,7 @@ def update(params: Params, state: State, experts, measurement, awake, learn) -> 
     informed = variance > 0
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         eta = np.where(informed, np.minimum(1.0 / (2.0 * bound),
-                                            np.sqrt(math.log(max(r.shape[-1], 2)) / variance)), 0.0)
+                                            np.sqrt(_log_experts(r.shape[-1], params.delay) / variance)), 0.0)
     with np.errstate(invalid="ignore", over="ignore"):
         regret = rho * state.regret + r - eta * r * r
     with np.errstate(over="ignore", invalid="ignore"):

@@ -72,11 +72,13 @@ def unpack_rule(bank: Bank, a, b, c, d, e):
     return module.State(a, d, e)
 
 
-def _rule_scalars(bank: Bank):
-    params = bank.rule_params
+def _rule_scalars(bank: Bank, params=None):
+    """The rule's scalars as the kernels take them: code, forgetting, share, scale, scale_factor, bound_forgetting,
+    delay (of ``params``, default the bank's one-step rule's)."""
+    params = bank.rule_params if params is None else params
     return (crules.RULE_CODES[bank.rule], float(getattr(params, "forgetting", 1.0)), float(params.share),
             float(getattr(params, "scale", 0.0)), float(getattr(params, "scale_factor", 0.0)),
-            float(getattr(params, "bound_forgetting", 1.0)))
+            float(getattr(params, "bound_forgetting", 1.0)), float(getattr(params, "delay", 1.0)))
 
 
 def _akf_block(params, state, z, learn, restart, lengths, out, offset, ahead, ahead_frames):
@@ -197,6 +199,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     cal = _copy(state.calibration)
     if lead is not None:
         lead_rule = pack_rule(bank, state.lead.rule, n)
+        lead_args = _rule_scalars(bank, bank.lead_rule_params)
         lead_cal = _copy(state.lead.calibration)
         due = np.array(state.lead.due, dtype=np.float64, copy=True, order="C")
         pending = np.array(state.lead.pending, dtype=np.float64, copy=True, order="C")
@@ -290,7 +293,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
                      w_block, mixed_ahead if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3,
                      ahead_std[begin:end] if with_ahead else empty3, cold, initial_variance)
         if lead is not None:
-            over_targets(clead.run_block, n, *rule_args, *lead_rule, *cal_args, *lead_cal, ahead_b,
+            over_targets(clead.run_block, n, *lead_args, *lead_rule, *cal_args, *lead_cal, ahead_b,
                          float(lead.tolerance), due, pending, issued, ahead_buffer, zb, tb, lens, go, lb & started,
                          restart, lead_out[begin:end], lead_std[begin:end],
                          lead_covariance[begin:end] if record_covariance else empty4, cold, initial_variance)

@@ -80,7 +80,7 @@ def _sleep_beyond(orders, x, span, reach):
 
 
 def _body(orders, q, r, initial, time_unit, max_step, max_variance, reach, mean, cov, last_time, initialised,
-           rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
+           rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
            threshold, max_rejects, warmup, window, position, velocity, seen, spread, count, rejects, outliers,
            points, low, high, cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale,
            cal_initial, variance, n_errors, log_scale, z, times, lengths, learn, out, out_std, ahead_times, out_ahead,
@@ -131,14 +131,14 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, reach, mean,
             initialised[n] = True
             last_time[n] = times[t, n]
         _sleep_beyond(orders, x, times[t, n] - before, reach)
-        awake_count = forecast_row(rule, forgetting, share, a[:, n], b[:, n], c[:, n], dn[0], x, awake, w, logw,
-                                   mix, var_n, ls[0], cal_max_variance, sigma)
+        awake_count = forecast_row(rule, forgetting, share, delay, a[:, n], b[:, n], c[:, n], dn[0], x, awake, w,
+                                   logw, mix, var_n, ls[0], cal_max_variance, sigma)
         write_row(awake_count, mix, sigma, out[t, n], out_std[t, n])
         if code == 1 and awake_count > 0:
             calibrate_row(x, z[t, n], awake, awake_count, mix, sigma, var_n, errors_n, ls, cal_window, cal_rate,
                           cal_level, z_level, cal_max_variance, max_log_scale)
-            learn_rule(rule, forgetting, share, scale, scale_factor, bound_forgetting, a[:, n], b[:, n], c[:, n], dn,
-                       en, x, z[t, n], awake, awake_count, w, mix, rr)
+            learn_rule(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a[:, n], b[:, n],
+                       c[:, n], dn, en, x, z[t, n], awake, awake_count, w, mix, rr)
         if code == 4:   # a cold restart: forecast by the old rule and calibration, which start again
             cold_row(a[:, n], b[:, n], c[:, n], dn, en, var_n, errors_n, ls, cal_initial)
         if want_ahead:
@@ -151,8 +151,8 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, reach, mean,
                     for ci in range(p):
                         x[k, ci] = math.nan
             _sleep_beyond(orders, x, ahead_times[t, n] - (seen[n] if points[n] >= 2.0 else math.nan), reach)
-            awake_count = forecast_row(rule, forgetting, share, a[:, n], b[:, n], c[:, n], dn[0], x, awake, w, logw,
-                                       mix, var_n, ls[0], cal_max_variance, sigma)
+            awake_count = forecast_row(rule, forgetting, share, delay, a[:, n], b[:, n], c[:, n], dn[0], x, awake, w,
+                                       logw, mix, var_n, ls[0], cal_max_variance, sigma)
             write_row(awake_count, mix, sigma, out_ahead[t, n], out_ahead_std[t, n])
 
 

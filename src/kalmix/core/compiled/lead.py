@@ -17,7 +17,7 @@ configure_cache()
 __all__ = ["run_block"]
 
 
-def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
+def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
               due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep, restart,
               out, out_std, out_cov, cold, initial_variance):
@@ -27,14 +27,14 @@ def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forget
     (``issued``: its mean and standard deviations, the miss the calibration learns from). On a ``cold``
     row (the screen's cold restart, which scores nothing) the lead rule and calibration first start
     again (the variances at ``initial_variance``). Targets ``lo .. hi - 1``."""
-    _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
+    _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
                due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep, restart,
                out, out_std, out_cov, cold, float(initial_variance), *scratch(ahead_experts.shape[2], z.shape[2]))
 
 
 @nb.njit(**KERNEL_JIT)
-def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
+def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
                due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep, restart,
                out, out_std, out_cov, cold, initial_variance, awake, w, logw, r, mix, cov):
@@ -56,14 +56,14 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
                 for s in range(slots):
                     if abs(due[n, s] - now) <= tolerance:
                         x = pending[n, s]
-                        count = forecast_row(rule, forgetting, share, a[n], b[n], c[n], dn[0], x, awake, w, logw,
+                        count = forecast_row(rule, forgetting, share, delay, a[n], b[n], c[n], dn[0], x, awake, w, logw,
                                              mix, variance[n], ls[0], max_variance, cov)
                         if count > 0:
                             calibrate_issued_row(x, y, awake, count, mix, cov, issued[n, s], variance[n],
                                                  n_errors[n], ls, window, rate, level, z_level, max_variance,
                                                  max_log_scale)
-                            _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, a[n], b[n], c[n],
-                                   dn, en, x, y, awake, count, w, mix, r)
+                            _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a[n], b[n],
+                                   c[n], dn, en, x, y, awake, count, w, mix, r)
                 kept = 0
                 for s in range(slots):
                     if not due[n, s] <= now + tolerance:
@@ -77,7 +77,7 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
                     pending[n, s] = np.nan
                     issued[n, s] = np.nan
             xa = ahead_experts[t, n]
-            count = forecast_row(rule, forgetting, share, a[n], b[n], c[n], dn[0], xa, awake, w, logw, mix,
+            count = forecast_row(rule, forgetting, share, delay, a[n], b[n], c[n], dn[0], xa, awake, w, logw, mix,
                                  variance[n], ls[0], max_variance, cov)
             write_row(count, mix, cov, out[t, n], out_std[t, n])
             if want_cov:

@@ -68,11 +68,11 @@ def _share(w, awake, count, share):
 
 
 @nb.njit(**_JIT)
-def _weights(rule, forgetting, share, a, b, c, d, awake, count, w, logw):
+def _weights(rule, forgetting, share, delay, a, b, c, d, awake, count, w, logw):
     k_count = w.shape[0]
     if rule == 0:  # BOA
         top = 0.0
-        log_k = math.log(max(k_count, 2))
+        log_k = math.log(max(k_count, 2)) / delay
         for k in range(k_count):
             if b[k] > 0:
                 eta = min(1.0 / (2.0 * c[k]), math.sqrt(log_k / b[k]))
@@ -117,8 +117,8 @@ def _mix(x, w, awake, out):
 
 
 @nb.njit(**_JIT)
-def _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e, x, y, awake, count, w, mix,
-           r):
+def _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e, x, y, awake, count, w,
+           mix, r):
     k_count = w.shape[0]
     p = x.shape[1]
     if rule == 0 or rule == 1:
@@ -139,7 +139,7 @@ def _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b,
             return  # an overflowing regret teaches nothing
         rho = forgetting
         if rule == 0:
-            log_k = math.log(max(k_count, 2))
+            log_k = math.log(max(k_count, 2)) / delay
             for k in range(k_count):
                 if awake[k]:
                     variance = rho * b[k] + r[k] * r[k]
@@ -187,11 +187,11 @@ def _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b,
 
 
 @nb.njit(inline="always", **_JIT)
-def forecast_row(rule, forgetting, share, a, b, c, d, x, awake, w, logw, mix, variance, log_scale, max_variance,
+def forecast_row(rule, forgetting, share, delay, a, b, c, d, x, awake, w, logw, mix, variance, log_scale, max_variance,
                  cov):
     """Weights, mixture and covariance of one target's forecasts ``x (K, p)``; returns the awake count."""
     count = _awake(x, awake)
-    _weights(rule, forgetting, share, a, b, c, d, awake, count, w, logw)
+    _weights(rule, forgetting, share, delay, a, b, c, d, awake, count, w, logw)
     _mix(x, w, awake, mix)
     moments_row(x, w, awake, count, mix, variance, log_scale, max_variance, cov)
     return count
@@ -234,7 +234,7 @@ def cold_row(a, b, c, d, e, variance, n_errors, log_scale, initial_variance):
     log_scale[0] = 0.0
 
 
-def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
+def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
               experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
               out_ahead_std, cold, initial_variance):
@@ -242,14 +242,14 @@ def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forget
     where ``learn`` (the rule and the calibration); ``out_cov`` and the others are optional (size 0).
     A ``cold`` row (the screen's cold restart) is forecast by the old rule and calibration, which then
     start again (the variances at ``initial_variance``) before its ahead forecast. Targets ``lo .. hi - 1``."""
-    _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
+    _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
                experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
                out_ahead_std, cold, float(initial_variance), *scratch(experts.shape[2], z.shape[2]))
 
 
 @nb.njit(**KERNEL_JIT)
-def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, a, b, c, d, e,
+def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
                experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
                out_ahead_std, cold, initial_variance, awake, w, logw, r, mix, cov):
@@ -264,7 +264,7 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
         ls = log_scale[n:n + 1]
         for t in range(lengths[n]):
             x = experts[t, n]
-            count = forecast_row(rule, forgetting, share, a[n], b[n], c[n], dn[0], x, awake, w, logw, mix,
+            count = forecast_row(rule, forgetting, share, delay, a[n], b[n], c[n], dn[0], x, awake, w, logw, mix,
                                  variance[n], ls[0], max_variance, cov)
             write_row(count, mix, cov, out[t, n], out_std[t, n])
             if want_cov:
@@ -275,11 +275,11 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
             if learn[t, n] and count > 0:
                 calibrate_row(x, z[t, n], awake, count, mix, cov, variance[n], n_errors[n], ls, window, rate,
                               level, z_level, max_variance, max_log_scale)
-                _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, a[n], b[n], c[n], dn, en,
+                _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a[n], b[n], c[n], dn, en,
                        x, z[t, n], awake, count, w, mix, r)
             if cold[t, n]:
                 cold_row(a[n], b[n], c[n], dn, en, variance[n], n_errors[n], ls, initial_variance)
             if want_ahead:
-                count_ahead = forecast_row(rule, forgetting, share, a[n], b[n], c[n], dn[0], ahead_experts[t, n],
+                count_ahead = forecast_row(rule, forgetting, share, delay, a[n], b[n], c[n], dn[0], ahead_experts[t, n],
                                            awake, w, logw, mix, variance[n], ls[0], max_variance, cov)
                 write_row(count_ahead, mix, cov, out_ahead[t, n], out_ahead_std[t, n])
