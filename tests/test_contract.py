@@ -162,6 +162,16 @@ def test_boa_delay_divides_the_second_order_rate_and_the_lead_head_takes_its_row
     assert not np.allclose(delayed.lead, plain.lead, equal_nan=True)   # the lead head's is not
 
 
+@pytest.mark.parametrize("options, error", [
+    (dict(lead=3.0, lead_delay=0.5), ValueError), (dict(lead_delay=0.99), ValueError),
+    (dict(lead=3.0, lead_delay=float("inf")), ValueError), (dict(lead=3.0, lead_delay=True), TypeError),
+    (dict(rule_options={"delay": 0.5}), ValueError), (dict(rule="mlpoly", rule_options={"delay": 2.0}), ValueError)])
+def test_a_delay_below_one_row_is_refused(options, error):
+    """A delay counts rows between a forecast and its score: below 1 (or not a number) is refused, naming it."""
+    with pytest.raises(error, match="delay"):
+        make_bank(2, "kinematic", **options)
+
+
 def test_rules_are_scale_free():
     """BOA and ML-Poly give the same weights when the data are multiplied by 1e6."""
     z, t = benign_tracks(seed=3)

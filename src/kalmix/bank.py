@@ -506,8 +506,8 @@ def make_bank(
         The lead head's rule learns with BOA's ``delay`` multiplied by this (see
         :mod:`kalmix.core.aggregators.boa`): a forecast is scored that many rows after it is
         made. Default: the lead's rows, ``round(lead / time_unit)``; 1 is the one-step
-        rule's learning rate (as state files before format 9 ran). Only BOA has a delay; ignored
-        without a ``lead``.
+        rule's learning rate (as state files before format 9 ran). Only BOA has a delay; without
+        a ``lead`` it is checked and unused.
     level : float
         The central interval whose coverage the calibration aims at
         (:mod:`kalmix.core.calibration`); intervals are ``±z(level) std``.
@@ -608,6 +608,9 @@ def make_bank(
     if not 0.0 < level < 1.0:
         raise ValueError(f"level: expected a probability in (0, 1), got {level!r}")
     reach = None if reach is None or reach == math.inf else _check_positive("reach", reach)   # inf: off
+    if lead_delay is not None and not _check_positive("lead_delay", lead_delay) >= 1:
+        raise ValueError(f"lead_delay: expected a number >= 1 (rows between a forecast and its score), "
+                         f"got {lead_delay!r}")
     lead_params = None
     if lead is not None:
         lead_time = _check_positive("lead", lead)
@@ -615,10 +618,7 @@ def make_bank(
             raise ValueError(f"lead: expected at most {MAX_HORIZON} time units ({MAX_HORIZON * tunit:g}), "
                              f"got {lead!r}")
         frames = max(1, int(round(lead_time / tunit)))
-        delay = float(frames) if lead_delay is None else _check_positive("lead_delay", lead_delay)
-        if not delay >= 1:
-            raise ValueError(f"lead_delay: expected a number >= 1 (rows between a forecast and its score), "
-                             f"got {lead_delay!r}")
+        delay = float(frames) if lead_delay is None else float(lead_delay)
         lead_params = LeadParams(time=lead_time, frames=frames, tolerance=0.5 * tunit, delay=delay)
     description = dict(kind=kind, rule=rule, outlier_threshold=threshold, outlier_rejects=int(outlier_rejects),
                        length_unit=unit, time_unit=tunit, seed=seed, n_akf=n_akf, lead=lead,
