@@ -216,7 +216,8 @@ class StreamConfig:
         In time units: across a longer step only the CV experts make the one-step forecast
         (``reach`` of :func:`kalmix.bank.make_bank`); None: every expert at every step.
     lead_delay : float or None
-        ``lead_delay`` of :func:`kalmix.bank.make_bank` (None: the lead's rows); only with a lead.
+        ``lead_delay`` of :func:`kalmix.bank.make_bank` (None: the lead's rows); checked always, used
+        only with a lead.
     """
 
     n_experts: int = 40
@@ -253,6 +254,8 @@ class StreamConfig:
                 raise ValueError(f"lead and horizon: give one of them (a horizon H is the lead of H time units), "
                                  f"got lead={self.lead!r} and horizon={self.horizon!r}")
             self.lead = float(self.lead)
+        if self.lead_delay is not None:
+            self.lead_delay = float(self.lead_delay)   # a numpy scalar saves as its own type
         if self.max_gap is not None and not self.max_gap > 0:
             raise ValueError(f"max_gap: expected a time step > 0, got {self.max_gap!r}")
         if not self.max_gap_factor > 1:
