@@ -45,6 +45,14 @@ FORGETTING_LEVELS = (0.9, 0.95, 0.98, 0.99)
 RIDGE_LEVELS = (1e-3, 1e-2, 1e-1)
 
 
+def _check_delay(name, value) -> float:
+    """A delay in rows between a forecast and its score (BOA's ``delay``): a finite number >= 1."""
+    delay = _check_positive(name, value)
+    if delay < 1:
+        raise ValueError(f"{name}: expected a number >= 1 (rows between a forecast and its score), got {value!r}")
+    return delay
+
+
 def _check_positive(name, value, *, allow_zero=False, upper=None):
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name}: expected a real number, got {type(value).__name__} {value!r}")
@@ -554,8 +562,8 @@ def make_bank(
     for key in ("scale", "scale_factor"):   # fixed share: 0 = the online scale (scale), a positive factor
         if key in options:
             _check_positive(f"rule_options[{key!r}]", options[key], allow_zero=key == "scale")
-    if "delay" in options and not _check_positive("rule_options['delay']", options["delay"]) >= 1:
-        raise ValueError(f"rule_options['delay']: expected a number >= 1, got {options['delay']!r}")
+    if "delay" in options:
+        _check_delay("rule_options['delay']", options["delay"])
     if "share" in options:
         share = _check_positive("rule_options['share']", options["share"], allow_zero=True)
         if share >= 1:
@@ -608,9 +616,8 @@ def make_bank(
     if not 0.0 < level < 1.0:
         raise ValueError(f"level: expected a probability in (0, 1), got {level!r}")
     reach = None if reach is None or reach == math.inf else _check_positive("reach", reach)   # inf: off
-    if lead_delay is not None and not _check_positive("lead_delay", lead_delay) >= 1:
-        raise ValueError(f"lead_delay: expected a number >= 1 (rows between a forecast and its score), "
-                         f"got {lead_delay!r}")
+    if lead_delay is not None:
+        _check_delay("lead_delay", lead_delay)
     lead_params = None
     if lead is not None:
         lead_time = _check_positive("lead", lead)
