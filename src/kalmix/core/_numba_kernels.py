@@ -234,7 +234,7 @@ def _guard(theta, prior, p, order, bound, gammas, fast_guard, trans, off, undeci
                 for a in range(p):
                     for c in range(d):
                         one_theta[a, c] = candidate[a, c, i]
-                accept = la.radius_le_eig(one_theta, one_a, p, n, bound, one_u)
+                accept = la.radius_le_eig(one_theta, one_a, p, n, bound, one_u, coef[:, i:i + 1])
             k = undecided[i]
             if accept:
                 for a in range(p):
@@ -672,11 +672,37 @@ def _normalise_log(log_joint, out):
 # ---------------------------------------------------------------- one target, all steps
 # Inlined into its one caller (run_targets): numba re-optimises a callee inside each caller's module, so this
 # saves a pass over the largest function (AKF kernel compiled alone: 32-33 s instead of 39-41 s).
+@jit
+def _take(buffer, position, shape):
+    """The next ``shape`` of ``buffer`` from ``position`` (a C-contiguous view), and the position after it."""
+    size = 1
+    for extent in shape:
+        size *= extent
+    return buffer[position:position + size].reshape(shape), position + size
+
+
+@jit
+def scratch_size(k_count, p, order):
+    """Sizes of the float, int and bool buffers :func:`_advance_target` takes its scratch from (one target;
+    an undersized buffer makes ``reshape`` fail, so the AKF tests check these sums)."""
+    n = order * p
+    d = n + 1
+    state = n + 2 * n * n + d * d + p * d + n + 3 * p
+    fits = 3 + d * d + p * d + n * n + n
+    work = (7 + p + 2 * d * d + 3 * p * d + 1 + p * p * (order + 1) + 2 * order + 1 + 3 * (n + 1) + 2 * p
+            + 4 * p * p + 3 * n * p + n + 2 * n * n + n + 2 + 2 * p + n)
+    fixed = 4 * p + d + p * d + 3 * n * n + n + n + 1
+    return k_count * (state + fits + work) + fixed, 3 * k_count, 3 * k_count
+
+
 @nb.njit(inline="always", **_JIT)
-def _advance_target(j, measurements, lengths, horizon, params, state, records):
+def _advance_target(j, measurements, lengths, horizon, params, state, records, out_one, fbuf, ibuf, bbuf):
     """Target ``j`` through its steps; ``params``, ``state`` (mutated in place) and ``records`` are the
     tuples of :func:`kalmix.core.fast.run_fast` (unpacked here: one call with three tuples compiles much
-    faster than one with ~60 arguments)."""
+    faster than one with ~60 arguments). ``out_one (T, N, K, p)``, if not empty, receives every expert's
+    next-frame prediction after each step whatever the ``horizon`` (the bank engine's AKF family,
+    :mod:`kalmix.core.compiled.akf`). The scratch comes from ``fbuf``, ``ibuf`` and ``bbuf`` (sizes:
+    :func:`scratch_size`), so that this runs where nothing can be allocated (a GPU thread)."""
     (dynamics, gating, gating_input, p, order, kappa, velocity_scale, forgetting, ridge, prior, bound,
      process_init, measurement_init, initial_variance, initial_velocity, expert_scale, temperature, share,
      eta_initial, eta_minimum, eta_decay, eta_sensitivity, adapt, q_shrink, r_shrink, floor, reinflation, seed,
@@ -690,29 +716,33 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records):
     n = order * p
     d = n + 1
     rls = dynamics == 0
+    record_one = out_one.shape[0] > 0
+    fpos = 0
+    ipos = 0
+    bpos = 0
     # this target's expert state, experts last
-    mu = np.empty((n, k_count))
-    cv = np.empty((n, n, k_count))
-    gm = np.empty((d, d, k_count))
-    cr = np.empty((p, d, k_count))
-    trans = np.empty((n, n, k_count))
-    off = np.empty((n, k_count))
-    q = np.empty((p, k_count))
-    r = np.empty((p, k_count))
-    ep = np.empty((p, k_count))
+    mu, fpos = _take(fbuf, fpos, (n, k_count))
+    cv, fpos = _take(fbuf, fpos, (n, n, k_count))
+    gm, fpos = _take(fbuf, fpos, (d, d, k_count))
+    cr, fpos = _take(fbuf, fpos, (p, d, k_count))
+    trans, fpos = _take(fbuf, fpos, (n, n, k_count))
+    off, fpos = _take(fbuf, fpos, (n, k_count))
+    q, fpos = _take(fbuf, fpos, (p, k_count))
+    r, fpos = _take(fbuf, fpos, (p, k_count))
+    ep, fpos = _take(fbuf, fpos, (p, k_count))
     _load_experts(j, mean, cov, gram, cross, transition, offset, process_noise, measurement_noise,
                   expert_predictions, mu, cv, gm, cr, trans, off, q, r, ep, rls)
     # experts of one fit learn as one (rls): its statistics, solution and guarded dynamics, ``fits`` wide
-    slot = np.empty(k_count, dtype=np.int64)
-    first = np.empty(k_count, dtype=np.int64)
+    slot, ipos = _take(ibuf, ipos, (k_count,))
+    first, ipos = _take(ibuf, ipos, (k_count,))
     fits = _shared_fits(forgetting, ridge, gm, cr, slot, first) if rls else k_count
-    fit_forgetting = np.empty(fits)
-    fit_ridge = np.empty(fits)
-    fit_gm = np.empty((d, d, fits))
-    fit_cr = np.empty((p, d, fits))
-    fit_trans = np.empty((n, n, fits))
-    fit_off = np.empty((n, fits))
-    fit_acc = np.empty(fits)
+    fit_forgetting, fpos = _take(fbuf, fpos, (fits,))
+    fit_ridge, fpos = _take(fbuf, fpos, (fits,))
+    fit_gm, fpos = _take(fbuf, fpos, (d, d, fits))
+    fit_cr, fpos = _take(fbuf, fpos, (p, d, fits))
+    fit_trans, fpos = _take(fbuf, fpos, (n, n, fits))
+    fit_off, fpos = _take(fbuf, fpos, (n, fits))
+    fit_acc, fpos = _take(fbuf, fpos, (fits,))
     if rls:
         for u in range(fits):
             k = first[u]
@@ -725,58 +755,58 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records):
                 for c in range(d):
                     fit_cr[i, c, u] = cr[i, c, k]
     # scratch
-    acc = np.empty(k_count)
-    z = np.empty(p)
-    features = np.empty(p)
-    errors = np.empty((p, k_count))
-    log_lik = np.empty(k_count)
-    resp = np.empty(k_count)
-    joint = np.empty(k_count)
-    old_weights = np.empty(k_count)
-    logits = np.empty(k_count)
-    rw = np.empty(k_count)
-    xi = np.empty(d)
-    new_gram = np.empty((d, d, k_count))
-    shifted = np.empty((p, d, k_count))
-    work = np.empty((d, d, k_count))
-    theta = np.empty((p, d, k_count))
-    candidate = np.empty((p, d, k_count))
-    undecided = np.empty(k_count, dtype=np.int64)
-    norm = np.empty(k_count)
-    inside_low = np.empty(k_count, dtype=np.bool_)
-    inside_high = np.empty(k_count, dtype=np.bool_)
-    entries = np.empty((p, p, order + 1, k_count))
-    minor = np.empty((2 * order + 1, k_count))
-    coef = np.empty((n + 1, k_count))
-    poly_work = np.empty((n + 1, k_count))
-    poly_saved = np.empty((n + 1, k_count))
-    one_theta = np.empty((p, d))
-    one_a = np.empty((n, n))
-    one_u = np.empty(n)
-    power = np.empty((n, n))
-    product = np.empty((n, n))
-    one_coef = np.empty(n + 1)
-    residual = np.empty((p, k_count))
-    r_diag = np.empty((p, k_count))
-    s_work = np.empty((p, p, k_count))
-    s_lower = np.empty((p, p, k_count))
-    s_lower_inv = np.empty((p, p, k_count))
-    s_inv = np.empty((p, p, k_count))
-    gain = np.empty((n, p, k_count))
-    w_block = np.empty((n, p, k_count))
-    g_block = np.empty((p, n, k_count))
-    new_mean = np.empty((n, k_count))
-    tmp = np.empty((n, n, k_count))
-    tmp2 = np.empty((n, n, k_count))
-    ahead = np.empty((n, k_count))
-    velocity = np.empty(p)
-    log_scale = np.empty(k_count)
-    log_weights = np.empty(k_count)
-    q_init = np.empty((p, k_count))
-    r_init = np.empty((p, k_count))
-    before = np.empty((n, k_count))
-    fresh = np.empty(k_count, dtype=np.bool_)
-    delta = np.empty(p)
+    acc, fpos = _take(fbuf, fpos, (k_count,))
+    z, fpos = _take(fbuf, fpos, (p,))
+    features, fpos = _take(fbuf, fpos, (p,))
+    errors, fpos = _take(fbuf, fpos, (p, k_count))
+    log_lik, fpos = _take(fbuf, fpos, (k_count,))
+    resp, fpos = _take(fbuf, fpos, (k_count,))
+    joint, fpos = _take(fbuf, fpos, (k_count,))
+    old_weights, fpos = _take(fbuf, fpos, (k_count,))
+    logits, fpos = _take(fbuf, fpos, (k_count,))
+    rw, fpos = _take(fbuf, fpos, (k_count,))
+    xi, fpos = _take(fbuf, fpos, (d,))
+    new_gram, fpos = _take(fbuf, fpos, (d, d, k_count))
+    shifted, fpos = _take(fbuf, fpos, (p, d, k_count))
+    work, fpos = _take(fbuf, fpos, (d, d, k_count))
+    theta, fpos = _take(fbuf, fpos, (p, d, k_count))
+    candidate, fpos = _take(fbuf, fpos, (p, d, k_count))
+    undecided, ipos = _take(ibuf, ipos, (k_count,))
+    norm, fpos = _take(fbuf, fpos, (k_count,))
+    inside_low, bpos = _take(bbuf, bpos, (k_count,))
+    inside_high, bpos = _take(bbuf, bpos, (k_count,))
+    entries, fpos = _take(fbuf, fpos, (p, p, order + 1, k_count))
+    minor, fpos = _take(fbuf, fpos, (2 * order + 1, k_count))
+    coef, fpos = _take(fbuf, fpos, (n + 1, k_count))
+    poly_work, fpos = _take(fbuf, fpos, (n + 1, k_count))
+    poly_saved, fpos = _take(fbuf, fpos, (n + 1, k_count))
+    one_theta, fpos = _take(fbuf, fpos, (p, d))
+    one_a, fpos = _take(fbuf, fpos, (n, n))
+    one_u, fpos = _take(fbuf, fpos, (n,))
+    power, fpos = _take(fbuf, fpos, (n, n))
+    product, fpos = _take(fbuf, fpos, (n, n))
+    one_coef, fpos = _take(fbuf, fpos, (n + 1,))
+    residual, fpos = _take(fbuf, fpos, (p, k_count))
+    r_diag, fpos = _take(fbuf, fpos, (p, k_count))
+    s_work, fpos = _take(fbuf, fpos, (p, p, k_count))
+    s_lower, fpos = _take(fbuf, fpos, (p, p, k_count))
+    s_lower_inv, fpos = _take(fbuf, fpos, (p, p, k_count))
+    s_inv, fpos = _take(fbuf, fpos, (p, p, k_count))
+    gain, fpos = _take(fbuf, fpos, (n, p, k_count))
+    w_block, fpos = _take(fbuf, fpos, (n, p, k_count))
+    g_block, fpos = _take(fbuf, fpos, (p, n, k_count))
+    new_mean, fpos = _take(fbuf, fpos, (n, k_count))
+    tmp, fpos = _take(fbuf, fpos, (n, n, k_count))
+    tmp2, fpos = _take(fbuf, fpos, (n, n, k_count))
+    ahead, fpos = _take(fbuf, fpos, (n, k_count))
+    velocity, fpos = _take(fbuf, fpos, (p,))
+    log_scale, fpos = _take(fbuf, fpos, (k_count,))
+    log_weights, fpos = _take(fbuf, fpos, (k_count,))
+    q_init, fpos = _take(fbuf, fpos, (p, k_count))
+    r_init, fpos = _take(fbuf, fpos, (p, k_count))
+    before, fpos = _take(fbuf, fpos, (n, k_count))
+    fresh, bpos = _take(bbuf, bpos, (k_count,))
+    delta, fpos = _take(fbuf, fpos, (p,))
     for k in range(k_count):
         log_scale[k] = p * math.log(expert_scale[k])
         for i in range(p):
@@ -924,6 +954,8 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records):
                 out_predictions[t, j, i] += weights[j, k] * value
                 if record_experts:
                     out_experts[t, j, k, i] = value
+                if record_one:
+                    out_one[t, j, k, i] = ep[i, k]
         if not initialised[j]:
             for i in range(p):
                 out_predictions[t, j, i] = np.nan
@@ -971,5 +1003,10 @@ def _extrapolate(mu, trans, off, steps, ahead, scratch, acc):
 @nb.njit(**_JIT)
 def run_targets(lo, hi, measurements, lengths, horizon, params, state, records):
     """Advance targets ``lo .. hi - 1`` (each ``j`` through its first ``lengths[j]`` steps)."""
+    floats, ints, bools = scratch_size(state[16].shape[1], params[3], params[4])
+    fbuf = np.empty(floats)
+    ibuf = np.empty(ints, dtype=np.int64)
+    bbuf = np.empty(bools, dtype=np.bool_)
+    out_one = np.empty((0, 0, 0, 0))
     for j in range(lo, hi):
-        _advance_target(j, measurements, lengths, horizon, params, state, records)
+        _advance_target(j, measurements, lengths, horizon, params, state, records, out_one, fbuf, ibuf, bbuf)

@@ -16,6 +16,7 @@ import math
 
 import numba as nb
 import numpy as np
+from numba.core.extending import overload
 
 from .compiled._cache import configure_cache
 
@@ -267,12 +268,22 @@ def schur_cohn(coef, n, radius, work, saved, norm, inside, count):
                 work[i, k] = (saved[m, k] * saved[i + 1, k] - saved[0, k] * saved[m - 1 - i, k]) * norm[k]
 
 
-@jit
-def radius_le_eig(theta, transition, p, n, bound, scratch):
-    """Spectral radius of the companion of one expert's ``theta`` <= ``bound``, from its eigenvalues."""
+def radius_le_eig(theta, transition, p, n, bound, scratch, coef):
+    """Spectral radius of the companion of one expert's ``theta`` <= ``bound``, from its eigenvalues.
+
+    ``coef (n + 1, 1)`` holds the companion's characteristic polynomial where the caller computed it
+    (``fast_guard``); unused here. A GPU has no eigenvalue routine: there the Schur-Cohn test on
+    ``coef`` at exactly ``bound`` decides (:mod:`kalmix.core.compiled.gpu` registers it), which
+    agrees with the eigenvalues except for a root within rounding of the bound.
+    """
     companion(theta, p, n, transition, scratch)
     values = np.linalg.eigvals(transition[:n, :n].astype(np.complex128))
     largest = 0.0   # the modulus as sqrt(re^2 + im^2), as the spec computes it (numba's abs and numpy's differ)
     for value in values:
         largest = max(largest, value.real * value.real + value.imag * value.imag)
     return math.sqrt(largest) <= bound
+
+
+@overload(radius_le_eig, target="cpu")
+def _radius_le_eig_cpu(theta, transition, p, n, bound, scratch, coef):
+    return radius_le_eig

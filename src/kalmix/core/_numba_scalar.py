@@ -184,7 +184,7 @@ def _radius_le(theta, transition, p, n, bound, power, product, coef, work, saved
     if not _schur_step_test(coef, n, bound * (1.0 + la.GUARD_BAND), work, saved):
         return False
     # the eigenvalues (rarely reached) in a separate, not inlined, function
-    return la.radius_le_eig(theta, transition, p, n, bound, work)
+    return la.radius_le_eig(theta, transition, p, n, bound, work, coef)
 
 
 # ---------------------------------------------------------------- one target, all steps
@@ -370,7 +370,7 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records):
                             if _radius_le(candidate, cand_a, p, n, bound, power, product, coef, poly_work,
                                           poly_saved, entries, minor):
                                 break
-                        elif la.radius_le_eig(candidate, cand_a, p, n, bound, cand_u):
+                        elif la.radius_le_eig(candidate, cand_a, p, n, bound, cand_u, coef):
                             break
                     la.companion(candidate, p, n, cand_a, cand_u)
                     for r in range(n):

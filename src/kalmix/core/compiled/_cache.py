@@ -18,7 +18,7 @@ KERNEL_JIT = dict(JIT, _nrt=False)
 COMPILED_SOURCES = (
     "_numba_linalg.py", "_numba_kernels.py", "_numba_scalar.py",
     "compiled/kinematic.py", "compiled/ar.py", "compiled/turn.py", "compiled/rules.py", "compiled/screen.py", "compiled/_cache.py",
-    "compiled/calibration.py", "compiled/lead.py",
+    "compiled/calibration.py", "compiled/lead.py", "compiled/akf.py",
 )
 
 

@@ -2,8 +2,8 @@
 
 numba compiles a kernel the first time it is called, one kernel after another, in one
 process; a fresh install (or a new kalmix version, whose sources key a new cache) pays
-all of it on its first run. The AKF family's kernel (:mod:`kalmix.core._numba_kernels`,
-or :mod:`kalmix.core._numba_scalar` for fewer than 8 experts) is two thirds of that for the
+all of it on its first run. The AKF family's driver (:mod:`kalmix.core.compiled.akf`, which
+inlines :mod:`kalmix.core._numba_kernels`' kernel) is two thirds of that for the
 default bank (compile events, 2 cores: 31 of 46 s; the rule driver 6 s, kinematic 3.5 s, AR
 2.8 s, turn 1.7 s). numba holds a lock while it compiles, so threads cannot share the work;
 processes can, through the cache: they write the same cache directory.
@@ -46,9 +46,9 @@ def _cores() -> int:
 
 
 def _akf_kernel(family):
-    from ..fast import _kernels
+    from . import akf
 
-    return _kernels(family.n_experts).run_targets
+    return akf._run_block
 
 
 def kernel_cached(dispatcher) -> bool:
@@ -124,13 +124,14 @@ def _tiny_run(bank) -> None:
 
 
 def _child() -> None:
-    """The child process: the AKF family (pickled on stdin) through the compiled engine's AKF block."""
+    """The child process: the AKF family (pickled on stdin) through the compiled engine's AKF driver."""
+    from . import akf as cakf
     from ..families import akf
-    from .engine import _akf_block
+    from .engine import akf_work, pack_akf
 
     params, p = pickle.loads(sys.stdin.buffer.read())
     z, _ = _tiny_track(p)
     rows, k = len(z), params.n_experts
-    _akf_block(params, akf.init_state(params, 1, p), z, np.ones((rows, 1), dtype=bool),
-               np.zeros((rows, 1), dtype=bool), np.array([rows], dtype=np.int64), np.full((rows, 1, k, p), np.nan), 0,
-               None, 1)
+    cakf.run_block(0, 1, *pack_akf(params, akf.init_state(params, 1, p)), z, np.ones((rows, 1), dtype=bool),
+                   np.zeros((rows, 1), dtype=bool), np.array([rows], dtype=np.int64), np.full((rows, 1, k, p), np.nan),
+                   0, np.empty((0, 0, 0, 0)), 1, *akf_work(rows, 1, k, p, False))

@@ -206,20 +206,20 @@ def run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, pe
               weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead):
     """Targets ``lo .. hi - 1`` through their rows of the block (scratch allocated here, once a call)."""
-    m = order + (1 if bias else 0)
     _run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
                jump_threshold, window, max_step, max_velocity,
                weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
                z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
-               np.empty(m), np.empty(z.shape[2]), np.empty(order), *_learn_scratch(m, forgetting.shape[0]))
+               *scratch(order, bias, z.shape[2], forgetting.shape[0]))
 
 
-def _learn_scratch(m, k_count):
-    """:func:`_learn`'s scratch for ``k_count`` experts of ``m`` weights: a, rhs, low, y, sol, acc, go,
-    new_scale, informative."""
-    return (np.empty((m, m, k_count)), np.empty((m, k_count)), np.zeros((m, m, k_count)), np.empty((m, k_count)),
-            np.empty((m, k_count)), np.empty(k_count), np.empty(k_count, dtype=np.bool_), np.empty(k_count),
-            np.empty(k_count, dtype=np.bool_))
+def scratch(order: int, bias: bool, p: int, k_count: int):
+    """A target's scratch of :func:`_run_block`: x, v, h and :func:`_learn`'s for ``k_count`` experts of
+    ``m`` weights (a, rhs, low, y, sol, acc, go, new_scale, informative)."""
+    m = order + (1 if bias else 0)
+    return (np.empty(m), np.empty(p), np.empty(order), np.empty((m, m, k_count)), np.empty((m, k_count)),
+            np.zeros((m, m, k_count)), np.empty((m, k_count)), np.empty((m, k_count)), np.empty(k_count),
+            np.empty(k_count, dtype=np.bool_), np.empty(k_count), np.empty(k_count, dtype=np.bool_))
 
 
 @nb.njit(**KERNEL_JIT)

@@ -18,7 +18,9 @@ from ..engine import (Bank, BankState, EngineResult, check_restart, check_run_ar
                       init_bank_state, tree_map, within_reach)
 from ..families import akf
 from ..lead import LeadState
+from ..mixture import MixtureState
 from ..screen import ScreenState
+from . import akf as cakf
 from . import ar as car
 from . import kinematic as ckin
 from . import lead as clead
@@ -81,49 +83,19 @@ def _rule_scalars(bank: Bank, params=None):
             float(getattr(params, "bound_forgetting", 1.0)), float(getattr(params, "delay", 1.0)))
 
 
-def _akf_block(params, state, z, learn, restart, lengths, out, offset, ahead, ahead_frames):
-    """The AKF family over a block; cut where a target restarts, whose state is then fresh."""
-    cuts = sorted(set(np.flatnonzero(restart.any(axis=1)).tolist()) - {0}) + [len(z)]
-    begin = 0
-    k = params.n_experts
-    for end in cuts:
-        mask = restart[begin]
-        if mask.any():  # the restart row was forecast by the old state; the new one starts from it
-            before = np.where(state.initialised[:, None, None], state.expert_predictions, np.nan)
-            fresh = akf.init_state(params, len(state.initialised), z.shape[-1])
-            state = type(state)(*(np.where(mask.reshape((-1,) + (1,) * (o.ndim - 1)), f, o)
-                                  for f, o in zip(fresh, state)))
-        lens = np.clip(lengths - begin, 0, end - begin).astype(np.int64)
-        state = _akf_piece(params, state, z[begin:end], learn[begin:end], lens, out[begin:end], offset,
-                           None if ahead is None else ahead[begin:end], ahead_frames)
-        if mask.any():
-            out[begin, mask, offset:offset + k] = before[mask]
-        begin = end
-    return state
+def pack_akf(params, state):
+    """An AKF family's parameters, state (fresh copies, advanced in place) and one new target's state, packed
+    for :mod:`.akf`."""
+    from ..fast import _pack_params, _pack_state
+
+    return _pack_params(params), _pack_state(state), _pack_state(akf.init_state(params, 1, params.measurement_dim))
 
 
-def _akf_piece(params, state, z, learn, lengths, out, offset, ahead, ahead_frames):
-    from ..fast import run_fast
-
-    k = params.n_experts
-    fed = np.where(learn[..., None], z, np.nan)
-    init0 = state.initialised.copy()
-    prior = np.where(init0[:, None, None], state.expert_predictions, np.nan)
-    result = run_fast(params, fed, state, expert_predictions=True, lengths=lengths)
-    started = init0[None, :] | np.logical_or.accumulate(learn, axis=0)           # after each row
-    recorded = np.where(started[..., None, None], result.expert_predictions, np.nan)
-    out[0, :, offset:offset + k] = np.where((lengths > 0)[:, None, None], prior, np.nan)
-    inside = (np.arange(1, len(z))[:, None] < lengths[None, :])[..., None, None]   # rows past a target's end: NaN
-    out[1:, :, offset:offset + k] = np.where(inside, recorded[:-1], np.nan)
-    if ahead is not None:
-        within = (np.arange(len(z))[:, None] < lengths[None, :])[..., None, None]
-        if ahead_frames == 1:
-            ahead[:, :, offset:offset + k] = np.where(within, recorded, np.nan)
-        else:
-            later = run_fast(params, fed, state, expert_predictions=True, lengths=lengths,
-                             horizon=ahead_frames).expert_predictions
-            ahead[:, :, offset:offset + k] = np.where(started[..., None, None] & within, later, np.nan)
-    return result.state
+def akf_work(rows: int, n: int, k: int, p: int, later: bool, allocate=np.empty):
+    """The AKF driver's work arrays of a block (fed, piece, predictions, recorded, later), by ``allocate(shape,
+    dtype)``; each target's rows are written before they are read."""
+    return (allocate((rows, n, p), np.float64), allocate((n,), np.int64), allocate((rows, n, p), np.float64),
+            allocate((rows, n, k, p), np.float64), allocate((rows, n, k, p) if later else (0, 0, 0, 0), np.float64))
 
 
 def prepare(bank: Bank, measurements, times, state, lengths, learn):
@@ -189,9 +161,10 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     families = []
     for family, fstate in zip(bank.families, state.families):
         if family.kind == "akf":
-            families.append(fstate)
+            families.append(pack_akf(family.params, fstate))
         else:
             families.append(type(fstate)(*(np.array(a, copy=True, order="C") for a in fstate)))
+    horizon = ahead_frames if with_ahead else 1
     a, b, c, d, e = pack_rule(bank, state.rule, n)
     rule_args = _rule_scalars(bank)
     cal_args = pack_calibration(bank.calibration_params)
@@ -249,7 +222,9 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
             family, offset = bank.families[i], offsets[i]
             fp, fs = family.params, families[i]
             if family.kind == "akf":
-                families[i] = _akf_block(fp, fs, zb, lb, restart, lens, buffer, offset, ahead_buffer, ahead_frames)
+                work = akf_work(rows, n, family.n_experts, p, horizon > 1)
+                over_targets(cakf.run_block, n, *fs, zb, lb, restart, lens, buffer, offset,
+                             ahead_buffer if with_ahead else empty4, horizon, *work)
             elif family.kind == "ar":
                 over_targets(car.run_block, n, fp.order, bool(fp.bias), fp.forgetting, fp.ridge, float(fp.length_unit),
                              float(fp.time_unit), float(fp.persistence), float(fp.initial_error),
@@ -299,6 +274,9 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
                          lead_covariance[begin:end] if record_covariance else empty4, cold, initial_variance)
         if record_experts:
             weights_out[begin:end] = w_block
+    for i, family in enumerate(bank.families):
+        if family.kind == "akf":
+            families[i] = MixtureState(*families[i][1])
     head = None
     if lead is not None:
         head = LeadState(unpack_rule(bank, *lead_rule), CalibrationState(*lead_cal), due, pending, issued)

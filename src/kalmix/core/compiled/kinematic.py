@@ -178,11 +178,15 @@ def step_expert(order, delta, q, r, initial_k, max_variance, started, learn, fre
 def run_block(lo, hi, order, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead):
     """Targets ``lo .. hi - 1`` through their rows of the block (scratch allocated here, once a call)."""
-    p = z.shape[2]
-    square = lambda: np.empty((order, order))  # noqa: E731
     _run_block(lo, hi, order, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
                z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
-               np.empty((order, p)), square(), square(), square(), np.empty(order), square())
+               *scratch(order, z.shape[2]))
+
+
+def scratch(order: int, p: int):
+    """A target's scratch of :func:`_run_block`: m_pred, c_pred, f, work, gain, a."""
+    square = lambda: np.empty((order, order))  # noqa: E731
+    return np.empty((order, p)), square(), square(), square(), np.empty(order), square()
 
 
 @nb.njit(**KERNEL_JIT)

@@ -78,11 +78,14 @@ def run_block(lo, hi, gain, length_unit, time_unit, window, max_step, max_veloci
               velocity, previous, span, previous_span, known, error, count, position, last_time, initialised,
               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead):
     """Targets ``lo .. hi - 1`` through their rows of the block (scratch allocated here, once a call)."""
-    p = z.shape[2]
     _run_block(lo, hi, gain, length_unit, time_unit, window, max_step, max_velocity,
                velocity, previous, span, previous_span, known, error, count, position, last_time, initialised,
-               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
-               np.empty(p), np.empty(p), np.empty(p))
+               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead, *scratch(z.shape[2]))
+
+
+def scratch(p: int):
+    """A target's scratch of :func:`_run_block`: b, c, v."""
+    return np.empty(p), np.empty(p), np.empty(p)
 
 
 @nb.njit(**KERNEL_JIT)
