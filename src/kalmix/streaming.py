@@ -530,6 +530,26 @@ def _id_from_meta(value):
     return decode[kind](text)
 
 
+BACKENDS = ("cpu", "gpu")
+
+
+def check_backend(backend: str) -> str:
+    """``backend`` if it is one of :data:`BACKENDS` and can run here; ``ValueError`` naming it otherwise."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {', '.join(map(repr, BACKENDS))}, got {backend!r}")
+    if backend == "gpu":
+        try:
+            from .core.compiled import gpu
+        except ImportError as error:   # pragma: no cover - numba missing
+            raise ValueError(f"backend 'gpu': needs numba and numba-cuda (pip install 'kalmix[gpu]'): {error}") \
+                from None
+        if gpu.cuda is None:
+            raise ValueError("backend 'gpu': numba-cuda is not installed (pip install 'kalmix[gpu]')")
+        if not gpu.gpu_available():
+            raise ValueError("backend 'gpu': no CUDA GPU found (numba-cuda sees none); use backend 'cpu'")
+    return backend
+
+
 class TrackPredictor:
     """One mixture predictor per track id; tracks appear as they come.
 
@@ -538,6 +558,10 @@ class TrackPredictor:
     config : StreamConfig
     position_names : sequence of str, optional
         Names of the measured coordinates (kept in the state file).
+    backend : {"cpu", "gpu"}
+        Where the engine runs: the compiled CPU engine (the numpy reference without numba), or
+        the GPU engine (:mod:`kalmix.core.compiled.gpu`; the ``gpu`` extra and an NVIDIA GPU),
+        the same numbers. Not kept in the state file: a state saved on one resumes on the other.
 
     Attributes
     ----------
@@ -550,9 +574,10 @@ class TrackPredictor:
         ``-o`` file there); kept as is by :meth:`save` / :meth:`load`.
     """
 
-    def __init__(self, config: StreamConfig, position_names=None):
+    def __init__(self, config: StreamConfig, position_names=None, *, backend: str = "cpu"):
         import copy
 
+        self.backend = check_backend(backend)
         self.config = copy.deepcopy(config)   # the predictor learns its time unit into it: not the caller's
         self.position_names = None if position_names is None else tuple(position_names)
         self.params: Bank | None = None
@@ -569,7 +594,12 @@ class TrackPredictor:
     # -- set-up ---------------------------------------------------------------------
     def _ensure_params(self, measurement_dim: int) -> Bank:
         if self.params is None:
-            self.params = self._build(measurement_dim)
+            params = self._build(measurement_dim)
+            if self.backend == "gpu":   # a bank the GPU engine cannot run fails here, before any row
+                from .core.compiled import gpu
+
+                gpu.check_bank(params)
+            self.params = params
         elif self.params.measurement_dim != measurement_dim:
             raise ValueError(f"measurements: expected {self.params.measurement_dim} coordinates per row "
                              f"(as before), got {measurement_dim}")
@@ -635,12 +665,17 @@ class TrackPredictor:
         return init_bank_state(self.params, 1)
 
     def _run(self, values, times, lengths, state, restart, ahead_times=None, bank=None):
-        """The compiled engine (the numpy reference without numba), on this predictor's bank or ``bank``."""
+        """The compiled engine (the numpy reference without numba, the GPU engine with ``backend="gpu"``), on
+        this predictor's bank or ``bank``."""
         from .core import engine
         from .core.compiled import numba_available
 
         run = engine.run
-        if numba_available():
+        if self.backend == "gpu":
+            from .core.compiled import gpu
+
+            run = gpu.run
+        elif numba_available():
             from .core.compiled import engine as compiled
 
             run = compiled.run
@@ -1101,8 +1136,9 @@ class TrackPredictor:
         write_archive(path, meta, arrays)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "TrackPredictor":
-        """Read a file written by :meth:`save`; ``ValueError`` with the reason on a bad file."""
+    def load(cls, path: str | os.PathLike, *, backend: str = "cpu") -> "TrackPredictor":
+        """Read a file written by :meth:`save` (to run on ``backend``); ``ValueError`` with the reason on a bad
+        file."""
         with open_archive(path, magic=_MAGIC, version=_READABLE_VERSIONS, what="kalmix state file",
                           written_by="kalmix predict --state") as archive:
             meta = archive.meta
@@ -1117,7 +1153,7 @@ class TrackPredictor:
                     config.setdefault("lead_delay", 1.0)   # the lead head learned at the one-step rate then
                 if meta["format_version"] < 5 and config.get("rule") == "boa":
                     config["rule_options"] = {"bound_forgetting": 1.0, **config.get("rule_options", {})}
-                engine = cls(StreamConfig(**config), meta.get("position_names"))
+                engine = cls(StreamConfig(**config), meta.get("position_names"), backend=backend)
                 engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
                 engine.outliers = int(meta.get("outliers", 0))
                 engine.output = meta.get("output")

@@ -116,7 +116,7 @@ def _check_resumed(engine, columns):
                          f"{list(columns.positions)} (pass --position to name them, or use a new --state file)")
 
 
-def _new_engine(settings, unit, positions):
+def _new_engine(settings, unit, positions, backend="cpu"):
     from ..bank import LENGTH_UNIT_RANGE
     from ..streaming import StreamConfig, TrackPredictor
 
@@ -124,7 +124,7 @@ def _new_engine(settings, unit, positions):
     if not low <= unit <= high:
         raise ValueError(f"--length-unit: the automatic length unit {unit:.3g} is outside [{low:g}, {high:g}]; "
                          "rescale the data or pass --length-unit")
-    return TrackPredictor(StreamConfig(length_unit=unit, **settings), positions)
+    return TrackPredictor(StreamConfig(length_unit=unit, **settings), positions, backend=backend)
 
 
 # ------------------------------------------------------------------------------------------ files
@@ -193,7 +193,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                 elif unit is None:
                     click.echo(f"kalmix: length unit 1 (auto could not estimate it: the first chunk has {why}; "
                                "pass --length-unit)", err=True)
-                run.engine = _new_engine(settings, chosen, columns.positions)
+                run.engine = _new_engine(settings, chosen, columns.positions, run.backend)
             engine = run.engine
             mark = engine.checkpoint(pd.unique(chunk["track_id"]))
             committed = False
@@ -471,7 +471,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         if unit is None:
             click.echo("kalmix: length unit 1 (stdin has no sample to estimate it from; pass --length-unit)",
                        err=True)
-        run.engine = _new_engine(settings, 1.0 if unit is None else unit, columns.positions)
+        run.engine = _new_engine(settings, 1.0 if unit is None else unit, columns.positions, run.backend)
     engine = run.engine
     run.open_output(run.out_fmt if run.output else ("jsonl" if is_json else "csv"))
     index = {name: i for i, name in enumerate(header)}
@@ -589,9 +589,10 @@ def _row_record(result, track, time, columns, prefixes):
 
 
 def run_predict(guard, engine, settings, unit, input_path, state_path, save_every, output, out_fmt,
-                time_column, position_columns, id_column, chunk_rows, progress):
+                time_column, position_columns, id_column, chunk_rows, progress, backend="cpu"):
     """Run, commit, and on any exit save what was committed; then report."""
     run = Run(guard, engine, state_path, save_every, output, out_fmt)
+    run.backend = backend
     try:
         if input_path == "-":
             predict_stream(run, sys.stdin, settings, unit, time_column, position_columns, id_column)

@@ -313,6 +313,9 @@ def _local_only(given, output):
               help="local: this process, a file chunk by chunk or stdin; dask: INPUT a directory or glob of "
                    "Parquet or CSV files, shuffled by track over a Dask cluster (the 'dask' extra), the same "
                    "numbers; -o names the output directory.")
+@click.option("--backend", default="cpu", show_default=True, type=click.Choice(["cpu", "gpu"]),
+              help="--engine local: where the engine runs, the compiled CPU engine or the GPU engine (the 'gpu' "
+                   "extra and an NVIDIA GPU; the same numbers, the GPU for many tracks at once).")
 @click.option("--scheduler", default=None, help="--engine dask: address of a Dask scheduler "
               "(tcp://host:8786) [default: a local cluster on this machine's cores].")
 @click.option("--workers", default=None, type=click.IntRange(min=1),
@@ -322,7 +325,7 @@ def _local_only(given, output):
                    "4 per worker thread].")
 def predict(input_path, time_column, position_columns, id_column, horizon, lead, output, bank_kind, rule, time_unit,
             n_experts, seed, length_unit, max_gap, max_gap_factor, reach, state_path, save_every, chunk_rows,
-            progress, mixture_options, engine_kind, scheduler, workers, partitions):
+            progress, mixture_options, engine_kind, backend, scheduler, workers, partitions):
     """Predict the next position of every track in INPUT (CSV, Parquet, or - for stdin).
 
     Output: the input's id and time columns, 'segment', pred_<position> and std_<position>:
@@ -357,14 +360,19 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
         if engine_kind == "dask":
             from ._predict_dask import check_options
             check_options(input_path, output, state_path, given)
+            if backend != "cpu":
+                raise ValueError(f"--backend {backend}: runs with --engine local (each Dask worker runs the CPU "
+                                 "engine)")
         else:
             _local_only(given, output)
+        from ..streaming import check_backend
+        check_backend(backend)
         _distinct_files(("INPUT", input_path), ("--output", output), ("--state", state_path))
     with _user_errors(), SignalGuard() as guard, \
             (StateLock(state_path) if state_path else contextlib.nullcontext()):
         engine = None
         if state_path and os.path.exists(state_path):
-            engine = TrackPredictor.load(state_path)
+            engine = TrackPredictor.load(state_path, backend=backend)
             stored = engine.config
             for name, given, have in (("--experts", n_experts, stored.n_experts), ("--seed", seed, stored.seed),
                                       ("--length-unit", unit, stored.length_unit),
@@ -406,7 +414,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
         if input_path == "-" and out_fmt == "parquet":
             raise ValueError("--output: streaming from stdin writes CSV or JSON lines, got a .parquet name")
         run_predict(guard, engine, settings, unit, input_path, state_path, save_every, output, out_fmt,
-                    time_column, position_columns, id_column, chunk_rows, progress)
+                    time_column, position_columns, id_column, chunk_rows, progress, backend)
 
 
 # -------------------------------------------------------------------------------------- evaluate

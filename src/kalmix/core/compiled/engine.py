@@ -98,6 +98,15 @@ def akf_work(rows: int, n: int, k: int, p: int, later: bool, allocate=np.empty):
             allocate((rows, n, k, p), np.float64), allocate((rows, n, k, p) if later else (0, 0, 0, 0), np.float64))
 
 
+def with_lead(bank: Bank, times, ahead_times, ahead_frames):
+    """The ahead times and frames a run computes: the lead head's (by default at ``times`` + its lead) when the
+    bank has one, else those asked for."""
+    lead = bank.lead
+    if lead is None:
+        return ahead_times, ahead_frames
+    return (times + lead.time if ahead_times is None else ahead_times), lead.frames
+
+
 def prepare(bank: Bank, measurements, times, state, lengths, learn):
     """Contiguous float inputs, a fresh state if none, lengths, and the rows to learn (present ones only)."""
     z, times, lengths = check_run_arguments(bank, measurements, times, state, lengths)
@@ -151,9 +160,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         gaps = np.zeros((t_count, n), dtype=bool)
     k = bank.n_experts
     lead = bank.lead
-    if lead is not None:
-        ahead_times = times + lead.time if ahead_times is None else ahead_times
-        ahead_frames = lead.frames
+    ahead_times, ahead_frames = with_lead(bank, times, ahead_times, ahead_frames)
     with_ahead = ahead_times is not None
     if with_ahead:
         ahead_times = _kernel_array(np.broadcast_to(np.asarray(ahead_times, dtype=np.float64), (t_count, n)))

@@ -1,18 +1,21 @@
-"""GPU engine (numba-cuda, fp64) for banks of kinematic families: one thread per target.
+"""GPU engine (numba-cuda, fp64): :func:`run` runs any bank on an NVIDIA GPU with the CPU engine's numbers.
 
-Each thread runs its target's rows with the whole row fused (glitch screen, every expert's
-forecast, the rule's weights and mixture, the rule's and the experts' learning) by calling
-the **same per-row functions** as the CPU engine (:func:`.screen.screen_row`,
-:func:`.kinematic.step_expert` / :func:`.kinematic.forecast_expert`, the rules of
-:mod:`.rules`), compiled for the GPU; so the numbers are the CPU engine's, and the
-contract tests run it under numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``) in CI.
+Two ways, chosen by :func:`run`:
 
-Layout: on the device every per-expert array has the target index last (``(K, 3, p, N)``),
-so the threads of a warp read neighbouring addresses; the shared functions get strided views.
+- **one fused kernel** (:func:`run_fused`) for banks of kinematic families (CV, CA) with no lead
+  head: each thread runs its target's rows with the whole row fused (glitch screen, every
+  expert's forecast, the rule's weights and mixture, the learning) by calling the **same per-row
+  functions** as the CPU engine (:func:`.screen.screen_row`, :func:`.kinematic.step_expert`, the
+  rules of :mod:`.rules`). On the device every per-expert array has the target index last
+  (``(K, 3, p, N)``), so the threads of a warp read neighbouring addresses.
+- **the staged engine** (:mod:`.gpu_staged`) for every other bank (AKF, AR, turn families, the
+  lead head, restart rows): each of the CPU engine's stages is a kernel whose thread ``j`` runs
+  the CPU driver on target ``j``.
 
-Scope: banks whose families are all kinematic (``make_bank(p, "kinematic")``), up to
-:data:`MAX_EXPERTS` experts, 1 to 3 coordinates, any rule. The AKF family has no GPU
-kernel yet: :func:`run` refuses such a bank with a clear error (use the CPU engine).
+Either way the code that runs is the CPU engine's own, compiled for the GPU, and the contract
+tests run it under numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``) in CI. One difference:
+the AKF guard's rare last word on a candidate within its band of the bound uses the Schur-Cohn
+test at the bound on the GPU (no eigenvalue routine there), eigenvalues on the CPU.
 """
 
 from __future__ import annotations
@@ -42,6 +45,28 @@ except ImportError:  # pragma: no cover - depends on the install
     cuda = None
 
 __all__ = ["run", "gpu_available", "MAX_EXPERTS", "THREADS_PER_BLOCK"]
+
+#: Largest AKF state (order x coordinates) the GPU's guard takes (its scratch is fixed-size there).
+MAX_AKF_STATE = 32
+_GUARD_ROWS = MAX_AKF_STATE + 1
+
+if cuda is not None:
+    from numba.core.extending import overload
+
+    from .. import _numba_linalg as la
+
+    @overload(la.radius_le_eig, target="cuda")
+    def _radius_le_on_gpu(theta, transition, p, n, bound, scratch, coef):
+        """The guard's last word on a candidate whose roots lie within its band of the bound: no eigenvalues on
+        a GPU, so the Schur-Cohn test on its characteristic polynomial ``coef`` at exactly the bound."""
+        def impl(theta, transition, p, n, bound, scratch, coef):
+            work = cuda.local.array((_GUARD_ROWS, 1), float64)
+            saved = cuda.local.array((_GUARD_ROWS, 1), float64)
+            norm = cuda.local.array(1, float64)
+            inside = cuda.local.array(1, boolean)
+            la.schur_cohn(coef, n, bound, work, saved, norm, inside, 1)
+            return inside[0]
+        return impl
 
 MAX_EXPERTS = 64
 THREADS_PER_BLOCK = 128
@@ -164,17 +189,49 @@ def _kernel():
 
 
 def check_bank(bank: Bank) -> None:
-    """Raise ``ValueError`` unless the GPU engine can run ``bank``."""
-    kinds = [f.kind for f in bank.families]
-    if any(kind not in ("cv", "ca") for kind in kinds):
-        raise ValueError(f"backend 'gpu': runs banks of kinematic families (cv, ca) only, got families {kinds}; "
-                         "use make_bank(p, 'kinematic') or the CPU engine for the AR, turn and AKF families")
-    if bank.n_experts > MAX_EXPERTS:
-        raise ValueError(f"backend 'gpu': at most {MAX_EXPERTS} experts, got {bank.n_experts}")
-    if bank.measurement_dim > 3:
-        raise ValueError(f"backend 'gpu': 1 to 3 coordinates, got {bank.measurement_dim}")
-    if bank.lead is not None:
-        raise ValueError("backend 'gpu': banks with a lead head (make_bank(..., lead=...)) run on the CPU engine")
+    """Raise ``ValueError`` unless the GPU engine can run ``bank``: every family and rule runs there, except
+    AKF families whose guard needs eigenvalues (a prior with more than ``MAX_CLUSTER`` roots at 1) or whose
+    state is over :data:`MAX_AKF_STATE`."""
+    from ..fast import _fast_guard
+
+    for family in bank.families:
+        if family.kind != "akf":
+            continue
+        fp = family.params
+        if fp.state_dim > MAX_AKF_STATE:
+            raise ValueError(f"backend 'gpu': an AKF family's state (order x coordinates) is at most {MAX_AKF_STATE} "
+                             f"there, got {fp.state_dim}; use the CPU engine")
+        if fp.dynamics == "rls" and not _fast_guard(fp):
+            raise ValueError("backend 'gpu': this AKF family's guard needs eigenvalues (its prior puts more than "
+                             "6 roots at 1), which the GPU has not; use the CPU engine or a lower AKF order")
+
+
+def fused(bank: Bank, restart=None) -> bool:
+    """Whether the one-kernel engine (:func:`run_fused`, faster) runs ``bank``: kinematic families only, at most
+    :data:`MAX_EXPERTS` experts, 1 to 3 coordinates, no lead head, no restart rows given."""
+    return (all(f.kind in ("cv", "ca") for f in bank.families) and bank.n_experts <= MAX_EXPERTS
+            and bank.measurement_dim <= 3 and bank.lead is None and restart is None)
+
+
+def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
+        ahead_times=None, ahead_frames: int = 1, restart=None, timings: dict | None = None) -> EngineResult:
+    """:func:`kalmix.core.engine.run` on the GPU (fp64): same arguments and numbers (see the module docstring).
+
+    ``restart (T, N)`` rows start a target's experts again (:func:`kalmix.core.engine.run`'s);
+    ``timings``, if given, receives the seconds of the kernels alone (``"kernel"``) and of the
+    whole call (``"total"``). ``ValueError`` for a bank the GPU cannot run (:func:`check_bank`),
+    ``RuntimeError`` when no GPU is found.
+    """
+    check_bank(bank)
+    if not gpu_available():
+        raise RuntimeError("backend 'gpu': no CUDA GPU found (numba-cuda sees none); use the CPU engine")
+    if fused(bank, restart):
+        return run_fused(bank, measurements, times, state, lengths=lengths, learn=learn, ahead_times=ahead_times,
+                         ahead_frames=ahead_frames, timings=timings)
+    from . import gpu_staged
+
+    return gpu_staged.run(bank, measurements, times, state, lengths=lengths, learn=learn, ahead_times=ahead_times,
+                          ahead_frames=ahead_frames, restart=restart, timings=timings)
 
 
 def _pack_families(bank: Bank, states, n: int, p: int):
@@ -199,10 +256,10 @@ def _pack_families(bank: Bank, states, n: int, p: int):
             first.last_time.astype(np.float64).copy(), first.initialised.astype(np.bool_).copy())
 
 
-def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
+def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
         ahead_times=None, ahead_frames: int = 1, threads_per_block: int = THREADS_PER_BLOCK,
         timings: dict | None = None) -> EngineResult:
-    """:func:`kalmix.core.engine.run` on the GPU (kinematic banks; see the module docstring).
+    """The one-kernel engine: :func:`kalmix.core.engine.run` for banks where :func:`fused` holds.
 
     ``timings``, if given, receives the seconds spent in the kernel alone (``"kernel"``)
     and in the whole call with the transfers (``"total"``).
@@ -212,9 +269,8 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     start = time.perf_counter()
     from .engine import _rule_scalars, pack_rule, prepare, unpack_rule
 
-    check_bank(bank)
-    if not gpu_available():
-        raise RuntimeError("backend 'gpu': no CUDA GPU found (numba-cuda sees none); use the CPU engine")
+    if not fused(bank):
+        raise ValueError("run_fused: kinematic banks of at most 64 experts, 1 to 3 coordinates, no lead head")
     z, times, state, lengths, learn = prepare(bank, measurements, times, state, lengths, learn)
     t_count, n, p = z.shape
     (orders, q, r, initial, tu, max_step, max_variance, mean, cov, last_time,
