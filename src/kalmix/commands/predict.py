@@ -367,6 +367,9 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
             _local_only(given, output)
         from ..streaming import check_backend
         check_backend(backend)
+        if backend == "gpu":
+            click.echo("kalmix: --backend gpu compiles its kernels once in each run, at the first rows (about 4 "
+                       "minutes for the default bank on an H100)", err=True)
         _distinct_files(("INPUT", input_path), ("--output", output), ("--state", state_path))
     with _user_errors(), SignalGuard() as guard, \
             (StateLock(state_path) if state_path else contextlib.nullcontext()):
