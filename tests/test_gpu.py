@@ -225,3 +225,25 @@ def test_gpu_equals_the_reference_on_a_real_gpu(check):
         pytest.skip("no CUDA GPU here (CI has none: the simulator tests cover the kernels)")
     _check({}, CHECKS[check])
 
+
+
+def test_a_state_file_resumed_on_a_backend_that_cannot_run_it_is_not_called_corrupt(tmp_path, monkeypatch):
+    """Resuming with backend 'gpu' a state whose bank the GPU refuses (or with no GPU) names the backend's reason;
+    the file itself is fine (a hostile pass found it reported as "incomplete or corrupt")."""
+    from kalmix.core.compiled import gpu
+    from kalmix.streaming import StreamConfig, TrackPredictor
+
+    config = StreamConfig(n_experts=4, bank="akf", options={"order": 3, "prior_degree": 2})
+    engine = TrackPredictor(config)
+    rng = np.random.default_rng(0)
+    for i in range(6):
+        engine.step_rows(["a", "b"], [float(i), float(i)], rng.normal(size=(2, 3)))
+    path = tmp_path / "state.kmx"
+    engine.save(path)
+    if not gpu.gpu_available():
+        with pytest.raises(ValueError, match="^backend 'gpu': no CUDA GPU found"):
+            TrackPredictor.load(path, backend="gpu")
+    monkeypatch.setattr(gpu, "gpu_available", lambda: True)   # as if a GPU were here: the bank is refused
+    with pytest.raises(ValueError, match="^backend 'gpu': this AKF family's guard needs eigenvalues"):
+        TrackPredictor.load(path, backend="gpu")
+    assert TrackPredictor.load(path).backend == "cpu"

@@ -592,6 +592,15 @@ class TrackPredictor:
         self._unit_source: tuple | None = None   # (track, unit) the time unit was learned from, until judged
 
     # -- set-up ---------------------------------------------------------------------
+    def use_backend(self, backend: str) -> None:
+        """Run on ``backend`` from now on; ``ValueError`` if it cannot run here or cannot run this bank."""
+        check_backend(backend)
+        if backend == "gpu" and self.params is not None:
+            from .core.compiled import gpu
+
+            gpu.check_bank(self.params)
+        self.backend = backend
+
     def _ensure_params(self, measurement_dim: int) -> Bank:
         if self.params is None:
             params = self._build(measurement_dim)
@@ -1153,7 +1162,7 @@ class TrackPredictor:
                     config.setdefault("lead_delay", 1.0)   # the lead head learned at the one-step rate then
                 if meta["format_version"] < 5 and config.get("rule") == "boa":
                     config["rule_options"] = {"bound_forgetting": 1.0, **config.get("rule_options", {})}
-                engine = cls(StreamConfig(**config), meta.get("position_names"), backend=backend)
+                engine = cls(StreamConfig(**config), meta.get("position_names"))
                 engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
                 engine.outliers = int(meta.get("outliers", 0))
                 engine.output = meta.get("output")
@@ -1176,6 +1185,7 @@ class TrackPredictor:
                 stacked = {name: (np.broadcast_to(expected, (count, *expected.shape[1:])) if fresh(name)
                                   else archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name))
                            for name, expected in _leaves(template)}
+        engine.use_backend(backend)   # outside the checks of the file: a backend that cannot run is not corruption
         index = 0
         for track, gaps, has_state in entries:
             engine.gaps[track] = gaps
