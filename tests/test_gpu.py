@@ -64,7 +64,10 @@ CHECK_STAGED = textwrap.dedent("""
     from kalmix.core.compiled import gpu
     from kalmix.core.testing import adversarial_tracks, benign_tracks
     small = os.environ.get("NUMBA_ENABLE_CUDASIM") == "1"
-    t_count = 24 if small else 60
+    if small:   # the simulator runs a Python thread per GPU thread: blocks of 2 (and more than one block)
+        from kalmix.core.compiled import gpu_staged
+        gpu_staged.THREADS_PER_BLOCK = 2
+    t_count = 16 if small else 60
     worst = state_worst = 0.0
     glitched, times = benign_tracks(seed=1, t_count=t_count)
     glitched[3, 0] += 1e3
@@ -166,7 +169,9 @@ CHECK_CLI = textwrap.dedent("""
     folder = tempfile.mkdtemp()
     source = os.path.join(folder, "tracks.csv")
     pd.DataFrame(rows, columns=["id", "time", "x", "y"]).to_csv(source, index=False)
-    from kalmix.core.compiled import gpu
+    from kalmix.core.compiled import gpu, gpu_staged
+    if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":   # a Python thread per GPU thread: blocks of 2
+        gpu_staged.THREADS_PER_BLOCK = 2
     calls = []
     run = gpu.run
     gpu.run = lambda *args, **kwargs: calls.append(1) or run(*args, **kwargs)   # the command takes the GPU path
