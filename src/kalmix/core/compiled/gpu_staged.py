@@ -254,7 +254,7 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
     horizon = ahead_frames if with_ahead else 1
     if gaps is None:
         gaps = np.zeros((t_count, n), dtype=bool)
-    d_z, d_times, d_lengths = cuda.to_device(z), cuda.to_device(np.ascontiguousarray(times)), cuda.to_device(lengths)
+    d_z, d_times = cuda.to_device(z), cuda.to_device(np.ascontiguousarray(times))
     d_learn, d_gaps = cuda.to_device(np.ascontiguousarray(learn)), cuda.to_device(np.ascontiguousarray(gaps))
     d_ahead_times = cuda.to_device(np.ascontiguousarray(ahead_times)) if with_ahead else cuda.device_array((0, 0))
 
