@@ -98,6 +98,27 @@ def akf_work(rows: int, n: int, k: int, p: int, later: bool, allocate=np.empty):
             allocate((rows, n, k, p), np.float64), allocate((rows, n, k, p) if later else (0, 0, 0, 0), np.float64))
 
 
+def family_module(family):
+    """The compiled module of a kinematic, AR or turn family (its ``run_block`` / ``_run_block`` driver, its
+    ``scratch``)."""
+    return {"ar": car, "turn": cturn}.get(family.kind, ckin)
+
+
+def family_constants(family, array=np.asarray) -> tuple:
+    """A kinematic, AR or turn family's parameters as its driver takes them, before its state; ``array`` places
+    the parameter arrays (the GPU engine copies them to the device)."""
+    fp = family.params
+    if family.kind == "ar":
+        return (fp.order, bool(fp.bias), array(fp.forgetting), array(fp.ridge), float(fp.length_unit),
+                float(fp.time_unit), float(fp.persistence), float(fp.initial_error), float(fp.jump_threshold),
+                float(fp.window), float(fp.max_step), float(fp.max_velocity))
+    if family.kind == "turn":
+        return (array(fp.gain), float(fp.length_unit), float(fp.time_unit), float(fp.window), float(fp.max_step),
+                float(fp.max_velocity))
+    return (fp.order, array(fp.process_noise), array(fp.measurement_noise), array(fp.initial_variance),
+            float(fp.time_unit), float(fp.max_step), float(fp.max_variance))
+
+
 def with_lead(bank: Bank, times, ahead_times, ahead_frames):
     """The ahead times and frames a run computes: the lead head's (by default at ``times`` + its lead) when the
     bank has one, else those asked for."""
@@ -226,27 +247,14 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         ahead_b = ahead_times[begin:end] if with_ahead else empty2
 
         def run_family(i):
-            family, offset = bank.families[i], offsets[i]
-            fp, fs = family.params, families[i]
+            family, offset, fs = bank.families[i], offsets[i], families[i]
             if family.kind == "akf":
                 work = akf_work(rows, n, family.n_experts, p, horizon > 1)
                 over_targets(cakf.run_block, n, *fs, zb, lb, restart, lens, buffer, offset,
                              ahead_buffer if with_ahead else empty4, horizon, *work)
-            elif family.kind == "ar":
-                over_targets(car.run_block, n, fp.order, bool(fp.bias), fp.forgetting, fp.ridge, float(fp.length_unit),
-                             float(fp.time_unit), float(fp.persistence), float(fp.initial_error),
-                             float(fp.jump_threshold), float(fp.window), float(fp.max_step), float(fp.max_velocity),
-                             *fs, zb, tb, lens, lb, restart, buffer, empty3, offset, ahead_b,
-                             ahead_buffer if with_ahead else empty4)
-            elif family.kind == "turn":
-                over_targets(cturn.run_block, n, fp.gain, float(fp.length_unit), float(fp.time_unit), float(fp.window),
-                             float(fp.max_step), float(fp.max_velocity), *fs, zb, tb, lens, lb, restart, buffer, empty3,
-                             offset, ahead_b, ahead_buffer if with_ahead else empty4)
             else:
-                over_targets(ckin.run_block, n, fp.order, fp.process_noise, fp.measurement_noise, fp.initial_variance,
-                             float(fp.time_unit), float(fp.max_step), float(fp.max_variance),
-                             fs.mean, fs.cov, fs.last_time, fs.initialised, zb, tb, lens, lb, restart, buffer, empty3,
-                             offset, ahead_b, ahead_buffer if with_ahead else empty4)
+                over_targets(family_module(family).run_block, n, *family_constants(family), *fs, zb, tb, lens, lb,
+                             restart, buffer, empty3, offset, ahead_b, ahead_buffer if with_ahead else empty4)
 
         # Families are independent and write their own columns of the buffers: with too few targets to split
         # (one stream), they run side by side on the threads instead, the costliest first.

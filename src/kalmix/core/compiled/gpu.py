@@ -84,27 +84,27 @@ def gpu_available() -> bool:
 
 
 @nb.njit(inline="always", **_JIT)
-def _sleep_beyond(orders, x, span, reach):
-    """The spec's :func:`kalmix.core.engine.within_reach` on one target: across a ``span`` over ``reach`` the CA
-    experts (order 3) sleep (NaN) if a CV expert (order 2) has a forecast."""
+def sleep_beyond(far, x, span, reach):
+    """The spec's :func:`kalmix.core.engine.within_reach` on one target's row ``x (K, p)``: across a ``span`` over
+    ``reach`` the ``far`` experts sleep (NaN) if an expert not far has a forecast."""
     if not span > reach:
         return
     k_count, p = x.shape
-    cv = False
+    near = False
     for k in range(k_count):
-        if orders[k] == 2:
+        if not far[k]:
             finite = True
             for ci in range(p):
                 finite = finite and math.isfinite(x[k, ci])
-            cv = cv or finite
-    if cv:
+            near = near or finite
+    if near:
         for k in range(k_count):
-            if orders[k] != 2:
+            if far[k]:
                 for ci in range(p):
                     x[k, ci] = math.nan
 
 
-def _body(orders, q, r, initial, time_unit, max_step, max_variance, reach, mean, cov, last_time, initialised,
+def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, mean, cov, last_time, initialised,
            rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
            threshold, max_rejects, warmup, window, position, velocity, seen, spread, count, rejects, outliers,
            points, low, high, cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale,
@@ -155,7 +155,7 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, reach, mean,
         if learning:
             initialised[n] = True
             last_time[n] = times[t, n]
-        _sleep_beyond(orders, x, times[t, n] - before, reach)
+        sleep_beyond(far, x, times[t, n] - before, reach)
         awake_count = forecast_row(rule, forgetting, share, delay, a[:, n], b[:, n], c[:, n], dn[0], x, awake, w,
                                    logw, mix, var_n, ls[0], cal_max_variance, sigma)
         write_row(awake_count, mix, sigma, out[t, n], out_std[t, n])
@@ -175,7 +175,7 @@ def _body(orders, q, r, initial, time_unit, max_step, max_variance, reach, mean,
                 else:
                     for ci in range(p):
                         x[k, ci] = math.nan
-            _sleep_beyond(orders, x, ahead_times[t, n] - (seen[n] if points[n] >= 2.0 else math.nan), reach)
+            sleep_beyond(far, x, ahead_times[t, n] - (seen[n] if points[n] >= 2.0 else math.nan), reach)
             awake_count = forecast_row(rule, forgetting, share, delay, a[:, n], b[:, n], c[:, n], dn[0], x, awake, w,
                                        logw, mix, var_n, ls[0], cal_max_variance, sigma)
             write_row(awake_count, mix, sigma, out_ahead[t, n], out_ahead_std[t, n])
@@ -285,7 +285,8 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
     # target index last on the device: neighbouring threads read neighbouring addresses (coalesced)
     soa = lambda array: np.ascontiguousarray(np.moveaxis(array, 0, -1))  # noqa: E731
     device = {name: cuda.to_device(value) for name, value in dict(
-        orders=orders, q=q, r=r, initial=initial, tu=tu, mean=soa(mean), cov=soa(cov), last_time=last_time,
+        orders=orders, far=orders != 2, q=q, r=r, initial=initial, tu=tu, mean=soa(mean), cov=soa(cov),
+        last_time=last_time,
         initialised=initialised, a=soa(a), b=soa(b), c=soa(c), d=d, e=e, z=z, times=times, lengths=lengths,
         learn=np.ascontiguousarray(learn), ahead_times=ahead_host, variance=soa(cal[0]), n_errors=soa(cal[1]),
         log_scale=cal[2]).items()}
@@ -298,7 +299,7 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
     cuda.synchronize()
     launched = time.perf_counter()
     kernel[blocks, threads_per_block](
-        device["orders"], device["q"], device["r"], device["initial"], device["tu"], max_step, max_variance,
+        device["orders"], device["far"], device["q"], device["r"], device["initial"], device["tu"], max_step, max_variance,
         float(bank.reach), device["mean"], device["cov"], device["last_time"], device["initialised"],
         *_rule_scalars(bank), device["a"], device["b"], device["c"], device["d"], device["e"],
         float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window), *screen_dev,

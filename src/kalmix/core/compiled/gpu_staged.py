@@ -24,7 +24,7 @@ from ..lead import LeadState
 from ..mixture import MixtureState
 from ..screen import ScreenState
 from . import akf as cakf
-from . import gpu as _gpu  # noqa: F401 - registers the guard's GPU version
+from . import gpu as _gpu  # also registers the guard's GPU version
 from . import ar as car
 from . import kinematic as ckin
 from . import lead as clead
@@ -33,7 +33,8 @@ from . import screen as cscreen
 from . import turn as cturn
 from ._cache import JIT as _JIT
 from .calibration import pack_params as pack_calibration
-from .engine import _rule_scalars, akf_work, pack_akf, pack_rule, prepare, unpack_rule, with_lead
+from .engine import (_rule_scalars, akf_work, family_constants, family_module, pack_akf, pack_rule, prepare,
+                     unpack_rule, with_lead)
 
 try:  # numba-cuda is optional (the 'gpu' extra)
     from numba import cuda
@@ -48,7 +49,6 @@ BUFFER_BYTES = 2 * 2**30
 #: Upper bound of the device memory a chunk of targets takes (state, scratch, work arrays, outputs).
 CHUNK_BYTES = 24 * 2**30
 _kernels = {}
-_helpers = {}
 
 
 def _launcher(driver, n_args: int, n_scratch: int):
@@ -91,85 +91,65 @@ def _launch(driver, n: int, args, scratch=(), stages=None, name=None):
     _synchronize(name or driver.__name__, start, stages)
 
 
-def _glue_body(j, learn, accept, restart, cold, lengths, learned, go):
-    """Rows of target ``j`` its experts learn (``learned``) and its rules learn (``go``), as the CPU engine's
-    ``learn & accept`` and ``learned & ~restart & ~cold``."""
-    for t in range(lengths[j]):
-        learned[t, j] = learn[t, j] and accept[t, j]
-        go[t, j] = learned[t, j] and not restart[t, j] and not cold[t, j]
+# ---------------------------------------------------------------- the glue between stages, drivers like the others
+@nb.njit(**_JIT)
+def _glue(lo, hi, learn, accept, restart, cold, lengths, learned, go):
+    """The rows the experts learn (``learned``) and the rules learn (``go``): the CPU engine's ``learn & accept``
+    and ``learned & ~restart & ~cold``."""
+    for j in range(lo, hi):
+        for t in range(lengths[j]):
+            learned[t, j] = learn[t, j] and accept[t, j]
+            go[t, j] = learned[t, j] and not restart[t, j] and not cold[t, j]
 
 
-def _reach_body(j, far, reach, experts, times, last, lengths, out):
-    """:func:`kalmix.core.engine.within_reach` for target ``j``: ``out`` is ``experts`` with the ``far``
-    experts asleep (NaN) on the rows whose span ``times - last`` is over the reach, if an expert not far
-    is awake there."""
-    k_count, p = experts.shape[2], experts.shape[3]
-    for t in range(lengths[j]):
-        near = False
-        if times[t, j] - last[t, j] > reach:
-            for k in range(k_count):
-                if not far[k]:
-                    finite = True
-                    for ci in range(p):
-                        finite = finite and math.isfinite(experts[t, j, k, ci])
-                    near = near or finite
-        for k in range(k_count):
-            for ci in range(p):
-                out[t, j, k, ci] = math.nan if near and far[k] else experts[t, j, k, ci]
+@nb.njit(**_JIT)
+def _both(lo, hi, a, b, lengths, out):
+    """``out = a & b`` on the targets' rows."""
+    for j in range(lo, hi):
+        for t in range(lengths[j]):
+            out[t, j] = a[t, j] and b[t, j]
 
 
-def _fill_body(j, value, array):
-    """``array[:, j] = value`` (a ``(T, N, ...)`` array, C-contiguous)."""
+@nb.njit(**_JIT)
+def _reach(lo, hi, far, reach, experts, times, last, lengths, out):
+    """:func:`kalmix.core.engine.within_reach`: ``out`` is ``experts`` with the ``far`` experts asleep on the rows
+    whose span ``times - last`` is over the reach (:func:`.gpu.sleep_beyond`, the fused kernel's)."""
+    for j in range(lo, hi):
+        for t in range(lengths[j]):
+            for k in range(experts.shape[2]):
+                for ci in range(experts.shape[3]):
+                    out[t, j, k, ci] = experts[t, j, k, ci]
+            _gpu.sleep_beyond(far, out[t, j], times[t, j] - last[t, j], reach)
+
+
+@nb.njit(**_JIT)
+def _fill(lo, hi, value, array):
+    """``array[:, j] = value`` (a C-contiguous ``(T, N, ...)`` array)."""
     rows, n = array.shape[0], array.shape[1]
     width = array.size // (rows * n)
     flat = array.reshape(array.size)
-    for t in range(rows):
-        start = (t * n + j) * width
-        for i in range(width):
-            flat[start + i] = value
+    for j in range(lo, hi):
+        for t in range(rows):
+            start = (t * n + j) * width
+            for i in range(width):
+                flat[start + i] = value
 
 
-def _zero_body(j, array):
+@nb.njit(**_JIT)
+def _zero(lo, hi, array):
     """``array[j] = 0`` (a C-contiguous array with the target first, of two or more axes)."""
-    row = array[j]
-    flat = row.reshape(row.size)
-    for i in range(row.size):
-        flat[i] = 0
-
-
-def _and_body(j, a, b, lengths, out):
-    """``out = a & b`` on target ``j``'s rows."""
-    for t in range(lengths[j]):
-        out[t, j] = a[t, j] and b[t, j]
-
-
-def _helper(body, n_args):
-    key = (body, n_args)
-    if key not in _helpers:
-        names = [f"a{i}" for i in range(n_args)]
-        source = (f"def kernel(count, {', '.join(names)}):\n"
-                  "    j = cuda.grid(1)\n"
-                  "    if j < count:\n"
-                  f"        body(j, {', '.join(names)})\n")
-        namespace = {"cuda": cuda, "body": nb.njit(**_JIT)(body)}
-        exec(compile(source, f"<kalmix gpu kernel {body.__name__}>", "exec"), namespace)  # noqa: S102
-        _helpers[key] = cuda.jit(namespace["kernel"])
-    return _helpers[key]
-
-
-def _help(body, n, *args, stages=None):
-    import time
-
-    start = time.perf_counter()
-    _helper(body, len(args))[max(1, math.ceil(n / THREADS_PER_BLOCK)), THREADS_PER_BLOCK](n, *args)
-    _synchronize(body.__name__.strip("_").replace("_body", ""), start, stages)
+    for j in range(lo, hi):
+        row = array[j]
+        flat = row.reshape(row.size)
+        for i in range(row.size):
+            flat[i] = 0
 
 
 def _nan(shape, n):
     """A device array of ``shape`` (targets on axis 1) filled with NaN on the device."""
     array = cuda.device_array(shape)
     if array.size:
-        _help(_fill_body, n, math.nan, array)
+        _launch(_fill, n, (math.nan, array))
     return array
 
 
@@ -177,7 +157,7 @@ def _per_target(templates, n):
     """Device arrays ``(n,) + a.shape`` of each template's dtype, zeros (the drivers' scratch, one per target)."""
     arrays = tuple(cuda.device_array((n,) + a.shape, dtype=a.dtype) for a in templates)
     for array in arrays:
-        _help(_zero_body, n, array)
+        _launch(_zero, n, (array,))
     return arrays
 
 
@@ -268,21 +248,13 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
             constants.append(())
         else:
             families.append(_dev(fstate))
+            constants.append(family_constants(family, cuda.to_device))
             if family.kind == "ar":
                 scratch.append(_per_target(car.scratch(fp.order, bool(fp.bias), p, family.n_experts), n))
-                constants.append((fp.order, bool(fp.bias), cuda.to_device(fp.forgetting), cuda.to_device(fp.ridge),
-                                  float(fp.length_unit), float(fp.time_unit), float(fp.persistence),
-                                  float(fp.initial_error), float(fp.jump_threshold), float(fp.window),
-                                  float(fp.max_step), float(fp.max_velocity)))
             elif family.kind == "turn":
                 scratch.append(_per_target(cturn.scratch(p), n))
-                constants.append((cuda.to_device(fp.gain), float(fp.length_unit), float(fp.time_unit),
-                                  float(fp.window), float(fp.max_step), float(fp.max_velocity)))
             else:
                 scratch.append(_per_target(ckin.scratch(fp.order, p), n))
-                constants.append((fp.order, cuda.to_device(fp.process_noise), cuda.to_device(fp.measurement_noise),
-                                  cuda.to_device(fp.initial_variance), float(fp.time_unit), float(fp.max_step),
-                                  float(fp.max_variance)))
     rule = _dev(pack_rule(bank, state.rule, n))
     rule_args = _rule_scalars(bank)
     rule_scratch = _per_target(crules.scratch(k, p), n)
@@ -322,8 +294,8 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
         _launch(cscreen.screen_block, n, (*screen_args, *scr, zb, tb, lens, d_learn[begin:end], d_gaps[begin:end],
                                           f["accept"], f["restart"], f["started"], f["cold"], before, after),
                 stages=stages, name="screen")
-        _help(_glue_body, n, d_learn[begin:end], f["accept"], f["restart"], f["cold"], lens, f["learned"], f["go"],
-              stages=stages)
+        _launch(_glue, n, (d_learn[begin:end], f["accept"], f["restart"], f["cold"], lens, f["learned"], f["go"]),
+                stages=stages)
         lb = f["learned"]
         buffer = _nan((rows, n, k, p), n)
         ahead_buffer = _nan((rows, n, k, p), n) if with_ahead else empty4
@@ -336,18 +308,17 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
                 _launch(cakf._run_block, n, (*fs, zb, lb, f["restart"], lens, buffer, offset, ahead_buffer, horizon,
                                              *work), scratch[i], stages=stages, name="akf")
             else:
-                driver = {"ar": car._run_block, "turn": cturn._run_block}.get(family.kind, ckin._run_block)
-                _launch(driver, n, (*constants[i], *fs, zb, tb, lens, lb, f["restart"], buffer, empty3, offset,
-                                    ahead_b, ahead_buffer), scratch[i], stages=stages,
-                        name=family.kind if family.kind in ("ar", "turn") else "kinematic")
+                _launch(family_module(family)._run_block, n, (*constants[i], *fs, zb, tb, lens, lb, f["restart"],
+                                                              buffer, empty3, offset, ahead_b, ahead_buffer),
+                        scratch[i], stages=stages, name=family.kind if family.kind in ("ar", "turn") else "kinematic")
         mixed, mixed_ahead = buffer, ahead_buffer
         if far is not None:
             mixed = cuda.device_array(buffer.shape)
-            _help(_reach_body, n, d_far, float(bank.reach), buffer, tb, before, lens, mixed, stages=stages)
+            _launch(_reach, n, (d_far, float(bank.reach), buffer, tb, before, lens, mixed), stages=stages)
             if with_ahead:
                 mixed_ahead = cuda.device_array(buffer.shape)
-                _help(_reach_body, n, d_far, float(bank.reach), ahead_buffer, ahead_b, after, lens, mixed_ahead,
-                      stages=stages)
+                _launch(_reach, n, (d_far, float(bank.reach), ahead_buffer, ahead_b, after, lens, mixed_ahead),
+                        stages=stages)
         _launch(crules._run_block, n, (*rule_args, *rule, *cal_args, *cal, mixed, zb, lens, f["go"],
                                        forecasts[begin:end], std[begin:end], empty4, empty3, mixed_ahead,
                                        ahead[begin:end] if with_ahead else empty3,
@@ -355,7 +326,7 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
                 rule_scratch, stages=stages, name="rules")
         if lead is not None:
             keep = cuda.device_array(lb.shape, dtype=np.bool_)
-            _help(_and_body, n, lb, f["started"], lens, keep, stages=stages)
+            _launch(_both, n, (lb, f["started"], lens, keep), stages=stages)
             _launch(clead._run_block, n, (*lead_args, *lead_rule, *cal_args, *lead_cal, ahead_b,
                                           float(lead.tolerance), *slots, ahead_buffer, zb, tb, lens, f["go"], keep,
                                           f["restart"], lead_out[begin:end], lead_std[begin:end], empty4, f["cold"],
