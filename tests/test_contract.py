@@ -230,7 +230,8 @@ def test_compiled_cache_is_keyed_on_the_sources(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("scored", [False, True])
 def test_target_groups_equal_one_pass(monkeypatch, scored):
-    """Many targets run in groups (TARGET_GROUP) give the same bits as one pass: outputs, sums and state."""
+    """Targets run in groups (more than TARGET_GROUP, or smaller groups to keep the threads busy) give the
+    same bits as one pass: outputs, sums and state."""
     from kalmix.core.compiled import engine as ce
 
     z, t = adversarial_tracks(seed=6, t_count=120)
@@ -245,11 +246,12 @@ def test_target_groups_equal_one_pass(monkeypatch, scored):
     kwargs = dict(lengths=lengths, restart=restart, record_covariance=True, record_experts=True, score=score,
                   score_ahead=score)
     first = ce.run(bank, z[:60], t[:60], lengths=np.minimum(lengths, 60), restart=restart[:60])
-    monkeypatch.setattr(ce, "TARGET_GROUP", 10 * n)
+    monkeypatch.setattr(ce, "group_size", lambda n_targets, largest: None)
     whole = ce.run(bank, z[60:], t[60:], first.state, **{**kwargs, "lengths": lengths - 60,
                                                         "restart": restart[60:], "score": None if score is None
                                                         else score[60:], "score_ahead": None if score is None
                                                         else score[60:]})
+    monkeypatch.setattr(ce, "group_size", _threads_group_size)
     monkeypatch.setattr(ce, "TARGET_GROUP", 3)
     grouped = ce.run(bank, z[60:], t[60:], first.state, **{**kwargs, "lengths": lengths - 60,
                                                           "restart": restart[60:], "score": None if score is None
@@ -257,6 +259,30 @@ def test_target_groups_equal_one_pass(monkeypatch, scored):
                                                           else score[60:]})
     assert n > 3
     _assert_identical(whole, grouped)
+
+
+def _threads_group_size(n_targets, largest):
+    from kalmix.core.compiled._threads import group_size
+
+    return group_size(n_targets, largest)
+
+
+def test_group_size(monkeypatch):
+    """Groups of the largest size beyond it; else about two groups a thread, none on one thread, for too few
+    targets, or inside a group."""
+    from kalmix.core.compiled import _threads
+
+    monkeypatch.setattr(_threads, "_threads", lambda: 2)
+    assert _threads.group_size(10_000, 256) == 250     # 40 groups
+    assert _threads.group_size(300, 256) == 75
+    assert _threads.group_size(100, 256) == 25
+    assert _threads.group_size(40, 256) == 20
+    assert _threads.group_size(31, 256) is None
+    monkeypatch.setattr(_threads._local, "inline", True, raising=False)
+    assert _threads.group_size(100, 256) is None and _threads.group_size(300, 256) == 150
+    monkeypatch.setattr(_threads._local, "inline", False)
+    monkeypatch.setattr(_threads, "_threads", lambda: 1)
+    assert _threads.group_size(100, 256) is None and _threads.group_size(257, 256) == 129
 
 
 def test_target_ranges_cover_every_target_once(monkeypatch):

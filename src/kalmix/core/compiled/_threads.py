@@ -16,7 +16,7 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["over_targets", "over_groups", "families_in_parallel", "MIN_CHUNK"]
+__all__ = ["over_targets", "over_groups", "families_in_parallel", "group_size", "MIN_CHUNK"]
 
 #: Fewest targets a thread is given: below twice this, the kernel runs in the calling thread.
 MIN_CHUNK = 16
@@ -62,6 +62,26 @@ def families_in_parallel(n_targets: int) -> bool:
     """True when :func:`over_targets` would leave threads idle (too few targets to split) and this thread
     is not already one group of several: then a bank's families run side by side instead."""
     return _threads() > 1 and n_targets < 2 * MIN_CHUNK and not getattr(_local, "inline", False)
+
+
+def group_size(n_targets: int, largest: int) -> int | None:
+    """Targets a group for a run over groups of targets, each whole on one thread (:func:`over_groups`); None
+    for one pass with each stage split over the threads (:func:`over_targets`).
+
+    More than ``largest`` targets always run in groups of at most ``largest`` (a group's state
+    stays in the caches). With several threads and enough targets to split, groups are also
+    made small enough for about two a thread: a stage split over the threads waits for its
+    slowest range, and the threads idle while this one does the Python work between stages;
+    whole groups overlap one group's Python work with the others' kernels (100 tracks of a
+    100k-row file, default bank, 2 cores: ~0.14 s of a ~2.5 s ``kalmix predict``). Within a
+    group (an ``inline`` thread) only the first rule applies. The groups are of equal size (to a
+    target), and of at least :data:`MIN_CHUNK` targets unless ``largest`` is smaller.
+    """
+    count = -(-n_targets // largest)
+    threads = _threads()
+    if threads > 1 and not getattr(_local, "inline", False):
+        count = max(count, min(2 * threads, n_targets // MIN_CHUNK))
+    return -(-n_targets // count) if count > 1 else None
 
 
 def over_groups(function, groups) -> list:

@@ -28,7 +28,7 @@ from . import rules as crules
 from . import turn as cturn
 from .calibration import pack_params as pack_calibration
 from . import screen as cscreen
-from ._threads import families_in_parallel, over_groups, over_targets
+from ._threads import families_in_parallel, group_size, over_groups, over_targets
 from ._warm import compile_ahead
 
 __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
@@ -41,7 +41,8 @@ BUFFER_BYTES = 16 * 2**20
 #: (~0.2 MB a target for the default bank) stays in the caches from row to row. Measured on 10,000
 #: targets x 50 rows, default bank, 2 cores: 2.07e6 expert-steps/s in one group, 3.5e6 in groups of 256,
 #: 4.3-4.7e6 with the groups on threads (each whole on one thread, so its Python work overlaps with the
-#: others' kernels; 128, 256 and 512 targets a group measure the same within the noise).
+#: others' kernels; 128, 256 and 512 targets a group measure the same within the noise). Fewer targets run
+#: in smaller groups when that keeps the threads busier (:func:`._threads.group_size`).
 TARGET_GROUP = 256
 
 #: Fewest target-rows for which a call over few targets runs the families side by side on threads.
@@ -173,9 +174,10 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     _, ahead_times, ahead_frames = check_run_options(z.shape[:2], None, ahead_times, ahead_frames)
     compile_ahead(bank)   # a fresh install: the AKF kernel compiles in a second process meanwhile
     t_count, n, p = z.shape
-    if n > TARGET_GROUP:
+    size = group_size(n, TARGET_GROUP)
+    if size is not None:
         return _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames, record_experts, score,
-                           score_ahead, record_covariance, restart)
+                           score_ahead, record_covariance, restart, size)
     gaps = check_restart(restart, (t_count, n))
     if gaps is None:
         gaps = np.zeros((t_count, n), dtype=bool)
@@ -303,9 +305,9 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
 
 
 def _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames, record_experts, score, score_ahead,
-                record_covariance, restart) -> EngineResult:
-    """:func:`run` over groups of :data:`TARGET_GROUP` targets, each through all its rows; the same numbers
-    (targets are independent), stitched back in target order."""
+                record_covariance, restart, size) -> EngineResult:
+    """:func:`run` over groups of ``size`` targets, each through all its rows; the same numbers (targets are
+    independent), stitched back in target order."""
     t_count, n, _ = z.shape
     gaps = check_restart(restart, (t_count, n))
     if ahead_times is not None:
@@ -340,7 +342,7 @@ def _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames
         for name in EngineResult._fields:
             tree_map(place(axes[name], g), fields[name], getattr(part, name))
 
-    over_groups(group, [slice(begin, min(begin + TARGET_GROUP, n)) for begin in range(0, n, TARGET_GROUP)])
+    over_groups(group, [slice(begin, min(begin + size, n)) for begin in range(0, n, size)])
     return EngineResult(**fields)
 
 
