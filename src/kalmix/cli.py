@@ -57,5 +57,50 @@ def main(argv=None):
         _missing_cli_extra(error)
 
 
+def script() -> None:
+    """The ``kalmix`` program (the console script, and ``python -m kalmix.cli``): :func:`main`, in a process
+    tuned for one run.
+
+    - The cyclic garbage collector runs every 10,000 net container allocations instead of 700:
+      loading numba's kernels allocates ~250,000, so the default ran it ~350 times (0.12 s of a
+      2.4 s 100k-row ``kalmix predict``, 0.04 s now). Memory is freed as before; cycles a little later.
+    - After a command that succeeded, the process ends without the interpreter's teardown, which
+      frees numba's, pandas' and the data's objects one by one (~0.2 s at the end of that run):
+      threads are joined, atexit handlers run and stdout/stderr are flushed first, as at a normal
+      exit. A command that fails, a flush that fails, or a process under a profiler or tracer
+      (cProfile, coverage, a debugger: they write their results after the program) exits the
+      usual way.
+    """
+    import gc
+
+    gc.set_threshold(10_000, 10, 10)
+    try:
+        main()
+    except SystemExit as stop:
+        if stop.code not in (None, 0):
+            raise
+    _exit_now()
+
+
+def _exit_now() -> None:
+    """A normal exit's work that matters (threads, atexit handlers, flushed stdio), then ``os._exit(0)``."""
+    if sys.getprofile() is not None or sys.gettrace() is not None:
+        return
+    import atexit
+    import os
+    import threading
+
+    shutdown = getattr(threading, "_shutdown", None)   # what the interpreter calls first at exit: joins threads
+    if shutdown is not None:
+        shutdown()
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:   # noqa: BLE001 - a broken pipe and the like: let the interpreter report it as usual
+            return
+    os._exit(0)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    main()
+    script()

@@ -281,7 +281,7 @@ def _local_only(given, output):
               help="Also predict L time-column units after each row (columns lead_<pos>, lead_std_<pos>), with "
                    "weights and intervals learned on lead-L errors. Not with --horizon.")
 @click.option("--output", "-o", default=None, type=click.Path(),
-              help="Output file: .csv, .parquet or .jsonl (default: CSV on stdout); with --engine dask a "
+              help="Output file: .csv, .parquet or .jsonl (default, or '-': CSV on stdout); with --engine dask a "
                    "new directory (a partitioned Parquet dataset).")
 @click.option("--bank", "bank_kind", default=None, type=click.Choice(list(BANK_KINDS)),
               help="Expert families: CV/CA Kalman filters in real time and the paper's AKFs (mixed), "
@@ -354,6 +354,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
     gap, never = _max_gap(max_gap)
     reach = _reach(reach)
     options = _mixture_options(mixture_options, bank=True)
+    output = None if output == "-" else output   # stdout, as '-' for INPUT is stdin
     out_fmt = _file_format(output) if output else "csv"
     given = _given(("save_every", "scheduler", "workers", "partitions"))
     with _user_errors():

@@ -1,0 +1,60 @@
+"""The ``kalmix`` program's exit (:func:`kalmix.cli.script`): after a command that succeeded, no interpreter
+teardown, but threads joined, atexit handlers run and output flushed; the usual exit otherwise."""
+
+import subprocess
+import sys
+
+import pytest
+
+PROGRAM = """
+import atexit, sys
+class Teardown:
+    def __del__(self):
+        sys.stdout.write("torn down\\n")
+keep = Teardown()   # a global: destroyed only by the interpreter's teardown
+atexit.register(lambda: sys.stdout.write("atexit ran\\n"))
+sys.argv = ["kalmix", *sys.argv[1:]]
+from kalmix.cli import script
+script()
+"""
+
+
+def _run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-c", PROGRAM, *args], capture_output=True, text=True, timeout=300,
+                          cwd=cwd)
+
+
+def test_success_skips_the_teardown_but_runs_atexit_and_flushes():
+    done = _run("--version")
+    assert done.returncode == 0, done.stderr
+    assert "version" in done.stdout and "atexit ran" in done.stdout
+    assert "torn down" not in done.stdout
+
+
+def test_large_output_to_a_pipe_arrives_whole(tmp_path):
+    """A quick exit must not lose what is still in stdout's buffer (``-o -`` is stdout, not a file named '-')."""
+    rows = ["time,x"] + [f"{i},{0.01 * i * i}" for i in range(3000)]
+    (tmp_path / "t.csv").write_text("\n".join(rows) + "\n")
+    done = _run("predict", "t.csv", "-o", "-", "--length-unit", "1", "--no-progress", "--bank", "kinematic",
+                cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0].startswith("time,segment,pred_x") and len(lines) == 1 + 3000 + 1   # header, rows, atexit's
+    assert lines[-2].startswith("2999.0,") and lines[-1] == "atexit ran"
+    assert not (tmp_path / "-").exists()
+
+
+@pytest.mark.parametrize("args", [("predict", "no-such-file.csv"), ("no-such-command",)])
+def test_failure_exits_the_usual_way(args):
+    done = _run(*args)
+    assert done.returncode != 0
+    assert "torn down" in done.stdout and "atexit ran" in done.stdout
+
+
+def test_a_profiler_gets_its_results(tmp_path):
+    """Under cProfile (or coverage, a debugger) the process exits the usual way, so they write theirs."""
+    out = tmp_path / "profile.out"
+    done = subprocess.run([sys.executable, "-m", "cProfile", "-o", str(out), "-m", "kalmix.cli", "--version"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert out.stat().st_size > 0
