@@ -642,3 +642,34 @@ def test_the_rows_before_the_time_unit_then_the_rest_by_track_give_the_stream_nu
         pd.testing.assert_frame_equal(in_file_order(read).reset_index(drop=True), table, check_dtype=False)
         assert in_file_order(read.sort_values("time")).equals(read.sort_values("time"))   # not the table it was
         assert stepped.learn_time_unit(table.iloc[::-1]) == learned.config.time_unit    # once known, it stays
+
+
+def test_warm_up_loads_every_kernel_a_run_uses_and_changes_nothing(tmp_path, monkeypatch):
+    """warm_up runs a throwaway copy: the predictor steps to the same numbers and saves the same file as a twin
+    that never warmed up, and its first table needs no kernel it has not loaded (no numba dispatch to compile
+    or load; run alone, this is the process's first table). It says what is missing when the number of
+    coordinates is unknown."""
+    from numba.core import dispatcher
+
+    table = _table()
+    warmed, plain = TrackPredictor(StreamConfig(**CONFIG)), TrackPredictor(StreamConfig(**CONFIG))
+    with pytest.raises(ValueError, match="measurement_dim"):
+        warmed.warm_up()
+    warmed.warm_up(2)
+    assert warmed.params is None and warmed.rows == 0 and not warmed.states and warmed.config == plain.config
+    loads = []
+    original = dispatcher._DispatcherBase._compile_for_args
+    with monkeypatch.context() as patch:
+        patch.setattr(dispatcher._DispatcherBase, "_compile_for_args",
+                      lambda self, *args, **kw: loads.append(self.py_func.__qualname__) or original(self, *args, **kw))
+        first = warmed.process_table(table.iloc[:50], ["x", "y"])
+    assert loads == []
+    pd.testing.assert_frame_equal(first, plain.process_table(table.iloc[:50], ["x", "y"]))
+    warmed.warm_up()
+    pd.testing.assert_frame_equal(warmed.process_table(table.iloc[50:], ["x", "y"]),
+                                  plain.process_table(table.iloc[50:], ["x", "y"]))
+    warmed.save(tmp_path / "warmed.npz")
+    plain.save(tmp_path / "plain.npz")
+    a, b = np.load(tmp_path / "warmed.npz"), np.load(tmp_path / "plain.npz")
+    assert sorted(a.files) == sorted(b.files)
+    assert all(a[k].dtype == b[k].dtype and a[k].tobytes() == b[k].tobytes() for k in a.files)   # the same bits

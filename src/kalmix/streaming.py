@@ -718,6 +718,43 @@ class TrackPredictor:
         """Rows that came back before a jump ahead in time (see the module docstring)."""
         return sum(g.glitches for g in self.gaps.values())
 
+    def warm_up(self, measurement_dim: int | None = None) -> None:
+        """Load the compiled kernels this predictor's runs use now (or compile them, on a fresh install).
+
+        numba loads a kernel from its cache (or compiles it) at its first call; that is ~0.3 s
+        for the default bank with a warm cache, and minutes the first time. Call this where
+        that wait does no harm (before a live feed starts, or in a thread while the data are
+        read: ``kalmix predict`` does). It runs a throwaway copy of this predictor on a tiny
+        made-up table (two tracks, a missing row, a gap that restarts a track), so this
+        predictor does not change. Nothing to do for the numpy reference; the GPU engine's
+        kernels compile at its first run instead.
+
+        Parameters
+        ----------
+        measurement_dim : int, optional
+            Coordinates per row; default the predictor's (its position names or bank).
+        """
+        import pandas as pd
+
+        from .core.compiled import numba_available
+
+        if self.backend != "cpu" or not numba_available():
+            return
+        names = list(self.position_names or ())
+        p = measurement_dim or len(names) or (self.params.measurement_dim if self.params is not None else 0)
+        if p < 1:
+            raise ValueError("warm_up: the number of coordinates is not known yet; pass measurement_dim")
+        names = names if len(names) == p else [f"x{j}" for j in range(p)]
+        twin = TrackPredictor(self.config, names)
+        twin.params = self.params if self.params is not None and self.params.measurement_dim == p else None
+        rows = 6
+        times = np.concatenate([np.arange(rows, dtype=np.float64), np.arange(rows, dtype=np.float64)])
+        times[rows + 3:] += 1e6   # a long gap: the second track restarts
+        values = np.cumsum(np.random.default_rng(0).normal(size=(2 * rows, p)), axis=0)
+        values[2] = np.nan
+        table = pd.DataFrame({"track_id": [0] * rows + [1] * rows, "time": times, **dict(zip(names, values.T))})
+        twin.process_table(table, names, {0: float(rows)})
+
     # -- transactions -----------------------------------------------------------------
     def checkpoint(self, track_ids=None) -> "Checkpoint":
         """Snapshot of the counters and of ``track_ids``' trackers and states (all tracks if None).

@@ -29,7 +29,11 @@ from .predict import _columns, _header, _input_format, _output_columns
 #: costs a fixed share of Python work (stacking and splitting the tracks' states): measured on
 #: a 100-track 100k-row CSV, 4,096 rows a piece took 4.10-4.33 s, 16,384 took 3.57-3.78 s
 #: (about 0.6 s a piece: still a responsive stop), 32,768 no less; the same output bit for bit.
-PIECE_ROWS = 16_384
+#: Since the engine runs a hundred targets in whole groups, one per thread (:func:`kalmix.core.
+#: compiled._threads.group_size`), each run also ends waiting for its slowest group: the whole
+#: command took (medians of 5, alternated) 2.21 s at 8,192 rows a piece, 2.12 s at 16,384, 2.06 s
+#: at 32,768, 1.97 s at 65,536. A piece of 65,536 rows is ~1.2 s on 2 cores: the stop's delay.
+PIECE_ROWS = 65_536
 _MAX_PIECES = 64
 
 
@@ -125,6 +129,33 @@ def _new_engine(settings, unit, positions, backend="cpu"):
         raise ValueError(f"--length-unit: the automatic length unit {unit:.3g} is outside [{low:g}, {high:g}]; "
                          "rescale the data or pass --length-unit")
     return TrackPredictor(StreamConfig(length_unit=unit, **settings), positions, backend=backend)
+
+
+def warm_up_meanwhile(run, settings, unit) -> None:
+    """Load the compiled kernels in a thread while stdin has nothing for this one (~0.5 s with numba's cache
+    warm, minutes on a fresh install): a live feed's first line is answered sooner. Only a head start: the
+    first run waits for the kernels, or loads them itself if this fails (and a bad setting is reported there,
+    not here). (Of no use for a file: the main thread is busy too, and the loading needs the GIL.)"""
+    import threading
+
+    from ..streaming import StreamConfig, TrackPredictor
+
+    if run.backend != "cpu":
+        return
+    try:   # built here, not in the thread: the engine's config changes once rows arrive
+        probe = (TrackPredictor(run.engine.config) if run.engine is not None
+                 else TrackPredictor(StreamConfig(length_unit=1.0 if unit is None else unit, **settings)))
+        p = run.engine.params.measurement_dim if run.engine is not None and run.engine.params is not None else 2
+    except Exception:   # noqa: BLE001 - reported by the run itself
+        return
+
+    def load():
+        try:
+            probe.warm_up(p)
+        except Exception:   # noqa: BLE001 - as above
+            pass
+
+    threading.Thread(target=load, name="kalmix-warm-up", daemon=True).start()
 
 
 # ------------------------------------------------------------------------------------------ files
@@ -438,6 +469,7 @@ def _json_line(raw, number) -> dict:
 
 def predict_stream(run, stdin, settings, unit, time_column, position_columns, id_column):
     run.unit = "row"
+    warm_up_meanwhile(run, settings, unit)
     batches = _line_batches(stdin)
     line_number = 0
     first = None
