@@ -287,3 +287,28 @@ def test_split_on_gaps_per_track_uses_own_median():
     times = [0, 1, 2, 10, 11, 0, 10, 20, 30]
     ids = ["a"] * 5 + ["b"] * 4
     assert split_on_gaps(times, track_ids=ids).tolist() == [0, 0, 0, 1, 1, 0, 0, 0, 0]
+
+
+@pytest.mark.parametrize("first_appearance", [False, True])
+def test_repeated_times_are_dropped_as_pandas_duplicated_keeps_the_last(first_appearance):
+    """The normalised table drops the rows whose (track, time) repeats later, keeping the last, as pandas'
+    ``duplicated(keep="last")`` does on the sorted table (numeric and text ids, -0.0 and 0.0, runs of three)."""
+    from kalmix.io.tables import _normalise
+
+    rng = np.random.default_rng(5)
+    for trial in range(60):
+        n = int(rng.integers(2, 40))
+        ids = rng.choice(["a", "b", " c"], n) if trial % 2 else rng.integers(0, 3, n)
+        times = rng.integers(0, 5, n).astype(float) * np.where(rng.random(n) < 0.2, -0.0, 1.0)
+        raw = pd.DataFrame({"track_id": ids, "time": times, "x": rng.normal(size=n)})
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            out = _normalise(raw, TrackColumns("time", ("x",), "track_id"), first_appearance=first_appearance)
+        if first_appearance:
+            order = np.lexsort((times, pd.factorize(raw["track_id"], sort=False)[0]))
+        else:
+            order = raw.sort_values(["track_id", "time"], kind="stable").index.to_numpy()
+        expected = raw.iloc[order]
+        expected = expected[~expected.duplicated(["track_id", "time"], keep="last").to_numpy()]
+        assert out["track_id"].astype(str).tolist() == expected["track_id"].astype(str).tolist()
+        assert np.array_equal(out[["time", "x"]].to_numpy(), expected[["time", "x"]].to_numpy())

@@ -673,3 +673,20 @@ def test_warm_up_loads_every_kernel_a_run_uses_and_changes_nothing(tmp_path, mon
     a, b = np.load(tmp_path / "warmed.npz"), np.load(tmp_path / "plain.npz")
     assert sorted(a.files) == sorted(b.files)
     assert all(a[k].dtype == b[k].dtype and a[k].tobytes() == b[k].tobytes() for k in a.files)   # the same bits
+
+
+def test_new_tracks_fresh_states_made_at_once_are_the_fresh_state():
+    """process_table makes the new tracks' fresh states in one batch: each is the bits of one made alone, and
+    known tracks keep theirs (in the order asked)."""
+    from kalmix.core.engine import tree_map
+    from kalmix.streaming import _stack
+
+    engine = TrackPredictor(StreamConfig(**CONFIG))
+    engine.process_table(_table().iloc[:30], ["x", "y"])   # track "a" is known
+    engine.states["a"] = tree_map(lambda x: x + 1.0, engine.states["a"])   # unlike a fresh one
+    tracks = ["n1", "a", "n2", "n3"]
+    got = _stack(engine._states_or_fresh(tracks))
+    want = _stack([engine.states["a"] if t == "a" else engine._fresh() for t in tracks])
+    leaves = []
+    tree_map(lambda x, y: leaves.append(x.dtype == y.dtype and x.tobytes() == y.tobytes()), got, want)
+    assert leaves and all(leaves)
