@@ -728,3 +728,24 @@ def test_iso_times_outside_the_clock_or_mixed_with_numbers_are_named(cli, tmp_pa
     assert len(_read(_run(cli, ["predict", str(path), "--length-unit", "1"]).stdout)) == 2
     piped = _run(cli, ["predict", "-", "--length-unit", "1"], input=rows.format("NaT"))
     assert piped.exit_code == 0 and "line 4: no time, row skipped" in piped.stderr
+
+
+@pytest.mark.parametrize("fmt", ["csv", "jsonl"])
+def test_a_run_that_fails_before_its_first_row_leaves_the_output_as_it_was(cli, tmp_path, fmt):
+    """A bad first chunk: a new -o file is not left behind empty, an existing one keeps its content (with and
+    without --state); a run that succeeds replaces it whole."""
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,px,py\n0,1,1\n1,abc,1\n2,3,1\n")
+    new, old = tmp_path / f"new.{fmt}", tmp_path / f"old.{fmt}"
+    old.write_text("earlier results\n")
+    for extra in ([], ["--state", str(tmp_path / "s.npz")]):
+        for out in (new, old):
+            result = CliRunner().invoke(cli, ["predict", str(bad), "-o", str(out), *FAST, *extra])
+            assert result.exit_code != 0 and "must hold finite numbers" in str(result.output) + str(result.exception)
+        assert not new.exists()
+        assert old.read_text() == "earlier results\n"
+    good = tmp_path / "good.csv"
+    _write_csv(_tracks(n_tracks=1, n=20), good)
+    assert _run(cli, ["predict", str(good), "-o", str(old), *FAST]).exit_code == 0
+    text = old.read_text()
+    assert "earlier results" not in text and len(text.splitlines()) == 20 + (fmt == "csv")

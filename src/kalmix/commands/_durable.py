@@ -327,15 +327,19 @@ class Output:
         self._parquet = None
         self._regular = False
         self._failed = False
+        self._created = False
+        self._empty_first = False
         if path is None:
             self._handle = sys.stdout
             return
         start = self._resume_point(previous, state_path, note) if resuming else None
         if fmt == "parquet":
             return  # the writer opens with the first chunk, when the schema is known
+        self._created = start is None and not os.path.lexists(path)   # removed again if nothing is written
         try:
-            if start is None:
-                self._handle = open(path, "wb")
+            if start is None:   # an existing file is emptied at the first write: a run that fails before keeps it
+                self._handle = open(path, "ab")
+                self._empty_first = True
             else:
                 self._handle = open(path, "r+b")
                 self._handle.truncate(start[0])
@@ -416,6 +420,10 @@ class Output:
             return
         data = text if self._handle is sys.stdout else text.encode("utf-8")
         try:
+            if self._empty_first:
+                if self._regular:
+                    self._handle.truncate(0)
+                self._empty_first = False
             self._handle.write(data)
             self._handle.flush()
         except BrokenPipeError:
@@ -457,7 +465,20 @@ class Output:
             entry.update(bytes=self.bytes, lines=self.lines)
         return entry
 
+    def discard_if_empty(self) -> None:
+        """Close after a failure: a file this run created and wrote nothing to is removed, a file that was there
+        before and not written to yet is left as it was (a run that fails before its first row changes nothing)."""
+        self._empty_first = False
+        self.close()
+        if self._created and self.bytes == 0:
+            with contextlib.suppress(OSError):
+                os.unlink(self.path)
+
     def close(self) -> None:
+        if self._empty_first and self._regular:   # nothing written: the file holds this run's nothing
+            with contextlib.suppress(OSError):
+                self._handle.truncate(0)
+        self._empty_first = False
         if self._parquet is not None:
             with contextlib.suppress(OSError) if self._failed else contextlib.nullcontext():
                 self._parquet.close()

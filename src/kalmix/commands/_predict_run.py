@@ -74,13 +74,14 @@ class Run:
             self.engine.save(self.state_path)
         self.since_save = 0
 
-    def finish(self) -> None:
-        """Close the output and save the state (both reflect the last commit)."""
+    def finish(self, failed: bool = False) -> None:
+        """Close the output and save the state (both reflect the last commit); after a failure, an output file
+        this run created and never wrote to is removed."""
         try:
             self.save()
         finally:
             if self.sink is not None:
-                self.sink.close()
+                self.sink.discard_if_empty() if failed else self.sink.close()
 
     def report(self) -> None:
         """Summary warnings; on a stop signal or a closed stdout, one line and a non-zero exit."""
@@ -625,6 +626,7 @@ def run_predict(guard, engine, settings, unit, input_path, state_path, save_ever
     """Run, commit, and on any exit save what was committed; then report."""
     run = Run(guard, engine, state_path, save_every, output, out_fmt)
     run.backend = backend
+    failed = False
     try:
         if input_path == "-":
             predict_stream(run, sys.stdin, settings, unit, time_column, position_columns, id_column)
@@ -636,9 +638,12 @@ def run_predict(guard, engine, settings, unit, input_path, state_path, save_ever
     except OutputClosed:
         run.closed = True
         _silence_stdout()
+    except BaseException:
+        failed = True
+        raise
     finally:
         with guard.deferred(deliver=False):
-            run.finish()
+            run.finish(failed)
     run.report()
 
 
