@@ -458,3 +458,20 @@ def test_signs_of_zero_and_a_guard_on_the_bound_in_banks():
     for name in ("forecasts", "lead"):
         assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), name
     check_bank(make_bank(2, "akf", n_akf=9, akf_options={"spectral_radius_bound": 1.0}), *benign_tracks(0))
+
+
+@pytest.mark.parametrize("lead", [None, 2.0])
+def test_zero_targets_in_both_engines(lead):
+    """A batch of no targets is empty results of the right shapes in both engines, not an error (the spec's
+    AKF regressor could not reshape an empty history)."""
+    from kalmix.core import engine
+    from kalmix.core.compiled import engine as ce
+
+    bank = make_bank(2, "mixed+ar+turn", length_unit=0.3, n_akf=4, lead=lead)
+    z, t = np.zeros((5, 0, 2)), np.zeros((5, 0))
+    ahead = None if lead else t + 1.0
+    for run in (engine.run, ce.run):
+        result = run(bank, z, t, ahead_times=ahead, record_experts=True, record_covariance=True)
+        assert result.forecasts.shape == result.std.shape == result.ahead.shape == (5, 0, 2)
+        assert result.experts.shape == (5, 0, bank.n_experts, 2) and result.covariance.shape == (5, 0, 2, 2)
+        assert result.state.screen.outliers.shape[0] == 0

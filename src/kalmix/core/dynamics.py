@@ -62,7 +62,7 @@ def polynomial_prior(measurement_dim: int, order: int, degree: int | None = None
 
 def regressor(history: np.ndarray) -> np.ndarray:
     """Regressor :math:`\\xi = [s_{k-1}; \\dots; s_{k-o}; 1]` from ``history`` ``(..., o, p)``."""
-    flat = history.reshape(history.shape[:-2] + (-1,))
+    flat = history.reshape(history.shape[:-2] + (history.shape[-2] * history.shape[-1],))   # also for 0 targets
     return np.concatenate([flat, np.ones(flat.shape[:-1] + (1,))], axis=-1)
 
 
