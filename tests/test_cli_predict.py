@@ -749,3 +749,13 @@ def test_a_run_that_fails_before_its_first_row_leaves_the_output_as_it_was(cli, 
     assert _run(cli, ["predict", str(good), "-o", str(old), *FAST]).exit_code == 0
     text = old.read_text()
     assert "earlier results" not in text and len(text.splitlines()) == 20 + (fmt == "csv")
+
+
+def test_position_repeated_is_the_comma_list(cli, tmp_path):
+    """--position a --position c is --position a,c (it used to keep only the last one, silently)."""
+    path = tmp_path / "abc.csv"
+    path.write_text("time,a,b,c\n0,1,2,3\n1,2,3,4\n2,3,4,5\n")
+    repeated = _run(cli, ["predict", str(path), "--position", "a", "--position", "c", *FAST])
+    listed = _run(cli, ["predict", str(path), "--position", "a,c", *FAST])
+    assert repeated.exit_code == listed.exit_code == 0
+    assert repeated.stdout == listed.stdout and repeated.stdout.startswith("time,segment,pred_a,pred_c,")

@@ -29,8 +29,10 @@ def _column_options(function):
     for option in reversed((
         click.option("--time", "time_column", default=None, help="Time column (default: detected: time, t, "
                      "timestamp, frame, ...; none found = row order)."),
-        click.option("--position", "position_columns", default=None,
-                     help="Position columns, comma-separated, 1 to 3 (default: detected: x,y[,z], u,v, lat,lon, ...)."),
+        click.option("--position", "position_columns", multiple=True,
+                     callback=lambda ctx, param, given: ",".join(given) if given else None,
+                     help="Position columns, comma-separated or the option repeated, 1 to 3 (default: detected: "
+                          "x,y[,z], u,v, lat,lon, ...)."),
         click.option("--id", "id_column", default=None, help="Track id column (default: detected: track_id, id, "
                      "track, ...; none found = one track)."),
     )):
