@@ -229,9 +229,11 @@ def test_compiled_cache_is_keyed_on_the_sources(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("scored", [False, True])
-def test_target_groups_equal_one_pass(monkeypatch, scored):
-    """Targets run in groups (more than TARGET_GROUP, or smaller groups to keep the threads busy) give the
-    same bits as one pass: outputs, sums and state."""
+@pytest.mark.parametrize("size", [3, 5])
+def test_target_groups_equal_one_pass(monkeypatch, scored, size):
+    """Targets run in groups (smaller groups to keep the threads busy) give the same bits as one pass: outputs,
+    sums and state; also when the rows run in several blocks (the sums are added block by block, so every
+    group runs the blocks of one pass: a review found them 1e-15 apart when the groups ran bigger blocks)."""
     from kalmix.core.compiled import engine as ce
 
     z, t = adversarial_tracks(seed=6, t_count=120)
@@ -243,22 +245,41 @@ def test_target_groups_equal_one_pass(monkeypatch, scored):
     bank = make_bank(2, "mixed+ar", length_unit=0.3, n_akf=8, lead=2.0)
     lengths = np.arange(n) % 5 + 116
     score = np.random.default_rng(9).random(z.shape[:2]) < 0.7 if scored else None
-    kwargs = dict(lengths=lengths, restart=restart, record_covariance=True, record_experts=True, score=score,
-                  score_ahead=score)
+    kwargs = dict(lengths=lengths - 60, restart=restart[60:], record_covariance=True, record_experts=True,
+                  score=None if score is None else score[60:], score_ahead=None if score is None else score[60:])
     first = ce.run(bank, z[:60], t[:60], lengths=np.minimum(lengths, 60), restart=restart[:60])
+    monkeypatch.setattr(ce, "BUFFER_BYTES", 7 * n * bank.n_experts * 2 * 8 * 2)   # blocks of 7 rows in one pass
     monkeypatch.setattr(ce, "group_size", lambda n_targets, largest: None)
-    whole = ce.run(bank, z[60:], t[60:], first.state, **{**kwargs, "lengths": lengths - 60,
-                                                        "restart": restart[60:], "score": None if score is None
-                                                        else score[60:], "score_ahead": None if score is None
-                                                        else score[60:]})
-    monkeypatch.setattr(ce, "group_size", _threads_group_size)
-    monkeypatch.setattr(ce, "TARGET_GROUP", 3)
-    grouped = ce.run(bank, z[60:], t[60:], first.state, **{**kwargs, "lengths": lengths - 60,
-                                                          "restart": restart[60:], "score": None if score is None
-                                                          else score[60:], "score_ahead": None if score is None
-                                                          else score[60:]})
-    assert n > 3
+    whole = ce.run(bank, z[60:], t[60:], first.state, **kwargs)
+    monkeypatch.setattr(ce, "group_size", lambda n_targets, largest: size if n_targets > size else None)
+    grouped = ce.run(bank, z[60:], t[60:], first.state, **kwargs)
+    assert n > size
     _assert_identical(whole, grouped)
+
+
+@pytest.mark.parametrize("scored", [False, True])
+def test_more_targets_than_a_group_in_groups_of_any_size(monkeypatch, scored):
+    """More than TARGET_GROUP targets always run in groups; their sizes (on one thread: TARGET_GROUP; on four:
+    smaller) do not change a bit, sums included, with the rows in several blocks."""
+    from kalmix.core.compiled import _threads
+    from kalmix.core.compiled import engine as ce
+
+    z, t = adversarial_tracks(seed=6, t_count=50)
+    z = np.concatenate([z + 0.1 * i for i in range(10)], axis=1)   # 40 targets
+    t = np.concatenate([t] * 10, axis=1)
+    bank = make_bank(2, "mixed+ar", length_unit=0.3, n_akf=8)
+    score = np.random.default_rng(9).random(z.shape[:2]) < 0.7 if scored else None
+    monkeypatch.setattr(ce, "TARGET_GROUP", 8)
+    monkeypatch.setattr(ce, "BUFFER_BYTES", 4 * 8 * bank.n_experts * 2 * 8 * 2)   # blocks of 4 rows
+    monkeypatch.setattr(_threads, "MIN_CHUNK", 2)
+    results, sizes = [], []
+    for threads in (1, 4):
+        monkeypatch.setattr(_threads, "_threads", lambda: threads)
+        sizes.append(_threads.group_size(40, 8))
+        results.append(ce.run(bank, z, t, ahead_times=t + 1.0, record_experts=True, score=score,
+                              score_ahead=score))
+    assert sizes == [8, 5]
+    _assert_identical(*results)
 
 
 def _threads_group_size(n_targets, largest):

@@ -162,13 +162,14 @@ def _copy(state):
 
 def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
         ahead_times=None, ahead_frames: int = 1, record_experts: bool = False, score=None,
-        score_ahead=None, record_covariance: bool = False, restart=None) -> EngineResult:
+        score_ahead=None, record_covariance: bool = False, restart=None, _block_targets=None) -> EngineResult:
     """Same arguments and result as :func:`kalmix.core.engine.run`.
 
     With ``score (T, N)`` (and ``score_ahead``) bool masks, the result's ``experts`` is
     replaced by the per-target, per-expert sums of squared errors over the scored rows,
     ``(N, K)``, and ``weights`` by their counts (memory independent of T; what the
     best-expert-in-hindsight needs), ``expert_ahead`` likewise for the ahead forecasts.
+    (``_block_targets``: for :func:`_run_groups`, see there.)
     """
     z, times, state, lengths, learn = prepare(bank, measurements, times, state, lengths, learn)
     _, ahead_times, ahead_frames = check_run_options(z.shape[:2], None, ahead_times, ahead_frames)
@@ -228,7 +229,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     reaching = bank.far_experts() is not None   # else no expert ever sleeps for a long step
     costliest_first = sorted(range(len(bank.families)), key=lambda i: -_family_cost(bank.families[i]))
     side_by_side = families_in_parallel(n) and t_count * n >= SIDE_BY_SIDE_MIN_ROWS
-    per_row = n * k * p * 8 * (2 if with_ahead else 1)
+    per_row = (n if _block_targets is None else _block_targets) * k * p * 8 * (2 if with_ahead else 1)
     block = int(max(1, min(t_count, BUFFER_BYTES // max(per_row, 1))))
     empty4, empty3, empty2 = np.empty((0, 0, 0, 0)), np.empty((0, 0, 0)), np.empty((0, 0))
     for begin in range(0, t_count, block):
@@ -307,7 +308,9 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
 def _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames, record_experts, score, score_ahead,
                 record_covariance, restart, size) -> EngineResult:
     """:func:`run` over groups of ``size`` targets, each through all its rows; the same numbers (targets are
-    independent), stitched back in target order."""
+    independent), stitched back in target order. The sums of ``score`` are added block of rows by block, so
+    every group runs blocks of the rows that :data:`TARGET_GROUP` targets (or all of them, if fewer) would:
+    the same sums, to the bit, whatever the groups."""
     t_count, n, _ = z.shape
     gaps = check_restart(restart, (t_count, n))
     if ahead_times is not None:
@@ -330,7 +333,7 @@ def _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames
         part = run(bank, rows(z, g), rows(times, g), sub, lengths=lengths[g], learn=rows(learn, g),
                    ahead_times=rows(ahead_times, g), ahead_frames=ahead_frames, record_experts=record_experts,
                    score=rows(score, g), score_ahead=rows(score_ahead, g),
-                   record_covariance=record_covariance, restart=rows(gaps, g))
+                   record_covariance=record_covariance, restart=rows(gaps, g), _block_targets=min(n, TARGET_GROUP))
         # each group writes its part of the result from its own thread (the copies overlap with other groups)
         with allocate:
             if not fields:
