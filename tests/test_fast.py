@@ -275,6 +275,25 @@ def test_a_failing_warm_up_does_not_break_the_run(monkeypatch, cold_cache):
     assert cold_cache.compile_ahead(make_bank(2, "mixed", n_akf=8, length_unit=0.3)) == 0
 
 
+def test_a_compile_child_still_running_at_exit_is_ended():
+    """A process that exits while a compile child runs (a warm-up thread dies with it) ends the child: no
+    orphan compiling for a minute after the command returned (helper-20: predict - with an empty stdin)."""
+    import subprocess
+    import sys
+
+    from kalmix.core.compiled import _warm
+
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    _warm._children.add(child)
+    try:
+        _warm._end_children()
+        assert child.wait(timeout=10) != 0
+    finally:
+        _warm._children.discard(child)
+        if child.poll() is None:
+            child.kill()
+
+
 def test_experts_of_one_fit_share_it_only_while_their_statistics_are_the_same():
     """The experts-last kernel fits once for experts of the same forgetting and ridge whose RLS statistics
     are the same bits (40 experts have 12 fits); a state where two of them differ (here, a hand-made one)

@@ -20,6 +20,8 @@ itself, as before. ``KALMIX_BACKGROUND_COMPILE=0`` switches it off.
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import dataclasses
 import os
 import pickle
@@ -36,6 +38,17 @@ WAIT_SECONDS = 600.0
 
 _done = False
 _lock = threading.RLock()   # the tiny run below calls the engine, which calls compile_ahead again
+_children: set = set()   # running children, ended at exit (see _end_children)
+
+
+@atexit.register
+def _end_children() -> None:
+    """A process that exits while its child still compiles (a thread waiting for it dies with the process:
+    ``kalmix predict -`` warms up in one, and stdin may end at once) ends the child too, rather than leave it
+    compiling for a minute after the command returned. numba writes a cache file whole, or not at all."""
+    for child in list(_children):
+        with contextlib.suppress(OSError):
+            child.kill()
 
 
 def _cores() -> int:
@@ -90,6 +103,7 @@ def compile_ahead(bank) -> int | None:
             child.stdin.close()
         except (OSError, pickle.PicklingError):
             return None
+        _children.add(child)
         try:
             _tiny_run(dataclasses.replace(bank, families=tuple(f for f in bank.families if f.kind != "akf")))
         except Exception:   # noqa: BLE001 - only a warm-up: the real run compiles what is missing, and reports
@@ -100,6 +114,7 @@ def compile_ahead(bank) -> int | None:
             except subprocess.TimeoutExpired:
                 child.kill()
                 status = child.wait()
+            _children.discard(child)
         return status
 
 
