@@ -759,3 +759,15 @@ def test_position_repeated_is_the_comma_list(cli, tmp_path):
     listed = _run(cli, ["predict", str(path), "--position", "a,c", *FAST])
     assert repeated.exit_code == listed.exit_code == 0
     assert repeated.stdout == listed.stdout and repeated.stdout.startswith("time,segment,pred_a,pred_c,")
+
+
+def test_a_file_in_several_chunks_warns_once_per_chunk(cli, tmp_path):
+    """The first pass over a file of several chunks (the next rows' times) reads each chunk too; what reading
+    it warns of is said once, by the pass that steps it."""
+    rows = ["track_id,time,x,y"] + [f"{track},{i // 2 if i < 4 else i},{0.1 * i},{0.2 * i}"
+                                    for track in range(2) for i in range(30)]
+    path = tmp_path / "dup.csv"
+    path.write_text("\n".join(rows) + "\n")
+    result = _run(cli, ["predict", str(path), "--chunk-rows", "20", *FAST])
+    assert result.exit_code == 0
+    assert result.stderr.count("repeat a timestamp") == 2   # one per chunk that has repeats (of 3 chunks)

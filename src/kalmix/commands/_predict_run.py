@@ -283,14 +283,18 @@ def _lookahead(chunks) -> list[dict]:
     forecast for the time of its next row, as in one table. Memory: one entry per (chunk,
     track) pair whose track goes on later.
     """
+    import warnings
+
     found: list[dict] = []
     seen: dict = {}   # track -> index of the chunk it was last seen in
-    for index, chunk in enumerate(chunks):
-        found.append({})
-        for track, first in chunk.groupby("track_id", sort=False)["time"].first().items():
-            if track in seen:
-                found[seen[track]][track] = float(first)
-            seen[track] = index
+    with warnings.catch_warnings():   # what reading a chunk warns of, the pass that steps it says (once)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for index, chunk in enumerate(chunks):
+            found.append({})
+            for track, first in chunk.groupby("track_id", sort=False)["time"].first().items():
+                if track in seen:
+                    found[seen[track]][track] = float(first)
+                seen[track] = index
     return found
 
 
