@@ -1,6 +1,7 @@
 """The ``kalmix`` program's exit (:func:`kalmix.cli.script`): after a command that succeeded, no interpreter
 teardown, but threads joined, atexit handlers run and output flushed; the usual exit otherwise."""
 
+import os
 import subprocess
 import sys
 
@@ -58,3 +59,11 @@ def test_a_profiler_gets_its_results(tmp_path):
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert out.stat().st_size > 0
+
+
+def test_predict_from_a_closed_stdin_is_one_line():
+    """``kalmix predict - <&-``: one line naming the problem, not a traceback."""
+    done = subprocess.run([sys.executable, "-m", "kalmix.cli", "predict", "-"], stdin=subprocess.DEVNULL,
+                          capture_output=True, text=True, timeout=300, preexec_fn=lambda: os.close(0))
+    assert done.returncode == 1
+    assert "stdin: closed" in done.stderr and "Traceback" not in done.stderr

@@ -474,6 +474,8 @@ def _json_line(raw, number) -> dict:
 
 def predict_stream(run, stdin, settings, unit, time_column, position_columns, id_column):
     run.unit = "row"
+    if stdin is None:   # the process was started with its standard input closed
+        raise ValueError("stdin: closed (INPUT '-' reads the tracks from standard input; give a file name)")
     warm_up_meanwhile(run, settings, unit)
     batches = _line_batches(stdin)
     line_number = 0
