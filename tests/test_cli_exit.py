@@ -67,3 +67,20 @@ def test_predict_from_a_closed_stdin_is_one_line():
                           capture_output=True, text=True, timeout=300, preexec_fn=lambda: os.close(0))
     assert done.returncode == 1
     assert "stdin: closed" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_stop_before_any_row_says_no_state_was_saved(tmp_path):
+    """Stopped before the first row, with --state: the message says no state file was written (it used to say
+    'state saved to ...'), and none was."""
+    import signal
+
+    state = tmp_path / "s.npz"
+    process = subprocess.Popen([sys.executable, "-m", "kalmix.cli", "predict", "-", "--state", str(state)],
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process.stdin.write("id,time,x,y\n")
+    process.stdin.flush()
+    assert "length unit" in process.stderr.readline()   # the header is read: the run is waiting for rows
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130
+    assert f"no state saved to {state}" in err and not state.exists()

@@ -52,6 +52,7 @@ class Run:
         self.stopped: Interrupted | None = None
         self.closed = False
         self.measured = 0   # input rows of this run with every position present
+        self.saved = False   # the state file was written by this run
         self.unit = "chunk"
 
     def open_output(self, fmt=None):
@@ -72,6 +73,7 @@ class Run:
             self.sink.sync()
             self.engine.output = self.sink.record()
             self.engine.save(self.state_path)
+            self.saved = True
         self.since_save = 0
 
     def finish(self, failed: bool = False) -> None:
@@ -99,8 +101,13 @@ class Run:
         if self.rows and not self.measured and self.stopped is None:
             click.echo(f"kalmix: warning: none of the {self.rows} input row(s) has a position (every value empty "
                        "or NaN): nothing was learned and every prediction is empty", err=True)
-        saved = (f"state saved to {self.state_path}: the same command resumes" if self.state_path
-                 else "no --state, nothing to resume from")
+        if not self.state_path:
+            saved = "no --state, nothing to resume from"
+        elif self.saved or self.resuming:
+            saved = (f"state {'saved to' if self.saved else 'file unchanged:'} {self.state_path}: the same command "
+                     "resumes")
+        else:
+            saved = f"no state saved to {self.state_path} (no row was stepped): the same command starts again"
         if self.stopped is not None:
             undone = ("the chunk in progress was rolled back" if self.unit == "chunk"
                       else "the rows already read were finished")
