@@ -732,11 +732,11 @@ class TrackPredictor:
 
         numba loads a kernel from its cache (or compiles it) at its first call; that is ~0.3 s
         for the default bank with a warm cache, and minutes the first time. Call this where
-        that wait does no harm (before a live feed starts, or in a thread while the data are
-        read: ``kalmix predict`` does). It runs a throwaway copy of this predictor on a tiny
-        made-up table (two tracks, a missing row, a gap that restarts a track), so this
-        predictor does not change. Nothing to do for the numpy reference; the GPU engine's
-        kernels compile at its first run instead.
+        that wait does no harm: before a live feed starts, or in a thread while the feed is
+        silent (``kalmix predict -`` does, until stdin's first rows). It runs a throwaway copy
+        of this predictor on a tiny made-up table (two tracks, a missing row, a gap that
+        restarts a track), so this predictor does not change. Nothing to do for the numpy
+        reference; the GPU engine's kernels compile at its first run instead.
 
         Parameters
         ----------
