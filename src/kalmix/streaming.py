@@ -676,10 +676,8 @@ class TrackPredictor:
     def _states_or_fresh(self, tracks) -> list:
         """Each track's state, or a fresh one: the new tracks' made at once (100 tracks one by one: 50 ms), each
         a view of that batch (the same bits as :meth:`_fresh`), so only for :func:`_stack`, which copies."""
-        new = [t for t in tracks if t not in self.states]
-        if len(new) < 2:
-            return [self.states[t] if t in self.states else self._fresh() for t in tracks]
-        batch, place = init_bank_state(self.params, len(new)), {t: i for i, t in enumerate(new)}
+        place = {t: i for i, t in enumerate(t for t in tracks if t not in self.states)}
+        batch = init_bank_state(self.params, len(place)) if place else None
         return [self.states[t] if t in self.states else _take(batch, slice(place[t], place[t] + 1)) for t in tracks]
 
     def _run(self, values, times, lengths, state, restart, ahead_times=None, bank=None):
