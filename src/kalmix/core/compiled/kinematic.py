@@ -21,7 +21,7 @@ configure_cache()
 _FACT = (1.0, 1.0, 2.0)
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(**_JIT)
 def _sandwich(order, left, middle, out, work):
     """``out = left @ middle @ left.T`` on the leading ``order x order`` block."""
     for i in range(order):
@@ -38,7 +38,7 @@ def _sandwich(order, left, middle, out, work):
             out[i, j] = acc
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(**_JIT)
 def _symmetrise(order, matrix):
     for i in range(order):
         for j in range(i + 1, order):
@@ -47,7 +47,7 @@ def _symmetrise(order, matrix):
             matrix[j, i] = s
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(**_JIT)
 def _extrapolate(order, delta, q, mean, cov, m_out, c_out, f, work):
     """``m_out = F mean``; ``c_out = F cov F^T + q Q(delta)`` (symmetrised), for one expert."""
     p = mean.shape[1]
@@ -96,7 +96,7 @@ def forecast_expert(order, delta, q, r, max_variance, mean_k, cov_k, out, m_pred
 RESTART_NIS = float(_spec.RESTART_NIS)
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(**_JIT)
 def _absurd(z, mean_k, m_pred, s):
     """The measurement is more than 1e6 standard deviations from the forecast (or the forecast is not finite).
     Asked only once the filter has learned a velocity (its velocity variance below the initial one): the second
@@ -116,7 +116,7 @@ def _absurd(z, mean_k, m_pred, s):
     return not nis <= RESTART_NIS and not miss <= 0.25 * move
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(**_JIT)
 def _start(order, initial_k, z, mean_k, cov_k):
     for i in range(order):
         for c in range(z.shape[0]):
@@ -125,7 +125,7 @@ def _start(order, initial_k, z, mean_k, cov_k):
             cov_k[i, j] = initial_k[i] if i == j else 0.0
 
 
-@nb.njit(inline="always", **_JIT)
+@nb.njit(**_JIT)
 def _update(order, r, max_variance, z, mean_k, cov_k, m_pred, c_pred, work, gain, a):
     """Joseph-form update of the extrapolated ``m_pred, c_pred`` with ``z`` into ``mean_k, cov_k``."""
     p = z.shape[0]
@@ -194,6 +194,25 @@ def _run_block(lo, hi, order, q, r, initial, time_unit, max_step, max_variance,
                mean, cov, last_time, initialised,
                z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
                m_pred, c_pred, f, work, gain, a):
+    # The order (2: CV, 3: CA) as a constant of the compiled loops, so that LLVM unrolls them (the helpers are
+    # not inlined by numba, whose inlining of two copies tripled the compile time; LLVM inlines them). The same
+    # operations in the same order: the same bits. Measured on one thread, 100 targets x 1,000 rows: CV 81 ->
+    # 52 ns, CA 170 -> 85 ns an expert-step; the compile time did not change (8.0 s for a kinematic bank).
+    if order == 2:
+        _drive(lo, hi, 2, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
+               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
+               m_pred, c_pred, f, work, gain, a)
+    else:
+        _drive(lo, hi, 3, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
+               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
+               m_pred, c_pred, f, work, gain, a)
+
+
+@nb.njit(inline="always", **_JIT)
+def _drive(lo, hi, order, q, r, initial, time_unit, max_step, max_variance,
+           mean, cov, last_time, initialised,
+           z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
+           m_pred, c_pred, f, work, gain, a):
     k_count = q.shape[0]
     p = z.shape[2]
     want_var = out_var.shape[0] > 0
