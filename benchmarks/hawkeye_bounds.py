@@ -1,0 +1,176 @@
+"""How far below the best peer can any predictor get on hawkeye_ball? Lower bounds fitted in hindsight.
+
+Run: python -m benchmarks.hawkeye_bounds [--json benchmarks/results/hawkeye_bounds.json]
+
+Issue 11 asks for a one-step RMS of at most 0.97x the best tuned peer on hawkeye_ball (Hawk-Eye's 3-D
+football, 50 Hz). The scored rows are those of ``python -m benchmarks.ablation`` (``predict``'s segments,
+the last 80 % of each track). Every figure here is an oracle, fitted on the very rows it scores, so
+no online predictor of the same kind can do better:
+
+- the two-point extrapolation ``2 z[t-1] - z[t-2]`` (what the tuned CV filter and Holt-Winters amount to);
+- the best linear predictor of the second difference from the last L second differences, per
+  coordinate and across all three, least squares on the scored rows (L = 1 ... 20): every expert that
+  forecasts a linear, time-invariant function of the last L + 2 positions (CV, CA, fixed AR models, and any
+  fixed convex or affine combination of them) is in this class;
+- a ground-bounce rule on top of the two-point extrapolation: below a floor (the lowest height seen so
+  far, plus an offset) the forecast height is reflected with a restitution; restitution and offset chosen
+  in hindsight. This is physics of a ball, not something kalmix's experts know; it measures what such
+  knowledge could bring.
+
+It also prints how the squared error of the two-point extrapolation is spread over the rows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from kalmix.experiments.evaluate import split_streams
+from kalmix.io.datasets import load_dataset
+
+#: The best tuned peer's one-step RMS on these rows (river's Holt-Winters; "Choosing the default").
+BEST_PEER = 0.01908
+
+
+def scored_tracks():
+    """Each segment's positions ``(T, 3)`` with no NaN, and which of its rows are scored."""
+    streams = split_streams(load_dataset("hawkeye_ball"))
+    values = streams.values
+    lengths = np.bincount(streams.track_of, weights=streams.lengths).astype(int)
+    cut = np.ceil(0.2 * lengths[streams.track_of]).astype(int)
+    scored = (streams.sample_index >= 0) & (streams.sample_index >= cut[None, :])
+    out = []
+    for j in range(values.shape[1]):
+        keep = np.isfinite(values[:, j]).all(axis=1)
+        out.append((values[keep, j], scored[keep, j]))
+    return out
+
+
+def second_differences(z):
+    d = np.full_like(z, np.nan)
+    d[2:] = z[2:] - 2 * z[1:-1] + z[:-2]
+    return d
+
+
+def two_point(tracks):
+    total, count, rows = 0.0, 0, []
+    for z, scored in tracks:
+        d = second_differences(z)
+        ok = scored & np.isfinite(d).all(axis=1)
+        squared = (d[ok] ** 2).sum(axis=1)
+        rows.append(squared)
+        total += squared.sum()
+        count += 3 * ok.sum()
+    return float(np.sqrt(total / count)), np.concatenate(rows)
+
+
+def linear_oracle(tracks, lags: int, across: bool):
+    """RMS of the best linear predictor of each coordinate's second difference from the last ``lags``
+    second differences (of that coordinate, or of all three with ``across``), fitted on the scored rows."""
+    total, count = 0.0, 0
+    designs = {c: ([], []) for c in range(3)}
+    for z, scored in tracks:
+        d = second_differences(z)
+        for t in range(lags + 2, len(z)):
+            if not scored[t]:
+                continue
+            past = d[t - lags:t][::-1]
+            for c in range(3):
+                designs[c][0].append(past.reshape(-1) if across else past[:, c])
+                designs[c][1].append(d[t, c])
+    for c in range(3):
+        x, y = np.asarray(designs[c][0]), np.asarray(designs[c][1])
+        beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+        total += float(((y - x @ beta) ** 2).sum())
+        count += len(y)
+    return float(np.sqrt(total / count))
+
+
+#: The bounce rule's grid (restitution; floor offset, metres).
+RESTITUTIONS = (0.0, 0.3, 0.5, 0.7, 0.8, 0.9, 1.0)
+OFFSETS = (0.0, 0.01, 0.02, 0.03, 0.04, 0.05)
+
+
+def bounce_forecasts(z, restitution, offset):
+    """The two-point extrapolation of each row ``t >= 2`` with the ground-bounce rule (NaN before)."""
+    out = np.full_like(z, np.nan)
+    floor = np.minimum.accumulate(z[:, 2])   # lowest height up to each row
+    out[2:] = 2 * z[1:-1] - z[:-2]
+    level = floor[1:-1] + offset
+    below = (out[2:, 2] < level) & (level <= z[1:-1, 2])
+    out[2:, 2] = np.where(below, level + restitution * (level - out[2:, 2]), out[2:, 2])
+    return out
+
+
+def bounce_oracle(tracks):
+    """The best (RMS, restitution, offset) of a ground-bounce rule on the two-point extrapolation."""
+    best = (np.inf, None, None)
+    for restitution in RESTITUTIONS:
+        for offset in OFFSETS:
+            total, count = 0.0, 0
+            for z, scored in tracks:
+                error = z - bounce_forecasts(z, restitution, offset)
+                ok = scored & np.isfinite(error).all(axis=1)
+                total += float((error[ok] ** 2).sum())
+                count += 3 * int(ok.sum())
+            rms = float(np.sqrt(total / count))
+            if rms < best[0]:
+                best = (rms, restitution, offset)
+    return best
+
+
+def combined_oracle(tracks, restitution, offset, lags=20):
+    """The bounce rule's forecast plus the best linear correction from the last ``lags`` second differences
+    of all three coordinates, fitted in hindsight on the scored rows."""
+    x_rows, y_rows = [], []
+    for z, scored in tracks:
+        d = second_differences(z)
+        residual = z - bounce_forecasts(z, restitution, offset)
+        for t in range(lags + 2, len(z)):
+            if scored[t]:
+                x_rows.append(d[t - lags:t][::-1].reshape(-1))
+                y_rows.append(residual[t])
+    x, y = np.asarray(x_rows), np.asarray(y_rows)
+    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
+    return float(np.sqrt(((y - x @ beta) ** 2).mean()))
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", help="write the figures here")
+    args = parser.parse_args(argv)
+    tracks = scored_tracks()
+    result = {"best_peer": BEST_PEER}
+    rms, rows = two_point(tracks)
+    result["two_point"] = rms
+    print(f"two-point extrapolation: {rms:.5f} ({rms / BEST_PEER:.3f}x the best peer)")
+    ranked = np.sort(rows)[::-1]
+    shares = {f"top {k} rows": float(ranked[:k].sum() / ranked.sum()) for k in (10, 47, 100)}
+    result["squared_error_shares"] = shares
+    result["scored_rows"] = int(len(rows))
+    print(f"  of its squared error over {len(rows)} scored rows: "
+          + ", ".join(f"{k} {v:.0%}" for k, v in shares.items()))
+    result["linear_oracle"] = {}
+    for across in (False, True):
+        for lags in (1, 2, 5, 10, 20):
+            value = linear_oracle(tracks, lags, across)
+            label = f"{'all coordinates' if across else 'per coordinate'}, {lags} lags"
+            result["linear_oracle"][label] = value
+            print(f"best linear predictor in hindsight, {label}: {value:.5f} ({value / BEST_PEER:.3f}x)")
+    value, restitution, offset = bounce_oracle(tracks)
+    result["bounce_oracle"] = {"rms": value, "restitution": restitution, "offset": offset}
+    print(f"two-point + ground bounce, tuned in hindsight (restitution {restitution}, offset {offset} m): "
+          f"{value:.5f} ({value / BEST_PEER:.3f}x)")
+    both = combined_oracle(tracks, restitution, offset)
+    result["bounce_and_linear_oracle"] = both
+    print(f"both: the bounce rule and the best linear correction (all coordinates, 20 lags) in hindsight: "
+          f"{both:.5f} ({both / BEST_PEER:.3f}x)")
+    if args.json:
+        with open(args.json, "w") as handle:
+            json.dump(result, handle, indent=2)
+
+
+if __name__ == "__main__":
+    main()
