@@ -8,10 +8,11 @@ the last 80 % of each track). Every figure here is an oracle, fitted on the very
 no online predictor of the same kind can do better:
 
 - the two-point extrapolation ``2 z[t-1] - z[t-2]`` (what the tuned CV filter and Holt-Winters amount to);
-- the best linear predictor of the second difference from the last L second differences, per
-  coordinate and across all three, least squares on the scored rows (L = 1 ... 20): every expert that
-  forecasts a linear, time-invariant function of the last L + 2 positions (CV, CA, fixed AR models, and any
-  fixed convex or affine combination of them) is in this class;
+- the best linear predictor of the next velocity ``z[t] - z[t-1]`` from the last L velocities, per
+  coordinate and across all three, least squares on the scored rows (L = 1 ... 21): every
+  translation-invariant predictor that forecasts a linear, time-invariant function of the last L + 1
+  positions (CV, CA, fixed AR models of the velocity, damped or not, and any fixed convex or affine
+  combination of them) is in this class;
 - a ground-bounce rule on top of the two-point extrapolation: below a floor (the lowest height seen so
   far, plus an offset) the forecast height is reflected with a restitution; restitution and offset chosen
   in hindsight. This is physics of a ball, not something kalmix's experts know; it measures what such
@@ -66,30 +67,41 @@ def two_point(tracks):
     return float(np.sqrt(total / count)), np.concatenate(rows)
 
 
-def linear_oracle(tracks, lags: int, across: bool):
-    """RMS of the best linear predictor of each coordinate's second difference from the last ``lags``
-    second differences (of that coordinate, or of all three with ``across``), fitted on the scored rows."""
-    total, count = 0.0, 0
+def velocities(z):
+    v = np.full_like(z, np.nan)
+    v[1:] = z[1:] - z[:-1]
+    return v
+
+
+def linear_oracle(tracks, lags: int, across: bool, target=None):
+    """RMS of the best linear predictor of each coordinate's next velocity (or of ``target(z)``, the
+    residual of another forecast) from the last ``lags`` velocities (of that coordinate, or of all three
+    with ``across``), fitted on the scored rows; and the fitted coefficients' sums (the velocity's
+    persistence) per coordinate."""
+    total, count, persistence = 0.0, 0, []
     designs = {c: ([], []) for c in range(3)}
     for z, scored in tracks:
-        d = second_differences(z)
-        for t in range(lags + 2, len(z)):
+        v = velocities(z)
+        y_all = v if target is None else target(z)
+        for t in range(lags + 1, len(z)):
             if not scored[t]:
                 continue
-            past = d[t - lags:t][::-1]
+            past = v[t - lags:t][::-1]
             for c in range(3):
                 designs[c][0].append(past.reshape(-1) if across else past[:, c])
-                designs[c][1].append(d[t, c])
+                designs[c][1].append(y_all[t, c])
     for c in range(3):
         x, y = np.asarray(designs[c][0]), np.asarray(designs[c][1])
         beta, *_ = np.linalg.lstsq(x, y, rcond=None)
         total += float(((y - x @ beta) ** 2).sum())
         count += len(y)
-    return float(np.sqrt(total / count))
+        own = beta.reshape(lags, 3)[:, c] if across else beta
+        persistence.append(float(own.sum()))
+    return float(np.sqrt(total / count)), persistence
 
 
 #: The bounce rule's grid (restitution; floor offset, metres).
-RESTITUTIONS = (0.0, 0.3, 0.5, 0.7, 0.8, 0.9, 1.0)
+RESTITUTIONS = (0.0, 0.3, 0.5, 0.7, 0.8, 0.9, 1.0, 1.2, 1.4, 1.6)
 OFFSETS = (0.0, 0.01, 0.02, 0.03, 0.04, 0.05)
 
 
@@ -121,20 +133,10 @@ def bounce_oracle(tracks):
     return best
 
 
-def combined_oracle(tracks, restitution, offset, lags=20):
-    """The bounce rule's forecast plus the best linear correction from the last ``lags`` second differences
-    of all three coordinates, fitted in hindsight on the scored rows."""
-    x_rows, y_rows = [], []
-    for z, scored in tracks:
-        d = second_differences(z)
-        residual = z - bounce_forecasts(z, restitution, offset)
-        for t in range(lags + 2, len(z)):
-            if scored[t]:
-                x_rows.append(d[t - lags:t][::-1].reshape(-1))
-                y_rows.append(residual[t])
-    x, y = np.asarray(x_rows), np.asarray(y_rows)
-    beta, *_ = np.linalg.lstsq(x, y, rcond=None)
-    return float(np.sqrt(((y - x @ beta) ** 2).mean()))
+def combined_oracle(tracks, restitution, offset, lags=21):
+    """The bounce rule's forecast plus the best linear correction from the last ``lags`` velocities of all
+    three coordinates, fitted in hindsight on the scored rows."""
+    return linear_oracle(tracks, lags, True, lambda z: z - bounce_forecasts(z, restitution, offset))[0]
 
 
 def main(argv=None):
@@ -145,7 +147,7 @@ def main(argv=None):
     result = {"best_peer": BEST_PEER}
     rms, rows = two_point(tracks)
     result["two_point"] = rms
-    print(f"two-point extrapolation: {rms:.5f} ({rms / BEST_PEER:.3f}x the best peer)")
+    print(f"two-point extrapolation: {rms:.5f} ({rms / BEST_PEER:.4f}x the best peer)")
     ranked = np.sort(rows)[::-1]
     shares = {f"top {k} rows": float(ranked[:k].sum() / ranked.sum()) for k in (10, 47, 100)}
     result["squared_error_shares"] = shares
@@ -154,19 +156,20 @@ def main(argv=None):
           + ", ".join(f"{k} {v:.0%}" for k, v in shares.items()))
     result["linear_oracle"] = {}
     for across in (False, True):
-        for lags in (1, 2, 5, 10, 20):
-            value = linear_oracle(tracks, lags, across)
-            label = f"{'all coordinates' if across else 'per coordinate'}, {lags} lags"
-            result["linear_oracle"][label] = value
-            print(f"best linear predictor in hindsight, {label}: {value:.5f} ({value / BEST_PEER:.3f}x)")
+        for lags in (1, 2, 5, 10, 21):
+            value, persistence = linear_oracle(tracks, lags, across)
+            label = f"{'all coordinates' if across else 'per coordinate'}, {lags} velocities"
+            result["linear_oracle"][label] = {"rms": value, "persistence": persistence}
+            print(f"best linear predictor in hindsight, {label}: {value:.5f} ({value / BEST_PEER:.4f}x); "
+                  f"its own velocity weights sum to {', '.join(f'{x:.3f}' for x in persistence)} (x, y, z)")
     value, restitution, offset = bounce_oracle(tracks)
     result["bounce_oracle"] = {"rms": value, "restitution": restitution, "offset": offset}
     print(f"two-point + ground bounce, tuned in hindsight (restitution {restitution}, offset {offset} m): "
-          f"{value:.5f} ({value / BEST_PEER:.3f}x)")
+          f"{value:.5f} ({value / BEST_PEER:.4f}x)")
     both = combined_oracle(tracks, restitution, offset)
     result["bounce_and_linear_oracle"] = both
-    print(f"both: the bounce rule and the best linear correction (all coordinates, 20 lags) in hindsight: "
-          f"{both:.5f} ({both / BEST_PEER:.3f}x)")
+    print(f"both: the bounce rule and the best linear correction (all coordinates, 21 velocities) in hindsight: "
+          f"{both:.5f} ({both / BEST_PEER:.4f}x)")
     if args.json:
         with open(args.json, "w") as handle:
             json.dump(result, handle, indent=2)
