@@ -496,3 +496,16 @@ def test_zero_targets_in_both_engines(lead):
         assert result.forecasts.shape == result.std.shape == result.ahead.shape == (5, 0, 2)
         assert result.experts.shape == (5, 0, bank.n_experts, 2) and result.covariance.shape == (5, 0, 2, 2)
         assert result.state.screen.outliers.shape[0] == 0
+
+
+@pytest.mark.parametrize("kind, order", [("cv", 1), ("cv", 3), ("ca", 2), ("ca", 4)])
+def test_a_kinematic_family_of_another_order_is_refused(kind, order):
+    """The compiled kinematic kernels are built for CV of order 2 and CA of order 3 (a hand-made family of
+    order 1 crashed the process, one of order 4 returned numbers where the spec raised IndexError)."""
+    from kalmix.core.engine import Family
+    from kalmix.core.families.kinematic import KinematicParams
+
+    params = KinematicParams(order=order, process_noise=np.ones(2), measurement_noise=np.ones(2),
+                             initial_variance=np.ones((2, order)), time_unit=1.0)
+    with pytest.raises(ValueError, match=f"a '{kind}' family has order .*; got order {order}"):
+        Family(kind, params)

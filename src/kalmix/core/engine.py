@@ -72,6 +72,8 @@ __all__ = ["Family", "Bank", "BankState", "EngineResult", "StepOutput", "init_ba
 FAMILY_KINDS = ("cv", "ca", "ar", "turn", "akf")
 #: Each kind's module (:mod:`kalmix.core.families`).
 FAMILY_MODULES = {"cv": kinematic, "ca": kinematic, "ar": ar, "turn": turn, "akf": akf}
+#: The kinematic kinds' orders (the compiled kernels are built for these two).
+KINEMATIC_ORDERS = {"cv": 2, "ca": 3}
 #: The kinds whose one-step forecasts are used across a step longer than the bank's reach.
 LONG_STEP_KINDS = ("cv",)
 
@@ -82,6 +84,12 @@ class Family:
 
     kind: str
     params: Any   # KinematicParams for cv / ca, ARParams for ar, TurnParams for turn, MixtureParams for akf
+
+    def __post_init__(self):
+        order = KINEMATIC_ORDERS.get(self.kind)
+        if order is not None and getattr(self.params, "order", None) != order:
+            raise ValueError(f"a {self.kind!r} family has order {order} (its state: position, velocity"
+                             f"{', acceleration' if order == 3 else ''}); got order {getattr(self.params, 'order', None)!r}")
 
     @property
     def n_experts(self) -> int:
