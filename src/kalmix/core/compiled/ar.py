@@ -130,7 +130,7 @@ def _start(order, m, persistence, initial_error, weights_k, info_k, target_k, hi
     jumps[n, k] = 0.0
 
 
-@nb.njit(**_JIT)
+@nb.njit(**KERNEL_JIT)
 def _learn(order, bias, m, forgetting, ridge, persistence, jump_threshold, window, max_velocity, v, weights_n,
            info_n, target_n, history_n, scale, weight, error, count, jumps, n, x, a, rhs, low, y, sol, acc, go,
            new_scale, informative):
