@@ -86,10 +86,10 @@ class Family:
     params: Any   # KinematicParams for cv / ca, ARParams for ar, TurnParams for turn, MixtureParams for akf
 
     def __post_init__(self):
-        order = KINEMATIC_ORDERS.get(self.kind)
-        if order is not None and getattr(self.params, "order", None) != order:
+        order, got = KINEMATIC_ORDERS.get(self.kind), getattr(self.params, "order", None)
+        if order is not None and got != order:
             raise ValueError(f"a {self.kind!r} family has order {order} (its state: position, velocity"
-                             f"{', acceleration' if order == 3 else ''}); got order {getattr(self.params, 'order', None)!r}")
+                             f"{', acceleration' if order == 3 else ''}); got order {got!r}")
 
     @property
     def n_experts(self) -> int:

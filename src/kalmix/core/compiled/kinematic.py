@@ -194,25 +194,23 @@ def _run_block(lo, hi, order, q, r, initial, time_unit, max_step, max_variance,
                mean, cov, last_time, initialised,
                z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
                m_pred, c_pred, f, work, gain, a):
-    # The order (2: CV, 3: CA) as a constant of the compiled loops, so that LLVM unrolls them (the helpers are
-    # not inlined by numba, whose inlining of two copies tripled the compile time; LLVM inlines them). The same
-    # operations in the same order: the same bits. Measured on one thread, 100 targets x 1,000 rows: CV 81 ->
-    # 52 ns, CA 170 -> 85 ns an expert-step; the compile time did not change (8.0 s for a kinematic bank).
+    # The order (2: CV, 3: CA; kalmix.core.engine.Family refuses others) as a constant of the compiled loops, so
+    # that LLVM unrolls them (the helpers are not inlined by numba, whose inlining of two copies tripled the
+    # compile time; LLVM inlines them). The same operations in the same order: the same bits. Measured on one
+    # thread, 100 targets x 1,000 rows: CV 81 -> 52 ns, CA 170 -> 85 ns an expert-step; the compile time did
+    # not change (8.0 s for a kinematic bank).
+    args = (q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised, z, times, lengths,
+            learn, restart, out, out_var, offset, ahead_times, out_ahead, m_pred, c_pred, f, work, gain, a)
     if order == 2:
-        _drive(lo, hi, 2, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
-               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
-               m_pred, c_pred, f, work, gain, a)
+        _drive(lo, hi, 2, args)
     else:
-        _drive(lo, hi, 3, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
-               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
-               m_pred, c_pred, f, work, gain, a)
+        _drive(lo, hi, 3, args)
 
 
 @nb.njit(inline="always", **_JIT)
-def _drive(lo, hi, order, q, r, initial, time_unit, max_step, max_variance,
-           mean, cov, last_time, initialised,
-           z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
-           m_pred, c_pred, f, work, gain, a):
+def _drive(lo, hi, order, args):
+    (q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised, z, times, lengths,
+     learn, restart, out, out_var, offset, ahead_times, out_ahead, m_pred, c_pred, f, work, gain, a) = args
     k_count = q.shape[0]
     p = z.shape[2]
     want_var = out_var.shape[0] > 0
