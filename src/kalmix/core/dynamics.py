@@ -133,7 +133,7 @@ def companion_from_theta(theta: np.ndarray, order: int) -> tuple[np.ndarray, np.
 
 
 def spectral_radius(matrix: np.ndarray) -> np.ndarray:
-    """Largest eigenvalue modulus of ``(..., n, n)`` matrices; NaN for one with a NaN or inf.
+    r"""Largest eigenvalue modulus of ``(..., n, n)`` matrices; NaN for one with a NaN or inf.
 
     Computed as the compiled guard computes it: the eigenvalues of the matrix as complex numbers (LAPACK's
     complex solver; the real one can round them differently) and the modulus as

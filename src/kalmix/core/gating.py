@@ -95,7 +95,7 @@ ERROR_CAP = 1e300
 
 
 def posterior(weights: np.ndarray, log_likelihood: np.ndarray) -> np.ndarray:
-    """Eq. (10) in log space: :math:`h_i \\propto g_i\\, e^{\\ell_i}`.
+    r"""Eq. (10) in log space: :math:`h_i \propto g_i\, e^{\ell_i}`.
 
     Finite and normalised even when every likelihood underflows in linear space, and when
     squared errors overflow (log scores are floored at :data:`LOG_FLOOR`). The largest score

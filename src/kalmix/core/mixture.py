@@ -215,7 +215,7 @@ def _mirror_upper(matrix: np.ndarray) -> np.ndarray:
 
 def _filter_update(mean: np.ndarray, cov: np.ndarray, features: np.ndarray, measurement_noise: np.ndarray,
                    kappa: float) -> tuple[np.ndarray, np.ndarray]:
-    """Measurement update of every expert, Joseph form.
+    r"""Measurement update of every expert, Joseph form.
 
     .. math:: K = P C^T S^{-1},\ S = C P C^T + R; \quad \hat x \leftarrow \hat x + K (s - C \hat x); \quad
               P \leftarrow (I - K C) P (I - K C)^T + K R K^T = P - K P_{:p} - W K^T,\
@@ -239,7 +239,7 @@ def _filter_update(mean: np.ndarray, cov: np.ndarray, features: np.ndarray, meas
 
 def _filter_predict(params: MixtureParams, mean: np.ndarray, cov: np.ndarray, transition: np.ndarray,
                     offset: np.ndarray, process_noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:math:`\hat x \leftarrow A \hat x + u`, :math:`P \leftarrow A P A^T + Q + \epsilon I`, then the variance cap.
+    r""":math:`\hat x \leftarrow A \hat x + u`, :math:`P \leftarrow A P A^T + Q + \epsilon I`, then the variance cap.
 
     For a companion A = [Theta; I 0] (rls and fixed dynamics) only its first p rows are multiplied:
     :math:`P \leftarrow [[G \Theta^T, G_{:, :n-p}], [G_{:, :n-p}^T, P_{:n-p, :n-p}]]`, :math:`G = \Theta P`;
