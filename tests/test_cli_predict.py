@@ -384,6 +384,31 @@ def test_state_refuses_conflicting_settings(cli, tmp_path):
     assert result.exit_code == 1 and "--experts" in result.stderr and "made with 4" in result.stderr
 
 
+@pytest.mark.parametrize("made, then, refused", [
+    ([], ["--max-gap", "none"], "made with --max-gap auto --max-gap-factor 3, got --max-gap none"),
+    ([], ["--max-gap-factor", "50"], "made with --max-gap auto --max-gap-factor 3, got --max-gap auto --max-gap-factor 50"),
+    (["--max-gap", "none"], ["--max-gap", "auto"], "made with --max-gap none, got --max-gap auto --max-gap-factor 3"),
+    (["--max-gap", "2"], ["--max-gap", "1.5"], "made with --max-gap 2, got --max-gap 1.5"),
+    (["--max-gap", "2"], ["--max-gap", "2"], None),
+    (["--max-gap", "none"], ["--max-gap", "none", "--max-gap-factor", "5"], None),
+    (["--max-gap-factor", "4"], [], None),
+])
+def test_state_refuses_another_gap_rule(cli, tmp_path, made, then, refused):
+    """--max-gap / --max-gap-factor on a resumed run: refused when they change the state's gap rule, as every
+    other setting is (they were ignored: the gap rule the state file holds went on, silently)."""
+    data = _tracks(n_tracks=2, gap=False)
+    first, rest = data[data["t"] < 1.0], data[data["t"] >= 1.0].copy()
+    rest["t"] += 3.0    # a gap of 3 s after 0.04 s steps: a restart for the default rule, none for --max-gap none
+    state = str(tmp_path / "s.npz")
+    assert _run(cli, ["predict", _write_csv(first, tmp_path / "a.csv"), *FAST, "--state", state, *made]).exit_code == 0
+    result = _run(cli, ["predict", _write_csv(rest, tmp_path / "b.csv"), "--state", state, "--no-progress", *then])
+    if refused is None:
+        assert result.exit_code == 0, result.output
+        return
+    assert result.exit_code == 1 and refused in result.stderr and "new --state" in result.stderr, result.stderr
+    assert "pred_px" not in result.stdout
+
+
 def test_explicit_column_names(cli, tmp_path):
     data = _tracks(n_tracks=2).rename(columns={"object_id": "boat", "t": "clock", "px": "east", "py": "north"})
     data["speed"] = 1.0

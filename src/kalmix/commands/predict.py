@@ -138,6 +138,31 @@ def _reach_setting(value):
     return DEFAULT_REACH if value is None else (None if math.isinf(value) else value)
 
 
+def _gap_text(max_gap, factor):
+    """A gap rule (``StreamConfig.max_gap`` / ``max_gap_factor``) as the options that give it."""
+    if max_gap is not None:
+        return f"--max-gap {max_gap:g}" + ("" if factor == 3.0 else f" --max-gap-factor {factor:g}")
+    return "--max-gap none" if math.isinf(factor) else f"--max-gap auto --max-gap-factor {factor:g}"
+
+
+def _check_gap_rule(stored, state_path, gap, never, factor, given):
+    """A ``ValueError`` if ``--max-gap`` / ``--max-gap-factor`` (those in ``given``) change a resumed gap rule."""
+    want_gap, want_factor = stored.max_gap, stored.max_gap_factor
+    if "max_gap" in given:
+        want_gap = gap
+        if never:
+            want_factor = math.inf
+        elif math.isinf(want_factor):   # the state's rule was 'none': a rule that splits again
+            want_factor = factor
+    if "max_gap_factor" in given and not never:
+        want_factor = factor
+    if (want_gap, want_factor) != (stored.max_gap, stored.max_gap_factor):
+        name = "--max-gap" if "max_gap" in given else "--max-gap-factor"
+        raise ValueError(f"{name}: the state file {state_path} was made with "
+                         f"{_gap_text(stored.max_gap, stored.max_gap_factor)}, got {_gap_text(want_gap, want_factor)}; "
+                         "use a new --state file to change it")
+
+
 def _max_gap(text):
     if text is None or str(text).lower() == "auto":
         return None, False
@@ -393,6 +418,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
                         have, given = (("none" if math.isinf(v) else v) for v in (have, given))
                     raise ValueError(f"{name}: the state file {state_path} was made with {have}, got {given}; "
                                      "use a new --state file to change it")
+            _check_gap_rule(stored, state_path, gap, never, max_gap_factor, _given(("max_gap", "max_gap_factor")))
         kind = bank_kind or (engine.config.bank if engine is not None else DEFAULT_BANK["kind"])
         if "akf" not in recipe_parts(kind) and (n_experts is not None or options):
             raise ValueError(f"{'--experts' if n_experts is not None else '--option'}: sets the AKF family, "
