@@ -326,6 +326,25 @@ def test_state_resume_is_bit_for_bit_on_stdin(cli, tmp_path):
     assert first.stdout + body == whole
 
 
+def test_a_replayed_feed_warns_in_a_few_lines_and_writes_the_header(cli, tmp_path):
+    """Replaying a feed already processed (stdin, --state): every row is skipped. Ten warnings, one line saying
+    the rest are counted, the totals at the end (it printed a line per row); and the CSV header, as a file's
+    run writes it (it wrote nothing)."""
+    data = _tracks(gap=False).sort_values(["t", "object_id"], kind="stable")
+    feed = data.to_csv(index=False, na_rep="") + "100,,1,2\n"   # and a row without a time
+    state = str(tmp_path / "s.npz")
+    assert _run(cli, ["predict", "-", *FAST, "--state", state], input=feed).exit_code == 0
+    again = _run(cli, ["predict", "-", "--state", state, "--no-progress"], input=feed)
+    assert again.exit_code == 0, again.output
+    lines = again.stderr.splitlines()
+    assert sum("is not after track" in line for line in lines) == 10
+    assert sum("further warnings like the last are only counted" in line for line in lines) == 1
+    assert f"skipped {len(data)} row(s) at or before" in again.stderr
+    assert sum("no time, row skipped" in line for line in lines) == 1 and "skipped 1 row(s) without a time" in again.stderr
+    first_run = _run(cli, ["predict", _write_csv(data, tmp_path / "d.csv"), *FAST]).stdout
+    assert again.stdout == first_run.splitlines(keepends=True)[0]
+
+
 def test_state_resume_is_bit_for_bit_on_files(cli, tmp_path):
     data = _tracks()
     whole = _run(cli, ["predict", _write_csv(data, tmp_path / "all.csv"), *FAST]).stdout

@@ -415,6 +415,10 @@ class Output:
             text = head + "".join(",".join(csv_value(v) for v in record.values()) + "\n" for record in records)
         self._write(text, len(records))
 
+    def write_header(self, names) -> None:
+        """A CSV header line alone (a run that wrote no row)."""
+        self._write(",".join(csv_value(name) for name in names) + "\n", 0)
+
     def _write(self, text: str, rows: int) -> None:
         if not text:
             return

@@ -34,6 +34,9 @@ from .predict import _columns, _header, _input_format, _output_columns
 #: command took (medians of 5, alternated) 2.21 s at 8,192 rows a piece, 2.12 s at 16,384, 2.06 s
 #: at 32,768, 1.97 s at 65,536. A piece of 65,536 rows is ~1.2 s on 2 cores: the stop's delay.
 PIECE_ROWS = 65_536
+#: Warnings of one kind printed line by line on stdin (rows skipped, time glitches, rows without a time);
+#: the rest are counted in the run's summary.
+STDIN_WARNINGS = 10
 _MAX_PIECES = 64
 
 
@@ -52,6 +55,7 @@ class Run:
         self.stopped: Interrupted | None = None
         self.closed = False
         self.measured = 0   # input rows of this run with every position present
+        self.untimed = 0   # stdin rows skipped for want of a time
         self.saved = False   # the state file was written by this run
         self.unit = "chunk"
 
@@ -91,6 +95,8 @@ class Run:
         if engine is not None and engine.skipped > self.skipped0:
             click.echo(f"kalmix: warning: skipped {engine.skipped - self.skipped0} row(s) at or before their "
                        "track's last time (already processed or out of order)", err=True)
+        if self.untimed:
+            click.echo(f"kalmix: warning: skipped {self.untimed} row(s) without a time", err=True)
         if engine is not None and engine.time_glitches > self.glitches0:
             click.echo(f"kalmix: warning: {engine.time_glitches - self.glitches0} row(s) came back in time after "
                        "a jump ahead: the jump's timestamp was taken as wrong and the track went on", err=True)
@@ -559,6 +565,18 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         return number, track, time, [_parse_number(get(record, name, number), name, number)
                                      for name in columns.positions]
 
+    warned: dict[str, int] = {}
+
+    def warn(kind, text):
+        """A line's warning; after STDIN_WARNINGS of a kind, one line that says the rest are only counted (a
+        replayed feed skips every row already processed: one line each flooded the terminal)."""
+        count = warned[kind] = warned.get(kind, 0) + 1
+        if count <= STDIN_WARNINGS:
+            click.echo(f"kalmix: warning: {text}", err=True)
+        if count == STDIN_WARNINGS:
+            click.echo("kalmix: (further warnings like the last are only counted: the total comes at the end)",
+                       err=True)
+
     def take(lines, rows):
         """Parse ``lines`` after ``rows``, step and write them, then warn line by line; on a bad line the
         rows before it are stepped, written and warned about, then it raises. Lines read are finished,
@@ -578,16 +596,16 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
             results = iter(step([row for row in rows if row[1] is not None]))
             for number, track, time, _ in rows:
                 if track is None:
-                    click.echo(f"kalmix: warning: line {number}: no time, row skipped", err=True)
+                    run.untimed += 1
+                    warn("untimed", f"line {number}: no time, row skipped")
                     continue
                 result = next(results)
                 if result is None:
-                    click.echo(f"kalmix: warning: line {number}: time {time!r} is not after track {track!r}'s "
-                               "previous time; row skipped", err=True)
+                    warn("skipped", f"line {number}: time {time!r} is not after track {track!r}'s previous time; "
+                                    "row skipped")
                 elif result.time_glitch:
-                    click.echo(f"kalmix: warning: line {number}: time {time!r} comes back before track "
-                               f"{track!r}'s jump ahead; that jump's timestamp was taken as wrong and the track "
-                               "goes on", err=True)
+                    warn("glitch", f"line {number}: time {time!r} comes back before track {track!r}'s jump ahead; "
+                                   "that jump's timestamp was taken as wrong and the track goes on")
         if rows:
             run.guard.tick()
         if error is not None:
@@ -618,6 +636,11 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
     take(rest, [row_of(number, record) for number, record in pending])
     for batch in batches:
         take(batch, [])
+    if run.sink.fmt == "csv" and not run.sink.header_written:   # every row skipped: the header all the same,
+        names = [*([columns.track_id] if columns.track_id is not None else []), columns.time or "row", "segment",
+                 *(f"{prefix}{name}" for prefix in engine._columns().values() for name in columns.positions)]
+        with run.guard.deferred():   # as a file's run does
+            run.sink.write_header(names)
 
 
 def _row_record(result, track, time, columns, prefixes):

@@ -21,7 +21,7 @@ from ..bank import BANK_KINDS, DEFAULT_BANK, DEFAULT_REACH, GATE_OPTIONS, LENGTH
 _LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres). "
                      "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
                      "(files) or 1 (stdin, unless a --state file holds one).")
-_GAP_HELP = ("A time step larger than this (time units) starts a new segment: the track's predictor restarts. "
+_GAP_HELP = ("A time step larger than this (in the time column's units) starts a new segment: the track's predictor restarts. "
              "Default: --max-gap-factor times the track's reference interval.")
 
 
@@ -111,7 +111,7 @@ def _length_unit(text):
     return value
 
 
-_REACH_HELP = ("Across a time step longer than this many time units only the constant-velocity experts make the "
+_REACH_HELP = ("Across a time step longer than this many time units (--time-unit) only the constant-velocity experts make the "
                "one-step prediction (the others extrapolate fits made on the usual steps); 'none': every expert "
                "at every step. 8 suits tracks sampled at irregular intervals, with --max-gap none "
                "[default: none].")
@@ -303,7 +303,8 @@ def _local_only(given, output):
 @click.argument("input_path", metavar="INPUT")
 @_column_options
 @click.option("--horizon", "-H", default=1, show_default=True, type=click.IntRange(1, MAX_HORIZON),
-              help=f"Also predict H time units ahead (columns pred<H>_<pos>, std<H>_<pos>); at most {MAX_HORIZON}.")
+              help=f"Also predict H time units ahead, H x --time-unit in the time column's units (columns "
+                   f"pred<H>_<pos>, std<H>_<pos>); at most {MAX_HORIZON}.")
 @click.option("--lead", default=None, type=click.FloatRange(min=0, min_open=True),
               help="Also predict L time-column units after each row (columns lead_<pos>, lead_std_<pos>), with "
                    "weights and intervals learned on lead-L errors. Not with --horizon.")
@@ -317,7 +318,7 @@ def _local_only(given, output):
 @click.option("--rule", default=None, type=click.Choice(["boa", "mlpoly", "fixed_share"]),
               help="Aggregation rule [default: boa].")
 @click.option("--time-unit", default=None, type=click.FloatRange(min=0, min_open=True),
-              help="Typical sampling interval (time units) that scales the CV/CA experts' noise "
+              help="Typical sampling interval (the time unit, in the time column's units) that scales the CV/CA experts' noise "
                    "[default: the first positive time step of a track, in the order the rows come].")
 @click.option("--experts", "n_experts", default=None, type=click.IntRange(min=1),
               help="Experts of the AKF family [default: 40].")
