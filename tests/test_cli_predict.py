@@ -441,6 +441,8 @@ def test_explicit_column_names(cli, tmp_path):
 @pytest.mark.parametrize("content, args, message", [
     ("t,px,py\n0,1,2\n", ["--position", "px,pz"], "not found; available columns"),
     ("t,a,b\n0,1,2\n", [], "Could not detect position columns"),
+    ("t;x;y\n0;1;2\n", [], "looks separated by semicolons: kalmix reads comma-separated CSV"),
+    ("0,1,2\n1,1,3\n", [], "The column names are numbers: the first line must be a header"),
     ("t,x,y\n0,1,2\n1,abc,3\n", [], "Column 'x' must hold finite numbers; row 1"),
     ("", [], "empty"),
     ("t,x,y\n", [], "no rows"),
@@ -458,6 +460,8 @@ def test_bad_files_give_clear_messages(cli, tmp_path, content, args, message):
     ("", "no input"),
     ("t,x,y\n0,1,2\n1,abc,3\n", "line 3: column 'x' must hold a number, got 'abc'"),
     ("t,x,y\n0,1\n", "line 2: expected 3 fields"),
+    ("0,1,2\n1,1,3\n", "the first line must be a header"),
+    ("t\tx\ty\n0\t1\t2\n", "looks separated by tabs"),
     ('{"t": 0, "x": 1}\n{"t": 1}\n', "line 2: key 'x' missing"),
     ('{"t": 0, "x": 1}\nnot json\n', "line 2: not valid JSON"),
 ])

@@ -141,6 +141,21 @@ class TrackArrays(NamedTuple):
 
 
 # --------------------------------------------------------------------------- columns
+def _header_hint(columns) -> str:
+    """A hint when the column names look like a line of another format: one name holding another
+    separator, or names that are all numbers (a first line of data, no header)."""
+    if len(columns) == 1:
+        separator = next((name for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "bars"))
+                          if sep in columns[0]), None)
+        if separator:
+            return f" The header looks separated by {separator}: kalmix reads comma-separated CSV."
+    try:
+        [float(name) for name in columns]
+    except ValueError:
+        return ""
+    return " The column names are numbers: the first line must be a header (names, then rows)."
+
+
 def _require(columns: Sequence[str], wanted: Sequence[str], what: str) -> None:
     missing = [c for c in wanted if c not in columns]
     if missing:
@@ -232,7 +247,8 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
             raise ValueError(
                 "Could not detect position columns (expected e.g. x/y[/z], u/v, lat/lon, "
                 f"position_x/..., px/py/pz); available columns: {columns}. "
-                "Name them: --position a,b on the command line, positions=(...) or a TrackColumns in Python.")
+                "Name them: --position a,b on the command line, positions=(...) or a TrackColumns in Python."
+                + _header_hint(columns))
     taken = set(positions)
 
     def first(names, explicit):
