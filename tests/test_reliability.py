@@ -10,6 +10,7 @@ import io
 import os
 import re
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -297,6 +298,23 @@ def test_state_writes_are_unique_fsynced_and_keep_permissions(tmp_path, monkeypa
     assert len(set(renamed)) == 2 and all(os.path.dirname(a) == str(tmp_path) for a in renamed)
     assert oct(os.stat(path).st_mode & 0o777) == oct(0o640)
     assert sorted(os.listdir(tmp_path)) == ["s.npz", "s.npz.tmp"]
+
+
+def test_a_state_saved_through_a_link_replaces_the_target_and_other_files_are_refused(tmp_path):
+    """helper-23: save() replaced whatever was at the path (run as root, /dev/full became a plain file; a link
+    became a file, its target unchanged), and an error named the hidden temporary file."""
+    target, link = tmp_path / "target.npz", tmp_path / "link.npz"
+    os.symlink(target, link)
+    write_archive(link, {"magic": "m"}, {"a": np.arange(3)})
+    assert os.path.islink(link) and np.load(target)["a"].tolist() == [0, 1, 2]
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    for path, kind in ((fifo, "not a regular file"), (tmp_path, "a directory")):
+        with pytest.raises(ValueError, match=f"expected a state file path, and it is {kind}"):
+            write_archive(path, {"magic": "m"}, {"a": np.arange(3)})
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    with pytest.raises(OSError, match=re.escape(f"cannot write {str(tmp_path / 'absent' / 's.npz')!r}")):
+        write_archive(tmp_path / "absent" / "s.npz", {"magic": "m"}, {"a": np.arange(3)})
 
 
 @pytest.mark.parametrize("setup, message", [

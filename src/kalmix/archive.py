@@ -61,11 +61,27 @@ def _json_default(value):
 
 
 def write_archive(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndarray]) -> None:
-    """Write JSON ``meta`` and named ``arrays`` to ``path``; a crash never leaves half a file."""
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
+    """Write JSON ``meta`` and named ``arrays`` to ``path``; a crash never leaves half a file.
+
+    A symbolic link is followed (its target is replaced, the link stays); a path that exists
+    and is not a regular file (a device, a FIFO, a directory) is refused with a ``ValueError``.
+    An ``OSError`` names ``path``, not the temporary file.
+    """
+    given = os.fspath(path)
+    path = os.path.realpath(given)
+    try:
+        kind = os.stat(path).st_mode
+    except OSError:
+        kind = None
+    if kind is not None and not stat.S_ISREG(kind):
+        what = "a directory" if stat.S_ISDIR(kind) else "not a regular file (a device, a FIFO or a socket)"
+        raise ValueError(f"{given}: expected a state file path, and it is {what}; give a file name")
+    directory = os.path.dirname(path)
     mode = _new_file_mode(path)
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
+    except OSError as error:
+        raise OSError(error.errno, f"cannot write {given!r}: {error.strerror}") from None
     try:
         with os.fdopen(fd, "wb") as handle:
             np.savez(handle, meta=np.array(json.dumps(meta, default=_json_default)), **arrays)
@@ -73,9 +89,11 @@ def write_archive(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndar
             os.fsync(handle.fileno())
         os.chmod(tmp, mode)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as error:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(error, OSError):
+            raise OSError(error.errno, f"cannot write {given!r}: {error.strerror}") from None
         raise
     _fsync_directory(directory)
 
