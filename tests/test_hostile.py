@@ -68,7 +68,7 @@ def test_engine_arguments_are_checked_by_name(run, call, message):
 @pytest.mark.parametrize("args, error, message", [
     (("a", 0.0, ["1", "x"]), ValueError, r"z: expected numbers .*got \['1', 'x'\]"),
     ((["a"], 0.0, [1.0, 2.0]), TypeError, r"track_id: expected a track id .*got list \['a'\]"),
-    (("a", "noon", [1.0, 2.0]), ValueError, "time: expected a number, got 'noon'"),
+    (("a", "noon", [1.0, 2.0]), ValueError, "time: expected a number or a date, got 'noon'"),
 ])
 def test_step_row_names_a_bad_argument(args, error, message):
     predictor = TrackPredictor(StreamConfig(bank="kinematic", length_unit=1.0))
@@ -202,3 +202,93 @@ def test_a_state_resumed_with_renamed_positions_is_refused(cli, tracks_csv, tmp_
     frame.rename(columns={"x": "east", "y": "north"}).to_csv(renamed, index=False)
     result = _run(cli, ["predict", str(renamed), "--state", state, "--no-progress", "--position", "east,north"])
     assert result.exit_code == 1 and "the state file tracks the coordinates" in result.stderr
+
+
+# -- a hostile pass over the Python API (helper-23): each test fails on the code before its fix --------------------
+def _table(n=8, ids=1, **columns):
+    base = {"track_id": ids, "time": np.arange(float(n)), "x": np.arange(float(n)), "y": 0.0}
+    return pd.DataFrame({**base, **columns})
+
+
+def test_a_table_with_tuple_ids_is_refused_as_step_row_refuses_them():
+    """process_table took tuple ids, save() wrote them as JSON lists and load() failed ('unhashable type')."""
+    table = _table(ids=[1, 1, 1] + [(1, 2)] * 5)
+    engine_ = TrackPredictor(StreamConfig(length_unit=0.1))
+    with pytest.raises(TypeError, match=r"expected a track id .* got tuple \(1, 2\) in row 3"):
+        engine_.process_table(table, ["x", "y"])
+    assert not engine_.gaps   # all or nothing
+
+
+def test_errors_name_the_row_of_the_callers_table_when_the_table_sets_the_time_unit():
+    """The table is stepped in two parts around the row that fixes the time unit: rows were counted from the second
+    part's start (an inf at row 9 was 'row 8'); a text value was quoted as the column's first value."""
+    x = np.arange(12.0)
+    x[9] = np.inf
+    with pytest.raises(ValueError, match=r"in row 9 \(counted from 0\)"):
+        TrackPredictor(StreamConfig(length_unit=0.1)).process_table(_table(12, x=x), ["x", "y"])
+    with pytest.raises(ValueError, match=r"position column 'x' must hold numbers, got 'abc' in row 2"):
+        TrackPredictor(StreamConfig(length_unit=0.1)).process_table(_table(4, x=["1.0", "2", "abc", "3"]), ["x", "y"])
+
+
+def test_a_position_column_named_twice_is_refused():
+    """With two columns x, process_table built a bank of three coordinates and pred_y was the second x's."""
+    table = _table(5)
+    table.insert(4, "x2", 100.0)
+    table.columns = ["track_id", "time", "x", "y", "x"]
+    with pytest.raises(ValueError, match=r"got \['x'\] more than once"):
+        TrackPredictor(StreamConfig(length_unit=0.1)).process_table(table, ["x", "y"])
+
+
+def test_step_rows_and_step_row_take_dates_as_process_table_does():
+    """step_rows read datetime64 times in the array's unit (1.7e15 µs): a spurious new segment, a time unit of 1e6;
+    step_row refused dates."""
+    times = pd.date_range("2024-01-01", periods=6, freq="500ms")
+    table = pd.DataFrame({"track_id": "a", "time": times, "x": np.arange(6.0), "y": 0.0})
+    whole = TrackPredictor(StreamConfig(length_unit=0.1)).process_table(table, ["x", "y"])
+    rows, one = TrackPredictor(StreamConfig(length_unit=0.1)), TrackPredictor(StreamConfig(length_unit=0.1))
+    rows.process_table(table.iloc[:4], ["x", "y"])
+    one.process_table(table.iloc[:4], ["x", "y"])
+    got = rows.step_rows(["a", "a"], np.array(times[4:].to_numpy(), dtype="datetime64[us]"), table[["x", "y"]][4:])
+    singles = [one.step_row("a", times[4], [4.0, 0.0]), one.step_row("a", times[5].tz_localize("UTC"), [5.0, 0.0])]
+    assert rows.config.time_unit == 0.5 and [r.segment for r in got] == [0, 0]
+    for a, b, k in zip(got, singles, (4, 5)):
+        assert np.array_equal(a.next, b.next)
+        assert np.array_equal(a.next, whole[["pred_x", "pred_y"]].to_numpy()[k])
+
+
+def test_a_lead_longer_than_max_horizon_steps_of_one_waits_for_the_learned_unit():
+    """StreamConfig(lead=2e4) was taken, then the first row failed: the bank of a unit still to be learned was
+    built with a unit of 1 (20,000 units); with rows 10 s apart it is 2,000."""
+    engine_ = TrackPredictor(StreamConfig(length_unit=0.1, lead=2e4))
+    for i in range(6):
+        result = engine_.step_row(1, 10.0 * i, [float(i), 0.0])
+    assert engine_.config.time_unit == 10.0 and np.isfinite(result.ahead).all()
+    too_long = TrackPredictor(StreamConfig(length_unit=0.1, lead=2e5))
+    too_long.step_row(1, 0.0, [0.0, 0.0])
+    with pytest.raises(ValueError, match="lead: expected at most 10000 time units"):
+        too_long.step_row(1, 10.0, [1.0, 0.0])
+
+
+def test_a_lead_shorter_than_half_the_time_unit_is_warned_of():
+    """No row comes within half a unit of t + lead, so the lead's weights stayed uniform, silently."""
+    with pytest.warns(RuntimeWarning, match="lead: 4 is shorter than half the time unit"):
+        engine_ = TrackPredictor(StreamConfig(length_unit=0.1, lead=4.0))
+        for i in range(4):
+            engine_.step_row(1, 10.0 * i, [float(i), 0.0])
+
+
+def test_forecast_checks_its_arguments():
+    """engine.forecast took frames 0 or -3 (as 1) and 1e9 (minutes), a NaN or earlier time (the last row's
+    forecast), and another bank's state (a raw broadcast error)."""
+    bank = make_bank(2, "kinematic", length_unit=0.1)
+    z = np.cumsum(np.ones((10, 1, 2)), 0)
+    z[7:] = np.nan
+    state = engine.run(bank, z, np.arange(10.0)[:, None]).state
+    assert np.isfinite(engine.forecast(bank, state, 6.5)[0]).all()   # after the last learned row (6)
+    for time, frames, message in ((np.nan, 1, "time: expected finite times"), (5.0, 1, "got 5.0 for target 0"),
+                                  (8.0, 0, "frames: expected an integer in"), (8.0, 10**9, "frames: expected"),
+                                  ([1.0, 2.0], 1, r"time: expected a number or one per target, shape \(1,\)")):
+        with pytest.raises(ValueError, match=message):
+            engine.forecast(bank, state, time, frames)
+    with pytest.raises(ValueError, match="state: expected a BankState of this bank"):
+        engine.forecast(make_bank(2, "mixed", length_unit=0.1), state, 8.0)

@@ -624,6 +624,13 @@ def make_bank(
         if lead_time / tunit > MAX_HORIZON:
             raise ValueError(f"lead: expected at most {MAX_HORIZON} time units ({MAX_HORIZON * tunit:g}), "
                              f"got {lead!r}")
+        if lead_time < 0.5 * tunit:
+            import warnings
+
+            warnings.warn(f"lead: {lead_time:g} is shorter than half the time unit ({tunit:g}): no row comes within half "
+                          "a unit of t + lead, so the lead's weights never learn (they stay uniform over the "
+                          "experts); ask for a lead of at least half the sampling interval", RuntimeWarning,
+                          stacklevel=2)
         frames = max(1, int(round(lead_time / tunit)))
         delay = float(frames) if lead_delay is None else float(lead_delay)
         lead_params = LeadParams(time=lead_time, frames=frames, tolerance=0.5 * tunit, delay=delay)

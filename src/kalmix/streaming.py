@@ -473,6 +473,26 @@ def _seconds(column) -> np.ndarray:
     return column.to_numpy(np.float64)
 
 
+def _row_times(times) -> np.ndarray:
+    """``step_row`` / ``step_rows`` times as float seconds: numpy or pandas dates since 1970 UTC and durations in
+    seconds, as :meth:`TrackPredictor.process_table` and files take them; numbers as they are. ``TypeError`` /
+    ``ValueError`` for anything else."""
+    import datetime
+
+    import pandas as pd
+
+    given = np.asarray(times)
+    if given.dtype.kind == "O" and given.size and all(
+            isinstance(t, (datetime.datetime, datetime.timedelta, np.datetime64, np.timedelta64)) for t in given.flat):
+        given = pd.Series(given.reshape(-1)).infer_objects()
+        if not (pd.api.types.is_datetime64_any_dtype(given) or pd.api.types.is_timedelta64_dtype(given)):
+            given = pd.to_datetime(given, utc=True)   # dates of several time zones: instants in UTC
+        return _seconds(given)
+    if given.dtype.kind in "Mm":
+        return _seconds(pd.Series(given.reshape(-1)))
+    return given.astype(np.float64)
+
+
 def _track_key(value, where: str):
     """A track id as the predictor's key (numpy scalars as Python ones, as :meth:`TrackPredictor.process_table`
     and the state file hold them); ``TypeError``/``ValueError`` for what cannot be an id."""
@@ -615,11 +635,18 @@ class TrackPredictor:
         return self.params
 
     def _build(self, measurement_dim: int) -> Bank:
+        """The bank; until the time unit is learned, of a unit of 1 (a track's first row does not depend on it), or
+        of the lead / MAX_HORIZON for a lead longer than MAX_HORIZON (checked against the unit once learned)."""
+        from .bank import MAX_HORIZON
+
         c = self.config
-        return make_bank(measurement_dim, c.bank, rule=c.rule, length_unit=c.length_unit,
-                         time_unit=1.0 if c.time_unit is None else c.time_unit, seed=c.seed, n_akf=c.n_experts,
-                         akf_options=c.options, lead=c.lead_time(), rule_options=c.rule_options, reach=c.reach,
-                         lead_delay=c.lead_delay)
+        interim = 1.0 if c.lead is None else max(1.0, c.lead / MAX_HORIZON)
+        with warnings.catch_warnings():   # a lead too short for the unit: the config said so when it got the unit
+            warnings.filterwarnings("ignore", message="lead: .* shorter than half the time unit", category=RuntimeWarning)
+            return make_bank(measurement_dim, c.bank, rule=c.rule, length_unit=c.length_unit,
+                             time_unit=interim if c.time_unit is None else c.time_unit, seed=c.seed,
+                             n_akf=c.n_experts, akf_options=c.options, lead=c.lead_time(), rule_options=c.rule_options,
+                             reach=c.reach, lead_delay=c.lead_delay)
 
     def _unit_step_taken_back(self, track, gaps: GapTracker) -> None:
         """Warn once when the step the time unit was learned from (a track's first) is taken back: a row came
@@ -807,9 +834,9 @@ class TrackPredictor:
         if np.isinf(z).any():
             raise ValueError(f"z: expected finite numbers (NaN for a missing measurement), got {z!r:.80}")
         try:
-            time = float(time)
+            time = float(_row_times([time])[0])
         except (TypeError, ValueError):
-            raise ValueError(f"time: expected a number, got {time!r:.80}") from None
+            raise ValueError(f"time: expected a number or a date, got {time!r:.80}") from None
         return self._step_checked([_track_key(track_id, "track_id")], np.array([time]), z[None, :])[0]
 
     def step_rows(self, track_ids, times, values) -> list[RowPrediction | None]:
@@ -837,9 +864,9 @@ class TrackPredictor:
         """
         ids = list(track_ids)
         try:
-            times = np.asarray(times, dtype=np.float64).reshape(-1)
+            times = _row_times(times).reshape(-1)
         except (TypeError, ValueError):
-            raise ValueError(f"times: expected numbers, got {times!r:.80}") from None
+            raise ValueError(f"times: expected numbers or dates, got {times!r:.80}") from None
         try:
             values = np.asarray(values, dtype=np.float64)
         except (TypeError, ValueError):
@@ -973,6 +1000,11 @@ class TrackPredictor:
         if missing:
             raise ValueError(f"table: expected the columns track_id, time and the positions, missing {missing} "
                              f"(columns: {list(table.columns)})")
+        names = ("track_id", "time", *(position_names or [c for c in table.columns if c not in ("track_id", "time")]))
+        twice = sorted({str(c) for c in table.columns[table.columns.duplicated()] if c in names})
+        if twice:
+            raise ValueError(f"table: expected each of the columns track_id, time and the positions once, got {twice} "
+                             f"more than once (columns: {list(table.columns)})")
         saved = self.checkpoint(pd.unique(table["track_id"]))
         try:
             return self._process_table(table, position_names, next_times or {})
@@ -1036,7 +1068,8 @@ class TrackPredictor:
             self._learn_time_unit(found[2], found[1])
         return self.config.time_unit
 
-    def _process_table(self, table, position_names, next_times):
+    def _process_table(self, table, position_names, next_times, first_row=0):
+        """``first_row``: the table's first row in the caller's table (the rows that errors name)."""
         import pandas as pd
 
         if not pd.api.types.is_numeric_dtype(table["time"]):   # dates and durations: seconds, as files are read
@@ -1048,8 +1081,9 @@ class TrackPredictor:
             if split:
                 head, tail = table.iloc[:split], table.iloc[split:]
                 later = {**next_times, **tail.groupby("track_id", sort=False)["time"].first().to_dict()}
-                first = self._process_table(head, position_names, later)
-                return pd.concat([first, self._process_table(tail, position_names, next_times)], ignore_index=True)
+                first = self._process_table(head, position_names, later, first_row)
+                return pd.concat([first, self._process_table(tail, position_names, next_times, first_row + split)],
+                                 ignore_index=True)
         names = list(position_names or [c for c in table.columns if c not in ("track_id", "time")])
         if self.position_names is None:
             self.position_names = tuple(names)
@@ -1062,19 +1096,22 @@ class TrackPredictor:
             values = table[names].to_numpy(np.float64)
         except (TypeError, ValueError):
             bad = next(name for name in names if not pd.api.types.is_numeric_dtype(table[name]))
-            raise ValueError(f"table: position column {bad!r} must hold numbers, got {table[bad].dtype} values like "
-                             f"{table[bad].iloc[0]!r}") from None
+            column = table[bad].reset_index(drop=True)
+            wrong = column.notna() & pd.to_numeric(column, errors="coerce").isna()
+            i = int(np.flatnonzero(wrong.to_numpy())[0]) if wrong.any() else 0
+            raise ValueError(f"table: position column {bad!r} must hold numbers, got {column.iloc[i]!r} in row "
+                             f"{first_row + i} (counted from 0; {table[bad].dtype} values)") from None
         if np.isinf(values).any():
             i = int(np.flatnonzero(np.isinf(values).any(axis=-1))[0])
             raise ValueError(f"table: expected finite positions (NaN for a missing measurement), got {values[i]!r} "
-                             f"in row {i} (counted from 0)")
+                             f"in row {first_row + i} (counted from 0)")
         times = table["time"].to_numpy(np.float64)
         ids = table["track_id"].to_numpy()
         self._ensure_params(values.shape[1])
         n_rows, p = values.shape
         self.rows += n_rows
 
-        tracks, runs, segments, gap_rows, keep = self._gap_rule(ids, times)
+        tracks, runs, segments, gap_rows, keep = self._gap_rule(ids, times, first_row)
 
         shape = (n_rows, p)
         out = {"pred": np.full(shape, np.nan), "std": np.full(shape, np.nan)}
@@ -1117,7 +1154,7 @@ class TrackPredictor:
                 frame[f"{prefix}{name}"] = out[key][keep, j]
         return frame
 
-    def _gap_rule(self, ids, times):
+    def _gap_rule(self, ids, times, first_row=0):
         """The gap rule over a table's rows, in row order as :meth:`_advance` row by row.
 
         Returns the tracks with kept rows (in the order of their first kept row), each one's
@@ -1132,8 +1169,16 @@ class TrackPredictor:
         if len(missing):
             row = int(np.flatnonzero(index == missing[0])[0])
             raise ValueError(f"table: expected a track id in every row, got a missing value "
-                             f"({uniques[missing[0]]!r}) in row {row} (counted from 0)")
-        keys = [_id_to_json(u) for u in uniques]
+                             f"({uniques[missing[0]]!r}) in row {first_row + row} (counted from 0)")
+        keys = []
+        for u, value in enumerate(uniques):
+            try:
+                keys.append(_track_key(value, "table"))
+            except TypeError:   # a tuple, say: step_row refuses it, and the state file could not give it back
+                row = int(np.flatnonzero(index == u)[0])
+                raise TypeError(f"table: expected a track id (text, a number, or a date) in every row, got "
+                                f"{type(value).__name__} {value!r:.80} in row {first_row + row} (counted from 0)") \
+                    from None
         had_state = np.array([key in self.states for key in keys], dtype=bool)
         start = 0
         while start < n_rows and self.config.time_unit is None:   # until a step fixes the time unit

@@ -308,11 +308,31 @@ def forecast(bank: Bank, state: BankState, time, frames: int = 1, *, lead: bool 
     Time-based families extrapolate to ``time``, frame-based ones ``frames`` rows ahead.
     The one-step weights and calibration are used, or the lead head's (``lead=True``,
     for a bank with a lead). The state is not changed.
+
+    ``frames`` is an integer in [1, MAX_HORIZON]; ``time`` a finite time (or one per target), at
+    or after each target's last learned row; ``ValueError`` naming the argument otherwise.
     """
+    from ..bank import check_horizon
+
+    frames = check_horizon(frames, "frames")
+    try:
+        n = len(state.screen.time)
+    except (AttributeError, TypeError):
+        raise ValueError(f"state: expected a BankState of this bank, got {type(state).__name__}") from None
+    _check_state(bank, state, n)
     if lead and state.lead is None:
         raise ValueError("lead=True: this bank has no lead head (make_bank(..., lead=...))")
-    n = len(state.screen.time)
-    time = np.broadcast_to(np.asarray(time, dtype=np.float64), (n,))
+    try:
+        time = np.broadcast_to(np.asarray(time, dtype=np.float64), (n,))
+    except (TypeError, ValueError):
+        raise ValueError(f"time: expected a number or one per target, shape ({n},), got {time!r:.80}") from None
+    bad = ~np.isfinite(time)
+    with np.errstate(invalid="ignore"):
+        bad |= time < state.screen.time   # a target not started (NaN there) takes any finite time
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"time: expected finite times at or after each target's last learned row, got "
+                         f"{float(time[i])!r} for target {i} (last learned row at {float(state.screen.time[i])!r})")
     experts = expert_forecasts(bank, state, time, frames)
     if not lead:
         experts = within_reach(bank, experts, span(state.screen, time))
