@@ -292,3 +292,15 @@ def test_forecast_checks_its_arguments():
             engine.forecast(bank, state, time, frames)
     with pytest.raises(ValueError, match="state: expected a BankState of this bank"):
         engine.forecast(make_bank(2, "mixed", length_unit=0.1), state, 8.0)
+
+
+@pytest.mark.parametrize("lengths", [np.array([2**63, 2**64 - 1, 5], dtype=np.uint64), np.array([2.0**70, -3.0, 30.0])])
+def test_lengths_beyond_the_rows_are_every_row_in_both_engines(lengths):
+    """The compiled engine cast a length of 2**63 or more to a negative int64 (all NaN); the reference ran."""
+    bank = make_bank(2, "kinematic", length_unit=0.1)
+    z = np.cumsum(np.random.default_rng(0).normal(size=(30, 3, 2)), 0)
+    results = [run(bank, z, np.arange(30.0)[:, None], lengths=lengths) for run in ENGINES.values()]
+    every = engine.run(bank, z, np.arange(30.0)[:, None], lengths=np.clip(lengths, 0, 30).astype(np.int64))
+    for result in results:
+        assert np.array_equal(result.forecasts, every.forecasts, equal_nan=True)
+    assert np.isfinite(results[1].forecasts[5:, 0]).all()

@@ -217,6 +217,9 @@ def check_run_arguments(bank: Bank, measurements, times, state, lengths):
         if not (np.issubdtype(lengths.dtype, np.integer) or (np.issubdtype(lengths.dtype, np.floating)
                                                              and np.all(lengths == np.round(lengths)))):
             raise ValueError(f"lengths: expected whole numbers of rows, got {lengths[:8]!r}")
+        # 0 .. T rows (a length over T is every row, one under 0 none, as row t runs where t < length): int64, so
+        # that the compiled engine's cast of a length of 2**63 or more does not wrap around
+        lengths = np.clip(lengths, 0, t_count).astype(np.int64)
     if state is not None:
         _check_state(bank, state, n)
     return z, times, lengths
