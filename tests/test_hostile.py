@@ -304,3 +304,26 @@ def test_lengths_beyond_the_rows_are_every_row_in_both_engines(lengths):
     for result in results:
         assert np.array_equal(result.forecasts, every.forecasts, equal_nan=True)
     assert np.isfinite(results[1].forecasts[5:, 0]).all()
+
+
+@pytest.mark.parametrize("call, error, message", [
+    (lambda: TrackPredictor({"length_unit": 0.1}), TypeError, "config: expected a StreamConfig, got dict"),
+    (lambda: TrackPredictor(StreamConfig(length_unit=0.1)).process_table({"a": 1}), TypeError,
+     "table: expected a pandas DataFrame"),
+    (lambda: TrackPredictor(StreamConfig(length_unit=0.1)).process_table(_table(3), ["x", "y"], {1: "x"}), ValueError,
+     "next_times: expected a mapping of track id -> time"),
+    (lambda: TrackPredictor(StreamConfig(length_unit=0.1)).warm_up(2.5), ValueError,
+     "measurement_dim: expected an integer >= 1"),
+    (lambda: TrackPredictor(StreamConfig(length_unit=0.1)).warm_up(-1), ValueError,
+     "measurement_dim: expected an integer >= 1"),
+    (lambda: __import__("kalmix.streaming").streaming.auto_length_unit(5.0), ValueError, r"values: expected shape \(T, p\)"),
+    (lambda: engine.run(make_bank(2, "kinematic", length_unit=0.1), np.zeros((3, 1, 2)), "a"), ValueError,
+     "times: expected numbers"),
+    (lambda: TrackPredictor(StreamConfig(length_unit=0.1), ["x", "y", "z"]).step_row(1, 0.0, [1.0, 2.0]), ValueError,
+     r"expected 3 coordinates per row \(the position names"),
+    (lambda: TrackPredictor(StreamConfig(length_unit=0.1), ["x", "x"]), ValueError, "position_names: expected distinct"),
+])
+def test_more_bad_calls_are_named(call, error, message):
+    """Each raised AttributeError / IndexError / a numpy message, or (three names, two coordinates) was taken."""
+    with pytest.raises(error, match=message):
+        call()

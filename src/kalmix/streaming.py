@@ -67,6 +67,7 @@ several calls (``kalmix predict`` rolls a whole chunk back when interrupted).
 from __future__ import annotations
 
 import math
+import numbers
 import os
 import warnings
 from collections.abc import Hashable
@@ -137,9 +138,14 @@ def auto_length_unit(values, *, minimum_samples: int = 8) -> float:
 
 def _length_unit_rule(values, minimum_samples: int = 8) -> tuple[float, str | None]:
     """:func:`auto_length_unit` and, when it fell back to 1, why (else None)."""
-    z = np.asarray(values, dtype=np.float64)
+    try:
+        z = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"values: expected numbers, shape (T, p) or (T, N, p), got {values!r:.80}") from None
     if z.ndim == 2:
         z = z[:, None, :]
+    if z.ndim != 3:
+        raise ValueError(f"values: expected shape (T, p) or (T, N, p) (rows, [tracks,] coordinates), got {z.shape}")
     if z.shape[0] < 3:
         return 1.0, "fewer than 3 samples of a track to estimate it from"
     with np.errstate(over="ignore", invalid="ignore"):  # values near 1e308: those triples are skipped
@@ -236,8 +242,6 @@ class StreamConfig:
     lead_delay: float | None = None
 
     def __post_init__(self):
-        import numbers
-
         from .bank import BANK_KINDS
 
         self.horizon = check_horizon(self.horizon)
@@ -597,9 +601,15 @@ class TrackPredictor:
     def __init__(self, config: StreamConfig, position_names=None, *, backend: str = "cpu"):
         import copy
 
+        if not isinstance(config, StreamConfig):
+            raise TypeError(f"config: expected a StreamConfig, got {type(config).__name__} {config!r:.80}")
         self.backend = check_backend(backend)
         self.config = copy.deepcopy(config)   # the predictor learns its time unit into it: not the caller's
+        if isinstance(position_names, str):
+            position_names = (position_names,)
         self.position_names = None if position_names is None else tuple(position_names)
+        if self.position_names is not None and len(set(self.position_names)) != len(self.position_names):
+            raise ValueError(f"position_names: expected distinct names, got {list(self.position_names)}")
         self.params: Bank | None = None
         self.states: dict[Any, BankState] = {}
         self.gaps: dict[Any, GapTracker] = {}
@@ -623,6 +633,9 @@ class TrackPredictor:
 
     def _ensure_params(self, measurement_dim: int) -> Bank:
         if self.params is None:
+            if self.position_names is not None and len(self.position_names) != measurement_dim:
+                raise ValueError(f"measurements: expected {len(self.position_names)} coordinates per row (the position "
+                                 f"names {list(self.position_names)}), got {measurement_dim}")
             params = self._build(measurement_dim)
             if self.backend == "gpu":   # a bank the GPU engine cannot run fails here, before any row
                 from .core.compiled import gpu
@@ -774,6 +787,9 @@ class TrackPredictor:
 
         if self.backend != "cpu" or not numba_available():
             return
+        if measurement_dim is not None and (isinstance(measurement_dim, bool) or not isinstance(
+                measurement_dim, numbers.Integral) or measurement_dim < 1):
+            raise ValueError(f"measurement_dim: expected an integer >= 1 (coordinates per row), got {measurement_dim!r}")
         names = list(self.position_names or ())
         p = measurement_dim or len(names) or (self.params.measurement_dim if self.params is not None else 0)
         if p < 1:
@@ -996,6 +1012,15 @@ class TrackPredictor:
         """
         import pandas as pd
 
+        if not isinstance(table, pd.DataFrame):
+            raise TypeError(f"table: expected a pandas DataFrame (track_id, time and position columns), got "
+                            f"{type(table).__name__}")
+        if next_times is not None:
+            try:
+                next_times = {track: float(when) for track, when in dict(next_times).items()}
+            except (TypeError, ValueError):
+                raise ValueError(f"next_times: expected a mapping of track id -> time (a number), got "
+                                 f"{next_times!r:.80}") from None
         missing = [c for c in ("track_id", "time", *(position_names or ())) if c not in table.columns]
         if missing:
             raise ValueError(f"table: expected the columns track_id, time and the positions, missing {missing} "

@@ -206,7 +206,12 @@ def check_run_arguments(bank: Bank, measurements, times, state, lengths):
         raise ValueError(f"measurements: expected {bank.measurement_dim} coordinates per row (the bank's "
                          f"measurement_dim), got {p}")
     try:
-        times = np.broadcast_to(np.asarray(times, dtype=np.float64), (t_count, n))
+        times = np.asarray(times, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"times: expected numbers, shape (T, N) = {(t_count, n)} or one that broadcasts to it, "
+                         f"got {times!r:.80}") from None
+    try:
+        times = np.broadcast_to(times, (t_count, n))
     except ValueError:
         raise ValueError(f"times: expected shape (T, N) = {(t_count, n)} or one that broadcasts to it, "
                          f"got {np.shape(times)}") from None
