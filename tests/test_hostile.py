@@ -327,3 +327,15 @@ def test_more_bad_calls_are_named(call, error, message):
     """Each raised AttributeError / IndexError / a numpy message, or (three names, two coordinates) was taken."""
     with pytest.raises(error, match=message):
         call()
+
+
+def test_step_rows_takes_pandas_na_as_a_missing_measurement_as_step_row_does():
+    """step_rows refused a nullable DataFrame with pd.NA, which a table and step_row take as missing."""
+    values = pd.DataFrame({"x": pd.array([1.0, None, 3.0], dtype="Float64"),
+                           "y": pd.array([1.0, 2.0, None], dtype="Float64")})
+    rows, one = TrackPredictor(StreamConfig(length_unit=0.1)), TrackPredictor(StreamConfig(length_unit=0.1))
+    got = rows.step_rows([1, 1, 1], [0.0, 1.0, 2.0], values)
+    singles = [one.step_row(1, float(i), [pd.NA if pd.isna(v) else v for v in values.iloc[i]]) for i in range(3)]
+    assert all(np.array_equal(a.next, b.next) for a, b in zip(got, singles))
+    with pytest.raises(ValueError, match="z: expected numbers"):
+        one.step_row(1, 3.0, ["a", 1.0])

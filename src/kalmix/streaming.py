@@ -497,6 +497,20 @@ def _row_times(times) -> np.ndarray:
     return given.astype(np.float64)
 
 
+def _measurements(values) -> np.ndarray:
+    """Positions as float64, with pandas' NA and None as NaN (a missing measurement) as in a table."""
+    try:
+        return np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        import pandas as pd
+
+        given = np.asarray(values, dtype=object)
+        missing = np.asarray(pd.isna(given), dtype=bool)
+        if not missing.any():
+            raise
+        return np.where(missing, np.nan, given).astype(np.float64)
+
+
 def _track_key(value, where: str):
     """A track id as the predictor's key (numpy scalars as Python ones, as :meth:`TrackPredictor.process_table`
     and the state file hold them); ``TypeError``/``ValueError`` for what cannot be an id."""
@@ -841,7 +855,7 @@ class TrackPredictor:
         try:
             if z is None:
                 raise TypeError
-            given = np.asarray(z, dtype=np.float64)
+            given = _measurements(z)
         except (TypeError, ValueError):
             raise ValueError(f"z: expected numbers (NaN for a missing measurement), got {z!r:.80}") from None
         if given.ndim > 1 and given.shape[:-1] != (1,) * (given.ndim - 1):
@@ -884,7 +898,7 @@ class TrackPredictor:
         except (TypeError, ValueError):
             raise ValueError(f"times: expected numbers or dates, got {times!r:.80}") from None
         try:
-            values = np.asarray(values, dtype=np.float64)
+            values = _measurements(values)
         except (TypeError, ValueError):
             raise ValueError(f"values: expected numbers (NaN for a missing measurement), got {values!r:.80}") from None
         if values.ndim != 2 or len(values) != len(ids) or len(times) != len(ids):
