@@ -511,6 +511,11 @@ def _measurements(values) -> np.ndarray:
         return np.where(missing, np.nan, given).astype(np.float64)
 
 
+def _keyable(key) -> bool:
+    """Whether ``key`` (from :func:`_id_to_json`) can be a track id: hashable and kept by the state file."""
+    return not isinstance(key, (tuple, frozenset, complex)) and isinstance(key, Hashable)
+
+
 def _track_key(value, where: str):
     """A track id as the predictor's key (numpy scalars as Python ones, as :meth:`TrackPredictor.process_table`
     and the state file hold them); ``TypeError``/``ValueError`` for what cannot be an id."""
@@ -523,7 +528,7 @@ def _track_key(value, where: str):
     if missing:
         raise ValueError(f"{where}: expected a track id (text or a number), got {value!r}")
     key = _id_to_json(value)
-    if isinstance(key, (tuple, frozenset, complex)) or not isinstance(key, Hashable):
+    if not _keyable(key):
         raise TypeError(f"{where}: expected a track id (text, a number, or a date), got {type(value).__name__} "
                         f"{value!r:.80}")
     return key
@@ -1209,15 +1214,13 @@ class TrackPredictor:
             row = int(np.flatnonzero(index == missing[0])[0])
             raise ValueError(f"table: expected a track id in every row, got a missing value "
                              f"({uniques[missing[0]]!r}) in row {first_row + row} (counted from 0)")
-        keys = []
-        for u, value in enumerate(uniques):
-            try:
-                keys.append(_track_key(value, "table"))
-            except TypeError:   # a tuple, say: step_row refuses it, and the state file could not give it back
+        keys = [_id_to_json(u) for u in uniques]
+        for u, key in enumerate(keys):   # a tuple, say: step_row refuses it, and the state file could not give it back
+            if not _keyable(key):
                 row = int(np.flatnonzero(index == u)[0])
                 raise TypeError(f"table: expected a track id (text, a number, or a date) in every row, got "
-                                f"{type(value).__name__} {value!r:.80} in row {first_row + row} (counted from 0)") \
-                    from None
+                                f"{type(uniques[u]).__name__} {uniques[u]!r:.80} in row {first_row + row} (counted "
+                                "from 0)")
         had_state = np.array([key in self.states for key in keys], dtype=bool)
         start = 0
         while start < n_rows and self.config.time_unit is None:   # until a step fixes the time unit
