@@ -411,6 +411,7 @@ def test_state_refuses_conflicting_settings(cli, tmp_path):
     (["--max-gap", "2"], ["--max-gap", "2"], None),
     (["--max-gap", "none"], ["--max-gap", "none", "--max-gap-factor", "5"], None),
     (["--max-gap-factor", "4"], [], None),
+    (["--max-gap", "5", "--max-gap-factor", "inf"], ["--max-gap", "5"], None),   # (helper-24: it was refused)
 ])
 def test_state_refuses_another_gap_rule(cli, tmp_path, made, then, refused):
     """--max-gap / --max-gap-factor on a resumed run: refused when they change the state's gap rule, as every

@@ -339,3 +339,28 @@ def test_step_rows_takes_pandas_na_as_a_missing_measurement_as_step_row_does():
     assert all(np.array_equal(a.next, b.next) for a, b in zip(got, singles))
     with pytest.raises(ValueError, match="z: expected numbers"):
         one.step_row(1, 3.0, ["a", 1.0])
+
+
+def test_the_short_lead_warning_comes_from_the_data_not_from_the_warm_up(recwarn):
+    """helper-24: the warm-up's made-up rows are 1 apart, and its throwaway predictor learned a unit of 1 from them:
+    a lead of 0.4 on rows 0.5 apart was said to be too short. A lead just over MAX_HORIZON steps of its interim unit
+    (rounding) failed at the first row, and warm_up failed for a lead over MAX_HORIZON."""
+    import warnings as w
+
+    engine_ = TrackPredictor(StreamConfig(length_unit=0.1, lead=0.4))
+    engine_.warm_up(2)
+    for i in range(4):
+        engine_.step_row(1, 0.5 * i, [float(i), 0.0])
+    assert not [x for x in recwarn if "shorter than half" in str(x.message)]
+    with w.catch_warnings():
+        w.simplefilter("error")
+        long = TrackPredictor(StreamConfig(lead=2668641.420200003, length_unit=0.1, bank="kinematic"))
+        long.warm_up(2)
+        assert long.step_row(1, 0.0, [0.0, 0.0]).segment == 0
+
+
+def test_forecast_of_a_frame_based_bank_takes_any_time():
+    """Only the time-based families read the time: an AKF bank's forecast does not refuse one."""
+    bank = make_bank(2, "akf", length_unit=0.1, n_akf=2)
+    state = engine.run(bank, np.cumsum(np.ones((10, 1, 2)), 0), np.arange(10.0)[:, None]).state
+    assert np.array_equal(engine.forecast(bank, state, np.nan)[0], engine.forecast(bank, state, 3.0)[0])

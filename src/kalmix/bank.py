@@ -82,6 +82,16 @@ def check_horizon(value, name: str = "horizon") -> int:
     return int(value)
 
 
+def short_lead(lead: float | None, time_unit: float | None) -> str | None:
+    """Why a ``lead`` is too short for a ``time_unit`` to learn its weights, or None: the lead head learns
+    from a row that comes within half a unit of t + lead, and the rows come a unit apart."""
+    if lead is None or time_unit is None or not lead < 0.5 * time_unit:
+        return None
+    return (f"lead: {lead:g} is shorter than half the time unit ({time_unit:g}): no row comes within half a unit of "
+            "t + lead, so the lead's weights never learn (they stay uniform over the experts); ask for a lead of at "
+            "least half the sampling interval")
+
+
 def check_length_unit(value, name: str = "length_unit") -> float:
     """``value`` as a float in :data:`LENGTH_UNIT_RANGE`; ``TypeError``/``ValueError`` naming ``name``."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
@@ -624,13 +634,6 @@ def make_bank(
         if lead_time / tunit > MAX_HORIZON:
             raise ValueError(f"lead: expected at most {MAX_HORIZON} time units ({MAX_HORIZON * tunit:g}), "
                              f"got {lead!r}")
-        if lead_time < 0.5 * tunit:
-            import warnings
-
-            warnings.warn(f"lead: {lead_time:g} is shorter than half the time unit ({tunit:g}): no row comes within half "
-                          "a unit of t + lead, so the lead's weights never learn (they stay uniform over the "
-                          "experts); ask for a lead of at least half the sampling interval", RuntimeWarning,
-                          stacklevel=2)
         frames = max(1, int(round(lead_time / tunit)))
         delay = float(frames) if lead_delay is None else float(lead_delay)
         lead_params = LeadParams(time=lead_time, frames=frames, tolerance=0.5 * tunit, delay=delay)

@@ -77,7 +77,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .archive import open_archive, write_archive
-from .bank import DEFAULT_BANK, DEFAULT_REACH, check_horizon, check_length_unit, make_bank, make_params
+from .bank import DEFAULT_BANK, DEFAULT_REACH, check_horizon, check_length_unit, make_bank, make_params, short_lead
 from .core.engine import Bank, BankState, init_bank_state, tree_map
 
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Checkpoint", "auto_length_unit",
@@ -274,6 +274,9 @@ class StreamConfig:
         # every bank argument is checked now, not at the first row (a lead against a time unit still to be
         # learned is checked when it is learned: here as one unit)
         make_params(1, self.n_experts, seed=self.seed, length_unit=self.length_unit, **self.options)
+        why = short_lead(self.lead, self.time_unit)   # (a learned unit comes here too: replace(config, time_unit=))
+        if why is not None:
+            warnings.warn(why, RuntimeWarning, stacklevel=3)
         unit = self.time_unit if self.time_unit is not None else (self.lead if self.lead is not None else 1.0)
         make_bank(1, self.bank, rule=self.rule, length_unit=self.length_unit, time_unit=unit,
                   seed=self.seed, n_akf=self.n_experts, akf_options=self.options, lead=self.lead_time(),
@@ -672,13 +675,12 @@ class TrackPredictor:
         from .bank import MAX_HORIZON
 
         c = self.config
-        interim = 1.0 if c.lead is None else max(1.0, c.lead / MAX_HORIZON)
-        with warnings.catch_warnings():   # a lead too short for the unit: the config said so when it got the unit
-            warnings.filterwarnings("ignore", message="lead: .* shorter than half the time unit", category=RuntimeWarning)
-            return make_bank(measurement_dim, c.bank, rule=c.rule, length_unit=c.length_unit,
-                             time_unit=interim if c.time_unit is None else c.time_unit, seed=c.seed,
-                             n_akf=c.n_experts, akf_options=c.options, lead=c.lead_time(), rule_options=c.rule_options,
-                             reach=c.reach, lead_delay=c.lead_delay)
+        # (a hair over lead / MAX_HORIZON: the lead in units must come out at most MAX_HORIZON after rounding)
+        interim = 1.0 if c.lead is None else max(1.0, c.lead / MAX_HORIZON * (1.0 + 1e-9))
+        return make_bank(measurement_dim, c.bank, rule=c.rule, length_unit=c.length_unit,
+                         time_unit=interim if c.time_unit is None else c.time_unit, seed=c.seed, n_akf=c.n_experts,
+                         akf_options=c.options, lead=c.lead_time(), rule_options=c.rule_options, reach=c.reach,
+                         lead_delay=c.lead_delay)
 
     def _unit_step_taken_back(self, track, gaps: GapTracker) -> None:
         """Warn once when the step the time unit was learned from (a track's first) is taken back: a row came
@@ -804,17 +806,20 @@ class TrackPredictor:
 
         from .core.compiled import numba_available
 
-        if self.backend != "cpu" or not numba_available():
-            return
         if measurement_dim is not None and (isinstance(measurement_dim, bool) or not isinstance(
                 measurement_dim, numbers.Integral) or measurement_dim < 1):
             raise ValueError(f"measurement_dim: expected an integer >= 1 (coordinates per row), got {measurement_dim!r}")
+        if self.backend != "cpu" or not numba_available():
+            return
         names = list(self.position_names or ())
         p = measurement_dim or len(names) or (self.params.measurement_dim if self.params is not None else 0)
         if p < 1:
             raise ValueError("warm_up: the number of coordinates is not known yet; pass measurement_dim")
         names = names if len(names) == p else [f"x{j}" for j in range(p)]
-        twin = TrackPredictor(self.config, names)
+        config = self.config
+        if config.time_unit is None:   # the made-up rows are 1 apart: not a unit to learn (nor to warn of a lead by)
+            config = replace(config, time_unit=config.lead if config.lead is not None else 1.0)
+        twin = TrackPredictor(config, names)
         twin.params = self.params if self.params is not None and self.params.measurement_dim == p else None
         rows = 6
         times = np.concatenate([np.arange(rows, dtype=np.float64), np.arange(rows, dtype=np.float64)])

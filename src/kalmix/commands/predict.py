@@ -152,7 +152,7 @@ def _check_gap_rule(stored, state_path, gap, never, factor, given):
         want_gap = gap
         if never:
             want_factor = math.inf
-        elif math.isinf(want_factor):   # the state's rule was 'none': a rule that splits again
+        elif stored.max_gap is None and math.isinf(stored.max_gap_factor):   # from 'none' to a rule that splits
             want_factor = factor
     if "max_gap_factor" in given and not never:
         want_factor = factor

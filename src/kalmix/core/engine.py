@@ -224,7 +224,8 @@ def check_run_arguments(bank: Bank, measurements, times, state, lengths):
             raise ValueError(f"lengths: expected whole numbers of rows, got {lengths[:8]!r}")
         # 0 .. T rows (a length over T is every row, one under 0 none, as row t runs where t < length): int64, so
         # that the compiled engine's cast of a length of 2**63 or more does not wrap around
-        lengths = np.clip(lengths, 0, t_count).astype(np.int64)
+        if lengths.dtype != np.int64 or (n and (lengths.min() < 0 or lengths.max() > t_count)):
+            lengths = np.clip(lengths, 0, t_count).astype(np.int64)
     if state is not None:
         _check_state(bank, state, n)
     return z, times, lengths
@@ -334,9 +335,11 @@ def forecast(bank: Bank, state: BankState, time, frames: int = 1, *, lead: bool 
         time = np.broadcast_to(np.asarray(time, dtype=np.float64), (n,))
     except (TypeError, ValueError):
         raise ValueError(f"time: expected a number or one per target, shape ({n},), got {time!r:.80}") from None
-    bad = ~np.isfinite(time)
-    with np.errstate(invalid="ignore"):
-        bad |= time < state.screen.time   # a target not started (NaN there) takes any finite time
+    bad = np.zeros(n, dtype=bool)
+    if any(family.kind != "akf" for family in bank.families):   # (frame-based families do not read the time)
+        bad = ~np.isfinite(time)
+        with np.errstate(invalid="ignore"):
+            bad |= time < state.screen.time   # a target not started (NaN there) takes any finite time
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise ValueError(f"time: expected finite times at or after each target's last learned row, got "
