@@ -65,6 +65,19 @@ def test_length_unit_follows_the_rule_and_can_be_given():
     assert "IMM (filterpy)" not in fixed.predictors
 
 
+def test_a_given_length_unit_is_the_mixtures_and_the_peers_keep_the_rules():
+    """helper-25: a given unit also scaled the peers' noise grids: 1e-8 stopped the run in the IMM's tuning ('Singular
+    matrix') and 1e-3 changed the IMM's row."""
+    table = _turning_tracks(n=120)
+    auto = evaluate_table(table, n_experts=2)
+    given = evaluate_table(table, n_experts=2, length_unit=1e-8)
+    assert given.length_unit == 1e-8
+    peers = [name for name in auto.predictors if "IMM" in name or "(real dt)" in name or "river" in name]
+    assert "IMM (filterpy)" in peers and len(peers) >= 4
+    for name in peers:
+        assert given.overall[name]["one_step"]["rms"] == auto.overall[name]["one_step"]["rms"], name
+
+
 def test_validation():
     with pytest.raises(ValueError, match="horizon"):
         evaluate_table(_turning_tracks(), horizon=0)

@@ -463,7 +463,8 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(0, MAX_SEED),
               help="Seed of the bank and of the AKF mixture row.")
 @click.option("--length-unit", default="auto", show_default=True,
-              help="Mixture's length unit; 'auto': the second-difference rule on the tuning part.")
+              help="The mixtures' length unit (and the other AKF rows'; the peers' noise grids keep the "
+                   "rule's); 'auto': the second-difference rule on the tuning part.")
 @click.option("--tuning-fraction", default=0.2, show_default=True, type=click.FloatRange(0.0, 1.0, max_open=True),
               help="Leading share of each track used to tune the peers (and the length unit), not scored.")
 @click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP + " 'none' never splits.")

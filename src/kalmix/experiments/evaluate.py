@@ -607,11 +607,13 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     if horizon > 1 and not (finite & _shift(scored & finite, horizon, False)).any():
         raise ValueError(f"horizon: no measurement of a scored row has one {horizon} rows before it in its "
                          f"segment (longest segment: {int(streams.lengths.max())} rows); give a smaller -H")
+    # the peers' noise grids scale with the data's length unit (the rule), whatever unit the mixture is given
+    peer_unit = auto_length_unit(np.where(tuning[..., None], values, np.nan) if tuning.any() else values)
     if length_unit is not None:
         unit = rule = float(length_unit)
-        tuned["length_unit"] = {"given": unit}
+        tuned["length_unit"] = {"given": unit, "peers": peer_unit}
     else:
-        rule = auto_length_unit(np.where(tuning[..., None], values, np.nan) if tuning.any() else values)
+        rule = peer_unit
         unit, scores = rule, {}
         if tune_units and tuning.any():
             log(f"mixture: tuning the length unit around the rule's {rule:.4g}")
@@ -650,7 +652,7 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     for name, order, degree in (("CV Kalman", 2, 1), ("CA Kalman", 3, 2)):
         log(f"{name}: tuning on the first {tuning_fraction:.0%} of each track" if tuning.any() else
             f"{name}: tuning on the scored rows themselves (no tuning part: in hindsight)")
-        best = _tune_fixed(order, degree, rule, values, tune_scored)
+        best = _tune_fixed(order, degree, peer_unit, values, tune_scored)
         tuned[name] = best
         params = make_params(p, 1, dynamics="fixed", order=order, prior_degree=degree, adapt_noise=False,
                              length_unit=unit, process_noise_range=(best["process_noise"] / unit**2,) * 2,
@@ -665,9 +667,9 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
             imm_predictions = None
         if imm_predictions is not None:
             log("IMM (filterpy): tuning")
-            best = _tune_imm(streams, tune_scored, rule, tuned["CV Kalman"]["measurement_noise"])
+            best = _tune_imm(streams, tune_scored, peer_unit, tuned["CV Kalman"]["measurement_noise"])
             note = best.pop("untuned", None)
-            tuned["IMM (filterpy)"] = {k: v * rule**2 if k != "switch_probability" else v for k, v in best.items()}
+            tuned["IMM (filterpy)"] = {k: v * peer_unit**2 if k != "switch_probability" else v for k, v in best.items()}
             if note:
                 tuned["IMM (filterpy)"]["untuned"] = note
                 log(f"IMM (filterpy): not tuned ({note})")
@@ -675,11 +677,11 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
             imm = np.full_like(values, np.nan)
             for j in range(s):
                 n = streams.lengths[j]
-                imm[:n, j] = imm_predictions(values[:n, j], length_unit=rule, **best)
+                imm[:n, j] = imm_predictions(values[:n, j], length_unit=peer_unit, **best)
             predictions["IMM (filterpy)"] = (imm, None)
 
     if peers:
-        _run_peer_models(streams, tune_scored, rule, horizon, predictions, tuned, log)
+        _run_peer_models(streams, tune_scored, peer_unit, horizon, predictions, tuned, log)
 
     log("single AKF")
     akf_params = make_params(p, 1, seed=seed, length_unit=unit, **{**options, "adapt_noise": False})
