@@ -444,6 +444,12 @@ def test_explicit_column_names(cli, tmp_path):
     ("t,a,b\n0,1,2\n", [], "Could not detect position columns"),
     ("t;x;y\n0;1;2\n", [], "looks separated by semicolons: kalmix reads comma-separated CSV"),
     ("0,1,2\n1,1,3\n", [], "The column names are numbers: the first line must be a header"),
+    # helper-25: a used column named as the table's id / time column inside, or one column in two roles, gave
+    # silently wrong output (positions in the id column; times as a position)
+    ("obj,time,x,track_id\n1,0,1,2\n1,1,2,3\n", ["--id", "obj", "--position", "x,track_id"],
+     "column 'track_id' is used as --position, but a track table names its id column 'track_id' (here 'obj')"),
+    ("time,x,y\n0,1,2\n1,2,3\n", ["--position", "x,y,time"], "a track table names its time column 'time'"),
+    ("t,x,y\n0,1,2\n1,2,3\n", ["--time", "x"], "column 'x' is given both as --time and as --position"),
     ("t,x,y\n0,1,2\n1,abc,3\n", [], "Column 'x' must hold finite numbers; row 1"),
     ("", [], "empty"),
     ("t,x,y\n", [], "no rows"),

@@ -259,7 +259,30 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
     time = first(_TIME_NAMES, time)
     taken.add(time)
     track_id = first(_ID_NAMES, track_id)
+    _check_roles(track_id, time, positions)
     return TrackColumns(time=time, positions=positions, track_id=track_id)
+
+
+def _check_roles(track_id, time, positions) -> None:
+    """``ValueError`` for a column in two roles, or a name that clashes with the ones a track table uses inside
+    (the id column becomes ``track_id``, the time column ``time``): a position named ``time`` was read as
+    positions while the times came from elsewhere, and the output mixed them up."""
+    roles = [("--id", track_id), ("--time", time), *(("--position", name) for name in positions)]
+    seen: dict = {}
+    for flag, column in roles:
+        if column is None:
+            continue
+        if column in seen and not (flag == "--position" and seen[column] == "--position"):
+            raise ValueError(f"column {column!r} is given both as {seen[column]} and as {flag}; expected each "
+                             "column in one role")
+        seen.setdefault(column, flag)
+    inside = {"track_id": ("--id", track_id), "time": ("--time", time)}
+    for flag, column in roles:
+        if column in inside and inside[column][1] != column:
+            role, other = inside[column]
+            raise ValueError(f"column {column!r} is used as {flag}, but a track table names its {role[2:]} column "
+                             f"{column!r}" + (f" (here {other!r})" if other is not None else "")
+                             + "; rename that column in the file")
 
 
 def column_notes(columns: TrackColumns, header: Sequence[str]) -> list[str]:
