@@ -78,6 +78,15 @@ def test_a_given_length_unit_is_the_mixtures_and_the_peers_keep_the_rules():
         assert given.overall[name]["one_step"]["rms"] == auto.overall[name]["one_step"]["rms"], name
 
 
+def test_a_length_unit_that_falls_back_to_1_is_said():
+    """helper-25: with one tuning row per track the rule had nothing to estimate from and the unit became 1,
+    silently (predict says so)."""
+    said = []
+    result = evaluate_table(_turning_tracks(n=120), n_experts=2, peers=False, tuning_fraction=0.01, log=said.append)
+    assert result.length_unit == 1.0
+    assert any("length unit 1 for the peers and the mixture (the rule could not estimate it" in line for line in said)
+
+
 def test_validation():
     with pytest.raises(ValueError, match="horizon"):
         evaluate_table(_turning_tracks(), horizon=0)

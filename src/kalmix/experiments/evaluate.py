@@ -44,7 +44,7 @@ import numpy as np
 from ..bank import DEFAULT_BANK, GATE_OPTIONS, check_horizon, check_length_unit, make_bank, make_params
 from ..core.mixture import init_state, predict, step
 from ..metrics import error_summary
-from ..streaming import GapTracker, StreamConfig, auto_length_unit, auto_time_unit
+from ..streaming import GapTracker, StreamConfig, _length_unit_rule, auto_time_unit
 
 __all__ = ["Streams", "EvaluationResult", "split_streams", "evaluate_table", "PREDICTORS"]
 
@@ -608,7 +608,10 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         raise ValueError(f"horizon: no measurement of a scored row has one {horizon} rows before it in its "
                          f"segment (longest segment: {int(streams.lengths.max())} rows); give a smaller -H")
     # the peers' noise grids scale with the data's length unit (the rule), whatever unit the mixture is given
-    peer_unit = auto_length_unit(np.where(tuning[..., None], values, np.nan) if tuning.any() else values)
+    peer_unit, why = _length_unit_rule(np.where(tuning[..., None], values, np.nan) if tuning.any() else values)
+    if why is not None:   # as predict says it
+        log(f"length unit 1 for the peers{'' if length_unit is not None else ' and the mixture'} (the rule could "
+            f"not estimate it: the tuning part has {why}; pass --length-unit, or a larger --tuning-fraction)")
     if length_unit is not None:
         unit = rule = float(length_unit)
         tuned["length_unit"] = {"given": unit, "peers": peer_unit}
