@@ -380,6 +380,7 @@ def _archive(tmp_path, n_files=2):
     ("no_output", "--engine dask writes a partitioned Parquet dataset: give -o OUTPUT_DIR"),
     ("output_not_empty", "exists and is not empty"),
     ("output_a_file", "exists and is not a directory"),
+    ("output_a_file_name", "writes a partitioned Parquet dataset, a directory; got the file name"),
     ("output_inside_input", "is inside INPUT"),
     ("output_inside_glob", "is inside INPUT"),
     ("state", "--state: the Dask engine keeps no state file: its run is idempotent"),
@@ -403,6 +404,8 @@ def test_bad_input_is_one_line_before_any_work(cli, tmp_path, case, message):
         open(os.path.join(out, "x"), "w").close()
     elif case == "output_a_file":
         open(out, "w").close()
+    elif case == "output_a_file_name":   # helper-25: made a directory called out.csv
+        out = str(tmp_path / "out.csv")
     elif case == "output_inside_input":
         out = os.path.join(archive, "predictions")
     elif case == "output_inside_glob":

@@ -252,7 +252,11 @@ def test_cli_evaluate_refuses_up_front_what_it_cannot_do(tmp_path):
             (["-H", "40"], "horizon: no measurement of a scored row has one 40 rows before it"),
             (["--tracks", "t0,zz"], "tracks: ['zz'] not in the data (its track ids: ['t0', 't1'])"),
             (["--plot", str(tmp_path / "e.xyz")], "--plot: expected a figure file ending in .png"),
-            (["--plot-intervals", str(tmp_path / "e.png"), str(one_d)], "needs two position coordinates, the data has 1")):
+            (["--plot-intervals", str(tmp_path / "e.png"), str(one_d)], "needs two position coordinates, the data has 1"),
+            # helper-25: these were taken silently, or named the wrong thing
+            (["--track", "t0"], "--track: picks the track of --plot or --plot-intervals"),
+            (["--tracks", ""], "--tracks: expected comma-separated track ids, got ''"),
+            (["--plot", str(path) + "/e.png"], "is a file, not a directory")):
         paths = [a for a in args if a.endswith(".csv")] or [str(path)]
         args = [a for a in args if not a.endswith(".csv")]
         result = runner.invoke(build(), ["evaluate", *paths, "--experts", "2", "--no-peers", *args,

@@ -46,6 +46,9 @@ def check_options(input_path, output, state_path, given):
         raise ValueError("--output: --engine dask writes a partitioned Parquet dataset: give -o OUTPUT_DIR")
     if "workers" in given and "scheduler" in given:
         raise ValueError("--workers: sets the size of a local cluster; with --scheduler the cluster has its own")
+    if not os.path.isdir(output) and output.lower().endswith((".csv", ".csv.gz", ".parquet", ".pq", ".jsonl", ".json")):
+        raise ValueError(f"--output: --engine dask writes a partitioned Parquet dataset, a directory; got the file "
+                         f"name {output!r} (give a directory name, e.g. {os.path.splitext(output)[0]!r})")
     output = os.path.abspath(output)
     if os.path.lexists(output) and not os.path.isdir(output):
         raise ValueError(f"--output: {output!r} exists and is not a directory; give a new directory")

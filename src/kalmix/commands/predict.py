@@ -237,7 +237,8 @@ def _directory_exists(name, path):
     if path:
         directory = os.path.dirname(os.path.abspath(path))
         if not os.path.isdir(directory):
-            raise ValueError(f"{name}: the directory {directory!r} does not exist")
+            what = "is a file, not a directory" if os.path.exists(directory) else "does not exist"
+            raise ValueError(f"{name}: the directory {directory!r} {what}")
 
 
 def _file_format(path):
@@ -525,7 +526,11 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
             columns = _columns(_header(input_path, fmt), time_column, position_columns, id_column)
             table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True)
             label = os.path.basename(input_path)
+        if tracks is not None and not tracks.strip(", "):
+            raise ValueError(f"--tracks: expected comma-separated track ids, got {tracks!r}")
         wanted = [t.strip() for t in tracks.split(",")] if tracks else None
+        if plot_track is not None and not (plot_path or intervals_path):
+            raise ValueError("--track: picks the track of --plot or --plot-intervals; give one of them")
         for flag, path in (("--plot", plot_path), ("--plot-intervals", intervals_path)):   # before the work
             if path:
                 _check_figure_path(flag, path)
