@@ -1045,12 +1045,14 @@ class TrackPredictor:
             except (TypeError, ValueError):
                 raise ValueError(f"next_times: expected a mapping of track id -> time (a number), got "
                                  f"{next_times!r:.80}") from None
-        missing = [c for c in ("track_id", "time", *(position_names or ())) if c not in table.columns]
+        position_names = (list(position_names) if position_names
+                          else [c for c in table.columns if c not in ("track_id", "time")])
+        missing = [c for c in ("track_id", "time", *position_names) if c not in table.columns]
         if missing:
             raise ValueError(f"table: expected the columns track_id, time and the positions, missing {missing} "
                              f"(columns: {list(table.columns)})")
-        names = ("track_id", "time", *(position_names or [c for c in table.columns if c not in ("track_id", "time")]))
-        twice = sorted({str(c) for c in table.columns[table.columns.duplicated()] if c in names})
+        used = ("track_id", "time", *position_names)
+        twice = sorted({str(c) for c in table.columns[table.columns.duplicated()] if c in used})
         if twice:
             raise ValueError(f"table: expected each of the columns track_id, time and the positions once, got {twice} "
                              f"more than once (columns: {list(table.columns)})")
@@ -1133,7 +1135,7 @@ class TrackPredictor:
                 first = self._process_table(head, position_names, later, first_row)
                 return pd.concat([first, self._process_table(tail, position_names, next_times, first_row + split)],
                                  ignore_index=True)
-        names = list(position_names or [c for c in table.columns if c not in ("track_id", "time")])
+        names = list(position_names)   # (process_table gave the default: every other column)
         if self.position_names is None:
             self.position_names = tuple(names)
         elif set(names) == set(self.position_names):

@@ -637,10 +637,12 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
     for batch in batches:
         take(batch, [])
     if run.sink.fmt == "csv" and not run.sink.header_written:   # every row skipped: the header all the same,
-        names = [*([columns.track_id] if columns.track_id is not None else []), columns.time or "row", "segment",
-                 *(f"{prefix}{name}" for prefix in engine._columns().values() for name in columns.positions)]
-        with run.guard.deferred():   # as a file's run does
-            run.sink.write_header(names)
+        import pandas as pd   # named as a file's run names its columns
+
+        empty = pd.DataFrame(columns=["track_id", "time", "segment", *(
+            f"{prefix}{name}" for prefix in engine._columns().values() for name in columns.positions)])
+        with run.guard.deferred():
+            run.sink.write_header(list(_output_columns(empty, columns, columns.positions).columns))
 
 
 def _row_record(result, track, time, columns, prefixes):
