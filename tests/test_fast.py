@@ -52,6 +52,42 @@ def test_compiled_loop_equals_the_numpy_reference(dynamics, gating, n_experts):
 
 
 @pytest.mark.parametrize("n_experts", SIZES)
+@pytest.mark.parametrize("dynamics", ["rls", "literal", "fixed"])
+def test_without_a_gate_the_experts_are_those_of_a_gated_mixture_and_nothing_is_learned(dynamics, n_experts):
+    """``gating="none"`` (a bank's AKF family) skips the gate's work in both kernels and the numpy spec: the
+    experts are bit for bit those of a gated mixture without noise feedback, and the weights, the
+    responsibilities and the rate stay where they started."""
+    z = _data(11)
+    z[30, 1] = 1e8               # a jump, to be sure a skipped score changes nothing
+    params = make_params(3, n_experts, dynamics=dynamics, gating="none", adapt_noise=False, seed=3)
+    gated = make_params(3, n_experts, dynamics=dynamics, gating="fixed_share", adapt_noise=False, seed=3)
+    options = dict(diagnostics=True, expert_predictions=True)
+    reference = run_core(params, z, backend="numpy", **options)
+    _compare(reference, fast.run_fast(params, z, **options))
+    start = init_state(params, z.shape[1])
+    for name in ("weights", "responsibilities", "eta", "gate_weights"):
+        np.testing.assert_array_equal(getattr(reference.state, name), getattr(start, name), err_msg=name)
+    np.testing.assert_array_equal(reference.weights, np.broadcast_to(start.weights, reference.weights.shape))
+    with_gate = fast.run_fast(gated, z, **options)
+    np.testing.assert_array_equal(reference.expert_predictions, with_gate.expert_predictions)
+    for name in ("mean", "cov", "gram", "cross", "transition", "offset", "history", "origin"):
+        np.testing.assert_array_equal(getattr(reference.state, name), getattr(with_gate.state, name), err_msg=name)
+    assert not np.array_equal(reference.weights, with_gate.weights)   # the gated one did learn
+
+
+def test_no_gate_refuses_the_noise_feedback_it_cannot_drive():
+    with pytest.raises(ValueError, match="adapt_noise: .*gating='none' has no gate; pass adapt_noise=False"):
+        make_params(3, 4, gating="none")
+
+
+def test_a_banks_akf_family_runs_without_a_gate():
+    from kalmix.bank import make_bank
+
+    (akf,) = [family for family in make_bank(3, "mixed+ar+turn").families if family.kind == "akf"]
+    assert akf.params.gating == "none" and not akf.params.adapt_noise
+
+
+@pytest.mark.parametrize("n_experts", SIZES)
 @pytest.mark.parametrize("gating_input", ["bias", "position"])
 def test_other_gate_inputs_orders_and_dimensions(gating_input, n_experts):
     z = _data(8, targets=2)[..., :2]

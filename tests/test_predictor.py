@@ -67,7 +67,7 @@ def test_loading_a_corrupt_foreign_or_mismatched_file_gives_a_clear_error(tmp_pa
     ({"process_noise_range": (-1.0, 1.0)}, ValueError, r"process_noise_range\[0\]: expected a finite number > 0, got -1.0"),
     ({"measurement_noise_range": (0.0, 1.0)}, ValueError, r"measurement_noise_range\[0\]: expected a finite number > 0, got 0.0"),
     ({"expert_scale": float("inf")}, ValueError, r"expert_scale: expected a finite number > 0, got inf"),
-    ({"gating": "magic"}, ValueError, r"gating: expected one of 'fixed_share', 'paper', 'random', got 'magic'"),
+    ({"gating": "magic"}, ValueError, r"gating: expected one of 'fixed_share', 'paper', 'random', 'none', got 'magic'"),
     ({"dynamics": "kalman"}, ValueError, r"dynamics: expected one of 'rls', 'literal', 'fixed', got 'kalman'"),
     ({"gate_share": 1.5}, ValueError, r"gate_share: expected a finite number in \[0, 1.0\], got 1.5"),
     ({"temperature": "hot"}, TypeError, r"temperature: expected a real number, got str 'hot'"),

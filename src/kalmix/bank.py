@@ -201,11 +201,14 @@ def make_params(
     dynamics : {"rls", "literal", "fixed"}
         How each expert's system matrix is estimated (:mod:`kalmix.core.dynamics`).
         ``fixed`` keeps the prior (a plain constant-velocity/acceleration filter).
-    gating : {"fixed_share", "paper", "random"}
+    gating : {"fixed_share", "paper", "random", "none"}
         ``paper``: softmax gate of eq. (8) trained by eq. (9); ``fixed_share``: a
         softmax over the experts' running log-likelihoods with a share
         :math:`\\alpha_s` (tracking the best expert); ``random``: weights drawn at
-        random each frame, no learning (the paper's baseline).
+        random each frame, no learning (the paper's baseline); ``none``: no gate,
+        the weights stay as they start (equal) and nothing is scored (what a bank's
+        AKF family runs: the bank's rule combines its experts); needs
+        ``adapt_noise=False``.
     gating_input : {"velocity", "position", "bias"}
         Input :math:`x_k` of the paper gate (eq. 8).
     order : int
@@ -292,6 +295,9 @@ def make_params(
     )
     if not isinstance(adapt_noise, (bool, np.bool_)):
         raise TypeError(f"adapt_noise: expected a bool, got {type(adapt_noise).__name__} {adapt_noise!r}")
+    if gating == "none" and adapt_noise:
+        raise ValueError("adapt_noise: the eq. 11/12 noise feedback is driven by the gate's responsibilities, and "
+                         "gating='none' has no gate; pass adapt_noise=False with it")
 
     rng = np.random.default_rng(seed)
     n_q, n_r = noise_grid(k)
@@ -608,7 +614,7 @@ def make_bank(
                              "the AKF family of a bank does not have: the bank's rule combines the experts (rule, "
                              "rule_options); the paper's gated mixture is kalmix.core.mixture with make_params")
         akf = make_params(p, _check_int("n_akf", n_akf, 1), seed=seed, length_unit=unit,
-                          **{**(akf_options or {}), "adapt_noise": False})
+                          **{**(akf_options or {}), "gating": "none", "adapt_noise": False})
         families.append(Family("akf", akf))
     if isinstance(outlier_threshold, bool) or not isinstance(outlier_threshold, numbers.Real):
         raise TypeError(f"outlier_threshold: expected a number > 1 (inf: no screen), got "

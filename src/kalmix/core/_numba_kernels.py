@@ -627,7 +627,7 @@ def _next_gate(j, valid, learn, features, resp, eta_now, gating, gating_input, v
     steps[j] += 1
     if valid:
         valid_steps[j] += 1
-    if learn:
+    if learn and gating != 3:   # without a gate (3) they stay as they were
         for k in range(k_count):
             responsibilities[j, k] = resp[k]
         eta[j] = eta_now
@@ -844,26 +844,28 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records, o
         for i in range(p):
             features[i] = (z[i] - origin[j, i]) / kappa
 
-        # 1. scoring (eq. 10) and the adaptive rate
-        for k in range(k_count):
-            acc[k] = 0.0
-        for i in range(p):
+        # 1. scoring (eq. 10) and the adaptive rate; 2. gate learning (none without a gate: a bank's AKF family)
+        eta_now = 0.0
+        rate = 0.0
+        if gating != 3:
             for k in range(k_count):
-                e = z[i] - ep[i, k]
-                errors[i, k] = e
-                acc[k] += e * e
-        for k in range(k_count):
-            log_lik[k] = -log_scale[k] - acc[k] / (2.0 * expert_scale[k] ** 2)
-        dominant = _posterior(j, log_lik, weights, old_weights, log_weights, joint, resp)
-        dom_err = 0.0
-        for i in range(p):
-            dom_err += errors[i, dominant] ** 2
-        eta_now = _learning_rate(valid_steps[j], dom_err, eta_initial, eta_minimum, eta_decay, eta_sensitivity)
-        rate = eta_now if learn else 0.0
+                acc[k] = 0.0
+            for i in range(p):
+                for k in range(k_count):
+                    e = z[i] - ep[i, k]
+                    errors[i, k] = e
+                    acc[k] += e * e
+            for k in range(k_count):
+                log_lik[k] = -log_scale[k] - acc[k] / (2.0 * expert_scale[k] ** 2)
+            dominant = _posterior(j, log_lik, weights, old_weights, log_weights, joint, resp)
+            dom_err = 0.0
+            for i in range(p):
+                dom_err += errors[i, dominant] ** 2
+            eta_now = _learning_rate(valid_steps[j], dom_err, eta_initial, eta_minimum, eta_decay, eta_sensitivity)
+            rate = eta_now if learn else 0.0
 
-        # 2. gate learning and noise adaptation
-        _learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik, temperature, share,
-                    gate_weights, gate_input, weights, joint, logits)
+            _learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik, temperature, share,
+                        gate_weights, gate_input, weights, joint, logits)
         if adapt and learn:
             _adapt_noise(q, q_init, q_shrink * rate, resp, floor, reinflation, acc)
             _adapt_noise(r, r_init, r_shrink * rate, resp, floor, reinflation, acc)

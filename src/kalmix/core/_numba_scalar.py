@@ -284,24 +284,26 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records):
         for i in range(p):
             features[i] = (z[i] - origin[j, i]) / kappa
 
-        # 1. scoring (eq. 10) and the adaptive rate
-        for k in range(k_count):
-            squared = 0.0
+        # 1. scoring (eq. 10) and the adaptive rate; 2. gate learning (none without a gate: a bank's AKF family)
+        eta_now = 0.0
+        rate = 0.0
+        if gating != 3:
+            for k in range(k_count):
+                squared = 0.0
+                for i in range(p):
+                    e = z[i] - expert_predictions[j, k, i]
+                    errors[k, i] = e
+                    squared += e * e
+                log_lik[k] = -log_scale[k] - squared / (2.0 * expert_scale[k] ** 2)
+            dominant = _posterior(j, log_lik, weights, old_weights, log_weights, joint, resp)
+            dom_err = 0.0
             for i in range(p):
-                e = z[i] - expert_predictions[j, k, i]
-                errors[k, i] = e
-                squared += e * e
-            log_lik[k] = -log_scale[k] - squared / (2.0 * expert_scale[k] ** 2)
-        dominant = _posterior(j, log_lik, weights, old_weights, log_weights, joint, resp)
-        dom_err = 0.0
-        for i in range(p):
-            dom_err += errors[dominant, i] ** 2
-        eta_now = _learning_rate(valid_steps[j], dom_err, eta_initial, eta_minimum, eta_decay, eta_sensitivity)
-        rate = eta_now if learn else 0.0
+                dom_err += errors[dominant, i] ** 2
+            eta_now = _learning_rate(valid_steps[j], dom_err, eta_initial, eta_minimum, eta_decay, eta_sensitivity)
+            rate = eta_now if learn else 0.0
 
-        # 2. gate learning and noise adaptation
-        _learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik, temperature, share,
-                    gate_weights, gate_input, weights, joint, logits)
+            _learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik, temperature, share,
+                        gate_weights, gate_input, weights, joint, logits)
         if adapt and learn:
             for k in range(k_count):
                 factor = max(1.0 - q_shrink * rate * resp[k], 0.0)

@@ -48,7 +48,7 @@ from .kalman import cholesky_inverse
 __all__ = ["MixtureParams", "MixtureState", "StepOutput", "init_state", "step", "predict", "observation_matrix"]
 
 DYNAMICS = ("rls", "literal", "fixed")
-GATINGS = ("fixed_share", "paper", "random")
+GATINGS = ("fixed_share", "paper", "random", "none")
 
 
 @dataclass(frozen=True, eq=False)
@@ -388,27 +388,32 @@ def step(params: MixtureParams, state: MixtureState, measurement: np.ndarray) ->
     origin = _where(start, z, state.origin)
     features = (z - origin) / kappa
 
-    # 1. score the previous predictions (eq. 10) and the adaptive learning rate
-    with np.errstate(over="ignore"):  # squares of errors near 1e154 and beyond: see gate.posterior
-        errors = z[:, None, :] - state.expert_predictions
-        log_lik = gate.log_expert_likelihood(errors, params.expert_scale)
-        responsibilities = gate.posterior(state.weights, log_lik)
-        dominant = first_max(state.weights)
-        dominant_error = np.take_along_axis(errors, dominant[:, None, None], axis=1)[:, 0]
-        eta = gate.learning_rate(
-            state.valid_steps, ordered_sum(dominant_error**2, axis=-1),
-            params.eta_initial, params.eta_minimum, params.eta_decay_steps, params.eta_sensitivity,
-        )
-    rate = np.where(learn, eta, 0.0)
-
-    # 2. gate learning (eq. 9 or fixed share) and noise adaptation (eq. 11/12)
+    # 1. score the previous predictions (eq. 10) and the adaptive learning rate; 2. gate learning (eq. 9 or
+    # fixed share). Without a gate ("none": a bank's AKF family, whose rule combines the experts) the weights,
+    # responsibilities and rate stay as they were.
     gate_weights, weights = state.gate_weights, state.weights
+    responsibilities, eta = state.responsibilities, state.eta
+    rate = np.zeros(state.eta.shape)
+    if params.gating != "none":
+        with np.errstate(over="ignore"):  # squares of errors near 1e154 and beyond: see gate.posterior
+            errors = z[:, None, :] - state.expert_predictions
+            log_lik = gate.log_expert_likelihood(errors, params.expert_scale)
+            responsibilities = gate.posterior(state.weights, log_lik)
+            dominant = first_max(state.weights)
+            dominant_error = np.take_along_axis(errors, dominant[:, None, None], axis=1)[:, 0]
+            eta = gate.learning_rate(
+                state.valid_steps, ordered_sum(dominant_error**2, axis=-1),
+                params.eta_initial, params.eta_minimum, params.eta_decay_steps, params.eta_sensitivity,
+            )
+        rate = np.where(learn, eta, 0.0)
     if params.gating == "paper":
         gate_weights = gate.paper_gate_update(gate_weights, rate, responsibilities, state.weights, state.gate_input)
     elif params.gating == "fixed_share":
         with np.errstate(over="ignore"):
             shared = gate.fixed_share_update(state.weights, log_lik, params.temperature, params.gate_share)
         weights = _where(learn, shared, state.weights)
+
+    # noise adaptation (eq. 11/12)
     process_noise, measurement_noise = state.process_noise, state.measurement_noise
     if params.adapt_noise:
         process_noise = _where(learn, gate.adapt_noise(

@@ -2,9 +2,10 @@
 
 The experts are those of :mod:`kalmix.core.mixture` (``rls`` / ``literal`` / ``fixed``
 dynamics, each with its own noise levels); only their predictions leave the family,
-so the gate of :class:`~kalmix.core.mixture.MixtureParams` is not used here (the
-family is built with ``adapt_noise=False``: the paper's eq. 11/12 feedback from the
-gate belongs to the paper's own mixture, :func:`kalmix.core.mixture.step`).
+so it has no gate: :func:`kalmix.bank.make_bank` builds it with ``gating="none"``
+(nothing is scored or learned for a gate, which took ~15 % of the family's time) and
+``adapt_noise=False`` (the paper's eq. 11/12 feedback from the gate belongs to the
+paper's own mixture, :func:`kalmix.core.mixture.step`).
 
 The AKF is frame-based: a row is one frame, whatever its time stamp, and a present
 but not learned row (missing, or rejected as a glitch) advances the filters one frame
