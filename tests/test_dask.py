@@ -387,6 +387,7 @@ def _archive(tmp_path, n_files=2):
     ("save_every", "--save-every: the Dask engine keeps no state file"),
     ("stdin", "--engine dask reads files (a directory or a glob), not stdin"),
     ("no_match", "INPUT: no file matches"),
+    ("glob_matches_directory", "matches the directory"),
     ("empty_dir", "holds no .parquet, .pq, .csv or .csv.gz file"),
     ("missing_column", "has no column 'y': expected the columns"),
     ("mixed_formats", "mixes CSV"),
@@ -418,6 +419,9 @@ def test_bad_input_is_one_line_before_any_work(cli, tmp_path, case, message):
         source = "-"
     elif case == "no_match":
         source = str(tmp_path / "nothing" / "*.parquet")
+    elif case == "glob_matches_directory":   # day=0's files were left out, unsaid: only top.csv was read
+        shutil.copy(os.path.join(archive, "day=0", "part-000.csv"), os.path.join(archive, "top.csv"))
+        source = os.path.join(archive, "*")
     elif case == "empty_dir":
         os.makedirs(tmp_path / "empty")
         source = str(tmp_path / "empty")

@@ -94,8 +94,15 @@ def archive_files(source: str) -> tuple[list[str], str]:
         if not files:
             raise ValueError(f"INPUT: the directory {source!r} holds no .parquet, .pq, .csv or .csv.gz file")
     else:
-        files = sorted(f for f in glob.glob(source, recursive=True)
-                       if os.path.isfile(f) and not os.path.basename(f).startswith((".", "_")))
+        matches = [f for f in glob.glob(source, recursive=True) if not os.path.basename(f).startswith((".", "_"))]
+        for match in sorted(f for f in matches if os.path.isdir(f)):   # its track files would be left out unsaid
+            inside = next((os.path.join(root, name) for root, _, names in os.walk(match) for name in sorted(names)
+                           if _format_of(name) is not None and not name.startswith((".", "_"))), None)
+            if inside is not None:
+                raise ValueError(f"INPUT: the glob {source!r} matches the directory {match!r}, whose track files "
+                                 f"(e.g. {inside!r}) a glob does not read; give the directory itself, or a glob "
+                                 "that matches the files (e.g. 'DIR/**/*.parquet')")
+        files = sorted(f for f in matches if os.path.isfile(f))
         if not files:
             raise ValueError(f"INPUT: no file matches {source!r}")
         other = [f for f in files if _format_of(f) is None]
