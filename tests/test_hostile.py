@@ -183,6 +183,16 @@ def test_evaluate_with_no_tuning_part_says_the_peers_are_tuned_in_hindsight(cli,
     assert "tuning on the scored rows themselves" in result.output and "first 0%" not in result.output
 
 
+def test_evaluate_says_a_small_tuning_fraction_as_given(cli, tracks_csv):
+    """Before: --tuning-fraction 0.004 was said 'the first 0% of each track', as if there were no tuning part
+    (here the error that 40-row tracks leave it no rows)."""
+    result = _run(cli, ["evaluate", tracks_csv, "--experts", "2", "--no-peers", "--tuning-fraction", "0.004",
+                        "--no-per-track"])
+    assert result.exit_code == 1
+    assert "the first 0.4% of each track (--tuning-fraction) holds no two" in result.output
+    assert "first 0%" not in result.output
+
+
 def test_an_all_empty_file_warns(cli, tmp_path):
     path = tmp_path / "empty_positions.csv"
     path.write_text("id,t,x,y\n1,0,,\n1,1,nan,nan\n2,0,,\n")

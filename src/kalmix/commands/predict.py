@@ -584,7 +584,7 @@ def format_result(result, per_track=True) -> str:
     """The text tables printed by ``kalmix evaluate``."""
     streams = result.streams
     n_rows = int(streams.lengths.sum())
-    tuning = (f"first {result.tuning_fraction:.0%} of each track tunes the peers and is not scored"
+    tuning = (f"first {100 * result.tuning_fraction:.3g}% of each track tunes the peers and is not scored"
               if result.tuning_fraction > 0 else
               "no tuning part (--tuning-fraction 0): the peers are tuned on the scored rows, in hindsight")
     bank = result.tuned.get("mixture", {}).get("bank", {})

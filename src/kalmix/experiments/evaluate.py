@@ -601,7 +601,7 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     tuned: dict[str, Any] = {}
     tune_scored = tuning if tuning.any() else scored
     _require_errors(values, tune_scored, "tune the predictors on",
-                    f"the first {tuning_fraction:.0%} of each track (--tuning-fraction)", track_lengths)
+                    f"the first {100 * tuning_fraction:.3g}% of each track (--tuning-fraction)", track_lengths)
     _require_errors(values, scored, "score", "the rest of each track", track_lengths)
     finite = np.isfinite(values).all(axis=-1)
     if horizon > 1 and not (finite & _shift(scored & finite, horizon, False)).any():
@@ -653,7 +653,7 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     predictions["no prediction"] = (carried, carried)
 
     for name, order, degree in (("CV Kalman", 2, 1), ("CA Kalman", 3, 2)):
-        log(f"{name}: tuning on the first {tuning_fraction:.0%} of each track" if tuning.any() else
+        log(f"{name}: tuning on the first {100 * tuning_fraction:.3g}% of each track" if tuning.any() else
             f"{name}: tuning on the scored rows themselves (no tuning part: in hindsight)")
         best = _tune_fixed(order, degree, peer_unit, values, tune_scored)
         tuned[name] = best
