@@ -113,6 +113,26 @@ def test_a_target_at_rest_that_starts_to_move(start, unit):
     np.testing.assert_array_equal(result.forecasts, engine.run(bank, z, t).forecasts)
 
 
+@pytest.mark.parametrize("size", [1e3, 1e6, 1e300])
+def test_a_glitch_on_a_track_in_exact_motion_is_an_outlier(size):
+    """A noise-free track in uniform motion (simulated, interpolated): its extrapolation is exact, so the screen's
+    scale is 0 and it tested nothing; a glitch was learned by everything, and one at 1e300 ruined the track for
+    good (helper-27: a forecast of -6.5e277 and std 1e150 370 rows later, the truth 40). The distance the target
+    moves in a step is now the scale: the glitch is an outlier, and the track goes on as if it were missing."""
+    t = np.arange(400) * 0.1
+    z = np.stack([t, np.zeros(400)], axis=-1)[:, None]
+    glitched = z.copy()
+    glitched[30, 0, 0] = size
+    bank = make_bank(2, length_unit=0.05, time_unit=0.1)
+    hit, reference = ce.run(bank, glitched, t[:, None]), engine.run(bank, glitched, t[:, None])
+    np.testing.assert_array_equal(hit.forecasts, reference.forecasts)
+    assert hit.state.screen.outliers.tolist() == [1]
+    missing = z.copy()
+    missing[30] = np.nan
+    np.testing.assert_array_equal(hit.forecasts, ce.run(bank, missing, t[:, None]).forecasts)
+    assert np.abs(hit.forecasts[40:] - z[40:]).max() < 1e-3
+
+
 def test_a_slow_pixel_target_is_not_rejected():
     """A target moving one pixel every 10 or 20 rows (distances 0 but at a step): its scale stays ~0 for the
     screen, which tests nothing; it was rejected twice and restarted at every step (15.5 outliers a track)."""

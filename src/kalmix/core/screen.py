@@ -14,10 +14,14 @@ from it, as after a time gap; the rule keeps what it learned).
 The screen sees only measurements and times, so it is the same whatever the bank, and
 it needs no knowledge of the data's units: ``s`` is learned per target. A distance below
 ``ZERO`` (1e-9) of the last accepted position's largest coordinate is rounding, i.e. 0. The screen tests a row
-only once ``s`` is above that: a target at rest through its warm-up (the same position on
-every row: a moored vessel, a ball before a kick, quantised positions) has ``s = 0``, and
-every move would be an outlier; its first moves are learned instead (so a glitch on a
-target at rest is learned too: with no motion there is no scale to judge it by).
+only once ``s`` is above that, or, for a target whose extrapolation has been exact (``s = 0``:
+a simulated or interpolated track in uniform motion), once the distance it moves in the step,
+``|v| dt``, is: that distance is then the scale (``d > threshold |v| dt`` is an outlier; without
+it a glitch on such a track was learned by everything, and one at 1e300 ruined it for good). A
+target at rest through its warm-up (the same position on every row: a moored vessel, a ball
+before a kick, quantised positions) has neither, and every move would be an outlier; its first
+moves are learned instead (so a glitch on a target at rest is learned too: with no motion there
+is no scale to judge it by).
 
 **The warm-up audit.** The rows that teach ``s`` are not tested, so a glitch among a
 target's first ~7 rows would be learned by everything: the scale, the experts (whose fits
@@ -96,11 +100,14 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
     with np.errstate(over="ignore", invalid="ignore"):
         guess = state.position + state.velocity * dt[:, None]
         distance = np.sqrt(ordered_sum((z - guess) ** 2))   # in index order, as the kernel adds
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", over="ignore"):
         # the last accepted position's largest coordinate (a glitch must not set it); the max is exact in any order
         tiny = ZERO * np.max(np.abs(np.where(moving[:, None], state.position, 0.0)), axis=-1)
-        checked = present & moving & (state.count >= params.warmup) & (state.scale > tiny) & ~gap
-        wild = checked & ~(distance <= params.threshold * state.scale)
+        # no error to judge by (a target in exact motion): the distance it moves in the step is the scale
+        motion = np.sqrt(ordered_sum((state.velocity * dt[:, None]) ** 2))
+        reference = np.where(state.scale > tiny, state.scale, motion)
+        checked = present & moving & (state.count >= params.warmup) & (reference > tiny) & ~gap
+        wild = checked & ~(distance <= params.threshold * reference)
     rejects = np.where(wild, state.rejects + 1, 0.0)
     restart = (wild & (rejects >= params.max_rejects)) | gap
     outlier = wild & ~restart
