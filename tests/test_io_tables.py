@@ -136,6 +136,32 @@ def test_datetime_time_in_parquet(tmp_path):
     assert np.diff(read_tracks(tmp_path / "d.parquet")["time"]).tolist() == [2.0]
 
 
+def test_dates_are_read_to_the_float_nearest_the_instant(tmp_path):
+    """Dates (ISO text, datetime and duration columns) are seconds to the float nearest the instant, as the same
+    instants written as numbers. Dividing the nanoseconds as one float lost up to ~2.4e-7 s (helper-27: steps of
+    0.25 s read as 0.25000024 / 0.24999976, and a 3-step gap rule then split a track where the numbers did not)."""
+    from kalmix.io.tables import iso_seconds
+
+    instants = 1714564800 + np.array([0.0, 0.25, 0.5, 1.25, 1.5])   # exactly representable
+    text = ["2024-05-01T12:00:00Z", "2024-05-01T12:00:00.25Z", "2024-05-01T14:00:00.5+02:00",
+            "2024-05-01T12:00:01.250Z", "2024-05-01T12:00:01.5"]
+    np.testing.assert_array_equal(iso_seconds(text), instants)
+    nanoseconds = 1714564800 * 10**9 + np.array([0, 250, 500, 1250, 1500]) * 10**6
+    dates = pd.to_datetime(nanoseconds).tz_localize("UTC").tz_convert("Asia/Kolkata")
+    raw = pd.DataFrame({"time": dates, "x": np.arange(5.0)})
+    raw.to_parquet(tmp_path / "d.parquet")
+    np.testing.assert_array_equal(read_tracks(tmp_path / "d.parquet")["time"], instants)
+    durations = pd.DataFrame({"time": pd.to_timedelta(instants - instants[0], unit="s") + pd.Timedelta(days=20000),
+                              "x": np.arange(5.0)})
+    durations.to_parquet(tmp_path / "t.parquet")
+    np.testing.assert_array_equal(read_tracks(tmp_path / "t.parquet")["time"], instants - instants[0] + 1.728e9)
+    path = write(tmp_path, "t,x\n" + "".join(f"{t},{i}\n" for i, t in enumerate(text)))
+    np.testing.assert_array_equal(read_tracks(path)["time"], instants)
+    seconds = iso_seconds(["1969-12-31T23:59:59.75Z", "2262-04-11T23:47:16.854775807Z", None])
+    np.testing.assert_array_equal(seconds[:1], [-0.25])
+    assert seconds[1] == 9223372036.854775807 and np.isnan(seconds[2])
+
+
 def test_missing_column_lists_available(tmp_path):
     path = write(tmp_path, "t,x,y\n0,1,2\n")
     with pytest.raises(ValueError, match=r"\['z'\] not found; available columns: \['t', 'x', 'y'\]"):
