@@ -69,6 +69,11 @@ def test_engine_arguments_are_checked_by_name(run, call, message):
     (("a", 0.0, ["1", "x"]), ValueError, r"z: expected numbers .*got \['1', 'x'\]"),
     ((["a"], 0.0, [1.0, 2.0]), TypeError, r"track_id: expected a track id .*got list \['a'\]"),
     (("a", "noon", [1.0, 2.0]), ValueError, "time: expected a number or a date, got 'noon'"),
+    # helper-27: True and 1+1j ran at time 1.0; a UUID or a Period id was taken and then refused by save()
+    (("a", True, [1.0, 2.0]), ValueError, "time: expected a number or a date, got True"),
+    (("a", 1 + 1j, [1.0, 2.0]), ValueError, r"time: expected a number or a date, got \(1\+1j\)"),
+    ((__import__("uuid").UUID(int=5), 0.0, [1.0, 2.0]), TypeError, "track_id: expected a track id .*got UUID"),
+    ((pd.Period("2024-01"), 0.0, [1.0, 2.0]), TypeError, "track_id: expected a track id .*got Period"),
 ])
 def test_step_row_names_a_bad_argument(args, error, message):
     predictor = TrackPredictor(StreamConfig(bank="kinematic", length_unit=1.0))
@@ -218,6 +223,32 @@ def test_a_state_resumed_with_renamed_positions_is_refused(cli, tracks_csv, tmp_
 def _table(n=8, ids=1, **columns):
     base = {"track_id": ids, "time": np.arange(float(n)), "x": np.arange(float(n)), "y": 0.0}
     return pd.DataFrame({**base, **columns})
+
+
+def test_step_rows_refuses_text_ids_and_two_dimensional_times():
+    """helper-27: step_rows("ab", ...) took the letters for the rows' ids, and times of shape (1, 2) were flattened."""
+    predictor = TrackPredictor(StreamConfig(bank="kinematic", length_unit=1.0))
+    with pytest.raises(TypeError, match="track_ids: expected a sequence of track ids, one per row, got the text 'ab'"):
+        predictor.step_rows("ab", [0.0, 1.0], [[1.0, 2.0], [1.0, 2.0]])
+    with pytest.raises(ValueError, match=r"times: expected one time per row, a 1-D sequence, got shape \(1, 2\)"):
+        predictor.step_rows(["a", "b"], [[0.0, 1.0]], [[1.0, 2.0], [1.0, 2.0]])
+    assert predictor.rows == 0 and not predictor.track_ids
+
+
+def test_masked_values_are_missing_and_iso_text_times_are_dates():
+    """helper-27: a masked array's masked value was learned (np.asarray keeps it), and step_row refused ISO 8601
+    text, which a file and stdin take."""
+    z = np.ma.masked_array([[0.0, 0.0], [1.0, 0.5], [99.0, 99.0], [3.0, 1.5]], mask=[[0, 0], [0, 0], [1, 1], [0, 0]])
+    masked, nan = TrackPredictor(StreamConfig(length_unit=0.1)), TrackPredictor(StreamConfig(length_unit=0.1))
+    got = masked.step_rows(["a"] * 4, [0.0, 1.0, 2.0, 3.0], z)
+    want = nan.step_rows(["a"] * 4, [0.0, 1.0, 2.0, 3.0], z.filled(np.nan))
+    assert all(np.array_equal(a.next, b.next) for a, b in zip(got, want))
+    text, dates = TrackPredictor(StreamConfig(length_unit=0.1)), TrackPredictor(StreamConfig(length_unit=0.1))
+    stamps = ["2024-05-01T12:00:00Z", "2024-05-01T12:00:00.5Z", "2024-05-01T14:00:01+02:00"]
+    for k, stamp in enumerate(stamps):
+        a = text.step_row("a", stamp, [k, 0.0])
+        b = dates.step_row("a", pd.Timestamp(stamp, tz="UTC") if k < 2 else pd.Timestamp(stamp), [k, 0.0])
+        assert a.time == b.time == 1714564800 + 0.5 * k and np.array_equal(a.next, b.next, equal_nan=True)
 
 
 def test_a_table_with_tuple_ids_is_refused_as_step_row_refuses_them():

@@ -70,7 +70,6 @@ import math
 import numbers
 import os
 import warnings
-from collections.abc import Hashable
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, NamedTuple
 
@@ -459,6 +458,8 @@ def _id_to_json(value):
         import pandas as pd
 
         return (pd.Timestamp if isinstance(value, np.datetime64) else pd.Timedelta)(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
     if isinstance(value, (np.integer,)):
         return int(value)
     if isinstance(value, (np.floating,)):
@@ -489,6 +490,16 @@ def _row_times(times) -> np.ndarray:
     import pandas as pd
 
     given = np.asarray(times)
+    if given.dtype.kind in "bc":   # True read as 1.0, 1+1j as 1.0 (numpy's warning only)
+        raise TypeError(f"expected numbers or dates, got {given.dtype} values")
+    if given.dtype.kind in "US" or (given.dtype.kind == "O" and given.size and all(isinstance(t, str)
+                                                                                    for t in given.flat)):
+        try:   # text: numbers, or ISO 8601 dates as a file and stdin take them
+            return given.astype(np.float64)
+        except ValueError:
+            from .io.tables import iso_seconds
+
+            return iso_seconds(given.reshape(-1)).reshape(given.shape)
     if given.dtype.kind == "O" and given.size and all(
             isinstance(t, (datetime.datetime, datetime.timedelta, np.datetime64, np.timedelta64)) for t in given.flat):
         given = pd.Series(given.reshape(-1)).infer_objects()
@@ -501,7 +512,10 @@ def _row_times(times) -> np.ndarray:
 
 
 def _measurements(values) -> np.ndarray:
-    """Positions as float64, with pandas' NA and None as NaN (a missing measurement) as in a table."""
+    """Positions as float64, with pandas' NA and None as NaN (a missing measurement) as in a table, and a masked
+    array's masked values too (``np.asarray`` kept the value under the mask, which was then learned)."""
+    if isinstance(values, np.ma.MaskedArray):
+        return np.ma.asarray(values, dtype=np.float64).filled(np.nan)
     try:
         return np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError):
@@ -515,8 +529,14 @@ def _measurements(values) -> np.ndarray:
 
 
 def _keyable(key) -> bool:
-    """Whether ``key`` (from :func:`_id_to_json`) can be a track id: hashable and kept by the state file."""
-    return not isinstance(key, (tuple, frozenset, complex)) and isinstance(key, Hashable)
+    """Whether ``key`` (from :func:`_id_to_json`) can be a track id: one the state file keeps (text, a number, a
+    date, time or duration, a decimal, bytes; :func:`_id_to_meta`). Others (a UUID, a Period, a tuple) were taken
+    and then refused by ``save``, at the end of a long stream."""
+    import datetime
+    import decimal
+
+    return isinstance(key, (str, int, float, bytes, decimal.Decimal, datetime.date, datetime.time,
+                            datetime.timedelta))
 
 
 def _track_key(value, where: str):
@@ -902,7 +922,12 @@ class TrackPredictor:
             Per row, its :class:`RowPrediction`, or None for a skipped row (at or before its
             track's last time).
         """
+        if isinstance(track_ids, (str, bytes)):   # its letters were taken for the rows' ids
+            raise TypeError(f"track_ids: expected a sequence of track ids, one per row, got the text {track_ids!r:.80} "
+                            "(one row: step_row)")
         ids = list(track_ids)
+        if np.ndim(times) > 1:
+            raise ValueError(f"times: expected one time per row, a 1-D sequence, got shape {np.shape(times)}")
         try:
             times = _row_times(times).reshape(-1)
         except (TypeError, ValueError):

@@ -601,10 +601,10 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
                     continue
                 result = next(results)
                 if result is None:
-                    warn("skipped", f"line {number}: time {time!r} is not after track {track!r}'s previous time; "
+                    warn("skipped", f"line {number}: time {time!r} is not after the previous time of track {track!r}; "
                                     "row skipped")
                 elif result.time_glitch:
-                    warn("glitch", f"line {number}: time {time!r} comes back before track {track!r}'s jump ahead; "
+                    warn("glitch", f"line {number}: time {time!r} comes back before the jump ahead of track {track!r}; "
                                    "that jump's timestamp was taken as wrong and the track goes on")
         if rows:
             run.guard.tick()
