@@ -188,7 +188,7 @@ def test_a_signal_while_stdin_rows_are_stepped_waits_for_their_output_and_warnin
     monkeypatch.setattr(TrackPredictor, "step_rows", step_rows)
     result = _run(cli, ["predict", "-", *FAST, "--state", state, "-o", out], input="t,x\n0,0\n1,1\n1,1\n2,2\n")
     assert result.exit_code == 128 + signal.SIGTERM
-    assert "line 4: time 1.0 is not after track 0's previous time; row skipped" in result.stderr
+    assert "line 4: time 1.0 is not after the previous time of track 0; row skipped" in result.stderr
     assert "stopped by SIGTERM after 3 input row(s)" in result.stderr
     assert open(out, "rb").read().count(b"\n") == 1 + 2
     assert TrackPredictor.load(state).rows == 3
@@ -258,10 +258,19 @@ def test_an_output_that_does_not_match_the_state_is_refused(cli, feed_csv, tmp_p
 def test_a_parquet_output_is_not_continued(cli, feed_csv, tmp_path):
     state, out = str(tmp_path / "s.npz"), str(tmp_path / "out.parquet")
     args = ["predict", feed_csv, *FAST, "--chunk-rows", "50", "--state", state, "-o", out]
-    assert _run(cli, args, env={TEST_HOOK: "SIGINT:2"}).exit_code == 130
+    stopped = _run(cli, args, env={TEST_HOOK: "SIGINT:2"})
+    assert stopped.exit_code == 130
     assert len(pd.read_parquet(out)) == 50  # a valid file of the committed chunk
+    # helper-27: the stop said "the same command resumes", which then failed as below; it says what does
+    assert "the same command with a new -o name resumes (a Parquet file cannot be continued" in stopped.stderr
     result = _run(cli, args)
     assert result.exit_code == 1 and "a Parquet file cannot be continued" in result.stderr
+    rest = str(tmp_path / "rest.parquet")
+    assert _run(cli, [*args[:-1], rest]).exit_code == 0
+    whole = _run(cli, ["predict", feed_csv, *FAST, "--chunk-rows", "50", "-o", str(tmp_path / "whole.parquet")])
+    assert whole.exit_code == 0
+    both = pd.concat([pd.read_parquet(out), pd.read_parquet(rest)], ignore_index=True)
+    pd.testing.assert_frame_equal(both, pd.read_parquet(tmp_path / "whole.parquet"))
 
 
 # ------------------------------------------------------------------- 3: one writer per state file

@@ -325,6 +325,7 @@ class Output:
         self.header_written = False
         self._handle = None
         self._parquet = None
+        self._parquet_empty = None   # an empty table, written at close if no rows come (see write_frame)
         self._regular = False
         self._failed = False
         self._created = False
@@ -389,6 +390,12 @@ class Output:
             import pyarrow as pa
             import pyarrow.parquet as pq
             table = pa.Table.from_pandas(frame, preserve_index=False)
+            if self._parquet is None and not len(frame):
+                # no rows (a resumed run's chunks already done): its empty columns have no type, and a writer made
+                # from them refused the first real rows ("schema does not match"); the file is made at the first
+                # rows, or from this at close if none come
+                self._parquet_empty = table
+                return
             try:
                 if self._parquet is None:
                     self._parquet = pq.ParquetWriter(self.path, table.schema)
@@ -473,6 +480,7 @@ class Output:
         """Close after a failure: a file this run created and wrote nothing to is removed, a file that was there
         before and not written to yet is left as it was (a run that fails before its first row changes nothing)."""
         self._empty_first = False
+        self._parquet_empty = None
         self.close()
         if self._created and self.bytes == 0:
             with contextlib.suppress(OSError):
@@ -483,6 +491,14 @@ class Output:
             with contextlib.suppress(OSError):
                 self._handle.truncate(0)
         self._empty_first = False
+        if self._parquet is None and self._parquet_empty is not None and not self._failed:
+            import pyarrow.parquet as pq
+
+            try:
+                pq.write_table(self._parquet_empty, self.path)
+            except OSError as error:
+                raise ValueError(f"--output: cannot write {self.path!r}: {error}") from None
+            self._parquet_empty = None
         if self._parquet is not None:
             with contextlib.suppress(OSError) if self._failed else contextlib.nullcontext():
                 self._parquet.close()

@@ -109,6 +109,10 @@ class Run:
                        "or NaN): nothing was learned and every prediction is empty", err=True)
         if not self.state_path:
             saved = "no --state, nothing to resume from"
+        elif (self.saved or self.resuming) and self.sink is not None and self.sink.fmt == "parquet" and self.output:
+            saved = (f"state {'saved to' if self.saved else 'file unchanged:'} {self.state_path}: the same command "
+                     f"with a new -o name resumes (a Parquet file cannot be continued: {self.output} keeps the rows "
+                     "so far, the new one gets the rest)")
         elif self.saved or self.resuming:
             saved = (f"state {'saved to' if self.saved else 'file unchanged:'} {self.state_path}: the same command "
                      "resumes")
