@@ -273,6 +273,18 @@ def test_a_parquet_output_is_not_continued(cli, feed_csv, tmp_path):
     pd.testing.assert_frame_equal(both, pd.read_parquet(tmp_path / "whole.parquet"))
 
 
+def test_temporaries_of_a_killed_save_are_removed_by_the_next_holder_of_the_lock(cli, feed_csv, tmp_path):
+    """helper-27: a SIGKILL in the middle of a save leaves its temporary file, and nothing removed them."""
+    state = str(tmp_path / "s.npz")
+    stale = [tmp_path / ".s.npz.ab12cd_9.tmp", tmp_path / ".s.npz.zzzzzzzz.tmp"]
+    kept = [tmp_path / ".s.npz.notes.tmp", tmp_path / ".other.npz.ab12cd_9.tmp", tmp_path / "s.npz.ab12cd_9.tmp"]
+    for path in stale + kept:
+        path.write_bytes(b"x" * 100)
+    result = _run(cli, ["predict", feed_csv, *FAST, "--state", state, "-o", str(tmp_path / "out.csv")])
+    assert result.exit_code == 0
+    assert not any(path.exists() for path in stale) and all(path.exists() for path in kept)
+
+
 # ------------------------------------------------------------------- 3: one writer per state file
 def test_a_second_writer_on_a_state_file_gets_a_clear_error(cli, tmp_path):
     state = str(tmp_path / "s.npz")

@@ -25,6 +25,7 @@ import gzip
 import json
 import math
 import os
+import re
 import signal
 import stat
 import sys
@@ -267,6 +268,7 @@ class StateLock:
                 self._fd = None
                 raise ValueError(f"--state: {self.path!r} is in use by another kalmix process (it holds "
                                  f"{self.lock_path!r}); wait for it to finish or give another --state file") from None
+        self.removed = remove_stale_temporaries(self.path)
         return self
 
     def __exit__(self, *exc) -> bool:
@@ -274,6 +276,26 @@ class StateLock:
             os.close(self._fd)
             self._fd = None
         return False
+
+
+def remove_stale_temporaries(path) -> int:
+    """Remove the temporary files that saves of the state file ``path`` killed mid-write left beside it
+    (``.NAME.XXXXXXXX.tmp``, :func:`kalmix.archive.write_archive`); how many. Only the holder of the state's
+    lock saves, so none of them is in use: each is a dead process's (helper-27: 25 SIGKILLs left two, one of
+    5.5 MB, and nothing ever removed them)."""
+    directory, name = os.path.split(os.path.realpath(path))
+    pattern = re.compile(re.escape(f".{name}.") + r"[a-z0-9_]{8}\.tmp")
+    removed = 0
+    try:
+        names = os.listdir(directory)
+    except OSError:
+        return 0
+    for entry in names:
+        if pattern.fullmatch(entry):
+            with contextlib.suppress(OSError):
+                os.unlink(os.path.join(directory, entry))
+                removed += 1
+    return removed
 
 
 def _count_newlines(path: str, upto: int | None = None) -> int:
