@@ -575,6 +575,27 @@ def test_a_state_file_made_with_gate_options_still_resumes(tmp_path):
     np.testing.assert_array_equal(got, expected[20:])
 
 
+def test_a_gap_rule_that_cuts_tracks_into_pieces_says_what_to_do(cli, tmp_path):
+    """helper-27: on tracks sampled at exponential intervals the default gap rule split 15 % of the rows (segments of
+    ~7 rows), and the rows before those splits got intervals holding 75-85 % of the measurements, silently. Such a
+    run now says so, and what to use instead; a regular track, or --max-gap none, says nothing."""
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.exponential(0.1, 400) + 0.01)
+    irregular = pd.DataFrame({"track_id": "a", "time": t, "x": t + rng.normal(0, 0.05, 400), "y": 0.0})
+    regular = irregular.assign(time=np.arange(400) * 0.1)
+    for frame, args, noted in ((irregular, [], True), (irregular, ["--max-gap", "none"], False), (regular, [], False)):
+        path = str(tmp_path / "in.csv")
+        frame.to_csv(path, index=False)
+        result = _run(cli, ["predict", path, *FAST, "--length-unit", "0.05", *args])
+        assert result.exit_code == 0, result.output
+        said = "the gap rule (--max-gap auto: 3 x each track's reference interval) started a new segment at" \
+            in result.stderr
+        assert said == noted, (args, result.stderr)
+        if noted:
+            splits = int(_read(result.stdout)["segment"].max())
+            assert f"at {splits} of 400 rows" in result.stderr and "--max-gap none --reach 8" in result.stderr
+
+
 def test_csv_output_round_trips_every_value_and_quotes_what_needs_it():
     """The Arrow writer: floats round-trip exactly, integral floats keep their ".0" (read back as floats, not
     integers), NaN is an empty field; ids or names with a comma, a quote or a line end are quoted (pandas)."""

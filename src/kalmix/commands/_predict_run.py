@@ -40,6 +40,15 @@ STDIN_WARNINGS = 10
 _MAX_PIECES = 64
 
 
+#: A run whose gap rule splits at least this share of its rows says so (a note with what to do instead).
+SPLIT_NOTE = 0.05
+
+
+def _gap_splits(engine) -> int:
+    """Segments started by the gap rule so far, over the engine's tracks (a track's first is not one)."""
+    return 0 if engine is None else sum(max(gaps.segment, 0) for gaps in engine.gaps.values())
+
+
 class Run:
     """One ``kalmix predict`` run: the engine, its output and its state file, committed together."""
 
@@ -52,6 +61,7 @@ class Run:
         self.skipped0 = engine.skipped if engine is not None else 0
         self.glitches0 = engine.time_glitches if engine is not None else 0
         self.outliers0 = engine.outliers if engine is not None else 0
+        self.splits0 = _gap_splits(engine)
         self.stopped: Interrupted | None = None
         self.closed = False
         self.measured = 0   # input rows of this run with every position present
@@ -104,6 +114,15 @@ class Run:
             click.echo(f"kalmix: {engine.outliers - self.outliers0} outlier(s): glitches far from their track's "
                        "extrapolation, not learned (one in a track's first rows: the track started again after it); "
                        "their predictions are still written", err=True)
+        splits = _gap_splits(engine) - self.splits0
+        if (engine is not None and engine.config.max_gap is None and math.isfinite(engine.config.max_gap_factor)
+                and self.rows >= 100 and splits >= SPLIT_NOTE * self.rows):
+            click.echo(f"kalmix: note: the gap rule (--max-gap auto: {engine.config.max_gap_factor:g} x each track's "
+                       f"reference interval) started a new segment at {splits} of {self.rows} rows "
+                       f"({splits / self.rows:.0%}), and the experts start again at each; the rows before them get "
+                       "no calibrated interval. If such steps are the sampling (irregular reports), not lost "
+                       "targets, --max-gap none --reach 8 predicts across them (README, 'Missing data and time "
+                       "gaps')", err=True)
         if self.rows and not self.measured and self.stopped is None:
             click.echo(f"kalmix: warning: none of the {self.rows} input row(s) has a position (every value empty "
                        "or NaN): nothing was learned and every prediction is empty", err=True)
