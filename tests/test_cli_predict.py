@@ -337,7 +337,7 @@ def test_a_replayed_feed_warns_in_a_few_lines_and_writes_the_header(cli, tmp_pat
     again = _run(cli, ["predict", "-", "--state", state, "--no-progress"], input=feed)
     assert again.exit_code == 0, again.output
     lines = again.stderr.splitlines()
-    assert sum("is not after track" in line for line in lines) == 10
+    assert sum("is not after the previous time of track" in line for line in lines) == 10
     assert sum("further warnings like the last are only counted" in line for line in lines) == 1
     assert f"skipped {len(data)} row(s) at or before" in again.stderr
     assert sum("no time, row skipped" in line for line in lines) == 1 and "skipped 1 row(s) without a time" in again.stderr
