@@ -188,6 +188,9 @@ def _user_errors():
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("always", RuntimeWarning)
+            # the command's own warnings (warnings.warn: UserWarning) are said every time: an "ignore" filter a
+            # library or an earlier command in the same process added hid them (helper-26: an order-dependent test)
+            warnings.simplefilter("always", UserWarning)
             warnings.showwarning = show
             yield
     except (ValueError, TypeError, FileNotFoundError, ImportError) as error:
@@ -426,8 +429,8 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
             raise ValueError(f"{'--experts' if n_experts is not None else '--option'}: sets the AKF family, "
                              f"and --bank {kind} has none (use --bank mixed, mixed+ar, mixed+ar+turn or akf)")
         if reach is not None and math.isfinite(reach) and "kinematic" not in recipe_parts(kind):
-            warnings.warn(f"--reach: --bank {kind} has no constant-velocity experts to keep across long steps, "
-                          "so the reach changes nothing")
+            click.echo(f"kalmix: warning: --reach: --bank {kind} has no constant-velocity experts to keep across "
+                       "long steps, so the reach changes nothing", err=True)
         if lead is not None and horizon != 1:
             raise ValueError(f"--lead and --horizon: give one of them (--horizon H is the lead of H time units), "
                              f"got --lead {lead:g} and --horizon {horizon}")
