@@ -168,6 +168,49 @@ def test_an_empty_track_id_is_reported_in_a_whole_sentence(cli, tmp_path):
         in result.output
 
 
+@pytest.mark.parametrize("args, message", [
+    (["demo", "--experts", "0"], "Invalid value for '--experts': 0 is not in the range x>=1"),
+    (["demo", "--seed", "-1"], "Invalid value for '--seed': -1 is not in the range 0<=x<=9223372036854775807"),
+    (["reproduce", "figure2", "--seed", str(2**64), "--out", "f.png"], "Invalid value for '--seed'"),
+    (["reproduce", "table1", "--quick", "--seeds", "1", "--json", "nodir/t.json"],
+     "Invalid value for '--json': the directory"),
+    (["reproduce", "ablations", "--json", "nodir/a.json"], "Invalid value for '--json': the directory"),
+    (["reproduce", "figure2", "--out", "in.csv/f.png"], "of 'in.csv/f.png' is not a directory"),
+    (["servo", "--noise", "nan"], "Invalid value for '--noise': expected a finite number, got 'nan'"),
+    (["servo", "--gain", "inf"], "Invalid value for '--gain': expected a finite number, got 'inf'"),
+    (["servo", "--prediction-gain", "0"], "Invalid value for '--prediction-gain': expected a number > 0"),
+    (["servo", "--out-dir", ""], "Invalid value for '--out-dir': expected a directory name, got ''"),
+    (["servo", "--json", "nodir/s.json"], "Invalid value for '--json': the directory"),
+    (["servo", "--delay", "1000"], "Invalid value for '--delay': expected fewer frames than the run's 1000"),
+    (["bench", "--quick", "--png", "nodir/b.png"], "Invalid value for '--png': the directory"),
+])
+def test_the_other_commands_check_their_arguments_before_the_work(cli, tmp_path, monkeypatch, args, message):
+    """helper-26: a missing output directory was a traceback after the whole run (the table printed, the servo's
+    PNGs written); a negative or huge seed, --experts 0, a nan or inf noise or gain were tracebacks from the
+    library; --delay 1000 on a 1,000-frame run froze every mode and called them all diverged."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "in.csv").write_text("t,x\n0,1\n")
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 2, result.output
+    assert message in result.output and "Traceback" not in result.output
+    assert "scenario" not in result.output and "mixture" not in result.output   # before the work
+    assert not list(tmp_path.glob("servo_out*"))
+
+
+def test_a_library_error_in_the_other_commands_is_one_line(cli, monkeypatch):
+    """What the options cannot check (here a library refusal) is one line, as in predict, not a traceback."""
+    import kalmix.baselines
+
+    def refuse(*args, **kwargs):
+        raise ValueError("n_experts: expected an integer >= 1, got 0")
+
+    monkeypatch.setattr(kalmix.baselines, "softmax_mixture", refuse)
+    result = CliRunner().invoke(cli, ["demo"])
+    assert result.exit_code == 1 and result.output.strip().splitlines()[-1] == \
+        "Error: n_experts: expected an integer >= 1, got 0"
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+
+
 # ---------------------------------------------------------------------------------------- evaluate
 def test_evaluate_refuses_an_unknown_plot_track_before_the_work(cli, tracks_csv, tmp_path):
     """Before: every predictor ran, the tables were printed, and then the error came."""

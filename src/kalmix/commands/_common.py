@@ -1,11 +1,97 @@
-"""Helpers shared by the sub-commands: JSON output and progress bars."""
+"""Helpers shared by the sub-commands: one-line errors, checked options, JSON output and progress bars."""
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
+import math
+import os
+import warnings
 
+import click
 import numpy as np
+
+#: ``--seed`` of every command: what :func:`kalmix.bank.make_params` takes (``MAX_SEED``).
+SEED = click.IntRange(0, 2**63 - 1)
+
+
+class Finite(click.ParamType):
+    """A finite number (click's FloatRange lets nan and inf through), at least ``minimum`` (above it if ``open``)."""
+
+    name = "number"
+
+    def __init__(self, minimum: float | None = None, open: bool = False):
+        self.minimum, self.open = minimum, open
+
+    def convert(self, value, param, ctx):
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"expected a number, got {value!r}", param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"expected a finite number, got {value!r}", param, ctx)
+        if self.minimum is not None and (number <= self.minimum if self.open else number < self.minimum):
+            self.fail(f"expected a number {'>' if self.open else '>='} {self.minimum:g}, got {value!r}", param, ctx)
+        return number
+
+
+def output_file(ctx, param, value):
+    """click callback: a file to write, whose directory exists and is writable, checked before the work (a
+    missing directory was a traceback after the whole run)."""
+    if value is None:
+        return value
+    if not str(value).strip():
+        raise click.BadParameter("expected a file name, got ''")
+    directory = os.path.dirname(os.path.abspath(value))
+    if not os.path.isdir(directory):
+        what = "is not a directory" if os.path.exists(directory) else "does not exist"
+        raise click.BadParameter(f"the directory {directory!r} of {value!r} {what}")
+    if not os.access(directory, os.W_OK):
+        raise click.BadParameter(f"the directory {directory!r} of {value!r} is not writable")
+    return value
+
+
+def output_directory(ctx, param, value):
+    """click callback: a directory to write into (made if missing), whose parent exists, checked before the work."""
+    if not str(value).strip():
+        raise click.BadParameter("expected a directory name, got ''")
+    if os.path.isdir(value):
+        if not os.access(value, os.W_OK):
+            raise click.BadParameter(f"{value!r} is not writable")
+        return value
+    output_file(ctx, param, value)   # its parent, as for a file
+    return value
+
+
+@contextlib.contextmanager
+def user_errors():
+    """ValueError / FileNotFoundError / ImportError / MemoryError become one clear line; warnings go to stderr."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        click.echo(f"kalmix: warning: {message}", err=True)
+
+    previous = warnings.showwarning
+    warnings.showwarning = show
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", RuntimeWarning)
+            # the command's own warnings (warnings.warn: UserWarning) are said every time: an "ignore" filter a
+            # library or an earlier command in the same process added hid them (helper-26: an order-dependent test)
+            warnings.simplefilter("always", UserWarning)
+            warnings.showwarning = show
+            yield
+    except (ValueError, TypeError, FileNotFoundError, ImportError) as error:
+        raise click.ClickException(str(error)) from error
+    except MemoryError as error:
+        raise click.ClickException(f"not enough memory for this run ({error or 'MemoryError'}); ask for fewer experts, "
+                                   "targets or rows") from error
+    except EOFError as error:  # pandas on a truncated .gz; click would print a bare 'Aborted!'
+        raise click.ClickException(f"the input ends early (a truncated or corrupt file?): {error}") from error
+    except OSError as error:  # a disk, permission or device error: one line, not a traceback
+        where = f" {error.filename!r}" if error.filename else ""
+        raise click.ClickException(f"{error.strerror or error}{where}") from error
+    finally:
+        warnings.showwarning = previous
 
 
 def _json_default(value):
@@ -21,6 +107,15 @@ def write_json(path: str, data) -> None:
     with open(path, "w", encoding="utf-8") as handle:
         json.dump(data, handle, indent=1, default=_json_default)
         handle.write("\n")
+
+
+def one_line_errors(function):
+    """A command whose body runs inside :func:`user_errors` (bad input: one line, not a traceback)."""
+    @functools.wraps(function)
+    def wrapper(*args, **kwargs):
+        with user_errors():
+            return function(*args, **kwargs)
+    return wrapper
 
 
 @contextlib.contextmanager

@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import click
 
+from ._common import one_line_errors, output_file
+
 
 @click.command()
 @click.option("--quick", is_flag=True, help="Small sizes: the whole run takes under a minute.")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Write every figure as JSON.")
-@click.option("--png", "png_path", type=click.Path(dir_okay=False), help="Write the scaling curves as PNG.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), callback=output_file,
+              help="Write every figure as JSON.")
+@click.option("--png", "png_path", type=click.Path(dir_okay=False), callback=output_file,
+              help="Write the scaling curves as PNG.")
+@one_line_errors
 def bench(quick: bool, json_path: str | None, png_path: str | None):
     """Measure (a) one stream K=40 vs filterpy IMM, (b) N targets x 40, (c) plain KF vs simdkalman, (d) scaling."""
     from ..benchmarking import main

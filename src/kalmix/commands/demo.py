@@ -5,10 +5,14 @@ from __future__ import annotations
 import click
 import numpy as np
 
+from ._common import SEED, one_line_errors
+
 
 @click.command()
-@click.option("--seed", default=0, show_default=True, help="Seed of the scenario and of the bank.")
-@click.option("--experts", "n_experts", default=40, show_default=True, help="Number of experts K.")
+@click.option("--seed", default=0, show_default=True, type=SEED, help="Seed of the scenario and of the bank.")
+@click.option("--experts", "n_experts", default=40, show_default=True, type=click.IntRange(1),
+              help="Number of experts K.")
+@one_line_errors
 def demo(seed: int, n_experts: int):
     """Predict the paper's simulated target one frame ahead; print the error of the mixture beside a single AKF."""
     from ..baselines import single_akf, softmax_mixture

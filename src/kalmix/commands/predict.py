@@ -11,12 +11,12 @@ import contextlib
 import json
 import math
 import os
-import warnings
 
 import click
 import numpy as np
 
 from ..bank import BANK_KINDS, DEFAULT_BANK, DEFAULT_REACH, GATE_OPTIONS, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED, recipe_parts
+from ._common import user_errors as _user_errors
 
 _LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres). "
                      "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
@@ -175,33 +175,6 @@ def _max_gap(text):
     if not value > 0:
         raise click.BadParameter(f"expected a time step > 0, 'auto' or 'none', got {text!r}", param_hint="--max-gap")
     return value, False
-
-
-@contextlib.contextmanager
-def _user_errors():
-    """ValueError / FileNotFoundError / ImportError become one clear line; warnings go to stderr."""
-    def show(message, category, filename, lineno, file=None, line=None):
-        click.echo(f"kalmix: warning: {message}", err=True)
-
-    previous = warnings.showwarning
-    warnings.showwarning = show
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("always", RuntimeWarning)
-            # the command's own warnings (warnings.warn: UserWarning) are said every time: an "ignore" filter a
-            # library or an earlier command in the same process added hid them (helper-26: an order-dependent test)
-            warnings.simplefilter("always", UserWarning)
-            warnings.showwarning = show
-            yield
-    except (ValueError, TypeError, FileNotFoundError, ImportError) as error:
-        raise click.ClickException(str(error)) from error
-    except EOFError as error:  # pandas on a truncated .gz; click would print a bare 'Aborted!'
-        raise click.ClickException(f"the input ends early (a truncated or corrupt file?): {error}") from error
-    except OSError as error:  # a disk, permission or device error: one line, not a traceback
-        where = f" {error.filename!r}" if error.filename else ""
-        raise click.ClickException(f"{error.strerror or error}{where}") from error
-    finally:
-        warnings.showwarning = previous
 
 
 def _header(path, fmt):

@@ -12,7 +12,7 @@ from __future__ import annotations
 import click
 import numpy as np
 
-from ._common import progress_bar, write_json
+from ._common import SEED, one_line_errors, output_file, progress_bar, write_json
 
 _ROW_LABELS = {
     "single_akf": "single AKF",
@@ -95,7 +95,7 @@ def reproduce():
 @click.option("--seeds", "n_seeds", default=5, show_default=True, type=click.IntRange(1),
               help="Number of evaluation seeds (0 .. N-1); numbers are means over seeds.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, writable=True), default=None,
-              help="Write every number to this JSON file.")
+              callback=output_file, help="Write every number to this JSON file.")
 @click.option("--mode", type=click.Choice(["rls", "literal", "both"]), default="both", show_default=True,
               help="AKF dynamics of the single AKF and the mixtures: rls (ours), literal (eq. 6/7 as printed).")
 @click.option("--experts", "n_experts", default=40, show_default=True, type=click.IntRange(2),
@@ -104,6 +104,7 @@ def reproduce():
               help="Gate of the softmax-mixture row (default: the default mixture's, fixed_share; "
                    "paper = eq. 8-10).")
 @click.option("--quick", is_flag=True, help="A short scenario (312 frames instead of 1000) for a smoke run.")
+@one_line_errors
 def table1_command(n_seeds: int, json_path: str | None, mode: str, n_experts: int, gating: str | None, quick: bool):
     """Table 1: single AKF, softmax and random mixtures, beside our peers and the paper's numbers."""
     from ..experiments.table1 import aggregate, quick_scenario, run_seed, runs_per_seed
@@ -134,12 +135,13 @@ def table1_command(n_seeds: int, json_path: str | None, mode: str, n_experts: in
 
 @reproduce.command("figure2")
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False, writable=True),
-              help="PNG file to write.")
-@click.option("--seed", default=0, show_default=True, help="Seed of the scenario and of the bank.")
+              callback=output_file, help="PNG file to write.")
+@click.option("--seed", default=0, show_default=True, type=SEED, help="Seed of the scenario and of the bank.")
 @click.option("--experts", "n_experts", default=40, show_default=True, type=click.IntRange(1), help="K.")
 @click.option("--gating", type=click.Choice(["fixed_share", "paper", "random"]), default=None,
               help="Gate (default: the default mixture's, fixed_share).")
 @click.option("--quick", is_flag=True, help="A short scenario (312 frames instead of 1000).")
+@one_line_errors
 def figure2_command(out_path: str, seed: int, n_experts: int, gating: str | None, quick: bool):
     """Figure 2: gating weights, learning rate, Q diagonals and absolute error of one run."""
     from .. import plots
@@ -176,11 +178,12 @@ def format_ablations(result: dict) -> str:
 @click.option("--seeds", "n_seeds", default=3, show_default=True, type=click.IntRange(1),
               help="Number of seeds (0 .. N-1).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, writable=True), default=None,
-              help="Write every number to this JSON file.")
+              callback=output_file, help="Write every number to this JSON file.")
 @click.option("--group", "groups", multiple=True,
               type=click.Choice(["akf_mode", "gate", "gating_input", "noise", "n_experts", "gate_settings"]),
               help="Only these groups (repeatable; default all).")
 @click.option("--quick", is_flag=True, help="A short scenario (312 frames instead of 1000).")
+@one_line_errors
 def ablations_command(n_seeds: int, json_path: str | None, groups: tuple[str, ...], quick: bool):
     """Ablations: AKF literal vs rls, gate and gating input, Q/R adaptation and floor, K."""
     from ..experiments.ablations import ablations, variants

@@ -15,7 +15,7 @@ import warnings
 import click
 import numpy as np
 
-from ._common import progress_bar, write_json
+from ._common import SEED, Finite, one_line_errors, output_directory, output_file, progress_bar, write_json
 
 _LABELS = {
     "no_prediction": "no prediction (delayed e)",
@@ -143,17 +143,19 @@ def plot_errors(result, path, speeds=None) -> None:
               show_default=True, help="Target trajectory.")
 @click.option("--delay", "delay_frames", type=click.IntRange(min=0), default=2, show_default=True,
               help="Image-acquisition delay D (frames at 25 Hz).")
-@click.option("--noise", "noise_px", type=click.FloatRange(min=0), default=0.5, show_default=True,
+@click.option("--noise", "noise_px", type=Finite(0.0), default=0.5, show_default=True,
               help="Pixel noise on the delivered features (px).")
-@click.option("--gain", type=click.FloatRange(min=0, min_open=True), default=0.5, show_default=True,
+@click.option("--gain", type=Finite(0.0, open=True), default=0.5, show_default=True,
               help="Loop gain lambda in dq = lambda B e, for every mode.")
-@click.option("--prediction-gain", type=click.FloatRange(min=0, min_open=True), default=None,
+@click.option("--prediction-gain", type=Finite(0.0, open=True), default=None,
               help="Gain of the predicting modes and the oracle (default: --gain).")
-@click.option("--seed", default=0, show_default=True, help="Seed of the scenario, camera noise, SOM and predictors.")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--seed", default=0, show_default=True, type=SEED,
+              help="Seed of the scenario, camera noise, SOM and predictors.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, callback=output_file,
               help="Write the summary as JSON.")
 @click.option("--out-dir", type=click.Path(file_okay=False), default="servo_out", show_default=True,
-              help="Directory for the PNGs.")
+              callback=output_directory, help="Directory for the PNGs.")
+@one_line_errors
 def servo(scenario, delay_frames, noise_px, gain, prediction_gain, seed, json_path, out_dir):
     """Track a 3-D target with the 3-joint arm through delayed stereo cameras; compare predictors."""
     from ..scenarios import SCENARIOS
@@ -163,6 +165,10 @@ def servo(scenario, delay_frames, noise_px, gain, prediction_gain, seed, json_pa
     config = ServoConfig(delay_frames=delay_frames, noise_px=noise_px, gain=gain,
                          prediction_gain=prediction_gain, seed=seed)
     trajectory = SCENARIOS[scenario](seed).generate()
+    n_frames = len(trajectory.times)
+    if delay_frames >= n_frames:   # no image would ever arrive: every mode the same frozen arm, said "diverged"
+        raise click.BadParameter(f"expected fewer frames than the run's {n_frames}, got {delay_frames}: no image "
+                                 "would arrive before the run ends", param_hint="'--delay'")
     arm, camera = Arm(), StereoCamera()
 
     som_config = SOMConfig(seed=seed)
@@ -175,7 +181,6 @@ def servo(scenario, delay_frames, noise_px, gain, prediction_gain, seed, json_pa
 
         som, history = train_som(arm, camera, seed=seed, config=som_config, progress=som_progress)
 
-    n_frames = len(trajectory.times)
     with progress_bar(n_frames * len(config.modes), "servo loop", "frame") as update:
         def progress(mode, frame, total):
             update(1, postfix=mode if frame == 1 else None)
