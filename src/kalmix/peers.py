@@ -308,10 +308,14 @@ def tune_fixed(model: str, measurements=None, grid: dict[str, tuple[float, ...]]
 
 
 if __name__ == "__main__":  # pragma: no cover - the tuning run that produced the defaults
-    data = tuning_measurements()
-    import sys
+    import argparse
 
-    which = sys.argv[1:] or ["imm", "cv", "ca"]
+    parser = argparse.ArgumentParser(prog="python -m kalmix.peers",
+                                     description="Re-run the tuning of the peers' defaults on the paper scenario.")
+    parser.add_argument("peers", nargs="*", choices=["imm", "cv", "ca"], default=["imm", "cv", "ca"],
+                        help="which peers to tune (default: all three)")
+    which = parser.parse_args().peers
+    data = tuning_measurements()
     tuners = {"imm": lambda: tune(data), "cv": lambda: tune_fixed("cv", data), "ca": lambda: tune_fixed("ca", data)}
     for name in which:
         result = tuners[name]()
