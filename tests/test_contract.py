@@ -228,6 +228,36 @@ def test_compiled_cache_is_keyed_on_the_sources(tmp_path, monkeypatch):
     assert _cache.source_hash() != before
 
 
+def test_every_module_a_compiled_source_imports_from_is_in_the_cache_key():
+    """A constant a kernel imports is frozen into the compiled code, so its file must key the cache too: an edit to
+    ``screen.ZERO`` or ``families/kinematic.RESTART_NIS`` left a warm cache running the old value."""
+    import ast
+
+    from kalmix.core.compiled import _cache
+
+    core = _cache._CORE
+    for name in _cache.KERNEL_SOURCES:
+        path = core / name
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.ImportFrom) or not node.level:
+                continue
+            base = path.parent
+            for _ in range(node.level - 1):
+                base = base.parent
+            parts = (node.module or "").split(".") if node.module else []
+            targets = [base.joinpath(*parts)] if parts else [base / alias.name for alias in node.names]
+            for target in targets:
+                module = target.with_suffix(".py") if not target.is_dir() else None
+                if module is None:   # a package: the names imported are its modules
+                    modules = [target / f"{alias.name}.py" for alias in node.names]
+                else:
+                    modules = [module]
+                for found in modules:
+                    if found.is_file():
+                        relative = found.relative_to(core).as_posix()
+                        assert relative in _cache.COMPILED_SOURCES, f"{name} imports from {relative}"
+
+
 @pytest.mark.parametrize("scored", [False, True])
 @pytest.mark.parametrize("size", [3, 5])
 def test_target_groups_equal_one_pass(monkeypatch, scored, size):

@@ -15,11 +15,16 @@ JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 #: family's driver ran 2.5x faster on one thread (10,000 targets x 50 rows).
 KERNEL_JIT = dict(JIT, _nrt=False)
 #: Every file whose code ends up in a compiled kernel.
-COMPILED_SOURCES = (
+KERNEL_SOURCES = (
     "_numba_linalg.py", "_numba_kernels.py", "_numba_scalar.py",
     "compiled/kinematic.py", "compiled/ar.py", "compiled/turn.py", "compiled/rules.py", "compiled/screen.py", "compiled/_cache.py",
     "compiled/calibration.py", "compiled/lead.py", "compiled/akf.py",
 )
+#: The other kalmix files the kernel sources import from: numba freezes a global (``screen.ZERO``,
+#: ``families/kinematic.RESTART_NIS``) into the compiled code, so they key the cache too (a test checks the list).
+CONSTANT_SOURCES = ("screen.py", "families/kinematic.py", "calibration.py")
+#: What the cache directory is keyed on (with numba's version).
+COMPILED_SOURCES = KERNEL_SOURCES + CONSTANT_SOURCES
 
 
 @functools.cache
