@@ -228,6 +228,27 @@ def test_compiled_cache_is_keyed_on_the_sources(tmp_path, monkeypatch):
     assert _cache.source_hash() != before
 
 
+def test_an_unusable_cache_directory_falls_back_to_a_keyed_temporary_one(tmp_path, monkeypatch):
+    """helper-26: KALMIX_CACHE_DIR naming a file left numba's default, the sources' __pycache__ (not keyed on the
+    constants the kernels import), silently; the comment said 'compiling without a cache'."""
+    import tempfile
+
+    import numba
+
+    from kalmix.core.compiled import _cache
+
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setenv("KALMIX_CACHE_DIR", str(blocker))
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    monkeypatch.setattr(numba.config, "CACHE_DIR", numba.config.CACHE_DIR)
+    with pytest.warns(RuntimeWarning, match="cannot use the compiled-kernel cache .*a-file.*Not a directory"):
+        path = _cache.configure_cache.__wrapped__()
+    assert path.parent.parent == tmp_path / "tmp" and path.name == f"numba-{_cache.source_hash()}" and path.is_dir()
+    assert numba.config.CACHE_DIR == str(path)
+
+
 def test_every_module_a_compiled_source_imports_from_is_in_the_cache_key():
     """A constant a kernel imports is frozen into the compiled code, so its file must key the cache too: an edit to
     ``screen.ZERO`` or ``families/kinematic.RESTART_NIS`` left a warm cache running the old value."""

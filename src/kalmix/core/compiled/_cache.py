@@ -65,7 +65,19 @@ def configure_cache() -> Path:
     path = cache_directory()
     try:
         path.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        return path  # read-only home: numba falls back to compiling without a cache
+    except OSError as error:
+        # a read-only home, or KALMIX_CACHE_DIR naming a file: a keyed directory in the temporary directory instead
+        # (numba's own default, the sources' __pycache__, is not keyed on the constants the kernels import)
+        import tempfile
+        import warnings
+
+        fallback = Path(tempfile.gettempdir()) / f"kalmix-{getattr(os, 'getuid', lambda: 0)()}" / path.name
+        warnings.warn(f"cannot use the compiled-kernel cache {str(path)!r} ({error.strerror or error}); "
+                      f"using {str(fallback)!r}", RuntimeWarning, stacklevel=2)
+        try:
+            fallback.mkdir(parents=True, exist_ok=True)
+        except OSError:
+            return path   # nowhere writable: numba's default
+        path = fallback
     numba.config.CACHE_DIR = str(path)
     return path
