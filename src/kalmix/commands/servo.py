@@ -39,11 +39,20 @@ def format_table(result) -> str:
     for name, mode in result.modes.items():
         s = mode.summary()
         lines.append(
-            f"{_LABELS[name]:<28}{s['gain']:>6.2f}{s['mean_px']:>9.2f}{s['rms_px']:>9.2f}{s['max_px']:>9.1f}"
-            f"{s['mean_mm']:>9.1f}{s['rms_mm']:>9.1f}{s['max_mm']:>9.1f}{s['joint_limit_violations']:>12d}"
-            f"{'yes' if s['diverged'] else 'no':>10}"
+            f"{_LABELS[name]:<28}{_cell(s['gain'], 6, 2)}{_cell(s['mean_px'], 9, 2)}{_cell(s['rms_px'], 9, 2)}"
+            f"{_cell(s['max_px'], 9, 1)}{_cell(s['mean_mm'], 9, 1)}{_cell(s['rms_mm'], 9, 1)}{_cell(s['max_mm'], 9, 1)}"
+            f"{s['joint_limit_violations']:>12d}{'yes' if s['diverged'] else 'no':>10}"
         )
     return "\n".join(lines)
+
+
+def _cell(value, width, decimals):
+    """``value`` right-aligned in ``width`` with ``decimals``, or in 3 significant digits where that would not fit
+    (a gain of 1e6 printed 1000000.00 and shifted the row's other columns)."""
+    text = f"{value:.{decimals}f}"
+    if len(text) >= width:
+        text = f"{value:.3g}"
+    return text.rjust(width)
 
 
 def _ratios(result) -> dict:
@@ -117,13 +126,19 @@ def plot_errors(result, path, speeds=None) -> None:
                              gridspec_kw={"height_ratios": [3, 1]} if rows == 2 else None)
     axes = np.atleast_1d(axes)
     ax = axes[0]
+    low = []
     for name, mode in result.modes.items():
+        summary = mode.summary()
         ax.plot(result.times, np.maximum(mode.error_px, 1e-2), color=_COLOURS[name], lw=0.9,
-                label=f"{_LABELS[name]}: RMS {mode.summary()['rms_px']:.1f} px, "
-                      f"{mode.summary()['rms_mm']:.1f} mm")
+                label=f"{_LABELS[name]}, gain {summary['gain']:g}: RMS {summary['rms_px']:.1f} px, "
+                      f"{summary['rms_mm']:.1f} mm")
+        finite = mode.error_px[np.isfinite(mode.error_px)]
+        if finite.size:
+            low.append(np.percentile(finite, 5))
     ax.axhline(result.config.divergence_px, color="grey", ls=":", lw=0.8, label="divergence threshold")
     ax.set_yscale("log")
-    ax.set_ylim(bottom=0.05)
+    # the floor under the smallest errors (the oracle's were mostly below a fixed 0.05: cut off)
+    ax.set_ylim(bottom=max(1e-2, 0.5 * min(low)) if low else 0.05)
     ax.set_ylabel("||d_k - v_k|| (px, log)")
     ax.set_title(f"tracking error against the true target, delay {result.config.delay_frames} frames")
     ax.grid(alpha=0.3, which="both")
