@@ -703,7 +703,8 @@ def plot_learning_curve(history: TrainingHistory, path) -> None:
     ax.set_xscale("log")
     ax.set_xlabel("training moves (babbling)")
     ax.set_ylabel(r"relative error $\|B - J^{-1}\|_F / \|J^{-1}\|_F$")
-    ax.set_title(f"SOM inverse-Jacobian learning curve ({history.training_seconds:.1f} s)")
+    ax.set_title(f"SOM inverse-Jacobian learning curve ({history.training_seconds:.1f} s)\n"
+                 "on random configurations across its joint box (not the target's path)", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
