@@ -268,6 +268,21 @@ def _table(n=8, ids=1, **columns):
     return pd.DataFrame({**base, **columns})
 
 
+def test_a_missing_row_given_as_none():
+    """helper-26: z=None was refused, though None is a missing value; it is the whole row missing once the predictor
+    knows how many coordinates a row has, and a named error before."""
+    fresh = TrackPredictor(StreamConfig(length_unit=0.1))
+    with pytest.raises(ValueError, match=r"z: None \(a missing row\) needs the number of coordinates"):
+        fresh.step_row("a", 0.0, None)
+    assert fresh.rows == 0
+    with_none, with_nan = TrackPredictor(StreamConfig(length_unit=0.1)), TrackPredictor(StreamConfig(length_unit=0.1))
+    rows = [[0.0, 0.0], [1.0, 0.5], None, [3.0, 1.5], [4.0, 2.0]]
+    for k, z in enumerate(rows):
+        a = with_none.step_row("a", float(k), z)
+        b = with_nan.step_row("a", float(k), [np.nan, np.nan] if z is None else z)
+        assert np.array_equal(a.next, b.next, equal_nan=True)
+
+
 def test_step_rows_refuses_text_ids_and_two_dimensional_times():
     """helper-27: step_rows("ab", ...) took the letters for the rows' ids, and times of shape (1, 2) were flattened."""
     predictor = TrackPredictor(StreamConfig(bank="kinematic", length_unit=1.0))

@@ -882,9 +882,12 @@ class TrackPredictor:
 
         All or nothing: the track's tracker and state change only once the step succeeded.
         """
+        if z is None:   # the whole row missing: as many NaN as the predictor has coordinates
+            if self.params is None:
+                raise ValueError("z: None (a missing row) needs the number of coordinates, which the predictor "
+                                 "learns from its first row; give NaN for each coordinate")
+            z = [np.nan] * self.params.measurement_dim
         try:
-            if z is None:
-                raise TypeError
             given = _measurements(z)
         except (TypeError, ValueError):
             raise ValueError(f"z: expected numbers (NaN for a missing measurement), got {z!r:.80}") from None
