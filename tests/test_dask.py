@@ -376,6 +376,21 @@ def _archive(tmp_path, n_files=2):
     return str(tmp_path / "archive")
 
 
+def test_recursive_globs_read_every_file_they_match(tmp_path):
+    """A '**' glob matches the directories and their files alike: only a directory whose files the glob misses is
+    refused (a review found 'arch/**' and 'arch/**/*' refused by the first version of that check)."""
+    from kalmix.dask_predict import archive_files
+
+    for name in ("day=0/a.csv", "day=1/b.csv", "top.csv"):
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_text("id,t,x\n1,0,0\n")
+    every = [str(tmp_path / name) for name in ("day=0/a.csv", "day=1/b.csv", "top.csv")]
+    for pattern in ("**", "**/*", "**/*.csv"):
+        assert archive_files(str(tmp_path / pattern)) == (every, "csv")
+    with pytest.raises(ValueError, match="matches the directory .*day=0.*a glob does not read"):
+        archive_files(str(tmp_path / "*"))
+
+
 @pytest.mark.parametrize("case, message", [
     ("no_output", "--engine dask writes a partitioned Parquet dataset: give -o OUTPUT_DIR"),
     ("output_not_empty", "exists and is not empty"),

@@ -95,9 +95,12 @@ def archive_files(source: str) -> tuple[list[str], str]:
             raise ValueError(f"INPUT: the directory {source!r} holds no .parquet, .pq, .csv or .csv.gz file")
     else:
         matches = [f for f in glob.glob(source, recursive=True) if not os.path.basename(f).startswith((".", "_"))]
+        matched = {os.path.normpath(f) for f in matches if os.path.isfile(f)}
         for match in sorted(f for f in matches if os.path.isdir(f)):   # its track files would be left out unsaid
+            # (a '**' glob matches the directories and their files alike: only files it misses count)
             inside = next((os.path.join(root, name) for root, _, names in os.walk(match) for name in sorted(names)
-                           if _format_of(name) is not None and not name.startswith((".", "_"))), None)
+                           if _format_of(name) is not None and not name.startswith((".", "_"))
+                           and os.path.normpath(os.path.join(root, name)) not in matched), None)
             if inside is not None:
                 raise ValueError(f"INPUT: the glob {source!r} matches the directory {match!r}, whose track files "
                                  f"(e.g. {inside!r}) a glob does not read; give the directory itself, or a glob "
