@@ -16,8 +16,10 @@ it needs no knowledge of the data's units: ``s`` is learned per target. A distan
 ``ZERO`` (1e-9) of the last accepted position's largest coordinate is rounding, i.e. 0. The screen tests a row
 only once ``s`` is above that, or, for a target whose extrapolation has been exact (``s = 0``:
 a simulated or interpolated track in uniform motion), once the distance it moves in the step,
-``|v| dt``, is: that distance is then the scale (``d > threshold |v| dt`` is an outlier; without
-it a glitch on such a track was learned by everything, and one at 1e300 ruined it for good). A
+``|v| dt``, is: ``threshold |v| dt`` is then the scale, so ``d > threshold^2 |v| dt`` (a million
+steps) is an outlier. Without it a glitch on such a track was learned by everything, and one at
+1e300 ruined it for good; with ``threshold |v| dt`` alone (tried) a ball rolling at 0.5 mm a row
+and kicked to 3 m a row was rejected twice and restarted, where it used to be followed. A
 target at rest through its warm-up (the same position on every row: a moored vessel, a ball
 before a kick, quantised positions) has neither, and every move would be an outlier; its first
 moves are learned instead (so a glitch on a target at rest is learned too: with no motion there
@@ -103,9 +105,10 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
     with np.errstate(invalid="ignore", over="ignore"):
         # the last accepted position's largest coordinate (a glitch must not set it); the max is exact in any order
         tiny = ZERO * np.max(np.abs(np.where(moving[:, None], state.position, 0.0)), axis=-1)
-        # no error to judge by (a target in exact motion): the distance it moves in the step is the scale
+        # no error to judge by (a target in exact motion): threshold x the distance it moves in the step is the
+        # scale, so only a jump of threshold^2 steps is an outlier (a kick may multiply a speed by thousands)
         motion = np.sqrt(ordered_sum((state.velocity * dt[:, None]) ** 2))
-        reference = np.where(state.scale > tiny, state.scale, motion)
+        reference = np.where(state.scale > tiny, state.scale, params.threshold * motion)
         checked = present & moving & (state.count >= params.warmup) & (reference > tiny) & ~gap
         wild = checked & ~(distance <= params.threshold * reference)
     rejects = np.where(wild, state.rejects + 1, 0.0)

@@ -61,12 +61,12 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
             size = max(size, abs(position[n, c]))
     tiny = ZERO * size   # a distance below it is rounding: 0
     reference = scale[n]
-    if not reference > tiny:   # no error to judge by (exact motion): the distance moved in the step
+    if not reference > tiny:   # no error to judge by (exact motion): threshold x the distance moved in the step
         acc = 0.0
         for c in range(p):
             step = velocity[n, c] * dt
             acc += step * step
-        reference = math.sqrt(acc)
+        reference = threshold * math.sqrt(acc)
     wild = moving and count[n] >= warmup and reference > tiny and not (distance <= threshold * reference)
     rejected = 0.0
     if wild:
