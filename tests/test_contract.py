@@ -247,6 +247,12 @@ def test_an_unusable_cache_directory_falls_back_to_a_keyed_temporary_one(tmp_pat
         path = _cache.configure_cache.__wrapped__()
     assert path.parent.parent == tmp_path / "tmp" and path.name == f"numba-{_cache.source_hash()}" and path.is_dir()
     assert numba.config.CACHE_DIR == str(path)
+    # a fallback parent another user could write to (its pickled index could hand us code) is not used (helper-28)
+    path.rmdir()
+    path.parent.chmod(0o777)
+    with pytest.warns(RuntimeWarning, match="cannot use the compiled-kernel cache"):
+        other = _cache.configure_cache.__wrapped__()
+    assert other.parent == tmp_path / "tmp" and other.name.startswith("kalmix-numba-") and not path.exists()
 
 
 def test_every_module_a_compiled_source_imports_from_is_in_the_cache_key():

@@ -180,6 +180,7 @@ def test_an_empty_track_id_is_reported_in_a_whole_sentence(cli, tmp_path):
     (["servo", "--gain", "inf"], "Invalid value for '--gain': expected a finite number, got 'inf'"),
     (["servo", "--prediction-gain", "0"], "Invalid value for '--prediction-gain': expected a number > 0"),
     (["servo", "--out-dir", ""], "Invalid value for '--out-dir': expected a directory name, got ''"),
+    (["servo", "--out-dir", "in.csv/figures"], "lies under"),
     (["servo", "--json", "nodir/s.json"], "Invalid value for '--json': the directory"),
     (["servo", "--delay", "1000"], "Invalid value for '--delay': expected fewer frames than the run's 1000"),
     (["bench", "--quick", "--png", "nodir/b.png"], "Invalid value for '--png': the directory"),
@@ -195,6 +196,19 @@ def test_the_other_commands_check_their_arguments_before_the_work(cli, tmp_path,
     assert message in result.output and "Traceback" not in result.output
     assert "scenario" not in result.output and "mixture" not in result.output   # before the work
     assert not list(tmp_path.glob("servo_out*"))
+
+
+def test_servo_makes_a_nested_output_directory(cli, tmp_path, monkeypatch):
+    """The --out-dir check must not refuse what os.makedirs makes (helper-28: a nested new directory was refused
+    by the first version of the check)."""
+    import kalmix.commands.servo as servo_command
+
+    def stop(*args, **kwargs):
+        raise ValueError("stopped here: the options were taken")
+
+    monkeypatch.setattr(servo_command, "progress_bar", stop)
+    result = CliRunner().invoke(cli, ["servo", "--out-dir", str(tmp_path / "new" / "nested")])
+    assert result.exit_code == 1 and "stopped here: the options were taken" in result.output
 
 
 def test_a_library_error_in_the_other_commands_is_one_line(cli, monkeypatch):

@@ -53,14 +53,17 @@ def output_file(ctx, param, value):
 
 
 def output_directory(ctx, param, value):
-    """click callback: a directory to write into (made if missing), whose parent exists, checked before the work."""
+    """click callback: a directory to write into (made with its missing parents), checked before the work: its
+    nearest existing ancestor must be a writable directory."""
     if not str(value).strip():
         raise click.BadParameter("expected a directory name, got ''")
-    if os.path.isdir(value):
-        if not os.access(value, os.W_OK):
-            raise click.BadParameter(f"{value!r} is not writable")
-        return value
-    output_file(ctx, param, value)   # its parent, as for a file
+    ancestor = os.path.abspath(value)
+    while not os.path.exists(ancestor):
+        ancestor = os.path.dirname(ancestor)
+    if not os.path.isdir(ancestor):
+        raise click.BadParameter(f"{value!r} lies under {ancestor!r}, which is not a directory")
+    if not os.access(ancestor, os.W_OK):
+        raise click.BadParameter(f"{ancestor!r} is not writable (to make or fill {value!r})")
     return value
 
 

@@ -68,16 +68,39 @@ def configure_cache() -> Path:
     except OSError as error:
         # a read-only home, or KALMIX_CACHE_DIR naming a file: a keyed directory in the temporary directory instead
         # (numba's own default, the sources' __pycache__, is not keyed on the constants the kernels import)
-        import tempfile
         import warnings
 
-        fallback = Path(tempfile.gettempdir()) / f"kalmix-{getattr(os, 'getuid', lambda: 0)()}" / path.name
-        warnings.warn(f"cannot use the compiled-kernel cache {str(path)!r} ({error.strerror or error}); "
-                      f"using {str(fallback)!r}", RuntimeWarning, stacklevel=2)
-        try:
-            fallback.mkdir(parents=True, exist_ok=True)
-        except OSError:
-            return path   # nowhere writable: numba's default
+        fallback = _private_fallback(path.name)
+        if fallback is None:
+            warnings.warn(f"cannot use the compiled-kernel cache {str(path)!r} ({error.strerror or error}), nor a "
+                          "private temporary directory: numba's default cache is used", RuntimeWarning, stacklevel=2)
+            return path
+        warnings.warn(f"cannot use the compiled-kernel cache {str(path)!r} ({error.strerror or error}); using "
+                      f"{str(fallback)!r}", RuntimeWarning, stacklevel=2)
         path = fallback
     numba.config.CACHE_DIR = str(path)
     return path
+
+
+def _private_fallback(name: str) -> Path | None:
+    """``<tmp>/kalmix-<uid>/<name>``, if that parent is a directory of this user's that no one else can write
+    (numba's cache index is pickled: a directory another user made in advance could hand us code); else a new
+    private directory for this process; None if neither can be made."""
+    import stat
+    import tempfile
+
+    uid = os.getuid() if hasattr(os, "getuid") else None
+    base = Path(tempfile.gettempdir()) / f"kalmix-{uid if uid is not None else 'user'}"
+    try:
+        base.mkdir(mode=0o700, exist_ok=True)
+        info = base.lstat()
+        private = stat.S_ISDIR(info.st_mode) and not info.st_mode & 0o022 and (uid is None or info.st_uid == uid)
+        if private:
+            (base / name).mkdir(mode=0o700, exist_ok=True)
+            return base / name
+    except OSError:
+        pass
+    try:
+        return Path(tempfile.mkdtemp(prefix="kalmix-numba-"))
+    except OSError:
+        return None
