@@ -157,9 +157,14 @@ def test_dates_are_read_to_the_float_nearest_the_instant(tmp_path):
     np.testing.assert_array_equal(read_tracks(tmp_path / "t.parquet")["time"], instants - instants[0] + 1.728e9)
     path = write(tmp_path, "t,x\n" + "".join(f"{t},{i}\n" for i, t in enumerate(text)))
     np.testing.assert_array_equal(read_tracks(path)["time"], instants)
-    seconds = iso_seconds(["1969-12-31T23:59:59.75Z", "2262-04-11T23:47:16.854775807Z", None])
-    np.testing.assert_array_equal(seconds[:1], [-0.25])
+    seconds = iso_seconds(["1969-12-31T23:59:59.75Z", "2262-04-11T23:47:16.854775807Z", None,
+                           "1969-12-31T23:59:59.9Z", "1969-12-31T23:59:59.999999999Z"])
+    np.testing.assert_array_equal(seconds[[0, 3, 4]], [-0.25, -0.1, -1e-9])   # no cancellation below 1970 (review)
     assert seconds[1] == 9223372036.854775807 and np.isnan(seconds[2])
+    # a duration column in seconds beyond 292 years (nanoseconds overflow there): read in its own unit
+    long = pd.DataFrame({"time": np.array([0, 400 * 365 * 86400], dtype="timedelta64[s]"), "x": [0.0, 1.0]})
+    long.to_parquet(tmp_path / "long.parquet")
+    np.testing.assert_array_equal(read_tracks(tmp_path / "long.parquet")["time"], [0.0, 1.26144e10])
 
 
 def test_missing_column_lists_available(tmp_path):
