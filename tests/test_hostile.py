@@ -297,6 +297,20 @@ def test_a_missing_row_given_as_none():
         assert np.array_equal(a.next, b.next, equal_nan=True)
 
 
+def test_times_empty_masked_or_boolean_in_a_list():
+    """helper-28: an empty text time made the whole step_rows call fail (a file skips such a row), a masked time's
+    hidden value was used, and True among numbers was read as 1.0."""
+    predictor = TrackPredictor(StreamConfig(length_unit=0.1))
+    got = predictor.step_rows(["a"] * 3, ["0", " ", "2.0"], [[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])
+    assert got[1] is None and got[2].time == 2.0 and predictor.skipped == 1
+    assert predictor.step_row("a", "", [3.0, 3.0]) is None
+    times = np.ma.masked_array([3.0, 4.0], mask=[1, 0])
+    got = predictor.step_rows(["a", "a"], times, [[3.0, 3.0], [4.0, 4.0]])
+    assert got[0] is None and got[1].time == 4.0
+    with pytest.raises(ValueError, match=r"times: expected numbers or dates, got \[5.0, True\]"):
+        predictor.step_rows(["a", "a"], [5.0, True], [[5.0, 5.0], [6.0, 6.0]])
+
+
 def test_step_rows_refuses_text_ids_and_two_dimensional_times():
     """helper-27: step_rows("ab", ...) took the letters for the rows' ids, and times of shape (1, 2) were flattened."""
     predictor = TrackPredictor(StreamConfig(bank="kinematic", length_unit=1.0))

@@ -489,17 +489,22 @@ def _row_times(times) -> np.ndarray:
 
     import pandas as pd
 
+    if isinstance(times, np.ma.MaskedArray):   # a masked time is missing: the row is skipped, as a NaN time
+        times = np.ma.asarray(times, dtype=np.float64).filled(np.nan)
     given = np.asarray(times)
-    if given.dtype.kind in "bc":   # True read as 1.0, 1+1j as 1.0 (numpy's warning only)
-        raise TypeError(f"expected numbers or dates, got {given.dtype} values")
+    if given.dtype.kind in "bc" or (isinstance(times, (list, tuple)) and any(isinstance(t, (bool, np.bool_))
+                                                                             for t in times)):
+        raise TypeError(f"expected numbers or dates, got {times!r:.80}")   # True read as 1.0, 1+1j as 1.0
     if given.dtype.kind in "US" or (given.dtype.kind == "O" and given.size and all(isinstance(t, str)
                                                                                     for t in given.flat)):
+        flat = given.reshape(-1).astype(object)
+        blank = np.array([not t.strip() for t in flat], dtype=bool)   # an empty time is missing, as in a file
         try:   # text: numbers, or ISO 8601 dates as a file and stdin take them
-            return given.astype(np.float64)
+            return np.where(blank, "nan", flat).astype(np.float64).reshape(given.shape)
         except ValueError:
             from .io.tables import iso_seconds
 
-            return iso_seconds(given.reshape(-1)).reshape(given.shape)
+            return iso_seconds(np.where(blank, None, flat)).reshape(given.shape)
     if given.dtype.kind == "O" and given.size and all(
             isinstance(t, (datetime.datetime, datetime.timedelta, np.datetime64, np.timedelta64)) for t in given.flat):
         given = pd.Series(given.reshape(-1)).infer_objects()
