@@ -286,6 +286,23 @@ def test_temporaries_of_a_killed_save_are_removed_by_the_next_holder_of_the_lock
 
 
 # ------------------------------------------------------------------- 3: one writer per state file
+def test_a_state_file_and_a_link_to_it_share_one_lock(tmp_path):
+    """helper-28: the lock was taken on the path as given, the save on the file it points to, so a run through a link
+    and one through the target held different locks (and one's clean-up could remove the other's save)."""
+    from kalmix.commands._durable import StateLock
+
+    target = tmp_path / "real" / "s.npz"
+    target.parent.mkdir()
+    target.write_bytes(b"")
+    link = tmp_path / "link.npz"
+    link.symlink_to(target)
+    with StateLock(str(target)):
+        with pytest.raises(ValueError, match="is in use by another kalmix process"):
+            with StateLock(str(link)):
+                pass
+    assert (tmp_path / "real" / "s.npz.lock").exists() and not (tmp_path / "link.npz.lock").exists()
+
+
 def test_a_second_writer_on_a_state_file_gets_a_clear_error(cli, tmp_path):
     state = str(tmp_path / "s.npz")
     first = subprocess.Popen([sys.executable, "-m", "kalmix.cli", "predict", "-", *FAST, "--state", state],

@@ -240,7 +240,8 @@ class StateLock:
 
     def __init__(self, path):
         self.path = os.fspath(path)
-        self.lock_path = self.path + ".lock"
+        # beside the file a save replaces (write_archive follows a symbolic link): a link and its target share it
+        self.lock_path = os.path.realpath(self.path) + ".lock"
         self._fd: int | None = None
 
     def __enter__(self) -> "StateLock":
@@ -268,7 +269,8 @@ class StateLock:
                 self._fd = None
                 raise ValueError(f"--state: {self.path!r} is in use by another kalmix process (it holds "
                                  f"{self.lock_path!r}); wait for it to finish or give another --state file") from None
-        self.removed = remove_stale_temporaries(self.path)
+        # only under the lock: without flock (Windows) another writer's temporary file may be in use
+        self.removed = remove_stale_temporaries(self.path) if fcntl is not None else 0
         return self
 
     def __exit__(self, *exc) -> bool:
