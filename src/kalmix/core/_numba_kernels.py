@@ -12,7 +12,7 @@ vectorised by the compiler (:mod:`kalmix.core._numba_linalg`), and copied back a
 end of the call.
 
 Mode codes: dynamics 0 = rls, 1 = literal, 2 = fixed; gating 0 = fixed_share,
-1 = paper, 2 = random; gating input 0 = bias, 1 = position, 2 = velocity.
+1 = paper, 2 = random, 3 = none; gating input 0 = bias, 1 = position, 2 = velocity.
 """
 
 from __future__ import annotations

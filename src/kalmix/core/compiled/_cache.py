@@ -20,11 +20,14 @@ KERNEL_SOURCES = (
     "compiled/kinematic.py", "compiled/ar.py", "compiled/turn.py", "compiled/rules.py", "compiled/screen.py", "compiled/_cache.py",
     "compiled/calibration.py", "compiled/lead.py", "compiled/akf.py",
 )
+#: The GPU engine's modules: their CPU-side numba functions are cached too. What they import from the spec
+#: modules (state classes) is used on the host only, so the import check leaves them out.
+GPU_SOURCES = ("compiled/gpu.py", "compiled/gpu_staged.py")
 #: The other kalmix files the kernel sources import from: numba freezes a global (``screen.ZERO``,
 #: ``families/kinematic.RESTART_NIS``) into the compiled code, so they key the cache too (a test checks the list).
 CONSTANT_SOURCES = ("screen.py", "families/kinematic.py", "calibration.py")
 #: What the cache directory is keyed on (with numba's version).
-COMPILED_SOURCES = KERNEL_SOURCES + CONSTANT_SOURCES
+COMPILED_SOURCES = KERNEL_SOURCES + GPU_SOURCES + CONSTANT_SOURCES
 
 
 @functools.cache
