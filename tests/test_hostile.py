@@ -329,6 +329,9 @@ def test_masked_values_are_missing_and_iso_text_times_are_dates():
     got = masked.step_rows(["a"] * 4, [0.0, 1.0, 2.0, 3.0], z)
     want = nan.step_rows(["a"] * 4, [0.0, 1.0, 2.0, 3.0], z.filled(np.nan))
     assert all(np.array_equal(a.next, b.next) for a, b in zip(got, want))
+    rows = TrackPredictor(StreamConfig(length_unit=0.1))   # a list of masked rows (helper-28: masks lost)
+    got = rows.step_rows(["a"] * 4, [0.0, 1.0, 2.0, 3.0], [z[k] for k in range(4)])
+    assert all(np.array_equal(a.next, b.next) for a, b in zip(got, want))
     text, dates = TrackPredictor(StreamConfig(length_unit=0.1)), TrackPredictor(StreamConfig(length_unit=0.1))
     stamps = ["2024-05-01T12:00:00Z", "2024-05-01T12:00:00.5Z", "2024-05-01T14:00:01+02:00"]
     for k, stamp in enumerate(stamps):

@@ -519,7 +519,8 @@ def _row_times(times) -> np.ndarray:
 def _measurements(values) -> np.ndarray:
     """Positions as float64, with pandas' NA and None as NaN (a missing measurement) as in a table, and a masked
     array's masked values too (``np.asarray`` kept the value under the mask, which was then learned)."""
-    if isinstance(values, np.ma.MaskedArray):
+    if isinstance(values, np.ma.MaskedArray) or (isinstance(values, (list, tuple)) and any(
+            isinstance(row, np.ma.MaskedArray) for row in values)):   # a list of masked rows keeps their masks
         return np.ma.asarray(values, dtype=np.float64).filled(np.nan)
     try:
         return np.asarray(values, dtype=np.float64)
