@@ -301,6 +301,10 @@ def test_a_state_file_and_a_link_to_it_share_one_lock(tmp_path):
             with StateLock(str(link)):
                 pass
     assert (tmp_path / "real" / "s.npz.lock").exists() and not (tmp_path / "link.npz.lock").exists()
+    dangling = tmp_path / "new.npz"   # a link to a state file not made yet: the first save makes it
+    dangling.symlink_to(tmp_path / "real" / "later.npz")
+    with StateLock(str(dangling)):
+        pass
 
 
 def test_a_second_writer_on_a_state_file_gets_a_clear_error(cli, tmp_path):

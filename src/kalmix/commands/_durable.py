@@ -245,10 +245,11 @@ class StateLock:
         self._fd: int | None = None
 
     def __enter__(self) -> "StateLock":
-        directory = os.path.dirname(os.path.abspath(self.path))
+        # where a save writes: a symbolic link's target, which need not exist yet (write_archive makes it)
+        directory = os.path.dirname(os.path.realpath(self.path))
         if not os.path.isdir(directory):
             raise ValueError(f"--state: the directory {directory!r} does not exist (state file {self.path!r})")
-        if os.path.lexists(self.path):
+        if os.path.exists(self.path):
             if not os.path.isfile(self.path):
                 raise ValueError(f"--state: expected a state file, got {self.path!r}, which is not a regular file")
             mode = os.stat(self.path).st_mode
