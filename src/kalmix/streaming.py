@@ -66,6 +66,8 @@ several calls (``kalmix predict`` rolls a whole chunk back when interrupted).
 
 from __future__ import annotations
 
+import datetime
+import decimal
 import math
 import numbers
 import os
@@ -485,7 +487,6 @@ def _row_times(times) -> np.ndarray:
     """``step_row`` / ``step_rows`` times as float seconds: numpy or pandas dates since 1970 UTC and durations in
     seconds, as :meth:`TrackPredictor.process_table` and files take them; numbers as they are. ``TypeError`` /
     ``ValueError`` for anything else."""
-    import datetime
 
     import pandas as pd
 
@@ -534,15 +535,15 @@ def _measurements(values) -> np.ndarray:
         return np.where(missing, np.nan, given).astype(np.float64)
 
 
+#: What a track id may be: what the state file keeps (:func:`_id_to_meta`).
+_ID_TYPES = (str, int, float, bytes, decimal.Decimal, datetime.date, datetime.time, datetime.timedelta)
+
+
 def _keyable(key) -> bool:
     """Whether ``key`` (from :func:`_id_to_json`) can be a track id: one the state file keeps (text, a number, a
-    date, time or duration, a decimal, bytes; :func:`_id_to_meta`). Others (a UUID, a Period, a tuple) were taken
-    and then refused by ``save``, at the end of a long stream."""
-    import datetime
-    import decimal
-
-    return isinstance(key, (str, int, float, bytes, decimal.Decimal, datetime.date, datetime.time,
-                            datetime.timedelta))
+    date, time or duration, a decimal, bytes). Others (a UUID, a Period, a tuple) were taken and then refused by
+    ``save``, at the end of a long stream."""
+    return isinstance(key, _ID_TYPES)
 
 
 def _track_key(value, where: str):
@@ -566,8 +567,6 @@ def _track_key(value, where: str):
 def _id_to_meta(track):
     """A track id as the state file's JSON holds it: JSON values as they are; dates, times, durations,
     decimals and bytes (Parquet id columns) tagged, so that :func:`_id_from_meta` gives back an equal key."""
-    import datetime
-    import decimal
 
     import pandas as pd
 
@@ -590,8 +589,6 @@ def _id_from_meta(value):
     """The inverse of :func:`_id_to_meta`."""
     if not isinstance(value, dict):
         return value
-    import datetime
-    import decimal
 
     import pandas as pd
 

@@ -36,6 +36,13 @@ class Finite(click.ParamType):
         return number
 
 
+def missing_directory(path) -> tuple[str, bool] | None:
+    """``(directory, taken)`` when the directory a file ``path`` would be written in is not one (``taken``:
+    something else, a file, stands there); None when it is a directory."""
+    directory = os.path.dirname(os.path.abspath(path))
+    return None if os.path.isdir(directory) else (directory, os.path.exists(directory))
+
+
 def output_file(ctx, param, value):
     """click callback: a file to write, whose directory exists and is writable, checked before the work (a
     missing directory was a traceback after the whole run)."""
@@ -43,10 +50,12 @@ def output_file(ctx, param, value):
         return value
     if not str(value).strip():
         raise click.BadParameter("expected a file name, got ''")
+    problem = missing_directory(value)
+    if problem:
+        directory, taken = problem
+        raise click.BadParameter(f"the directory {directory!r} of {value!r} "
+                                 f"{'is not a directory' if taken else 'does not exist'}")
     directory = os.path.dirname(os.path.abspath(value))
-    if not os.path.isdir(directory):
-        what = "is not a directory" if os.path.exists(directory) else "does not exist"
-        raise click.BadParameter(f"the directory {directory!r} of {value!r} {what}")
     if not os.access(directory, os.W_OK):
         raise click.BadParameter(f"the directory {directory!r} of {value!r} is not writable")
     return value

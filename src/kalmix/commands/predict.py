@@ -16,7 +16,7 @@ import click
 import numpy as np
 
 from ..bank import BANK_KINDS, DEFAULT_BANK, DEFAULT_REACH, GATE_OPTIONS, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED, recipe_parts
-from ._common import user_errors as _user_errors
+from ._common import missing_directory, user_errors as _user_errors
 
 _LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres). "
                      "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
@@ -210,11 +210,11 @@ def _distinct_files(*named):
 
 def _directory_exists(name, path):
     """``ValueError`` at start when an output file's directory does not exist (not after all the work)."""
-    if path:
-        directory = os.path.dirname(os.path.abspath(path))
-        if not os.path.isdir(directory):
-            what = "is a file, not a directory" if os.path.exists(directory) else "does not exist"
-            raise ValueError(f"{name}: the directory {directory!r} {what}")
+    problem = missing_directory(path) if path else None
+    if problem:
+        directory, taken = problem
+        raise ValueError(f"{name}: the directory {directory!r} "
+                         f"{'is a file, not a directory' if taken else 'does not exist'}")
 
 
 def _file_format(path):
