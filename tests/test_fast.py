@@ -1,5 +1,7 @@
 """The compiled time loop (numba) gives the numpy reference's numbers; numpy is the fallback."""
 
+import signal
+
 import numpy as np
 import pytest
 
@@ -328,6 +330,34 @@ def test_a_compile_child_still_running_at_exit_is_ended():
         _warm._children.discard(child)
         if child.poll() is None:
             child.kill()
+
+
+def test_an_interrupted_warm_up_ends_its_child_at_once(monkeypatch, cold_cache):
+    """Ctrl-C during a fresh install's compile stops the command now: compile_ahead kills its child instead
+    of waiting for it (the wait took up to ~25 s, the child's whole compile)."""
+    import subprocess
+    import sys
+
+    from kalmix.bank import make_bank
+
+    children = []
+    popen = subprocess.Popen
+
+    def slow_child(args, **kwargs):   # a child that would still compile for a minute
+        child = popen([sys.executable, "-c", "import sys, time; sys.stdin.buffer.read(); time.sleep(60)"],
+                                 **kwargs)
+        children.append(child)
+        return child
+
+    def interrupted(bank):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cold_cache.subprocess, "Popen", slow_child)
+    monkeypatch.setattr(cold_cache, "_tiny_run", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        cold_cache.compile_ahead(make_bank(2, "mixed", n_akf=8, length_unit=0.3))
+    assert children[0].returncode == -signal.SIGKILL   # killed and reaped, not waited for
+    assert not cold_cache._children
 
 
 def test_experts_of_one_fit_share_it_only_while_their_statistics_are_the_same():

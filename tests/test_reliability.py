@@ -597,3 +597,86 @@ def test_pieces_keep_every_track_in_order_and_merge_back(lengths, rows):
     shuffled = [p.assign(x=1.0) for p in parts[::-1]]
     pd.testing.assert_frame_equal(_predict_run.merge(shuffled, chunk)[["track_id", "time"]],
                                   chunk.reset_index(drop=True))
+
+
+class _Finaliser:
+    """Keeps the frame of its ``__del__``: where Python prints an exception and ignores it."""
+    frame = None
+
+    def __del__(self):
+        _Finaliser.frame = sys._getframe()
+
+
+def _finaliser_frame():
+    _Finaliser()
+    return _Finaliser.frame
+
+
+def _wait_for(exception):
+    with pytest.raises(exception):
+        for _ in range(500):   # the signal comes again within REDELIVER_SECONDS; 10 s at most here
+            time.sleep(0.02)
+
+
+def test_a_stop_signal_in_a_finaliser_is_raised_again_where_it_stops_the_run():
+    """A signal handled inside a finaliser (or llvmlite code, which LLVM calls from C during a numba compile)
+    cannot stop the run there: the exception would be printed and dropped, and a Ctrl-C during a fresh
+    install's first compile did nothing until the chunk's end (seen: 'Exception ignored ... __del__', then
+    the whole compile). The guard sends the signal again a moment later, and raises it then."""
+    from kalmix.commands._durable import Interrupted, SignalGuard
+    from kalmix.commands._interrupt import swallowing
+
+    frame = _finaliser_frame()
+    assert swallowing(frame) and not swallowing(sys._getframe())
+    with SignalGuard() as guard:
+        assert guard._handle(signal.SIGTERM, frame) is None   # not raised there
+        assert guard.received == signal.SIGTERM
+        _wait_for(Interrupted)
+    assert guard.raised
+
+
+def test_a_stop_signal_that_was_dropped_is_raised_at_the_next_unit_of_work():
+    """A safety net for places the guard cannot see: a signal received and not raised stops the run at the
+    next tick (a slice of a chunk, a stdin batch), not at the chunk's commit; inside a commit it waits."""
+    from kalmix.commands._durable import Interrupted, SignalGuard
+
+    guard = SignalGuard()
+    guard.tick()   # nothing received: nothing raised
+    guard.received = signal.SIGINT
+    with guard.deferred(deliver=False):
+        guard.tick()
+    with pytest.raises(Interrupted):
+        guard.tick()
+
+
+def test_ctrl_c_outside_predict_is_not_dropped_in_a_finaliser(monkeypatch):
+    """The command line's Ctrl-C (kalmix demo, evaluate, ... compiling on a fresh install) raises
+    KeyboardInterrupt as usual, but where it would be dropped it comes again a moment later. Before, a
+    KeyboardInterrupt raised in llvmlite's callback left numba without its compiled object: a 140-line
+    'RuntimeError: no compiled object yet' instead of 'Aborted!'."""
+    from kalmix.commands import _interrupt
+
+    previous = signal.getsignal(signal.SIGINT)
+    monkeypatch.setattr(signal, "default_int_handler", previous)   # as if Python's own handler were installed
+    try:
+        _interrupt.install_keyboard_interrupt()
+        assert signal.getsignal(signal.SIGINT) is _interrupt._keyboard_interrupt
+        assert _interrupt._keyboard_interrupt(signal.SIGINT, _finaliser_frame()) is None
+        _wait_for(KeyboardInterrupt)
+        with pytest.raises(KeyboardInterrupt):
+            _interrupt._keyboard_interrupt(signal.SIGINT, sys._getframe())
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def test_the_command_line_leaves_a_handler_it_did_not_install_alone(monkeypatch):
+    """Only over Python's own SIGINT handler: an ignored SIGINT (a background job) stays ignored."""
+    from kalmix.commands import _interrupt
+
+    previous = signal.getsignal(signal.SIGINT)
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        _interrupt.install_keyboard_interrupt()
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -64,6 +64,7 @@ def script() -> None:
     - The cyclic garbage collector runs every 10,000 net container allocations instead of 700:
       loading numba's kernels allocates ~250,000, so the default ran it ~350 times (0.12 s of a
       2.4 s 100k-row ``kalmix predict``, 0.04 s now). Memory is freed as before; cycles a little later.
+    - Ctrl-C stops a numba compile too (:mod:`kalmix.commands._interrupt`).
     - After a command that succeeded, the process ends without the interpreter's teardown, which
       frees numba's, pandas' and the data's objects one by one (~0.2 s at the end of that run):
       threads are joined, atexit handlers run and stdout/stderr are flushed first, as at a normal
@@ -73,7 +74,10 @@ def script() -> None:
     """
     import gc
 
+    from .commands._interrupt import install_keyboard_interrupt
+
     gc.set_threshold(10_000, 10, 10)
+    install_keyboard_interrupt()
     try:
         main()
     except SystemExit as stop:

@@ -33,6 +33,8 @@ import threading
 
 import numpy as np
 
+from ._interrupt import send_again_later, swallowing
+
 try:
     import fcntl
 except ImportError:  # pragma: no cover - not POSIX
@@ -187,6 +189,7 @@ class SignalGuard:
 
     def __init__(self):
         self.received: int | None = None
+        self.raised = False   # an Interrupted was raised (see _handle)
         self._deferring = 0
         self._previous: dict = {}
         self._ticks = 0
@@ -207,8 +210,13 @@ class SignalGuard:
     def _handle(self, signum, frame):
         if self.received is None:
             self.received = signum
-        if not self._deferring:
-            raise Interrupted(signum)
+        if self._deferring:
+            return
+        if swallowing(frame):   # where Python would print the exception and go on: raised a moment later
+            send_again_later(signum, lambda: bool(self._previous) and not self.raised)
+            return
+        self.raised = True
+        raise Interrupted(signum)
 
     @contextlib.contextmanager
     def deferred(self, deliver: bool = True):
@@ -219,10 +227,15 @@ class SignalGuard:
         finally:
             self._deferring -= 1
         if deliver and not self._deferring and self.received is not None:
+            self.raised = True
             raise Interrupted(self.received)
 
     def tick(self) -> None:
-        """One unit of work done (see :data:`TEST_HOOK`)."""
+        """One unit of work done (see :data:`TEST_HOOK`); a stop signal that arrived and was not raised (or
+        was raised where Python ignored it) is raised here."""
+        if self.received is not None and not self._deferring:
+            self.raised = True
+            raise Interrupted(self.received)
         if self._hook is not None:
             self._ticks += 1
             if self._ticks == self._hook[1]:

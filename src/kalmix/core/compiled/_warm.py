@@ -108,14 +108,27 @@ def compile_ahead(bank) -> int | None:
             _tiny_run(dataclasses.replace(bank, families=tuple(f for f in bank.families if f.kind != "akf")))
         except Exception:   # noqa: BLE001 - only a warm-up: the real run compiles what is missing, and reports
             pass
-        finally:
-            try:
-                status = child.wait(timeout=WAIT_SECONDS)
-            except subprocess.TimeoutExpired:
-                child.kill()
-                status = child.wait()
-            _children.discard(child)
+        except BaseException:   # Ctrl-C or a stop signal: stop now, not after the child's compile (~25 s)
+            _end(child)
+            raise
+        try:
+            status = child.wait(timeout=WAIT_SECONDS)
+        except subprocess.TimeoutExpired:
+            status = _end(child)
+        except BaseException:   # interrupted while waiting
+            _end(child)
+            raise
+        _children.discard(child)
         return status
+
+
+def _end(child) -> int:
+    """Kill the child and reap it; its exit status. (numba writes a cache file whole, or not at all.)"""
+    with contextlib.suppress(OSError):
+        child.kill()
+    status = child.wait()
+    _children.discard(child)
+    return status
 
 
 def _reset() -> None:
