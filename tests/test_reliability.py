@@ -612,6 +612,13 @@ def _finaliser_frame():
     return _Finaliser.frame
 
 
+def _main_thread_only():
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():   # signal handlers live there only
+        pytest.skip("needs the main thread (it installs a signal handler and signals this process)")
+
+
 def _wait_for(exception):
     with pytest.raises(exception):
         for _ in range(500):   # the signal comes again within REDELIVER_SECONDS; 10 s at most here
@@ -626,6 +633,7 @@ def test_a_stop_signal_in_a_finaliser_is_raised_again_where_it_stops_the_run():
     from kalmix.commands._durable import Interrupted, SignalGuard
     from kalmix.commands._interrupt import swallowing
 
+    _main_thread_only()
     frame = _finaliser_frame()
     assert swallowing(frame) and not swallowing(sys._getframe())
     with SignalGuard() as guard:
@@ -656,6 +664,7 @@ def test_ctrl_c_outside_predict_is_not_dropped_in_a_finaliser(monkeypatch):
     'RuntimeError: no compiled object yet' instead of 'Aborted!'."""
     from kalmix.commands import _interrupt
 
+    _main_thread_only()
     previous = signal.getsignal(signal.SIGINT)
     monkeypatch.setattr(signal, "default_int_handler", previous)   # as if Python's own handler were installed
     try:
@@ -673,6 +682,7 @@ def test_the_command_line_leaves_a_handler_it_did_not_install_alone(monkeypatch)
     """Only over Python's own SIGINT handler: an ignored SIGINT (a background job) stays ignored."""
     from kalmix.commands import _interrupt
 
+    _main_thread_only()
     previous = signal.getsignal(signal.SIGINT)
     try:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
