@@ -483,6 +483,19 @@ def test_missing_file(cli):
     assert result.exit_code == 1 and "no such file" in result.stderr
 
 
+def test_kalmix_traceback_keeps_an_error_s_traceback(cli, monkeypatch):
+    """A one-line error cannot tell a bad input from a kalmix bug raising the same type; KALMIX_TRACEBACK=1
+    lets the exception through (a bug report's traceback), and the usual one line comes back without it."""
+    from kalmix.commands._common import TRACEBACK_VARIABLE
+
+    monkeypatch.setenv(TRACEBACK_VARIABLE, "1")
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        _run(cli, ["predict", "/nonexistent/tracks.csv"])
+    monkeypatch.setenv(TRACEBACK_VARIABLE, "0")
+    result = _run(cli, ["predict", "/nonexistent/tracks.csv"])
+    assert result.exit_code == 1 and "no such file" in result.stderr
+
+
 def test_unsorted_and_duplicate_times_are_handled_with_a_warning(cli, tmp_path):
     data = _tracks(n_tracks=1, gap=False)
     clean = _read(_run(cli, ["predict", _write_csv(data, tmp_path / "clean.csv"), *FAST]).stdout)

@@ -76,9 +76,37 @@ def output_directory(ctx, param, value):
     return value
 
 
+#: Set to 1: errors keep their traceback (a bug report needs it; a one-line error cannot tell a bad input from a
+#: kalmix bug that raises the same type).
+TRACEBACK_VARIABLE = "KALMIX_TRACEBACK"
+
+
 @contextlib.contextmanager
 def user_errors():
-    """ValueError / FileNotFoundError / ImportError / MemoryError become one clear line; warnings go to stderr."""
+    """ValueError / FileNotFoundError / ImportError / MemoryError become one clear line (unless
+    :data:`TRACEBACK_VARIABLE` is 1); warnings go to stderr."""
+    if os.environ.get(TRACEBACK_VARIABLE, "0") == "1":
+        with _warnings_to_stderr():
+            yield
+        return
+    with _warnings_to_stderr():
+        try:
+            yield
+        except (ValueError, TypeError, FileNotFoundError, ImportError) as error:
+            raise click.ClickException(str(error)) from error
+        except MemoryError as error:
+            raise click.ClickException(f"not enough memory for this run ({error or 'MemoryError'}); ask for fewer "
+                                       "experts, targets or rows") from error
+        except EOFError as error:  # pandas on a truncated .gz; click would print a bare 'Aborted!'
+            raise click.ClickException(f"the input ends early (a truncated or corrupt file?): {error}") from error
+        except OSError as error:  # a disk, permission or device error: one line, not a traceback
+            where = f" {error.filename!r}" if error.filename else ""
+            raise click.ClickException(f"{error.strerror or error}{where}") from error
+
+
+@contextlib.contextmanager
+def _warnings_to_stderr():
+    """Warnings as ``kalmix: warning: ...`` lines on stderr, every time."""
     def show(message, category, filename, lineno, file=None, line=None):
         click.echo(f"kalmix: warning: {message}", err=True)
 
@@ -92,16 +120,6 @@ def user_errors():
             warnings.simplefilter("always", UserWarning)
             warnings.showwarning = show
             yield
-    except (ValueError, TypeError, FileNotFoundError, ImportError) as error:
-        raise click.ClickException(str(error)) from error
-    except MemoryError as error:
-        raise click.ClickException(f"not enough memory for this run ({error or 'MemoryError'}); ask for fewer experts, "
-                                   "targets or rows") from error
-    except EOFError as error:  # pandas on a truncated .gz; click would print a bare 'Aborted!'
-        raise click.ClickException(f"the input ends early (a truncated or corrupt file?): {error}") from error
-    except OSError as error:  # a disk, permission or device error: one line, not a traceback
-        where = f" {error.filename!r}" if error.filename else ""
-        raise click.ClickException(f"{error.strerror or error}{where}") from error
     finally:
         warnings.showwarning = previous
 
