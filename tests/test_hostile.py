@@ -68,10 +68,10 @@ def test_engine_arguments_are_checked_by_name(run, call, message):
 @pytest.mark.parametrize("args, error, message", [
     (("a", 0.0, ["1", "x"]), ValueError, r"z: expected numbers .*got \['1', 'x'\]"),
     ((["a"], 0.0, [1.0, 2.0]), TypeError, r"track_id: expected a track id .*got list \['a'\]"),
-    (("a", "noon", [1.0, 2.0]), ValueError, "time: expected a number or a date, got 'noon'"),
+    (("a", "noon", [1.0, 2.0]), ValueError, r"time: expected a number, a date and time \(datetime, ISO text\) or a duration, got 'noon'"),
     # helper-27: True and 1+1j ran at time 1.0; a UUID or a Period id was taken and then refused by save()
-    (("a", True, [1.0, 2.0]), ValueError, "time: expected a number or a date, got True"),
-    (("a", 1 + 1j, [1.0, 2.0]), ValueError, r"time: expected a number or a date, got \(1\+1j\)"),
+    (("a", True, [1.0, 2.0]), ValueError, r"time: expected a number, a date and time \(datetime, ISO text\) or a duration, got True"),
+    (("a", 1 + 1j, [1.0, 2.0]), ValueError, r"time: expected a number, a date and time \(datetime, ISO text\) or a duration, got \(1\+1j\)"),
     ((__import__("uuid").UUID(int=5), 0.0, [1.0, 2.0]), TypeError, "track_id: expected a track id .*got UUID"),
     ((pd.Period("2024-01"), 0.0, [1.0, 2.0]), TypeError, "track_id: expected a track id .*got Period"),
 ])
@@ -307,7 +307,7 @@ def test_times_empty_masked_or_boolean_in_a_list():
     times = np.ma.masked_array([3.0, 4.0], mask=[1, 0])
     got = predictor.step_rows(["a", "a"], times, [[3.0, 3.0], [4.0, 4.0]])
     assert got[0] is None and got[1].time == 4.0
-    with pytest.raises(ValueError, match=r"times: expected numbers or dates, got \[5.0, True\]"):
+    with pytest.raises(ValueError, match=r"times: expected numbers, dates and times \(datetime, ISO text\) or durations, got \[5.0, True\]"):
         predictor.step_rows(["a", "a"], [5.0, True], [[5.0, 5.0], [6.0, 6.0]])
 
 
@@ -494,3 +494,67 @@ def test_forecast_of_a_frame_based_bank_takes_any_time():
     bank = make_bank(2, "akf", length_unit=0.1, n_akf=2)
     state = engine.run(bank, np.cumsum(np.ones((10, 1, 2)), 0), np.arange(10.0)[:, None]).state
     assert np.array_equal(engine.forecast(bank, state, np.nan)[0], engine.forecast(bank, state, 3.0)[0])
+
+
+def _walked(**config):
+    predictor = TrackPredictor(StreamConfig(length_unit=0.01, bank="kinematic", **config), position_names=["x", "y"])
+    for k in range(20):
+        predictor.step_row(0, float(k), [float(k), 100.0])
+    return predictor
+
+
+def test_labelled_coordinates_are_taken_by_name():
+    """helper-30: a Series labelled y, x (or a DataFrame with those columns in step_rows) was taken in its own
+    order, swapping the coordinates silently (process_table takes columns by name). Now by position_names, a dict
+    too; labels that are not the names are refused; integer labels are positions."""
+    plain = _walked().step_row(0, 20.0, [20.0, 100.0]).next
+    assert np.array_equal(_walked().step_row(0, 20.0, pd.Series({"y": 100.0, "x": 20.0})).next, plain)
+    assert np.array_equal(_walked().step_row(0, 20.0, {"y": 100.0, "x": 20.0}).next, plain)
+    assert np.array_equal(_walked().step_row(0, 20.0, pd.Series([20.0, 100.0])).next, plain)
+    rows = _walked().step_rows([0, 0], [20.0, 21.0], pd.DataFrame({"y": [100.0, 100.0], "x": [20.0, 21.0]}))
+    plain_rows = _walked().step_rows([0, 0], [20.0, 21.0], [[20.0, 100.0], [21.0, 100.0]])
+    assert all(np.array_equal(a.next, b.next) for a, b in zip(rows, plain_rows))
+    with pytest.raises(ValueError, match=r"z: expected the coordinates \['x', 'y'\] \(position_names\), got \['a', 'x'\]"):
+        _walked().step_row(0, 20.0, pd.Series({"a": 1.0, "x": 2.0}))
+    with pytest.raises(ValueError, match="need the predictor's position_names"):
+        TrackPredictor(StreamConfig(length_unit=0.01)).step_row(0, 0.0, {"x": 1.0, "y": 2.0})
+
+
+def test_mixture_predictor_takes_missing_values_as_the_track_predictor_does():
+    """helper-30: MixturePredictor learned the value under a mask (np.asarray keeps it), refused None and pd.NA
+    (TrackPredictor takes them as missing) and learned booleans as 1 and 0; run() with the wrong width named
+    neither `measurements` nor (T, p)."""
+    from kalmix import MixturePredictor
+
+    def walked():
+        predictor = MixturePredictor(4, seed=1)
+        for k in range(20):
+            predictor.step([k * 1.0, 2.0])
+        return predictor
+
+    missing = walked().step([np.nan, 2.0])
+    assert np.array_equal(walked().step(np.ma.masked_array([500.0, 2.0], [True, False])), missing)
+    assert np.array_equal(walked().step([pd.NA, 2.0]), missing)
+    assert np.array_equal(walked().step(None), walked().step([np.nan, np.nan]))
+    for booleans in ([True, False], np.array([True, False])):
+        with pytest.raises(TypeError, match="z: expected numbers"):
+            walked().step(booleans)
+    with pytest.raises(ValueError, match=r"measurements: expected shape \(T, 2\) for this predictor, got \(5, 3\)"):
+        walked().run(np.zeros((5, 3)))
+    with pytest.raises(ValueError, match="z: None .* needs the number of coordinates"):
+        MixturePredictor(4).step(None)
+
+
+def test_values_too_large_for_a_float_and_booleans_are_named_errors():
+    """helper-30: 10**400 as a coordinate or a time gave a bare OverflowError; a non-sequence of ids 'int object is
+    not iterable'; booleans were learned as 1 and 0 (bool times were already refused)."""
+    with pytest.raises(ValueError, match="z: expected numbers"):
+        _walked().step_row(0, 20.0, [10**400, 1.0])
+    with pytest.raises(ValueError, match="time: expected a number"):
+        _walked().step_row(0, 10**400, [1.0, 1.0])
+    with pytest.raises(ValueError, match="values: expected numbers"):
+        _walked().step_rows([0], [20.0], [[10**400, 1.0]])
+    with pytest.raises(TypeError, match="track_ids: expected a sequence of track ids"):
+        _walked().step_rows(7, [20.0], [[1.0, 2.0]])
+    with pytest.raises(ValueError, match="z: expected numbers"):
+        _walked().step_row(0, 20.0, [True, False])

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ._values import measurements as _measurements
 from .archive import open_archive, write_archive
 from .bank import check_horizon, make_params
 from .core.mixture import MixtureParams, MixtureState, init_state, predict, step
@@ -30,10 +31,11 @@ _MAGIC = "kalmix-predictor"
 
 
 def _as_measurements(value, name: str = "z") -> np.ndarray:
-    """Numeric float array; NaN allowed (missing), +-inf refused."""
+    """Numeric float array; NaN allowed (missing, as pandas' NA, None and a masked array's masked values), +-inf
+    refused."""
     try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as error:
+        array = _measurements(value)
+    except (TypeError, ValueError, OverflowError) as error:
         raise TypeError(f"{name}: expected numbers (NaN for a missing measurement), got {value!r:.80}") from error
     if np.isinf(array).any():
         where = tuple(int(i) for i in np.argwhere(np.isinf(array))[0])
@@ -99,6 +101,12 @@ class MixturePredictor:
         self._single = single
 
     def _batch(self, z) -> np.ndarray:
+        if z is None:   # a missing row, as for TrackPredictor.step_row
+            if self._params is None:
+                raise ValueError("z: None (a missing row) needs the number of coordinates, which the predictor "
+                                 "learns from its first measurement; give NaN for each coordinate")
+            z = np.full((self._params.measurement_dim,) if self._single else self._state.steps.shape[:1]
+                        + (self._params.measurement_dim,), np.nan)
         array = _as_measurements(z)
         if self._params is None:
             if array.ndim not in (1, 2) or array.shape[-1] < 1 or (array.ndim == 2 and array.shape[0] < 1):
@@ -156,7 +164,13 @@ class MixturePredictor:
         if array.ndim not in (2, 3) or array.shape[0] < 1:
             raise ValueError(f"measurements: expected shape (T, p) or (T, N, p) with T >= 1, got {array.shape}")
         horizon = check_horizon(horizon)
-        self._batch(array[0])  # builds on first use and checks the per-step shape
+        try:
+            self._batch(array[0])  # builds on first use and checks the per-step shape
+        except ValueError:
+            step = (self._params.measurement_dim,) if self._single else (self._state.steps.shape[0],
+                                                                         self._params.measurement_dim)
+            raise ValueError(f"measurements: expected shape (T, {', '.join(map(str, step))}) for this predictor, "
+                             f"got {array.shape}") from None
         batched = array[:, None, :] if self._single else array
         result = run_core(self._params, batched, self._state, horizon=int(horizon), diagnostics=diagnostics,
                           expert_predictions=expert_predictions, progress=progress, backend=self._backend())

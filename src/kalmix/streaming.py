@@ -72,11 +72,13 @@ import math
 import numbers
 import os
 import warnings
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from ._values import measurements as _measurements
 from .archive import open_archive, write_archive
 from .bank import DEFAULT_BANK, DEFAULT_REACH, check_horizon, check_length_unit, make_bank, make_params, short_lead
 from .core.engine import Bank, BankState, init_bank_state, tree_map
@@ -517,24 +519,6 @@ def _row_times(times) -> np.ndarray:
     return given.astype(np.float64)
 
 
-def _measurements(values) -> np.ndarray:
-    """Positions as float64, with pandas' NA and None as NaN (a missing measurement) as in a table, and a masked
-    array's masked values too (``np.asarray`` kept the value under the mask, which was then learned)."""
-    if isinstance(values, np.ma.MaskedArray) or (isinstance(values, (list, tuple)) and any(
-            isinstance(row, np.ma.MaskedArray) for row in values)):   # a list of masked rows keeps their masks
-        return np.ma.asarray(values, dtype=np.float64).filled(np.nan)
-    try:
-        return np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError):
-        import pandas as pd
-
-        given = np.asarray(values, dtype=object)
-        missing = np.asarray(pd.isna(given), dtype=bool)
-        if not missing.any():
-            raise
-        return np.where(missing, np.nan, given).astype(np.float64)
-
-
 #: What a track id may be: what the state file keeps (:func:`_id_to_meta`).
 _ID_TYPES = (str, int, float, bytes, decimal.Decimal, datetime.date, datetime.time, datetime.timedelta)
 
@@ -883,8 +867,12 @@ class TrackPredictor:
         """Learn from one measurement (NaN = missing) and predict; None if the row is skipped (its time at or
         before its track's last time, or NaN or infinite).
 
+        ``z``: the coordinates in the order of :attr:`position_names`, or labelled by them (a pandas
+        Series, a dict); None for a missing row once the predictor knows its number of coordinates.
+
         All or nothing: the track's tracker and state change only once the step succeeded.
         """
+        z = self._by_name(z, "z")
         if z is None:   # the whole row missing: as many NaN as the predictor has coordinates
             if self.params is None:
                 raise ValueError("z: None (a missing row) needs the number of coordinates, which the predictor "
@@ -892,7 +880,7 @@ class TrackPredictor:
             z = [np.nan] * self.params.measurement_dim
         try:
             given = _measurements(z)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ValueError(f"z: expected numbers (NaN for a missing measurement), got {z!r:.80}") from None
         if given.ndim > 1 and given.shape[:-1] != (1,) * (given.ndim - 1):
             raise ValueError(f"z: expected one row of coordinates, shape (p,), got shape {given.shape}")
@@ -901,9 +889,32 @@ class TrackPredictor:
             raise ValueError(f"z: expected finite numbers (NaN for a missing measurement), got {z!r:.80}")
         try:
             time = float(_row_times([time])[0])
-        except (TypeError, ValueError):
-            raise ValueError(f"time: expected a number or a date, got {time!r:.80}") from None
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"time: expected a number, a date and time (datetime, ISO text) or a duration, got {time!r:.80}") from None
         return self._step_checked([_track_key(track_id, "track_id")], np.array([time]), z[None, :])[0]
+
+    def _by_name(self, values, where: str):
+        """Labelled coordinates (a pandas Series or a mapping for one row, a DataFrame's columns for rows) in the
+        order of :attr:`position_names`, as :meth:`process_table` takes a table's columns by name; they were
+        taken in their own order, which silently swapped coordinates. Unlabelled values are returned as given."""
+        if isinstance(values, Mapping):
+            labels = list(values.keys())
+        elif type(values).__name__ in ("Series", "DataFrame") and type(values).__module__.startswith("pandas"):
+            labels = list(values.index if type(values).__name__ == "Series" else values.columns)
+            if all(isinstance(label, (int, np.integer)) for label in labels):   # positions, not names
+                return values
+        else:
+            return values
+        names = self.position_names
+        if names is None:
+            if isinstance(values, Mapping):
+                raise ValueError(f"{where}: coordinates by name ({labels}) need the predictor's position_names")
+            return values
+        if set(labels) != set(names) or len(labels) != len(names):
+            raise ValueError(f"{where}: expected the coordinates {list(names)} (position_names), got {labels}")
+        if isinstance(values, Mapping):
+            return [values[name] for name in names]
+        return values[list(names)] if type(values).__name__ == "Series" else values.loc[:, list(names)]
 
     def step_rows(self, track_ids, times, values) -> list[RowPrediction | None]:
         """Rows that have already arrived, as :meth:`step_row` on each in turn, through one run of the core.
@@ -931,16 +942,21 @@ class TrackPredictor:
         if isinstance(track_ids, (str, bytes)):   # its letters were taken for the rows' ids
             raise TypeError(f"track_ids: expected a sequence of track ids, one per row, got the text {track_ids!r:.80} "
                             "(one row: step_row)")
-        ids = list(track_ids)
+        try:
+            ids = list(track_ids)
+        except TypeError:
+            raise TypeError(f"track_ids: expected a sequence of track ids, one per row, got {track_ids!r:.80} "
+                            "(one row: step_row)") from None
         if np.ndim(times) > 1:
             raise ValueError(f"times: expected one time per row, a 1-D sequence, got shape {np.shape(times)}")
         try:
             times = _row_times(times).reshape(-1)
-        except (TypeError, ValueError):
-            raise ValueError(f"times: expected numbers or dates, got {times!r:.80}") from None
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"times: expected numbers, dates and times (datetime, ISO text) or durations, got {times!r:.80}") from None
+        values = self._by_name(values, "values")
         try:
             values = _measurements(values)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ValueError(f"values: expected numbers (NaN for a missing measurement), got {values!r:.80}") from None
         if values.ndim != 2 or len(values) != len(ids) or len(times) != len(ids):
             raise ValueError(f"step_rows: expected {len(ids)} times and a ({len(ids)}, p) array of values (one row "

@@ -1,0 +1,30 @@
+"""Measurements as the predictors take them (one place for :class:`kalmix.TrackPredictor` and
+:class:`kalmix.MixturePredictor`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["measurements"]
+
+
+def measurements(values) -> np.ndarray:
+    """Positions as float64, with pandas' NA and None as NaN (a missing measurement) as in a table, and a masked
+    array's masked values too (``np.asarray`` kept the value under the mask, which was then learned).
+    ``TypeError`` for booleans (taken as 1 and 0 before), ``ValueError``/``TypeError`` for what is not numbers."""
+    if isinstance(values, (bool, np.bool_)) or getattr(values, "dtype", None) == np.bool_ or (
+            isinstance(values, (list, tuple)) and values and all(isinstance(v, (bool, np.bool_)) for v in values)):
+        raise TypeError(f"expected numbers, got booleans {values!r:.80}")
+    if isinstance(values, np.ma.MaskedArray) or (isinstance(values, (list, tuple)) and any(
+            isinstance(row, np.ma.MaskedArray) for row in values)):   # a list of masked rows keeps their masks
+        return np.ma.asarray(values, dtype=np.float64).filled(np.nan)
+    try:
+        return np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        import pandas as pd
+
+        given = np.asarray(values, dtype=object)
+        missing = np.asarray(pd.isna(given), dtype=bool)
+        if not missing.any():
+            raise
+        return np.where(missing, np.nan, given).astype(np.float64)
