@@ -558,3 +558,20 @@ def test_values_too_large_for_a_float_and_booleans_are_named_errors():
         _walked().step_rows(7, [20.0], [[1.0, 2.0]])
     with pytest.raises(ValueError, match="z: expected numbers"):
         _walked().step_row(0, 20.0, [True, False])
+
+
+def test_a_short_first_step_does_not_make_every_later_row_a_gap():
+    """helper-30: a second frame 10 ms after the first, then 33 ms frames: the reference interval was that first
+    step alone, every later step was a gap (3 x 10 ms < 33 ms) and a gap never entered the reference, so the track
+    restarted at every row, for good, in step_row and process_table alike. While the reference is incomplete a
+    gap's step now enters it: one early restart, then the track goes on. A real gap still splits."""
+    times = [0.0, 0.010] + [0.010 + k / 30 for k in range(1, 300)]
+    predictor = TrackPredictor(StreamConfig(length_unit=0.01))
+    rows = [predictor.step_row("cam", t, [2 * t, 1.0]) for t in times]
+    assert rows[-1].segment == 1 and max(r.segment for r in rows) == 1
+    table = pd.DataFrame({"track_id": "cam", "time": times, "x": [2 * t for t in times], "y": 1.0})
+    out = TrackPredictor(StreamConfig(length_unit=0.01)).process_table(table, ["x", "y"])
+    assert out["segment"].max() == 1
+    gapped = times[:100] + [t + 5.0 for t in times[100:]]   # 5 s lost after 100 rows
+    again = TrackPredictor(StreamConfig(length_unit=0.01))
+    assert [again.step_row("cam", t, [2 * t, 1.0]) for t in gapped][-1].segment == 2

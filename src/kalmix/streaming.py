@@ -23,7 +23,9 @@ says little about the motion after it), while the aggregation rule and the calib
 keep what they learned on the track (a warm start, :func:`kalmix.core.engine.run`'s
 ``restart``). The threshold is ``max_gap`` (in the time column's units)
 when given, else ``max_gap_factor`` (3) times the track's *reference interval*: the
-median of the first (up to 16) positive time steps of the track that were not gaps.
+median of the first (up to 16) positive time steps of the track (a gap among them too: a
+short first step made every later step a gap, and a gap that never entered the reference kept
+it so); once it has 16, a gap's step does not change it.
 The rule is causal (it only looks at rows already seen), so a row-by-row stream and a
 whole file give the same segments, and it survives a ``--state`` save and resume.
 
@@ -358,9 +360,12 @@ class GapTracker:
         self.jump_counted = False
         if gap:
             self.segment += 1
-        elif len(self.intervals) < REFERENCE_INTERVALS:
+        if len(self.intervals) < REFERENCE_INTERVALS and (not gap or config.max_gap is None):
+            # while the reference is incomplete a gap's step goes into it too (judged, if it comes back, as the
+            # first step is): a short first step (10 ms among 33 ms frames) made every later step a gap, kept
+            # out of the reference, so the track restarted at every row for good (helper-30)
             self.intervals.append(dt)
-            self.jump_counted = unjudged
+            self.jump_counted = unjudged or gap
         self.last_time = time
         return gap
 
