@@ -7,6 +7,7 @@ shows the process is waiting for input.
 """
 
 import io
+import json
 import os
 import re
 import signal
@@ -690,3 +691,48 @@ def test_the_command_line_leaves_a_handler_it_did_not_install_alone(monkeypatch)
         assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def test_a_figure_or_json_interrupted_while_written_leaves_the_previous_file(tmp_path):
+    """helper-29: Ctrl-C while `reproduce figure2` saved its PNG left it at 0 bytes (table1's JSON cut at 12 of 16
+    KB, servo_error.png at 124 bytes): they were written in place. Now every figure and JSON the commands write
+    goes through a temporary file renamed over the old one, as the state file does."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from kalmix.archive import save_figure
+    from kalmix.commands._common import write_json
+
+    target = tmp_path / "out.json"
+    write_json(str(target), {"a": 1})
+    before = target.read_bytes()
+
+    class Stop(BaseException):
+        pass
+
+    original = json.dump
+
+    def interrupted(data, handle, **kwargs):
+        handle.write('{"half": ')
+        raise Stop
+
+    json.dump = interrupted
+    try:
+        with pytest.raises(Stop):
+            write_json(str(target), {"b": 2})
+    finally:
+        json.dump = original
+    assert target.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]   # no temporary file left
+
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [1, 0])
+    png = save_figure(fig, tmp_path / "figure.png")
+    assert open(png, "rb").read(8) == b"\x89PNG\r\n\x1a\n"
+    bare = save_figure(fig, tmp_path / "figure")   # no extension: PNG, at that very path
+    assert open(bare, "rb").read(4) == b"\x89PNG" and bare == str(tmp_path / "figure")
+    save_figure(fig, tmp_path / "f.svg")
+    assert b"<svg" in (tmp_path / "f.svg").read_bytes()
+    plt.close(fig)

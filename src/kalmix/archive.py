@@ -21,7 +21,7 @@ import zipfile
 
 import numpy as np
 
-__all__ = ["write_archive", "open_archive", "Archive"]
+__all__ = ["write_archive", "replaced_file", "save_figure", "open_archive", "Archive"]
 
 #: Room for the ``.npy`` header in front of a member's data (the format caps it at 64 KiB).
 _NPY_HEADER_ROOM = 65_536 + 16
@@ -67,6 +67,20 @@ def write_archive(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndar
     and is not a regular file (a device, a FIFO, a directory) is refused with a ``ValueError``.
     An ``OSError`` names ``path``, not the temporary file.
     """
+    with replaced_file(path, what="a state file path") as handle:
+        np.savez(handle, meta=np.array(json.dumps(meta, default=_json_default)), **arrays)
+
+
+@contextlib.contextmanager
+def replaced_file(path: str | os.PathLike, mode: str = "wb", *, what: str = "a file path"):
+    """A handle to write ``path`` whole or not at all: a uniquely named temporary file beside it, fsynced and
+    renamed over it when the block ends without an exception (the directory fsynced too), removed otherwise.
+    A Ctrl-C, a full disk or a crash leaves the previous file, never half of a new one.
+
+    A symbolic link is followed (its target is replaced, the link stays); a path that exists and is not a
+    regular file is refused with a ``ValueError`` (``what`` names what was expected); an ``OSError`` names
+    ``path``, not the temporary file. The new file keeps the permissions of the one it replaces.
+    """
     given = os.fspath(path)
     path = os.path.realpath(given)
     try:
@@ -74,20 +88,20 @@ def write_archive(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndar
     except OSError:
         kind = None
     if kind is not None and not stat.S_ISREG(kind):
-        what = "a directory" if stat.S_ISDIR(kind) else "not a regular file (a device, a FIFO or a socket)"
-        raise ValueError(f"{given}: expected a state file path, and it is {what}; give a file name")
+        described = "a directory" if stat.S_ISDIR(kind) else "not a regular file (a device, a FIFO or a socket)"
+        raise ValueError(f"{given}: expected {what}, and it is {described}; give a file name")
     directory = os.path.dirname(path)
-    mode = _new_file_mode(path)
+    new_mode = _new_file_mode(path)
     try:
         fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{os.path.basename(path)}.", suffix=".tmp")
     except OSError as error:
         raise OSError(error.errno, f"cannot write {given!r}: {error.strerror}") from None
     try:
-        with os.fdopen(fd, "wb") as handle:
-            np.savez(handle, meta=np.array(json.dumps(meta, default=_json_default)), **arrays)
+        with os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"})) as handle:
+            yield handle
             handle.flush()
             os.fsync(handle.fileno())
-        os.chmod(tmp, mode)
+        os.chmod(tmp, new_mode)
         os.replace(tmp, path)
     except BaseException as error:
         with contextlib.suppress(OSError):
@@ -96,6 +110,15 @@ def write_archive(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndar
             raise OSError(error.errno, f"cannot write {given!r}: {error.strerror}") from None
         raise
     _fsync_directory(directory)
+
+
+def save_figure(fig, path: str | os.PathLike, **options) -> str:
+    """``fig.savefig`` through :func:`replaced_file`, in the format its extension names (PNG without one)."""
+    extension = os.path.splitext(os.fspath(path))[1].lstrip(".").lower() or "png"
+    with replaced_file(path, what="a figure file path") as handle:
+        fig.savefig(handle, format=extension, **options)
+    return os.fspath(path)
+
 
 
 class Archive:

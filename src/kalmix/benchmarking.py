@@ -364,7 +364,9 @@ def plot(results: dict, path) -> None:
     ax.set_ylim(bottom=0)
     ax2.set_ylim(bottom=0)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    from .archive import save_figure
+
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -386,7 +388,9 @@ def main(quick: bool = False, json_path=None, png_path=None, log=print) -> dict:
     log(markdown_table(results))
     log(f"\n(total {results['seconds']:.1f} s)")
     if json_path:
-        with open(json_path, "w") as handle:
+        from .archive import replaced_file
+
+        with replaced_file(json_path, "w", what="a JSON file path") as handle:
             json.dump(_json_ready(results), handle, indent=2)
         log(f"wrote {json_path}")
     if png_path:

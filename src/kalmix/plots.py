@@ -7,6 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from .archive import save_figure
+
 __all__ = ["figure2"]
 
 _PHASE_COLOURS = ("#dbe9f6", "#fde2c8", "#e3f1dc")
@@ -117,6 +119,6 @@ def figure2(data: dict[str, Any], out: str | os.PathLike, *, top: int = 5, dpi: 
     for ax in axes:
         ax.grid(True, which="major", alpha=0.3)
     path = os.fspath(out)
-    fig.savefig(path, dpi=dpi)
+    save_figure(fig, path, dpi=dpi)
     plt.close(fig)
     return path

@@ -133,8 +133,11 @@ def _json_default(value):
 
 
 def write_json(path: str, data) -> None:
-    """Write ``data`` (numpy scalars and arrays allowed) as indented JSON."""
-    with open(path, "w", encoding="utf-8") as handle:
+    """Write ``data`` (numpy scalars and arrays allowed) as indented JSON, whole or not at all (a Ctrl-C while it
+    writes leaves the previous file)."""
+    from ..archive import replaced_file
+
+    with replaced_file(path, "w", what="a JSON file path") as handle:
         json.dump(data, handle, indent=1, default=_json_default)
         handle.write("\n")
 

@@ -15,6 +15,7 @@ import os
 import click
 import numpy as np
 
+from ..archive import save_figure
 from ..bank import BANK_KINDS, DEFAULT_BANK, DEFAULT_REACH, GATE_OPTIONS, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED, recipe_parts
 from ._common import missing_directory, user_errors as _user_errors
 
@@ -528,7 +529,9 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
         result.dataset = label
         click.echo(format_result(result, per_track=per_track))
         if json_path:
-            with open(json_path, "w") as handle:
+            from ..archive import replaced_file
+
+            with replaced_file(json_path, "w", what="a JSON file path") as handle:
                 json.dump(result.to_json(), handle, indent=2)
         if plot_path:
             plot_errors(result, plot_path, plot_track)
@@ -672,7 +675,7 @@ def plot_intervals(result, path, track=None, rows: int = 30):
     ax.set_title(f"{result.dataset}: track {track}, samples {start}-{part.stop - 1} of a segment")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -707,5 +710,5 @@ def plot_errors(result, path, track=None):
     ax.set_title(f"{result.dataset}: track {track}")
     ax.legend(fontsize=8, ncol=2)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)

@@ -15,6 +15,7 @@ import warnings
 import click
 import numpy as np
 
+from ..archive import save_figure
 from ._common import SEED, Finite, one_line_errors, output_directory, output_file, progress_bar, write_json
 
 _LABELS = {
@@ -110,7 +111,7 @@ def plot_paths(result, path) -> None:
     fig.suptitle(f"visual servoing: end effector v_k chasing the target d_k, delay {config.delay_frames} "
                  f"frames, {gains}")
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
     plt.close(fig)
 
 
@@ -149,7 +150,7 @@ def plot_errors(result, path, speeds=None) -> None:
         axes[1].grid(alpha=0.3)
     axes[-1].set_xlabel("time (s)")
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
     plt.close(fig)
 
 

@@ -708,5 +708,7 @@ def plot_learning_curve(history: TrainingHistory, path) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path)
+    from ..archive import save_figure
+
+    save_figure(fig, path)
     plt.close(fig)
