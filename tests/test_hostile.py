@@ -4,6 +4,8 @@ Every case here was found by feeding kalmix a bad input, option, or call: before
 a traceback-like message, a wrong silent result, or an error after all the work.
 """
 
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -209,6 +211,29 @@ def test_servo_makes_a_nested_output_directory(cli, tmp_path, monkeypatch):
     monkeypatch.setattr(servo_command, "progress_bar", stop)
     result = CliRunner().invoke(cli, ["servo", "--out-dir", str(tmp_path / "new" / "nested")])
     assert result.exit_code == 1 and "stopped here: the options were taken" in result.output
+
+
+def test_servo_cells_never_read_zero_for_a_small_gain():
+    """helper-29: --gain 0.004 printed 0.00 in the gain column (and the option refuses a gain of 0)."""
+    from kalmix.commands.servo import _cell
+
+    assert _cell(0.004, 6, 2).strip() == "0.004"
+    assert _cell(0.8, 6, 2).strip() == "0.80" and _cell(0.0, 6, 2).strip() == "0.00"
+    assert _cell(1e6, 6, 2).strip() == "1e+06"
+
+
+def test_reproduce_writes_its_json_before_a_closed_stdout_ends_it(cli, tmp_path, monkeypatch):
+    """helper-29: `kalmix reproduce table1 --json t.json | head -1` (and servo's figures) lost every file: the
+    tables were echoed first and the closed pipe ended the command there. The files now come first."""
+    import kalmix.commands.reproduce as reproduce_command
+
+    def closed(*args, **kwargs):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr(reproduce_command.click, "echo", closed)
+    target = tmp_path / "t.json"
+    result = CliRunner().invoke(cli, ["reproduce", "table1", "--quick", "--seeds", "1", "--json", str(target)])
+    assert result.exit_code != 0 and json.loads(target.read_text())["scenario"] == "quick"
 
 
 def test_a_library_error_in_the_other_commands_is_one_line(cli, monkeypatch):

@@ -7,6 +7,7 @@ import functools
 import json
 import math
 import os
+import sys
 import warnings
 
 import click
@@ -151,6 +152,13 @@ def one_line_errors(function):
     return wrapper
 
 
+def _is_terminal(stream) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):   # a closed or replaced stream
+        return False
+
+
 @contextlib.contextmanager
 def progress_bar(total: int, description: str, unit: str):
     """A tqdm bar on stderr (absent if tqdm is missing); yields ``update(n=1, postfix=None)``."""
@@ -159,7 +167,9 @@ def progress_bar(total: int, description: str, unit: str):
     except ImportError:  # pragma: no cover - tqdm is in the cli extra
         yield lambda n=1, postfix=None: None
         return
-    with tqdm(total=total, desc=description, unit=unit, leave=False, dynamic_ncols=True) as bar:
+    # on a terminal only, as predict's: redirected to a log, every redraw was a line of \r updates (helper-29)
+    with tqdm(total=total, desc=description, unit=unit, leave=False, dynamic_ncols=True,
+              disable=not _is_terminal(sys.stderr)) as bar:
         def update(n=1, postfix=None):
             if postfix:
                 bar.set_postfix_str(postfix, refresh=False)

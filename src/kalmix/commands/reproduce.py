@@ -2,7 +2,7 @@
 
 ::
 
-    kalmix reproduce table1 --seeds 5 --json table1.json      # both AKF modes, ~1 min per seed
+    kalmix reproduce table1 --seeds 5 --json table1.json      # both AKF modes, a few seconds in all
     kalmix reproduce figure2 --out figure2.png
     kalmix reproduce ablations --seeds 3 --json ablations.json
 """
@@ -121,6 +121,8 @@ def table1_command(n_seeds: int, json_path: str | None, mode: str, n_experts: in
     result["n_experts"] = n_experts
     result["scenario"] = "quick" if quick else "paper"
     result["gating"] = gating or "fixed_share"
+    if json_path:   # first: a closed or full stdout ends the echoes below, not the file
+        write_json(json_path, result)
     if gating:
         click.echo(f"softmax-mixture row uses gating={gating!r}")
     for current in modes:
@@ -129,7 +131,6 @@ def table1_command(n_seeds: int, json_path: str | None, mode: str, n_experts: in
         click.echo(format_claims(result, current))
         click.echo()
     if json_path:
-        write_json(json_path, result)
         click.echo(f"wrote {json_path}")
 
 
@@ -194,9 +195,10 @@ def ablations_command(n_seeds: int, json_path: str | None, groups: tuple[str, ..
     with progress_bar(total, "ablations", "run") as tick:
         result = ablations(range(n_seeds), groups=selected, progress=tick,
                            scenario=quick_scenario() if quick else None)
+    if json_path:   # first: a closed or full stdout ends the echoes below, not the file
+        write_json(json_path, result)
     click.echo(format_ablations(result))
     if json_path:
-        write_json(json_path, result)
         click.echo(f"wrote {json_path}")
 
 

@@ -49,9 +49,10 @@ def format_table(result) -> str:
 
 def _cell(value, width, decimals):
     """``value`` right-aligned in ``width`` with ``decimals``, or in 3 significant digits where that would not fit
-    (a gain of 1e6 printed 1000000.00 and shifted the row's other columns)."""
+    (a gain of 1e6 printed 1000000.00 and shifted the row's other columns) or would read 0 (a gain of 0.004
+    printed 0.00, helper-29)."""
     text = f"{value:.{decimals}f}"
-    if len(text) >= width:
+    if len(text) >= width or (value != 0 and float(text) == 0):
         text = f"{value:.3g}"
     return text.rjust(width)
 
@@ -208,11 +209,25 @@ def servo(scenario, delay_frames, noise_px, gain, prediction_gain, seed, json_pa
     for warning in caught:
         click.echo(f"warning: {warning.message}", err=True)
 
-    click.echo(f"scenario '{scenario}', seed {seed}")
-    click.echo(format_table(result))
     data = result.to_dict()
     data["scenario"] = scenario
     data.update(_ratios(result))
+    # the files first: a closed stdout (| head) or a full one ends the echoes below, not the run's files
+    os.makedirs(out_dir, exist_ok=True)
+    figures = {
+        "paths": os.path.join(out_dir, "servo_paths.png"),
+        "errors": os.path.join(out_dir, "servo_error.png"),
+        "som_learning_curve": os.path.join(out_dir, "servo_som_learning.png"),
+    }
+    plot_paths(result, figures["paths"])
+    plot_errors(result, figures["errors"], speeds=trajectory.speeds)
+    plot_learning_curve(history, figures["som_learning_curve"])
+    data["figures"] = figures
+    if json_path:
+        write_json(json_path, data)
+
+    click.echo(f"scenario '{scenario}', seed {seed}")
+    click.echo(format_table(result))
     click.echo(
         f"SOM inverse Jacobian, median relative error over the target's path: "
         f"{data['som_relative_error_untrained']:.3f} untrained -> {data['som_relative_error']:.3f} after "
@@ -231,17 +246,6 @@ def servo(scenario, delay_frames, noise_px, gain, prediction_gain, seed, json_pa
                    + (f"; single AKF / mixture: {data['single_akf_over_mixture_rms']:.3f}"
                       if "single_akf_over_mixture_rms" in data else ""))
 
-    os.makedirs(out_dir, exist_ok=True)
-    figures = {
-        "paths": os.path.join(out_dir, "servo_paths.png"),
-        "errors": os.path.join(out_dir, "servo_error.png"),
-        "som_learning_curve": os.path.join(out_dir, "servo_som_learning.png"),
-    }
-    plot_paths(result, figures["paths"])
-    plot_errors(result, figures["errors"], speeds=trajectory.speeds)
-    plot_learning_curve(history, figures["som_learning_curve"])
-    data["figures"] = figures
     click.echo("figures: " + ", ".join(figures.values()))
     if json_path:
-        write_json(json_path, data)
         click.echo(f"wrote {json_path}")
