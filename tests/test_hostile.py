@@ -236,6 +236,22 @@ def test_reproduce_writes_its_json_before_a_closed_stdout_ends_it(cli, tmp_path,
     assert result.exit_code != 0 and json.loads(target.read_text())["scenario"] == "quick"
 
 
+@pytest.mark.parametrize("args, message", [
+    (["reproduce", "figure2", "--out", "fig.txt"], "expected a figure file name ending in .png"),
+    (["bench", "--quick", "--png", "b.txt"], "expected a figure file name ending in .png"),
+    (["reproduce", "figure2", "--out", "new.png/"], "which names a directory"),
+    (["reproduce", "table1", "--json", "new.json/"], "which names a directory"),
+])
+def test_a_figure_or_json_name_that_cannot_be_written_is_refused_before_the_work(cli, tmp_path, monkeypatch, args,
+                                                                                 message):
+    """helper-29: a .txt figure failed after the whole run (bench: ~2 min, its JSON already written); 'x.png/' gave
+    'No such file or directory: x.png/.png' after it."""
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 2 and message in result.output
+    assert not list(tmp_path.iterdir())
+
+
 def test_a_library_error_in_the_other_commands_is_one_line(cli, monkeypatch):
     """What the options cannot check (here a library refusal) is one line, as in predict, not a traceback."""
     import kalmix.baselines

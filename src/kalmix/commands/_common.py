@@ -51,6 +51,8 @@ def output_file(ctx, param, value):
         return value
     if not str(value).strip():
         raise click.BadParameter("expected a file name, got ''")
+    if str(value).endswith(("/", os.sep)):
+        raise click.BadParameter(f"expected a file name, got {value!r}, which names a directory")
     problem = missing_directory(value)
     if problem:
         directory, taken = problem
@@ -59,6 +61,23 @@ def output_file(ctx, param, value):
     directory = os.path.dirname(os.path.abspath(value))
     if not os.access(directory, os.W_OK):
         raise click.BadParameter(f"the directory {directory!r} of {value!r} is not writable")
+    return value
+
+
+def figure_file(ctx, param, value):
+    """click callback: :func:`output_file` whose extension matplotlib writes (PNG without one), checked before the
+    work (``--out fig.txt`` failed after it)."""
+    value = output_file(ctx, param, value)
+    if value is None:
+        return value
+    extension = os.path.splitext(str(value))[1].lstrip(".").lower()
+    if extension:
+        from matplotlib.backend_bases import FigureCanvasBase
+
+        known = FigureCanvasBase.get_supported_filetypes()
+        if extension not in known:
+            raise click.BadParameter(f"expected a figure file name ending in .png (or {', '.join(sorted(known))}), "
+                                     f"got {value!r}")
     return value
 
 

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import click
 
-from ._common import one_line_errors, output_file
+from ._common import figure_file, one_line_errors, output_file
 
 
 @click.command()
 @click.option("--quick", is_flag=True, help="Small sizes: the whole run takes under a minute.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), callback=output_file,
               help="Write every figure as JSON.")
-@click.option("--png", "png_path", type=click.Path(dir_okay=False), callback=output_file,
+@click.option("--png", "png_path", type=click.Path(dir_okay=False), callback=figure_file,
               help="Write the scaling curves as PNG.")
 @one_line_errors
 def bench(quick: bool, json_path: str | None, png_path: str | None):

@@ -12,7 +12,7 @@ from __future__ import annotations
 import click
 import numpy as np
 
-from ._common import SEED, one_line_errors, output_file, progress_bar, write_json
+from ._common import SEED, figure_file, one_line_errors, output_file, progress_bar, write_json
 
 _ROW_LABELS = {
     "single_akf": "single AKF",
@@ -136,7 +136,7 @@ def table1_command(n_seeds: int, json_path: str | None, mode: str, n_experts: in
 
 @reproduce.command("figure2")
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False, writable=True),
-              callback=output_file, help="PNG file to write.")
+              callback=figure_file, help="Figure file to write (PNG; .pdf or .svg write those).")
 @click.option("--seed", default=0, show_default=True, type=SEED, help="Seed of the scenario and of the bank.")
 @click.option("--experts", "n_experts", default=40, show_default=True, type=click.IntRange(1), help="K.")
 @click.option("--gating", type=click.Choice(["fixed_share", "paper", "random"]), default=None,
