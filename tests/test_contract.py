@@ -566,3 +566,26 @@ def test_a_kinematic_family_of_another_order_is_refused(kind, order):
                              initial_variance=np.ones((2, order)), time_unit=1.0)
     with pytest.raises(ValueError, match=f"a '{kind}' family has order .*; got order {order}"):
         Family(kind, params)
+
+
+def _drifting(t_count=600, seed=3):
+    """Targets that cross the AKF family's feature limit (100 feature units of 100 length units; the unit is 0.3
+    here, so every 3,000) by moving on (its dynamics translated) and by jumping (within two limits: translated;
+    farther: started again), with a gap on the way."""
+    rng = np.random.default_rng(seed)
+    z = np.cumsum(rng.normal(0, 0.05, (t_count, 3, 2)), axis=0)
+    z[:, 0] += np.arange(t_count)[:, None] * np.array([21.0, -13.0])   # ~8 crossings
+    z[:, 1, 1] += 17.0 * np.arange(t_count)
+    z[300:310, 1] = np.nan
+    z[200:, 2] += 4_500.0          # 150 feature units: translated
+    z[400:, 2] += 40_000.0         # 1,300: started again
+    return z, np.broadcast_to(np.arange(t_count, dtype=float)[:, None], (t_count, 3)).copy()
+
+
+@pytest.mark.parametrize("kind, rule", [("akf", "boa"), ("mixed+ar+turn", "boa"), ("akf", "fixed_share")])
+def test_contract_across_re_anchors(kind, rule):
+    """A target far from its AKF origin moves the origin (mixture.reanchor); the RLS statistics, history and
+    drift are now translated there, not reset: the contract holds across it, compiled == reference bit for bit
+    (the experts-last kernel, 8-9 experts, here; the scalar one in tests/test_mixture.py)."""
+    z, t = _drifting()
+    check_bank(_bank(kind, rule), z, t)

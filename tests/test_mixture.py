@@ -167,3 +167,33 @@ def test_very_long_runs_of_missing_measurements_stay_finite():
     assert (np.linalg.eigvalsh(result.state.cov) > 0).all()
     after = run_core(params, z[:, None], result.state)  # measurements come back: learning resumes
     assert np.isfinite(after.predictions).all()
+
+
+def _steady(t_count, speed, noise, seed=0):
+    rng = np.random.default_rng(seed)
+    truth = np.stack([speed * np.arange(t_count), np.zeros(t_count)], axis=1)
+    return truth, truth + rng.normal(0, noise, truth.shape)
+
+
+@pytest.mark.parametrize("k_count", [3, 40])   # the scalar kernel, the experts-last one
+def test_a_target_moving_on_past_the_feature_limit_keeps_its_dynamics(k_count):
+    """helper-30: a smooth target crossing the feature limit (100 feature units, 1e4 length units) every 2,500
+    rows had its RLS dynamics reset there: errors up to 10 sigma for ~20 rows each time. The re-anchor now
+    translates the statistics, the history and the drift: errors after each crossing are as elsewhere, and both
+    kernels give the reference's bits."""
+    truth, z = _steady(3000, 2.0, 0.5)
+    params = make_params(2, k_count, seed=1, feature_scale=5.0)   # the limit: 500 units, crossed every 250 rows
+    reference = run_core(params, z[:, None, :], backend="numpy")
+    compiled = run_core(params, z[:, None, :], backend="numba")
+    assert np.array_equal(reference.predictions, compiled.predictions, equal_nan=True)
+    assert reference.state.origin[0, 0] > 5000   # the origin moved on (re-anchors happened)
+    error = np.linalg.norm(reference.predictions[:-1, 0] - truth[1:], axis=-1) / 0.5
+    crossings = np.flatnonzero(np.diff(np.floor((z[:, 0] - z[0, 0]) / 500.0)) > 0) + 1
+    after = np.zeros(len(error), dtype=bool)
+    for row in crossings:
+        after[row:row + 20] = True
+    after[:300] = False
+    calm = np.zeros(len(error), dtype=bool)
+    calm[300:] = True
+    calm &= ~after
+    assert error[after].max() <= 1.5 * error[calm].max()

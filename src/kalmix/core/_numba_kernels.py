@@ -23,6 +23,7 @@ import numba as nb
 import numpy as np
 
 from . import _numba_linalg as la
+from .mixture import TRANSLATE_FACTOR
 
 _JIT = la._JIT
 jit = la.jit
@@ -361,20 +362,59 @@ def _prior_dynamics(k_count, n, p, prior, trans, off):
 
 @jit
 def _reanchor_target(j, k_count, n, p, order, z, delta, prior, origin, history, gram, cross, mu, gm, cr,
-                     trans, off):
+                     trans, off, translate):
     """:func:`kalmix.core.mixture.reanchor` of target j: the origin moves to ``z`` (features ``delta``),
-    the means with it; RLS statistics zero (working copies and state), prior dynamics, no history."""
-    gram[j] = 0.0
-    cross[j] = 0.0
-    gm[:] = 0.0
-    cr[:] = 0.0
+    the means with it; with ``translate`` (:func:`kalmix.core.mixture.translates`), the history too and
+    the statistics (the working copies ``gm``, ``cr``, one per fit) and drifts as
+    :func:`kalmix.core.mixture._translated` moves them, in its order of operations; otherwise RLS
+    statistics zero (working copies and state), prior dynamics, no history."""
     for i in range(p):
         origin[j, i] = z[i]
         for lag in range(order):
-            history[j, lag, i] = np.nan
             for k in range(k_count):
                 mu[lag * p + i, k] = mu[lag * p + i, k] - delta[i]
-    _prior_dynamics(k_count, n, p, prior, trans, off)
+    if not translate:
+        gram[j] = 0.0
+        cross[j] = 0.0
+        gm[:] = 0.0
+        cr[:] = 0.0
+        for i in range(p):
+            for lag in range(order):
+                history[j, lag, i] = np.nan
+        _prior_dynamics(k_count, n, p, prior, trans, off)
+        return
+    for lag in range(order):
+        for i in range(p):
+            history[j, lag, i] = history[j, lag, i] - delta[i]
+    for u in range(gm.shape[2]):
+        _translate_fit(gm, cr, u, n, p, delta)
+    for i in range(p):   # drift u + (sum_j A_j - I) delta
+        for k in range(k_count):
+            acc = off[i, k]
+            for column in range(n):
+                acc = acc + trans[i, column, k] * delta[column % p]
+            off[i, k] = acc - delta[i]
+
+
+@jit
+def _translate_fit(gm, cr, u, n, p, delta):
+    """Fit ``u``'s statistics for features moved by ``-delta``, in place, each entry from the old values in the
+    spec's order: ``S <- M S M^T``, ``M_xy <- (M_xy - delta r) M^T`` (:func:`kalmix.core.mixture._translated`)."""
+    corner = gm[n, n, u]
+    for i in range(p):   # the cross statistics first: they read the old constant row of S
+        moved = cr[i, n, u] - delta[i] * corner
+        for b in range(n + 1):
+            bar_b = delta[b % p] if b < n else 0.0
+            cr[i, b, u] = (cr[i, b, u] - delta[i] * gm[n, b, u]) - moved * bar_b
+    for a in range(n):   # inside, then column n, then row n, then the corner: each reads only old values
+        for b in range(n):
+            gm[a, b, u] = ((gm[a, b, u] - delta[a % p] * gm[n, b, u]) - gm[a, n, u] * delta[b % p]) + (
+                delta[a % p] * delta[b % p]) * corner
+    for a in range(n):
+        gm[a, n, u] = ((gm[a, n, u] - delta[a % p] * corner) - gm[a, n, u] * 0.0) + (delta[a % p] * 0.0) * corner
+    for b in range(n):
+        gm[n, b, u] = ((gm[n, b, u] - 0.0 * gm[n, b, u]) - corner * delta[b % p]) + (0.0 * delta[b % p]) * corner
+    gm[n, n, u] = ((corner - 0.0 * corner) - corner * 0.0) + (0.0 * 0.0) * corner
 
 
 @jit
@@ -830,8 +870,11 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records, o
                 far = far or not abs(delta[i]) <= feature_limit
                 finite = finite and math.isfinite(delta[i])
             if far and finite:
+                translate = rls
+                for i in range(p):
+                    translate = translate and abs(delta[i]) <= TRANSLATE_FACTOR * feature_limit
                 _reanchor_target(j, k_count, n, p, order, z, delta, prior, origin, history, gram, cross, mu, fit_gm,
-                                 fit_cr, trans, off)
+                                 fit_cr, trans, off, translate)
             elif far:
                 _restart_target(j, k_count, n, p, prior, process_init, measurement_init, initialised, origin,
                                 history, gram, cross, fit_gm, fit_cr, trans, off, q, r, ep, gate_weights, gate_input,

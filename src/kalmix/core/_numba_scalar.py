@@ -17,6 +17,7 @@ import numba as nb
 import numpy as np
 
 from . import _numba_linalg as la
+from .mixture import TRANSLATE_FACTOR
 from ._numba_kernels import _learn_gate, _learning_rate, _next_gate, _posterior
 
 _JIT = la._JIT
@@ -270,8 +271,11 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records):
                 far = far or not abs(delta[i]) <= feature_limit
                 finite = finite and math.isfinite(delta[i])
             if far and finite:
+                translate = dynamics == 0
+                for i in range(p):
+                    translate = translate and abs(delta[i]) <= TRANSLATE_FACTOR * feature_limit
                 _reanchor_target(j, n, p, order, z, delta, prior, origin, history, mean, gram, cross, transition,
-                                 offset)
+                                 offset, translate)
             elif far:
                 _restart_target(j, n, p, prior, process_init, measurement_init, initialised, origin, history,
                                 gram, cross, transition, offset, process_noise, measurement_noise,
@@ -569,20 +573,58 @@ def _prior_dynamics(j, k, n, p, prior, transition, offset):
 
 
 @jit
-def _reanchor_target(j, n, p, order, z, delta, prior, origin, history, mean, gram, cross, transition, offset):
+def _reanchor_target(j, n, p, order, z, delta, prior, origin, history, mean, gram, cross, transition, offset,
+                     translate):
     """:func:`kalmix.core.mixture.reanchor` of target j: the origin moves to ``z`` (features ``delta``),
-    the means with it; RLS statistics zero, prior dynamics, no history."""
-    gram[j] = 0.0
-    cross[j] = 0.0
+    the means with it; with ``translate`` the history too and each expert's statistics and drift as
+    :func:`kalmix.core.mixture._translated` moves them (its order of operations); otherwise RLS
+    statistics zero, prior dynamics, no history."""
     for i in range(p):
         origin[j, i] = z[i]
-        for lag in range(order):
-            history[j, lag, i] = np.nan
     for k in range(mean.shape[1]):
         for lag in range(order):
             for i in range(p):
                 mean[j, k, lag * p + i] = mean[j, k, lag * p + i] - delta[i]
-        _prior_dynamics(j, k, n, p, prior, transition, offset)
+    if not translate:
+        gram[j] = 0.0
+        cross[j] = 0.0
+        for i in range(p):
+            for lag in range(order):
+                history[j, lag, i] = np.nan
+        for k in range(mean.shape[1]):
+            _prior_dynamics(j, k, n, p, prior, transition, offset)
+        return
+    for lag in range(order):
+        for i in range(p):
+            history[j, lag, i] = history[j, lag, i] - delta[i]
+    for k in range(mean.shape[1]):
+        _translate_expert(gram[j, k], cross[j, k], n, p, delta)
+        for i in range(p):   # drift u + (sum_j A_j - I) delta
+            acc = offset[j, k, i]
+            for column in range(n):
+                acc = acc + transition[j, k, i, column] * delta[column % p]
+            offset[j, k, i] = acc - delta[i]
+
+
+@jit
+def _translate_expert(gm, cr, n, p, delta):
+    """One expert's ``(d, d)`` / ``(p, d)`` statistics moved as :func:`kalmix.core._numba_kernels._translate_fit`
+    moves a fit's (the same operations in the same order)."""
+    corner = gm[n, n]
+    for i in range(p):
+        moved = cr[i, n] - delta[i] * corner
+        for b in range(n + 1):
+            bar_b = delta[b % p] if b < n else 0.0
+            cr[i, b] = (cr[i, b] - delta[i] * gm[n, b]) - moved * bar_b
+    for a in range(n):
+        for b in range(n):
+            gm[a, b] = ((gm[a, b] - delta[a % p] * gm[n, b]) - gm[a, n] * delta[b % p]) + (
+                delta[a % p] * delta[b % p]) * corner
+    for a in range(n):
+        gm[a, n] = ((gm[a, n] - delta[a % p] * corner) - gm[a, n] * 0.0) + (delta[a % p] * 0.0) * corner
+    for b in range(n):
+        gm[n, b] = ((gm[n, b] - 0.0 * gm[n, b]) - corner * delta[b % p]) + (0.0 * delta[b % p]) * corner
+    gm[n, n] = ((corner - 0.0 * corner) - corner * 0.0) + (0.0 * 0.0) * corner
 
 
 @jit

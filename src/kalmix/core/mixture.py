@@ -19,7 +19,8 @@ Extreme input keeps every number finite, the same way in the compiled kernels:
 
 - a measurement more than ``feature_limit`` feature units from the target's origin (100
   ``feature_scale`` = 1e4 length units by default) moves the origin there (:func:`reanchor`):
-  the experts' means move with it, their dynamics start again from the prior. The RLS fit of
+  the experts' means move with it; a target that moved on keeps its dynamics (translated,
+  :func:`translates`), one that jumped farther starts them again from the prior. The RLS fit of
   a regressor that far from its origin is ill-conditioned (at 3000 feature units the numpy and
   compiled paths already differ by 1e-8, at 1e4 by 1e-2; beyond, its Cholesky fails), and
   squared features overflow near 1e154. Where the distance itself overflows, the target
@@ -296,23 +297,75 @@ def _far(params: MixtureParams, state: MixtureState, z: np.ndarray, valid: np.nd
     return valid & state.initialised & ~(np.abs(delta) <= params.feature_limit).all(axis=-1), delta
 
 
+#: A re-anchor translates the RLS dynamics (:func:`reanchor`) when the measurement lies within this many
+#: ``feature_limit`` of the old origin (a target that moved on); farther (a jump) they start again.
+TRANSLATE_FACTOR = 2.0
+
+
+def translates(params: MixtureParams, delta: np.ndarray) -> np.ndarray:
+    """Per target, whether a re-anchor by ``delta (N, p)`` keeps the dynamics, translated (``rls`` only)."""
+    with np.errstate(invalid="ignore"):
+        return np.full(delta.shape[0], params.dynamics == "rls") & (
+            np.abs(delta) <= TRANSLATE_FACTOR * params.feature_limit).all(axis=-1)
+
+
 def reanchor(params: MixtureParams, state: MixtureState, mask: np.ndarray, z: np.ndarray,
              delta: np.ndarray) -> MixtureState:
     """Move the origin of the targets in ``mask`` to their measurement ``z`` (features ``delta``).
 
     The experts' means move with it (:math:`\\hat x \\leftarrow \\hat x - [\\delta; \\dots; \\delta]`;
-    :math:`P`, the noise levels and the gate are kept); their dynamics start again (RLS statistics
-    zero, :math:`A, u` the prior's, no history).
+    :math:`P`, the noise levels and the gate are kept). Where :func:`translates` (``rls`` dynamics, the
+    measurement within ``TRANSLATE_FACTOR`` feature limits) nothing is lost: the history moves too, and
+    the RLS statistics and the drift are those of the same data in the new coordinates
+    (:func:`_translated`); a target moving steadily crossed ``feature_limit`` every 1e4 length units,
+    and restarting its dynamics there cost ~20 rows of errors up to 10 sigma. Otherwise the dynamics
+    start again (RLS statistics zero, :math:`A, u` the prior's, no history).
     """
     with np.errstate(invalid="ignore"):  # inf where the distance overflowed (those are not in mask)
-        shift = np.where(mask[:, None], np.tile(delta, params.order), 0.0)  # (N, n)
+        step = np.where(mask[:, None], delta, 0.0)
+        shift = np.tile(step, params.order)  # (N, n)
+    kept = mask & translates(params, step)
+    mean = state.mean - shift[:, None, :]
     transition, offset = dyn.companion_from_theta(params.prior_theta, params.order)
     fresh = state._replace(
-        origin=z, history=np.full_like(state.history, np.nan), mean=state.mean - shift[:, None, :],
+        origin=z, history=np.full_like(state.history, np.nan), mean=mean,
         gram=np.zeros_like(state.gram), cross=np.zeros_like(state.cross),
         transition=np.broadcast_to(transition, state.transition.shape),
         offset=np.broadcast_to(offset, state.offset.shape))
+    if kept.any():
+        moved = np.where(kept[:, None], step, 0.0)
+        gram, cross, offset = _translated(state.gram, state.cross, state.transition, state.offset, moved,
+                                          params.measurement_dim, params.order)
+        translated = state._replace(origin=z, history=state.history - moved[:, None, :], mean=mean, gram=gram,
+                                    cross=cross, offset=offset)
+        fresh = MixtureState(*(_where(kept, a, b) for a, b in zip(translated, fresh)))
     return MixtureState(*(_where(mask, f, o) for f, o in zip(fresh, state)))
+
+
+def _translated(gram, cross, transition, offset, delta, p, order):
+    """RLS statistics and drift for features moved by ``-delta (N, p)``, exactly (the kernels' order of operations).
+
+    The regressor :math:`\\xi = [s_{k-1}; \\dots; s_{k-o}; 1]` becomes :math:`M \\xi`, :math:`M = I - \\bar\\delta
+    e_d^T`, :math:`\\bar\\delta = [\\delta; \\dots; \\delta; 0]`, and the target :math:`s_k` becomes
+    :math:`s_k - \\delta`; with the constant's weighted sums :math:`r = S_{d,\\cdot}`:
+    :math:`S \\leftarrow M S M^T`, :math:`M_{xy} \\leftarrow (M_{xy} - \\delta r) M^T`; the model's drift
+    :math:`u \\leftarrow u + (\\sum_j A_j - I)\\delta` (its :math:`A_j` are unchanged).
+    """
+    n = order * p
+    bar = np.concatenate([np.tile(delta, order), np.zeros((delta.shape[0], 1))], axis=1)[:, None, :]  # (N, 1, d)
+    row = gram[..., n, :]                      # (N, K, d): S_{d, b}
+    col = gram[..., :, n]                      # (N, K, d): S_{a, d}
+    corner = gram[..., n, n]                   # (N, K)
+    bar_a, bar_b = bar[..., :, None], bar[..., None, :]
+    new_gram = ((gram - bar_a * row[..., None, :]) - col[..., :, None] * bar_b) + (bar_a * bar_b) * corner[..., None, None]
+    moved = cross - delta[:, None, :, None] * row[..., None, :]          # (N, K, p, d)
+    new_cross = moved - moved[..., :, n][..., None] * bar_b
+    drift = offset[..., :p]
+    for column in range(n):
+        drift = drift + transition[..., :p, column] * bar[..., column][..., None]
+    new_offset = offset.copy()
+    new_offset[..., :p] = drift - delta[:, None, :]
+    return new_gram, new_cross, new_offset
 
 
 def restart(params: MixtureParams, state: MixtureState, mask: np.ndarray) -> MixtureState:
