@@ -196,7 +196,8 @@ class StreamConfig:
     Parameters
     ----------
     n_experts : int
-        K experts per track.
+        Size of the bank's AKF family (40 in the paper); the other families have their own
+        sizes (the default bank: 119 experts in all; ``n_experts=5`` gives 84).
     seed : int
         Seed of the bank.
     length_unit : float
@@ -204,10 +205,16 @@ class StreamConfig:
     horizon : int
         Besides the next row, also predict ``horizon`` time units ahead (``horizon`` frames
         for frame-based experts; 1 = only the next row), with its own weights (a lead head).
+    lead : float or None
+        Also predict ``lead`` time-column units after each row (``RowPrediction.ahead``,
+        ``lead_<pos>`` in a table), with weights and intervals learned on lead-``lead`` errors.
     max_gap : float or None
         Absolute gap threshold (time units); ``None`` uses ``max_gap_factor``.
     max_gap_factor : float
-        Gap threshold relative to the reference interval; ``inf`` never splits.
+        Gap threshold relative to the reference interval; ``inf`` never splits. At the default
+        3, a step of more than 3 reference intervals (at 100 Hz, 3 dropped frames) starts a new
+        segment: the experts start again (the rule and calibration go on). Pass ``inf`` (or a
+        ``max_gap``) where short drops are the sampling and the target did not change course.
     options : dict
         Other arguments of :func:`kalmix.bank.make_params` (the AKF family).
     bank : str
@@ -416,8 +423,12 @@ class RowPrediction(NamedTuple):
     time: float
     segment: int
     next: np.ndarray              # (p,) prediction one reference interval ahead (the next row)
-    ahead: np.ndarray | None      # (p,) prediction ``lead`` (or ``horizon`` time units) ahead, else None
-    next_std: np.ndarray | None = None   # (p,) calibrated standard deviations of ``next``
+    #: (p,) prediction ``lead`` (or ``horizon`` time units) ahead (NaN until the track has a forecast), or None
+    #: without a lead or horizon
+    ahead: np.ndarray | None
+    #: (p,) calibrated standard deviations of ``next`` as a forecast of the next *measurement* (its noise
+    #: included: an interval for where the next reading falls, wider than one for the true position)
+    next_std: np.ndarray | None = None
     ahead_std: np.ndarray | None = None  # (p,) of ``ahead``
     time_glitch: bool = False     # the row came back before its track's jump ahead (that timestamp was wrong)
 
