@@ -241,6 +241,7 @@ def test_reproduce_writes_its_json_before_a_closed_stdout_ends_it(cli, tmp_path,
     (["bench", "--quick", "--png", "b.txt"], "expected a figure file name ending in .png"),
     (["reproduce", "figure2", "--out", "new.png/"], "which names a directory"),
     (["reproduce", "table1", "--json", "new.json/"], "which names a directory"),
+    (["reproduce", "table1", "--json", "-"], "got '-': standard output takes the tables here"),
 ])
 def test_a_figure_or_json_name_that_cannot_be_written_is_refused_before_the_work(cli, tmp_path, monkeypatch, args,
                                                                                  message):

@@ -51,6 +51,9 @@ def output_file(ctx, param, value):
         return value
     if not str(value).strip():
         raise click.BadParameter("expected a file name, got ''")
+    if str(value) == "-":
+        raise click.BadParameter("expected a file name, got '-': standard output takes the tables here (use "
+                                 "./- for a file named -)")
     if str(value).endswith(("/", os.sep)):
         raise click.BadParameter(f"expected a file name, got {value!r}, which names a directory")
     problem = missing_directory(value)
