@@ -180,6 +180,9 @@ def test_an_empty_track_id_is_reported_in_a_whole_sentence(cli, tmp_path):
     (["reproduce", "figure2", "--out", "in.csv/f.png"], "of 'in.csv/f.png' is not a directory"),
     (["servo", "--noise", "nan"], "Invalid value for '--noise': expected a finite number, got 'nan'"),
     (["servo", "--gain", "inf"], "Invalid value for '--gain': expected a finite number, got 'inf'"),
+    # helper-29: 1e200 px failed after the SOM's training naming no option; a gain of 1e308 printed 1,021 warnings
+    (["servo", "--noise", "1e200"], "Invalid value for '--noise': expected a number <= 10000, got '1e200'"),
+    (["servo", "--gain", "1e308"], "Invalid value for '--gain': expected a number <= 1e+06, got '1e308'"),
     (["servo", "--prediction-gain", "0"], "Invalid value for '--prediction-gain': expected a number > 0"),
     (["servo", "--out-dir", ""], "Invalid value for '--out-dir': expected a directory name, got ''"),
     (["servo", "--out-dir", "in.csv/figures"], "lies under"),

@@ -18,12 +18,13 @@ SEED = click.IntRange(0, 2**63 - 1)
 
 
 class Finite(click.ParamType):
-    """A finite number (click's FloatRange lets nan and inf through), at least ``minimum`` (above it if ``open``)."""
+    """A finite number (click's FloatRange lets nan and inf through), at least ``minimum`` (above it if ``open``)
+    and at most ``maximum``."""
 
     name = "number"
 
-    def __init__(self, minimum: float | None = None, open: bool = False):
-        self.minimum, self.open = minimum, open
+    def __init__(self, minimum: float | None = None, open: bool = False, maximum: float | None = None):
+        self.minimum, self.open, self.maximum = minimum, open, maximum
 
     def convert(self, value, param, ctx):
         try:
@@ -34,6 +35,8 @@ class Finite(click.ParamType):
             self.fail(f"expected a finite number, got {value!r}", param, ctx)
         if self.minimum is not None and (number <= self.minimum if self.open else number < self.minimum):
             self.fail(f"expected a number {'>' if self.open else '>='} {self.minimum:g}, got {value!r}", param, ctx)
+        if self.maximum is not None and number > self.maximum:
+            self.fail(f"expected a number <= {self.maximum:g}, got {value!r}", param, ctx)
         return number
 
 

@@ -155,16 +155,23 @@ def plot_errors(result, path, speeds=None) -> None:
     plt.close(fig)
 
 
+#: Past these the run says nothing more (it diverges, or the features leave the image) and its arithmetic
+#: overflows: --noise 1e200 failed after the SOM's training naming no option, --gain 1e308 printed 1,021
+#: overflow warnings (helper-29).
+MAX_NOISE_PX = 1e4
+MAX_GAIN = 1e6
+
+
 @click.command()
 @click.option("--scenario", type=click.Choice(["paper", "circle", "random_walk"]), default="paper",
               show_default=True, help="Target trajectory.")
 @click.option("--delay", "delay_frames", type=click.IntRange(min=0), default=2, show_default=True,
               help="Image-acquisition delay D (frames at 25 Hz).")
-@click.option("--noise", "noise_px", type=Finite(0.0), default=0.5, show_default=True,
-              help="Pixel noise on the delivered features (px).")
-@click.option("--gain", type=Finite(0.0, open=True), default=0.5, show_default=True,
-              help="Loop gain lambda in dq = lambda B e, for every mode.")
-@click.option("--prediction-gain", type=Finite(0.0, open=True), default=None,
+@click.option("--noise", "noise_px", type=Finite(0.0, maximum=MAX_NOISE_PX), default=0.5, show_default=True,
+              help=f"Pixel noise on the delivered features (px, at most {MAX_NOISE_PX:g}).")
+@click.option("--gain", type=Finite(0.0, open=True, maximum=MAX_GAIN), default=0.5, show_default=True,
+              help=f"Loop gain lambda in dq = lambda B e, for every mode (at most {MAX_GAIN:g}).")
+@click.option("--prediction-gain", type=Finite(0.0, open=True, maximum=MAX_GAIN), default=None,
               help="Gain of the predicting modes and the oracle (default: --gain).")
 @click.option("--seed", default=0, show_default=True, type=SEED,
               help="Seed of the scenario, camera noise, SOM and predictors.")
@@ -206,8 +213,11 @@ def servo(scenario, delay_frames, noise_px, gain, prediction_gain, seed, json_pa
             warnings.simplefilter("always")
             result = run_servo(trajectory, arm=arm, camera=camera, config=config, som=som, progress=progress)
     result = result._replace(som_history=history)
-    for warning in caught:
-        click.echo(f"warning: {warning.message}", err=True)
+    said: dict = {}
+    for warning in caught:   # each message once, with its count
+        said[str(warning.message)] = said.get(str(warning.message), 0) + 1
+    for message, count in said.items():
+        click.echo(f"warning: {message}" + (f" ({count} times)" if count > 1 else ""), err=True)
 
     data = result.to_dict()
     data["scenario"] = scenario
