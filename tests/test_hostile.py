@@ -240,8 +240,8 @@ def test_reproduce_writes_its_json_before_a_closed_stdout_ends_it(cli, tmp_path,
 
 
 @pytest.mark.parametrize("args, message", [
-    (["reproduce", "figure2", "--out", "fig.txt"], "expected a figure file name ending in .png"),
-    (["bench", "--quick", "--png", "b.txt"], "expected a figure file name ending in .png"),
+    (["reproduce", "figure2", "--out", "fig.txt"], "expected a figure file ending in .png"),
+    (["bench", "--quick", "--png", "b.txt"], "expected a figure file ending in .png"),
     (["reproduce", "figure2", "--out", "new.png/"], "which names a directory"),
     (["reproduce", "table1", "--json", "new.json/"], "which names a directory"),
     (["reproduce", "table1", "--json", "-"], "got '-': standard output takes the tables here"),

@@ -70,20 +70,31 @@ def output_file(ctx, param, value):
     return value
 
 
-def figure_file(ctx, param, value):
-    """click callback: :func:`output_file` whose extension matplotlib writes (PNG without one), checked before the
-    work (``--out fig.txt`` failed after it)."""
-    value = output_file(ctx, param, value)
-    if value is None:
-        return value
-    extension = os.path.splitext(str(value))[1].lstrip(".").lower()
-    if extension:
-        from matplotlib.backend_bases import FigureCanvasBase
+def figure_format_problem(path) -> str | None:
+    """What is wrong with ``path`` as a figure to write (its extension names a format matplotlib does not write),
+    or None (none: PNG, :func:`kalmix.archive.save_figure`)."""
+    extension = os.path.splitext(str(path))[1].lstrip(".").lower()
+    if not extension:
+        return None
+    import matplotlib
 
-        known = FigureCanvasBase.get_supported_filetypes()
-        if extension not in known:
-            raise click.BadParameter(f"expected a figure file name ending in .png (or {', '.join(sorted(known))}), "
-                                     f"got {value!r}")
+    matplotlib.use("Agg")
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    kinds = FigureCanvasBase.get_supported_filetypes()
+    if extension in kinds:
+        return None
+    return (f"expected a figure file ending in .png (or {', '.join('.' + k for k in sorted(kinds) if k != 'png')}), "
+            f"got {str(path)!r}")
+
+
+def figure_file(ctx, param, value):
+    """click callback: :func:`output_file` in a format matplotlib writes (:func:`figure_format_problem`), checked
+    before the work (``--out fig.txt`` failed after it)."""
+    value = output_file(ctx, param, value)
+    problem = None if value is None else figure_format_problem(value)
+    if problem:
+        raise click.BadParameter(problem)
     return value
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..archive import save_figure
 from ..bank import BANK_KINDS, DEFAULT_BANK, DEFAULT_REACH, GATE_OPTIONS, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED, recipe_parts
-from ._common import figure_file, missing_directory, user_errors as _user_errors
+from ._common import figure_format_problem, missing_directory, user_errors as _user_errors
 
 _LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres). "
                      "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
@@ -457,10 +457,10 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
                    "bank, river's Holt-Winters, padasip's RLS AR, statsmodels' local linear trend), each tuned on "
                    "the tuning part; --no-peers: the mixture and kalmix's own baselines only.")
 @click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False), help="Write the results as JSON.")
-@click.option("--plot", "plot_path", default=None, type=click.Path(dir_okay=False), callback=figure_file,
+@click.option("--plot", "plot_path", default=None, type=click.Path(dir_okay=False),
               help="PNG of the one-step error over time for --track.")
 @click.option("--plot-intervals", "intervals_path", default=None, type=click.Path(dir_okay=False),
-              callback=figure_file, help="PNG of --track's positions, the mixture's one-step predictions and their 95 % ellipses.")
+              help="PNG of --track's positions, the mixture's one-step predictions and their 95 % ellipses.")
 @click.option("--track", "plot_track", default=None, help="Track id to plot (default: the first).")
 @click.option("--per-track/--no-per-track", default=True, show_default=True, help="Print the per-track tables.")
 @click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
@@ -620,16 +620,9 @@ def _track_columns(result, track):
 
 def _check_figure_path(flag, path):
     """``ValueError`` unless matplotlib can write ``path``'s format (its extension: .png, .pdf, .svg, ...)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.backend_bases import FigureCanvasBase
-
-    kinds = FigureCanvasBase.get_supported_filetypes()
-    extension = os.path.splitext(path)[1].lstrip(".").lower()
-    if extension not in kinds:
-        raise ValueError(f"{flag}: expected a figure file ending in .png (or {', '.join('.' + k for k in kinds if k != 'png')}), "
-                         f"got {path!r}")
+    problem = figure_format_problem(path)
+    if problem:
+        raise ValueError(f"{flag}: {problem}")
 
 
 def plot_intervals(result, path, track=None, rows: int = 30):
