@@ -570,15 +570,15 @@ def test_a_kinematic_family_of_another_order_is_refused(kind, order):
 
 def _drifting(t_count=600, seed=3):
     """Targets that cross the AKF family's feature limit (100 feature units of 100 length units; the unit is 0.3
-    here, so every 3,000) by moving on (its dynamics translated) and by jumping (within two limits: translated;
-    farther: started again), with a gap on the way."""
+    here, so every 3,000) by moving on (its dynamics translated) and by jumping (started again), with a gap on
+    the way."""
     rng = np.random.default_rng(seed)
     z = np.cumsum(rng.normal(0, 0.05, (t_count, 3, 2)), axis=0)
     z[:, 0] += np.arange(t_count)[:, None] * np.array([21.0, -13.0])   # ~8 crossings
     z[:, 1, 1] += 17.0 * np.arange(t_count)
     z[300:310, 1] = np.nan
-    z[200:, 2] += 4_500.0          # 150 feature units: translated
-    z[400:, 2] += 40_000.0         # 1,300: started again
+    z[200:, 2] += 4_500.0          # a jump of 150 feature units: started again
+    z[400:, 2] += 40_000.0         # of 1,300: started again
     return z, np.broadcast_to(np.arange(t_count, dtype=float)[:, None], (t_count, 3)).copy()
 
 

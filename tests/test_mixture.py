@@ -197,3 +197,30 @@ def test_a_target_moving_on_past_the_feature_limit_keeps_its_dynamics(k_count):
     calm[300:] = True
     calm &= ~after
     assert error[after].max() <= 1.5 * error[calm].max()
+
+
+def test_a_jump_past_the_feature_limit_still_restarts_the_dynamics():
+    """helper-31: a stationary target jumping 1.2-2 feature limits was taken as having moved on, and the jump went
+    into the translated RLS statistics: errors after it 20-200 times those of a restart (RMS 190 against 1.7).
+    Only a step within miss_limit of the last measurement is moving on."""
+    params = make_params(2)
+    rng = np.random.default_rng(0)
+    for jump in (12_000.0, 20_100.0):
+        truth = np.zeros((400, 2))
+        truth[200:] = np.array([jump, 0.6 * jump]) / np.hypot(1, 0.6)
+        z = (truth + rng.normal(0, 1.0, truth.shape))[:, None]
+        reference = run_core(params, z, backend="numpy")
+        compiled = run_core(params, z, backend="numba")
+        assert np.array_equal(reference.predictions, compiled.predictions, equal_nan=True)
+        error = np.linalg.norm(reference.predictions[201:260, 0] - truth[202:261], axis=-1)
+        assert np.sqrt(np.mean(error**2)) < 3.0, jump   # translated: 190 (12,000) and 95 (20,100)
+
+
+def test_little_forgetting_across_many_re_anchors_stays_finite():
+    """helper-31: with forgetting 0.999 the statistics keep data from far back; translated again and again they
+    grew until the solve failed, and a noise-free line was NaN from row 871 to the end (the reset kept it
+    finite). Data held far from the new origin now start the dynamics again."""
+    params = make_params(2, 3, seed=1, order=2, feature_scale=1.0, forgetting_levels=(0.999,))
+    z = (np.arange(1500)[:, None] * 90.0 * np.array([1.0, -0.42]))[:, None]
+    for backend in ("numpy", "numba"):
+        assert np.isfinite(run_core(params, z, backend=backend).predictions[2:]).all(), backend

@@ -23,7 +23,6 @@ import numba as nb
 import numpy as np
 
 from . import _numba_linalg as la
-from .mixture import TRANSLATE_FACTOR
 
 _JIT = la._JIT
 jit = la.jit
@@ -394,6 +393,21 @@ def _reanchor_target(j, k_count, n, p, order, z, delta, prior, origin, history, 
             for column in range(n):
                 acc = acc + trans[i, column, k] * delta[column % p]
             off[i, k] = acc - delta[i]
+
+
+@jit
+def _moves_on(j, n, p, delta, history, gm, miss_limit, feature_limit):
+    """:func:`kalmix.core.mixture.translates` of target j (rls), its fits' statistics ``gm (d, d, fits)``."""
+    for i in range(p):
+        if not abs(delta[i] - history[j, 0, i]) <= miss_limit:
+            return False
+    for u in range(gm.shape[2]):
+        weight = gm[n, n, u]
+        if weight > 0:
+            for a in range(n):
+                if not abs(gm[n, a, u] / weight - delta[a % p]) <= feature_limit:
+                    return False
+    return True
 
 
 @jit
@@ -870,9 +884,7 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records, o
                 far = far or not abs(delta[i]) <= feature_limit
                 finite = finite and math.isfinite(delta[i])
             if far and finite:
-                translate = rls
-                for i in range(p):
-                    translate = translate and abs(delta[i]) <= TRANSLATE_FACTOR * feature_limit
+                translate = rls and _moves_on(j, n, p, delta, history, fit_gm, miss_limit, feature_limit)
                 _reanchor_target(j, k_count, n, p, order, z, delta, prior, origin, history, gram, cross, mu, fit_gm,
                                  fit_cr, trans, off, translate)
             elif far:

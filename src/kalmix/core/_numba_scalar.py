@@ -17,7 +17,6 @@ import numba as nb
 import numpy as np
 
 from . import _numba_linalg as la
-from .mixture import TRANSLATE_FACTOR
 from ._numba_kernels import _learn_gate, _learning_rate, _next_gate, _posterior
 
 _JIT = la._JIT
@@ -271,9 +270,7 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records):
                 far = far or not abs(delta[i]) <= feature_limit
                 finite = finite and math.isfinite(delta[i])
             if far and finite:
-                translate = dynamics == 0
-                for i in range(p):
-                    translate = translate and abs(delta[i]) <= TRANSLATE_FACTOR * feature_limit
+                translate = dynamics == 0 and _moves_on(j, n, p, delta, history, gram, miss_limit, feature_limit)
                 _reanchor_target(j, n, p, order, z, delta, prior, origin, history, mean, gram, cross, transition,
                                  offset, translate)
             elif far:
@@ -604,6 +601,21 @@ def _reanchor_target(j, n, p, order, z, delta, prior, origin, history, mean, gra
             for column in range(n):
                 acc = acc + transition[j, k, i, column] * delta[column % p]
             offset[j, k, i] = acc - delta[i]
+
+
+@jit
+def _moves_on(j, n, p, delta, history, gram, miss_limit, feature_limit):
+    """:func:`kalmix.core.mixture.translates` of target j (rls), its experts' statistics ``gram (N, K, d, d)``."""
+    for i in range(p):
+        if not abs(delta[i] - history[j, 0, i]) <= miss_limit:
+            return False
+    for k in range(gram.shape[1]):
+        weight = gram[j, k, n, n]
+        if weight > 0:
+            for a in range(n):
+                if not abs(gram[j, k, n, a] / weight - delta[a % p]) <= feature_limit:
+                    return False
+    return True
 
 
 @jit

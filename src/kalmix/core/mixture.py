@@ -297,16 +297,21 @@ def _far(params: MixtureParams, state: MixtureState, z: np.ndarray, valid: np.nd
     return valid & state.initialised & ~(np.abs(delta) <= params.feature_limit).all(axis=-1), delta
 
 
-#: A re-anchor translates the RLS dynamics (:func:`reanchor`) when the measurement lies within this many
-#: ``feature_limit`` of the old origin (a target that moved on); farther (a jump) they start again.
-TRANSLATE_FACTOR = 2.0
-
-
-def translates(params: MixtureParams, delta: np.ndarray) -> np.ndarray:
-    """Per target, whether a re-anchor by ``delta (N, p)`` keeps the dynamics, translated (``rls`` only)."""
-    with np.errstate(invalid="ignore"):
-        return np.full(delta.shape[0], params.dynamics == "rls") & (
-            np.abs(delta) <= TRANSLATE_FACTOR * params.feature_limit).all(axis=-1)
+def translates(params: MixtureParams, state: MixtureState, delta: np.ndarray) -> np.ndarray:
+    """Per target, whether a re-anchor by ``delta (N, p)`` keeps the dynamics, translated (:func:`reanchor`):
+    ``rls`` dynamics, a target that moved on (its step from the last learned measurement within
+    ``miss_limit``: a jump of even one feature limit was learned, with errors 20-200 times those of a
+    restart), and data the statistics still hold near it (the weighted mean of every expert's regressors
+    within ``feature_limit`` of the new origin: with little forgetting they keep data from far back,
+    whose translated statistics grew until the solve failed, NaN for good). Otherwise they start again."""
+    n = params.order * params.measurement_dim
+    previous = state.history[:, 0, :]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        moved_on = (np.abs(delta - previous) <= params.miss_limit).all(axis=-1)
+        weight = state.gram[..., n, n]                                     # (N, K)
+        centre = state.gram[..., n, :n] / weight[..., None]                # weighted mean of the regressors
+        near = (np.abs(centre - np.tile(delta, params.order)[:, None, :]) <= params.feature_limit).all(axis=-1)
+    return (params.dynamics == "rls") & moved_on & (~(weight > 0) | near).all(axis=-1)
 
 
 def reanchor(params: MixtureParams, state: MixtureState, mask: np.ndarray, z: np.ndarray,
@@ -314,8 +319,8 @@ def reanchor(params: MixtureParams, state: MixtureState, mask: np.ndarray, z: np
     """Move the origin of the targets in ``mask`` to their measurement ``z`` (features ``delta``).
 
     The experts' means move with it (:math:`\\hat x \\leftarrow \\hat x - [\\delta; \\dots; \\delta]`;
-    :math:`P`, the noise levels and the gate are kept). Where :func:`translates` (``rls`` dynamics, the
-    measurement within ``TRANSLATE_FACTOR`` feature limits) nothing is lost: the history moves too, and
+    :math:`P`, the noise levels and the gate are kept). Where :func:`translates` (a target that moved on)
+    nothing is lost: the history moves too, and
     the RLS statistics and the drift are those of the same data in the new coordinates
     (:func:`_translated`); a target moving steadily crossed ``feature_limit`` every 1e4 length units,
     and restarting its dynamics there cost ~20 rows of errors up to 10 sigma. Otherwise the dynamics
@@ -324,7 +329,7 @@ def reanchor(params: MixtureParams, state: MixtureState, mask: np.ndarray, z: np
     with np.errstate(invalid="ignore"):  # inf where the distance overflowed (those are not in mask)
         step = np.where(mask[:, None], delta, 0.0)
         shift = np.tile(step, params.order)  # (N, n)
-    kept = mask & translates(params, step)
+    kept = mask & translates(params, state, step)
     mean = state.mean - shift[:, None, :]
     transition, offset = dyn.companion_from_theta(params.prior_theta, params.order)
     fresh = state._replace(
