@@ -20,7 +20,8 @@ Extreme input keeps every number finite, the same way in the compiled kernels:
 - a measurement more than ``feature_limit`` feature units from the target's origin (100
   ``feature_scale`` = 1e4 length units by default) moves the origin there (:func:`reanchor`):
   the experts' means move with it; a target that moved on keeps its dynamics (translated,
-  :func:`translates`), one that jumped farther starts them again from the prior. The RLS fit of
+  :func:`translates`), one that jumped (or whose statistics hold data from far back) starts them
+  again from the prior. The RLS fit of
   a regressor that far from its origin is ill-conditioned (at 3000 feature units the numpy and
   compiled paths already differ by 1e-8, at 1e4 by 1e-2; beyond, its Cholesky fails), and
   squared features overflow near 1e154. Where the distance itself overflows, the target
@@ -320,11 +321,11 @@ def reanchor(params: MixtureParams, state: MixtureState, mask: np.ndarray, z: np
 
     The experts' means move with it (:math:`\\hat x \\leftarrow \\hat x - [\\delta; \\dots; \\delta]`;
     :math:`P`, the noise levels and the gate are kept). Where :func:`translates` (a target that moved on)
-    nothing is lost: the history moves too, and
-    the RLS statistics and the drift are those of the same data in the new coordinates
-    (:func:`_translated`); a target moving steadily crossed ``feature_limit`` every 1e4 length units,
-    and restarting its dynamics there cost ~20 rows of errors up to 10 sigma. Otherwise the dynamics
-    start again (RLS statistics zero, :math:`A, u` the prior's, no history).
+    nothing is lost: the history moves too, and the RLS statistics and the drift are those of the same
+    data in the new coordinates (:func:`_translated`); a target moving steadily crossed
+    ``feature_limit`` every 1e4 length units, and restarting its dynamics there cost ~20 rows of errors
+    up to 10 sigma. Otherwise the dynamics start again (RLS statistics zero, :math:`A, u` the prior's,
+    no history).
     """
     with np.errstate(invalid="ignore"):  # inf where the distance overflowed (those are not in mask)
         step = np.where(mask[:, None], delta, 0.0)
