@@ -906,7 +906,8 @@ class TrackPredictor:
         try:
             time = float(_row_times([time])[0])
         except (TypeError, ValueError, OverflowError):
-            raise ValueError(f"time: expected a number, a date and time (datetime, ISO text) or a duration, got {time!r:.80}") from None
+            raise ValueError(f"time: expected a number, a date and time (datetime, ISO text) or a duration, "
+                             f"got {time!r:.80}") from None
         return self._step_checked([_track_key(track_id, "track_id")], np.array([time]), z[None, :])[0]
 
     def _by_name(self, values, where: str):
@@ -968,7 +969,8 @@ class TrackPredictor:
         try:
             times = _row_times(times).reshape(-1)
         except (TypeError, ValueError, OverflowError):
-            raise ValueError(f"times: expected numbers, dates and times (datetime, ISO text) or durations, got {times!r:.80}") from None
+            raise ValueError(f"times: expected numbers, dates and times (datetime, ISO text) or durations, "
+                             f"got {times!r:.80}") from None
         values = self._by_name(values, "values")
         try:
             values = _measurements(values)
