@@ -735,4 +735,7 @@ def test_a_figure_or_json_interrupted_while_written_leaves_the_previous_file(tmp
     assert open(bare, "rb").read(4) == b"\x89PNG" and bare == str(tmp_path / "figure")
     save_figure(fig, tmp_path / "f.svg")
     assert b"<svg" in (tmp_path / "f.svg").read_bytes()
+    if os.path.exists(os.devnull):   # a device is written directly (--json /dev/stdout), not replaced
+        save_figure(fig, os.devnull)
+        write_json(os.devnull, {"a": 1})
     plt.close(fig)

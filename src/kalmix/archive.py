@@ -72,13 +72,14 @@ def write_archive(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndar
 
 
 @contextlib.contextmanager
-def replaced_file(path: str | os.PathLike, mode: str = "wb", *, what: str = "a file path"):
+def replaced_file(path: str | os.PathLike, mode: str = "wb", *, what: str = "a file path", streams: bool = False):
     """A handle to write ``path`` whole or not at all: a uniquely named temporary file beside it, fsynced and
     renamed over it when the block ends without an exception (the directory fsynced too), removed otherwise.
     A Ctrl-C, a full disk or a crash leaves the previous file, never half of a new one.
 
     A symbolic link is followed (its target is replaced, the link stays); a path that exists and is not a
-    regular file is refused with a ``ValueError`` (``what`` names what was expected); an ``OSError`` names
+    regular file is refused with a ``ValueError`` (``what`` names what was expected), but with ``streams`` a
+    character device or a FIFO (``/dev/stdout``, a named pipe) is written directly; an ``OSError`` names
     ``path``, not the temporary file. The new file keeps the permissions of the one it replaces.
     """
     given = os.fspath(path)
@@ -87,6 +88,10 @@ def replaced_file(path: str | os.PathLike, mode: str = "wb", *, what: str = "a f
         kind = os.stat(path).st_mode
     except OSError:
         kind = None
+    if streams and kind is not None and (stat.S_ISCHR(kind) or stat.S_ISFIFO(kind)):
+        with open(path, mode, **({} if "b" in mode else {"encoding": "utf-8"})) as handle:
+            yield handle
+        return
     if kind is not None and not stat.S_ISREG(kind):
         described = "a directory" if stat.S_ISDIR(kind) else "not a regular file (a device, a FIFO or a socket)"
         raise ValueError(f"{given}: expected {what}, and it is {described}; give a file name")
@@ -115,7 +120,7 @@ def replaced_file(path: str | os.PathLike, mode: str = "wb", *, what: str = "a f
 def save_figure(fig, path: str | os.PathLike, **options) -> str:
     """``fig.savefig`` through :func:`replaced_file`, in the format its extension names (PNG without one)."""
     extension = os.path.splitext(os.fspath(path))[1].lstrip(".").lower() or "png"
-    with replaced_file(path, what="a figure file path") as handle:
+    with replaced_file(path, what="a figure file path", streams=True) as handle:
         fig.savefig(handle, format=extension, **options)
     return os.fspath(path)
 

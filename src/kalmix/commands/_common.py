@@ -174,7 +174,7 @@ def write_json(path: str, data) -> None:
     writes leaves the previous file)."""
     from ..archive import replaced_file
 
-    with replaced_file(path, "w", what="a JSON file path") as handle:
+    with replaced_file(path, "w", what="a JSON file path", streams=True) as handle:
         json.dump(data, handle, indent=1, default=_json_default)
         handle.write("\n")
 

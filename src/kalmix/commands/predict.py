@@ -531,7 +531,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
         if json_path:
             from ..archive import replaced_file
 
-            with replaced_file(json_path, "w", what="a JSON file path") as handle:
+            with replaced_file(json_path, "w", what="a JSON file path", streams=True) as handle:
                 json.dump(result.to_json(), handle, indent=2)
         if plot_path:
             plot_errors(result, plot_path, plot_track)
