@@ -263,6 +263,9 @@ def test_cli_evaluate_refuses_up_front_what_it_cannot_do(tmp_path):
                                          "--json", str(tmp_path / "r.json")])
         assert result.exit_code == 1 and message in result.stderr, result.output
         assert not (tmp_path / "r.json").exists()
+    # helper-32: --json - wrote a file named '-' (predict's '-' is standard output)
+    result = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--no-peers", "--json", "-"])
+    assert result.exit_code == 1 and "--json: expected a file name, got '-'" in result.stderr, result.output
 
 
 def test_a_target_at_rest_in_the_tuning_part_leaves_the_peers_running(monkeypatch):

@@ -739,3 +739,16 @@ def test_a_figure_or_json_interrupted_while_written_leaves_the_previous_file(tmp
         save_figure(fig, os.devnull)
         write_json(os.devnull, {"a": 1})
     plt.close(fig)
+    # helper-32: /dev/stdout on a pipe resolves to /proc/<pid>/fd/pipe:[N], which does not exist: it failed
+    piped = subprocess.run([sys.executable, "-c", "from kalmix.commands._common import write_json; "
+                            "write_json('/dev/stdout', {'a': 1})"], capture_output=True, text=True)
+    if os.path.exists("/dev/stdout"):
+        assert piped.returncode == 0 and json.loads(piped.stdout) == {"a": 1}, piped.stderr
+    # a read-only file is refused, as open() refuses it, not replaced (helper-32; root may write anyway)
+    locked = tmp_path / "locked.json"
+    write_json(str(locked), {"a": 1})
+    os.chmod(locked, 0o444)
+    if not os.access(locked, os.W_OK):
+        with pytest.raises(PermissionError):
+            write_json(str(locked), {"b": 2})
+        assert json.loads(locked.read_text()) == {"a": 1}

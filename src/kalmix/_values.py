@@ -12,8 +12,7 @@ def measurements(values) -> np.ndarray:
     """Positions as float64, with pandas' NA and None as NaN (a missing measurement) as in a table, and a masked
     array's masked values too (``np.asarray`` kept the value under the mask, which was then learned).
     ``TypeError`` for booleans (taken as 1 and 0 before), ``ValueError``/``TypeError`` for what is not numbers."""
-    if isinstance(values, (bool, np.bool_)) or getattr(values, "dtype", None) == np.bool_ or (
-            isinstance(values, (list, tuple)) and values and all(isinstance(v, (bool, np.bool_)) for v in values)):
+    if _has_booleans(values):
         raise TypeError(f"expected numbers, got booleans {values!r:.80}")
     if isinstance(values, np.ma.MaskedArray) or (isinstance(values, (list, tuple)) and any(
             isinstance(row, np.ma.MaskedArray) for row in values)):   # a list of masked rows keeps their masks
@@ -28,3 +27,17 @@ def measurements(values) -> np.ndarray:
         if not missing.any():
             raise
         return np.where(missing, np.nan, given).astype(np.float64)
+
+
+def _has_booleans(values, depth: int = 0) -> bool:
+    """Whether ``values`` (a scalar, an array, a pandas object, nested lists of rows) holds a boolean."""
+    if isinstance(values, (bool, np.bool_)):
+        return True
+    dtype = getattr(values, "dtype", None)
+    if dtype is not None and getattr(dtype, "kind", None) == "b":   # numpy bool, pandas' "boolean"
+        return True
+    if dtype is not None and getattr(dtype, "kind", None) == "O":
+        return any(isinstance(v, (bool, np.bool_)) for v in np.asarray(values, dtype=object).flat)
+    if isinstance(values, (list, tuple)) and depth < 2:
+        return any(_has_booleans(v, depth + 1) for v in values)
+    return False

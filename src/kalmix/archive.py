@@ -13,6 +13,7 @@ huge unused or oversized member is refused, not inflated).
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import stat
@@ -72,26 +73,36 @@ def write_archive(path: str | os.PathLike, meta: dict, arrays: dict[str, np.ndar
 
 
 @contextlib.contextmanager
-def replaced_file(path: str | os.PathLike, mode: str = "wb", *, what: str = "a file path", streams: bool = False):
+def replaced_file(path: str | os.PathLike, mode: str = "wb", *, what: str = "a file path", output: bool = False):
     """A handle to write ``path`` whole or not at all: a uniquely named temporary file beside it, fsynced and
     renamed over it when the block ends without an exception (the directory fsynced too), removed otherwise.
     A Ctrl-C, a full disk or a crash leaves the previous file, never half of a new one.
 
     A symbolic link is followed (its target is replaced, the link stays); a path that exists and is not a
-    regular file is refused with a ``ValueError`` (``what`` names what was expected), but with ``streams`` a
-    character device or a FIFO (``/dev/stdout``, a named pipe) is written directly; an ``OSError`` names
+    regular file is refused with a ``ValueError`` (``what`` names what was expected); an ``OSError`` names
     ``path``, not the temporary file. The new file keeps the permissions of the one it replaces.
+
+    ``output`` (a command's ``--json``, a figure): as ``open(path, mode)`` would where no replace can be
+    done: a path under ``/dev`` or ``/proc`` (``/dev/stdout``, a pipe or a redirected file behind it) and
+    a character device or a FIFO are written directly, and so is a writable file in a directory that
+    is not; a file that is not writable is refused (``PermissionError``), not replaced.
     """
     given = os.fspath(path)
     path = os.path.realpath(given)
     try:
-        kind = os.stat(path).st_mode
+        kind = os.stat(given).st_mode   # through links, as open() goes (a pipe's /proc link has no real path)
     except OSError:
         kind = None
-    if streams and kind is not None and (stat.S_ISCHR(kind) or stat.S_ISFIFO(kind)):
-        with open(path, mode, **({} if "b" in mode else {"encoding": "utf-8"})) as handle:
-            yield handle
-        return
+    text = {} if "b" in mode else {"encoding": "utf-8"}
+    if output and kind is not None:
+        special = os.path.abspath(given).startswith(("/dev/", "/proc/"))
+        if not stat.S_ISDIR(kind) and not os.access(given, os.W_OK):
+            raise PermissionError(errno.EACCES, f"cannot write {given!r}: permission denied (the file is read-only)")
+        if special or stat.S_ISCHR(kind) or stat.S_ISFIFO(kind) or (
+                stat.S_ISREG(kind) and not os.access(os.path.dirname(path), os.W_OK)):
+            with open(given, mode, **text) as handle:
+                yield handle
+            return
     if kind is not None and not stat.S_ISREG(kind):
         described = "a directory" if stat.S_ISDIR(kind) else "not a regular file (a device, a FIFO or a socket)"
         raise ValueError(f"{given}: expected {what}, and it is {described}; give a file name")
@@ -102,7 +113,7 @@ def replaced_file(path: str | os.PathLike, mode: str = "wb", *, what: str = "a f
     except OSError as error:
         raise OSError(error.errno, f"cannot write {given!r}: {error.strerror}") from None
     try:
-        with os.fdopen(fd, mode, **({} if "b" in mode else {"encoding": "utf-8"})) as handle:
+        with os.fdopen(fd, mode, **text) as handle:
             yield handle
             handle.flush()
             os.fsync(handle.fileno())
@@ -120,7 +131,7 @@ def replaced_file(path: str | os.PathLike, mode: str = "wb", *, what: str = "a f
 def save_figure(fig, path: str | os.PathLike, **options) -> str:
     """``fig.savefig`` through :func:`replaced_file`, in the format its extension names (PNG without one)."""
     extension = os.path.splitext(os.fspath(path))[1].lstrip(".").lower() or "png"
-    with replaced_file(path, what="a figure file path", streams=True) as handle:
+    with replaced_file(path, what="a figure file path", output=True) as handle:
         fig.savefig(handle, format=extension, **options)
     return os.fspath(path)
 

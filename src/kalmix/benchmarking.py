@@ -390,7 +390,7 @@ def main(quick: bool = False, json_path=None, png_path=None, log=print) -> dict:
     if json_path:
         from .archive import replaced_file
 
-        with replaced_file(json_path, "w", what="a JSON file path", streams=True) as handle:
+        with replaced_file(json_path, "w", what="a JSON file path", output=True) as handle:
             json.dump(_json_ready(results), handle, indent=2)
         log(f"wrote {json_path}")
     if png_path:

@@ -55,8 +55,8 @@ def output_file(ctx, param, value):
     if not str(value).strip():
         raise click.BadParameter("expected a file name, got ''")
     if str(value) == "-":
-        raise click.BadParameter("expected a file name, got '-': standard output takes the tables here (use "
-                                 "./- for a file named -)")
+        raise click.BadParameter("expected a file name, got '-' (standard output is not taken here: /dev/stdout "
+                                 "is; ./- names a file called -)")
     if str(value).endswith(("/", os.sep)):
         raise click.BadParameter(f"expected a file name, got {value!r}, which names a directory")
     problem = missing_directory(value)
@@ -65,7 +65,10 @@ def output_file(ctx, param, value):
         raise click.BadParameter(f"the directory {directory!r} of {value!r} "
                                  f"{'is not a directory' if taken else 'does not exist'}")
     directory = os.path.dirname(os.path.abspath(value))
-    if not os.access(directory, os.W_OK):
+    if os.path.isfile(value) or os.path.abspath(value).startswith(("/dev/", "/proc/")):
+        if not os.access(value, os.W_OK):
+            raise click.BadParameter(f"{value!r} is not writable")
+    elif not os.access(directory, os.W_OK):
         raise click.BadParameter(f"the directory {directory!r} of {value!r} is not writable")
     return value
 
@@ -81,7 +84,8 @@ def figure_format_problem(path) -> str | None:
     matplotlib.use("Agg")
     from matplotlib.backend_bases import FigureCanvasBase
 
-    kinds = FigureCanvasBase.get_supported_filetypes()
+    kinds = dict(FigureCanvasBase.get_supported_filetypes())
+    kinds.pop("pgf", None)   # needs a LaTeX installation: it failed after the work with a 120-line traceback
     if extension in kinds:
         return None
     return (f"expected a figure file ending in .png (or {', '.join('.' + k for k in sorted(kinds) if k != 'png')}), "
@@ -174,7 +178,7 @@ def write_json(path: str, data) -> None:
     writes leaves the previous file)."""
     from ..archive import replaced_file
 
-    with replaced_file(path, "w", what="a JSON file path", streams=True) as handle:
+    with replaced_file(path, "w", what="a JSON file path", output=True) as handle:
         json.dump(data, handle, indent=1, default=_json_default)
         handle.write("\n")
 

@@ -486,6 +486,10 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
             raise ValueError("give either INPUT or --dataset NAME")
         _distinct_files(("INPUT", input_path), ("--json", json_path), ("--plot", plot_path),
                         ("--plot-intervals", intervals_path))
+        for flag, named in (("--json", json_path), ("--plot", plot_path), ("--plot-intervals", intervals_path)):
+            if named == "-":   # helper-32: a file named '-' was written (predict's '-' is standard output)
+                raise ValueError(f"{flag}: expected a file name, got '-' (standard output is not taken here: "
+                                 "/dev/stdout is; ./- names a file called -)")
         _directory_exists("--json", json_path)
         _directory_exists("--plot", plot_path)
         _directory_exists("--plot-intervals", intervals_path)
@@ -531,7 +535,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
         if json_path:
             from ..archive import replaced_file
 
-            with replaced_file(json_path, "w", what="a JSON file path", streams=True) as handle:
+            with replaced_file(json_path, "w", what="a JSON file path", output=True) as handle:
                 json.dump(result.to_json(), handle, indent=2)
         if plot_path:
             plot_errors(result, plot_path, plot_track)
