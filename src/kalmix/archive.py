@@ -136,7 +136,6 @@ def save_figure(fig, path: str | os.PathLike, **options) -> str:
     return os.fspath(path)
 
 
-
 class Archive:
     """An open archive: its checked ``meta`` and members read on demand (see :func:`open_archive`)."""
 
