@@ -386,7 +386,7 @@ def _reanchor_target(j, k_count, n, p, order, z, delta, prior, origin, history, 
         for i in range(p):
             history[j, lag, i] = history[j, lag, i] - delta[i]
     for u in range(gm.shape[2]):
-        _translate_fit(gm, cr, u, n, p, delta)
+        _translate_statistics(gm[:, :, u], cr[:, :, u], n, p, delta)
     for i in range(p):   # drift u + (sum_j A_j - I) delta
         for k in range(k_count):
             acc = off[i, k]
@@ -396,39 +396,57 @@ def _reanchor_target(j, k_count, n, p, order, z, delta, prior, origin, history, 
 
 
 @jit
-def _moves_on(j, n, p, delta, history, gm, miss_limit, feature_limit):
-    """:func:`kalmix.core.mixture.translates` of target j (rls), its fits' statistics ``gm (d, d, fits)``."""
+def _stepped_on(j, p, delta, history, miss_limit):
+    """Target j's step from its last learned features to ``delta`` is within ``miss_limit`` (it moved on)."""
     for i in range(p):
         if not abs(delta[i] - history[j, 0, i]) <= miss_limit:
             return False
-    for u in range(gm.shape[2]):
-        weight = gm[n, n, u]
-        if weight > 0:
-            for a in range(n):
-                if not abs(gm[n, a, u] / weight - delta[a % p]) <= feature_limit:
-                    return False
     return True
 
 
 @jit
-def _translate_fit(gm, cr, u, n, p, delta):
-    """Fit ``u``'s statistics for features moved by ``-delta``, in place, each entry from the old values in the
-    spec's order: ``S <- M S M^T``, ``M_xy <- (M_xy - delta r) M^T`` (:func:`kalmix.core.mixture._translated`)."""
-    corner = gm[n, n, u]
+def _held_near(gm, n, p, delta, feature_limit):
+    """One fit's statistics ``gm (d, d)`` hold their data (the weighted mean regressor) within
+    ``feature_limit`` of the new origin ``delta`` (no data: True)."""
+    weight = gm[n, n]
+    if weight > 0:
+        for a in range(n):
+            if not abs(gm[n, a] / weight - delta[a % p]) <= feature_limit:
+                return False
+    return True
+
+
+@jit
+def _moves_on(j, n, p, delta, history, gm, miss_limit, feature_limit):
+    """:func:`kalmix.core.mixture.translates` of target j (rls), its fits' statistics ``gm (d, d, fits)``."""
+    if not _stepped_on(j, p, delta, history, miss_limit):
+        return False
+    for u in range(gm.shape[2]):
+        if not _held_near(gm[:, :, u], n, p, delta, feature_limit):
+            return False
+    return True
+
+
+@jit
+def _translate_statistics(gm, cr, n, p, delta):
+    """One fit's statistics ``gm (d, d)``, ``cr (p, d)`` for features moved by ``-delta``, in place, each entry
+    from the old values in the spec's order: ``S <- M S M^T``, ``M_xy <- (M_xy - delta r) M^T``
+    (:func:`kalmix.core.mixture._translated`; the scalar kernel moves each expert's with it)."""
+    corner = gm[n, n]
     for i in range(p):   # the cross statistics first: they read the old constant row of S
-        moved = cr[i, n, u] - delta[i] * corner
+        moved = cr[i, n] - delta[i] * corner
         for b in range(n + 1):
             bar_b = delta[b % p] if b < n else 0.0
-            cr[i, b, u] = (cr[i, b, u] - delta[i] * gm[n, b, u]) - moved * bar_b
+            cr[i, b] = (cr[i, b] - delta[i] * gm[n, b]) - moved * bar_b
     for a in range(n):   # inside, then column n, then row n, then the corner: each reads only old values
         for b in range(n):
-            gm[a, b, u] = ((gm[a, b, u] - delta[a % p] * gm[n, b, u]) - gm[a, n, u] * delta[b % p]) + (
+            gm[a, b] = ((gm[a, b] - delta[a % p] * gm[n, b]) - gm[a, n] * delta[b % p]) + (
                 delta[a % p] * delta[b % p]) * corner
     for a in range(n):
-        gm[a, n, u] = ((gm[a, n, u] - delta[a % p] * corner) - gm[a, n, u] * 0.0) + (delta[a % p] * 0.0) * corner
+        gm[a, n] = ((gm[a, n] - delta[a % p] * corner) - gm[a, n] * 0.0) + (delta[a % p] * 0.0) * corner
     for b in range(n):
-        gm[n, b, u] = ((gm[n, b, u] - 0.0 * gm[n, b, u]) - corner * delta[b % p]) + (0.0 * delta[b % p]) * corner
-    gm[n, n, u] = ((corner - 0.0 * corner) - corner * 0.0) + (0.0 * 0.0) * corner
+        gm[n, b] = ((gm[n, b] - 0.0 * gm[n, b]) - corner * delta[b % p]) + (0.0 * delta[b % p]) * corner
+    gm[n, n] = ((corner - 0.0 * corner) - corner * 0.0) + (0.0 * 0.0) * corner
 
 
 @jit

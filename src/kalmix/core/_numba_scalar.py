@@ -17,7 +17,8 @@ import numba as nb
 import numpy as np
 
 from . import _numba_linalg as la
-from ._numba_kernels import _learn_gate, _learning_rate, _next_gate, _posterior
+from ._numba_kernels import (_held_near, _learn_gate, _learning_rate, _next_gate, _posterior, _stepped_on,
+                             _translate_statistics)
 
 _JIT = la._JIT
 jit = la.jit
@@ -595,7 +596,7 @@ def _reanchor_target(j, n, p, order, z, delta, prior, origin, history, mean, gra
         for i in range(p):
             history[j, lag, i] = history[j, lag, i] - delta[i]
     for k in range(mean.shape[1]):
-        _translate_expert(gram[j, k], cross[j, k], n, p, delta)
+        _translate_statistics(gram[j, k], cross[j, k], n, p, delta)
         for i in range(p):   # drift u + (sum_j A_j - I) delta
             acc = offset[j, k, i]
             for column in range(n):
@@ -606,37 +607,12 @@ def _reanchor_target(j, n, p, order, z, delta, prior, origin, history, mean, gra
 @jit
 def _moves_on(j, n, p, delta, history, gram, miss_limit, feature_limit):
     """:func:`kalmix.core.mixture.translates` of target j (rls), its experts' statistics ``gram (N, K, d, d)``."""
-    for i in range(p):
-        if not abs(delta[i] - history[j, 0, i]) <= miss_limit:
-            return False
+    if not _stepped_on(j, p, delta, history, miss_limit):
+        return False
     for k in range(gram.shape[1]):
-        weight = gram[j, k, n, n]
-        if weight > 0:
-            for a in range(n):
-                if not abs(gram[j, k, n, a] / weight - delta[a % p]) <= feature_limit:
-                    return False
+        if not _held_near(gram[j, k], n, p, delta, feature_limit):
+            return False
     return True
-
-
-@jit
-def _translate_expert(gm, cr, n, p, delta):
-    """One expert's ``(d, d)`` / ``(p, d)`` statistics moved as :func:`kalmix.core._numba_kernels._translate_fit`
-    moves a fit's (the same operations in the same order)."""
-    corner = gm[n, n]
-    for i in range(p):
-        moved = cr[i, n] - delta[i] * corner
-        for b in range(n + 1):
-            bar_b = delta[b % p] if b < n else 0.0
-            cr[i, b] = (cr[i, b] - delta[i] * gm[n, b]) - moved * bar_b
-    for a in range(n):
-        for b in range(n):
-            gm[a, b] = ((gm[a, b] - delta[a % p] * gm[n, b]) - gm[a, n] * delta[b % p]) + (
-                delta[a % p] * delta[b % p]) * corner
-    for a in range(n):
-        gm[a, n] = ((gm[a, n] - delta[a % p] * corner) - gm[a, n] * 0.0) + (delta[a % p] * 0.0) * corner
-    for b in range(n):
-        gm[n, b] = ((gm[n, b] - 0.0 * gm[n, b]) - corner * delta[b % p]) + (0.0 * delta[b % p]) * corner
-    gm[n, n] = ((corner - 0.0 * corner) - corner * 0.0) + (0.0 * 0.0) * corner
 
 
 @jit
