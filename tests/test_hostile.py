@@ -565,8 +565,40 @@ def test_labelled_coordinates_are_taken_by_name():
     assert all(np.array_equal(a.next, b.next) for a, b in zip(rows, plain_rows))
     with pytest.raises(ValueError, match=r"z: expected the coordinates \['x', 'y'\] \(position_names\), got \['a', 'x'\]"):
         _walked().step_row(0, 20.0, pd.Series({"a": 1.0, "x": 2.0}))
-    with pytest.raises(ValueError, match="need the predictor's position_names"):
-        TrackPredictor(StreamConfig(length_unit=0.01)).step_row(0, 0.0, {"x": 1.0, "y": 2.0})
+    with pytest.raises(ValueError, match="need distinct text labels, or the predictor's position_names"):
+        TrackPredictor(StreamConfig(length_unit=0.01)).step_row(0, 0.0, {"x": 1.0, 2: 2.0})
+
+
+def test_lists_of_labelled_rows_and_first_labels_are_taken_by_name():
+    """helper-32: a list of Series (or of dicts) in step_rows was taken by position, and so was a Series given to a
+    predictor without position_names: y, x learned as x, y. Now each row by name, and with no names yet the first
+    labelled row's labels become position_names (as a table's columns do); a failed step adopts nothing."""
+    plain = _walked().step_rows([0, 0], [20.0, 21.0], [[20.0, 100.0], [21.0, 100.0]])
+    for rows in ([pd.Series({"y": 100.0, "x": 20.0}), pd.Series({"x": 21.0, "y": 100.0})],
+                 [{"y": 100.0, "x": 20.0}, {"x": 21.0, "y": 100.0}],
+                 [{"y": 100.0, "x": 20.0}, [21.0, 100.0]]):
+        got = _walked().step_rows([0, 0], [20.0, 21.0], rows)
+        assert all(np.array_equal(a.next, b.next) for a, b in zip(got, plain))
+    with pytest.raises(ValueError, match=r"values\[1\]: expected the coordinates \['x', 'y'\]"):
+        _walked().step_rows([0, 0], [20.0, 21.0], [[20.0, 100.0], {"x": 21.0, "z": 100.0}])
+
+    def unnamed(first):
+        predictor = TrackPredictor(StreamConfig(length_unit=0.01, bank="kinematic"))
+        predictor.step_row(0, 0.0, first)
+        for k in range(1, 20):
+            predictor.step_row(0, float(k), pd.Series({"y": 100.0, "x": float(k)}))
+        return predictor
+
+    named = unnamed(pd.Series({"x": 0.0, "y": 100.0}))
+    assert named.position_names == ("x", "y")
+    assert np.array_equal(named.step_row(0, 20.0, {"y": 100.0, "x": 20.0}).next,
+                          _walked().step_row(0, 20.0, [20.0, 100.0]).next)
+    fresh = TrackPredictor(StreamConfig(length_unit=0.01))
+    with pytest.raises(ValueError):
+        fresh.step_row(0, 0.0, {"x": 1.0, "y": float("inf")})
+    assert fresh.position_names is None
+    fresh.step_row(0, 0.0, {"b": 1.0, "a": 2.0})
+    assert fresh.position_names == ("b", "a")
 
 
 def test_mixture_predictor_takes_missing_values_as_the_track_predictor_does():

@@ -468,6 +468,11 @@ def _factorize(values) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(codes, dtype=np.int64), np.asarray(uniques, dtype=object)
 
 
+def _is_pandas(value, *kinds: str) -> bool:
+    """Whether ``value`` is a pandas object of one of these class names (without importing pandas)."""
+    return type(value).__name__ in kinds and type(value).__module__.startswith("pandas")
+
+
 def _is_missing(values) -> np.ndarray:
     """Which of ``values`` are None, NaN, NaT or pandas' NA (no track id)."""
     import pandas as pd
@@ -886,11 +891,12 @@ class TrackPredictor:
         before its track's last time, or NaN or infinite).
 
         ``z``: the coordinates in the order of :attr:`position_names`, or labelled by them (a pandas
-        Series, a dict); None for a missing row once the predictor knows its number of coordinates.
+        Series, a dict; a predictor with no names yet takes the first labelled row's labels for them);
+        None for a missing row once the predictor knows its number of coordinates.
 
         All or nothing: the track's tracker and state change only once the step succeeded.
         """
-        z = self._by_name(z, "z")
+        z, names = self._by_name(z, "z", self.position_names)
         if z is None:   # the whole row missing: as many NaN as the predictor has coordinates
             if self.params is None:
                 raise ValueError("z: None (a missing row) needs the number of coordinates, which the predictor "
@@ -910,30 +916,45 @@ class TrackPredictor:
         except (TypeError, ValueError, OverflowError):
             raise ValueError(f"time: expected a number, a date and time (datetime, ISO text) or a duration, "
                              f"got {time!r:.80}") from None
-        return self._step_checked([_track_key(track_id, "track_id")], np.array([time]), z[None, :])[0]
+        out = self._step_checked([_track_key(track_id, "track_id")], np.array([time]), z[None, :])[0]
+        self.position_names = names
+        return out
 
-    def _by_name(self, values, where: str):
+    def _by_name(self, values, where: str, names=None):
         """Labelled coordinates (a pandas Series or a mapping for one row, a DataFrame's columns for rows) in the
-        order of :attr:`position_names`, as :meth:`process_table` takes a table's columns by name; they were
-        taken in their own order, which silently swapped coordinates. Unlabelled values are returned as given."""
+        order of ``names`` (:attr:`position_names`), as :meth:`process_table` takes a table's columns by name;
+        they were taken in their own order, which silently swapped coordinates. With no names yet, a row's
+        text labels become them (as a table's columns do). Returns the values (unlabelled ones as given) and
+        the names."""
         if isinstance(values, Mapping):
             labels = list(values.keys())
-        elif type(values).__name__ in ("Series", "DataFrame") and type(values).__module__.startswith("pandas"):
-            labels = list(values.index if type(values).__name__ == "Series" else values.columns)
+        elif _is_pandas(values, "Series", "DataFrame"):
+            labels = list(values.index if _is_pandas(values, "Series") else values.columns)
             if all(isinstance(label, (int, np.integer)) for label in labels):   # positions, not names
-                return values
+                return values, names
         else:
-            return values
-        names = self.position_names
+            return values, names
         if names is None:
-            if isinstance(values, Mapping):
-                raise ValueError(f"{where}: coordinates by name ({labels}) need the predictor's position_names")
-            return values
+            if not all(isinstance(label, str) for label in labels) or len(set(labels)) != len(labels):
+                raise ValueError(f"{where}: coordinates by name need distinct text labels, or the predictor's "
+                                 f"position_names, got {labels}")
+            names = tuple(labels)
         if set(labels) != set(names) or len(labels) != len(names):
             raise ValueError(f"{where}: expected the coordinates {list(names)} (position_names), got {labels}")
         if isinstance(values, Mapping):
-            return [values[name] for name in names]
-        return values[list(names)] if type(values).__name__ == "Series" else values.loc[:, list(names)]
+            return [values[name] for name in names], names
+        return (values[list(names)] if _is_pandas(values, "Series") else values.loc[:, list(names)]), names
+
+    def _rows_by_name(self, values, names):
+        """:meth:`_by_name` of each row of a list of rows (labelled ones: Series, mappings), or of the whole."""
+        if not (isinstance(values, (list, tuple))
+                and any(isinstance(row, Mapping) or _is_pandas(row, "Series") for row in values)):
+            return self._by_name(values, "values", names)
+        rows = []
+        for i, row in enumerate(values):
+            row, names = self._by_name(row, f"values[{i}]", names)
+            rows.append(row.tolist() if _is_pandas(row, "Series") else row)
+        return rows, names
 
     def step_rows(self, track_ids, times, values) -> list[RowPrediction | None]:
         """Rows that have already arrived, as :meth:`step_row` on each in turn, through one run of the core.
@@ -950,7 +971,8 @@ class TrackPredictor:
             One hashable id per row.
         times : array_like ``(n,)``
         values : array_like ``(n, p)``
-            Measurements (NaN = missing).
+            Measurements (NaN = missing); or labelled by :attr:`position_names`: a DataFrame with
+            those columns, or a list of rows some of which are Series or dicts (as in :meth:`step_row`).
 
         Returns
         -------
@@ -973,7 +995,7 @@ class TrackPredictor:
         except (TypeError, ValueError, OverflowError):
             raise ValueError(f"times: expected numbers, dates and times (datetime, ISO text) or durations, "
                              f"got {times!r:.80}") from None
-        values = self._by_name(values, "values")
+        values, names = self._rows_by_name(values, self.position_names)
         try:
             values = _measurements(values)
         except (TypeError, ValueError, OverflowError):
@@ -984,7 +1006,9 @@ class TrackPredictor:
         if np.isinf(values).any():
             i = int(np.flatnonzero(np.isinf(values).any(axis=-1))[0])
             raise ValueError(f"values[{i}]: expected finite numbers (NaN for a missing measurement), got {values[i]!r}")
-        return self._step_checked([_track_key(track, f"track_ids[{i}]") for i, track in enumerate(ids)], times, values)
+        out = self._step_checked([_track_key(track, f"track_ids[{i}]") for i, track in enumerate(ids)], times, values)
+        self.position_names = names
+        return out
 
     def _step_checked(self, ids, times, values) -> list[RowPrediction | None]:
         """:meth:`step_rows` on arguments already checked: all or nothing, row by row until the time unit is known."""
