@@ -667,3 +667,24 @@ def test_a_short_first_step_does_not_make_every_later_row_a_gap():
         new = tracker.advance(float(t), StreamConfig())
         codes.append("S" if new is None else "G" if new else ".")
     assert "".join(codes) == "G.....G.." and tracker.glitches == 1
+
+
+def test_a_clock_that_restarts_is_said_once():
+    """Rows at or before their track's last time are skipped; a sensor clock that restarts at 0 skipped every later
+    row of the track with only `skipped` to show for it. The first such row now warns (once per predictor); a
+    repeated time in a fresh predictor warns too; kalmix predict on stdin says them line by line instead."""
+    import warnings as w
+
+    from kalmix.streaming import SkippedRowWarning
+
+    predictor = _walked()
+    with pytest.warns(SkippedRowWarning, match=r"track 0: time 3.0 is not after the track's last time 19.0"):
+        assert predictor.step_row(0, 3.0, [3.0, 100.0]) is None
+    assert predictor.warn_skipped is False and predictor.skipped == 1
+    with w.catch_warnings():
+        w.simplefilter("error")
+        assert predictor.step_rows([0, 0], [4.0, 5.0], [[4.0, 100.0], [5.0, 100.0]]) == [None, None]
+        assert predictor.step_row(0, float("nan"), [1.0, 1.0]) is None   # a missing time: not out of order
+    assert predictor.skipped == 4
+    with pytest.warns(SkippedRowWarning, match="time 19.0 is not after"):
+        _walked().step_rows([0, 1], [19.0, 0.0], [[1.0, 1.0], [2.0, 2.0]])

@@ -85,7 +85,7 @@ from .archive import open_archive, write_archive
 from .bank import DEFAULT_BANK, DEFAULT_REACH, check_horizon, check_length_unit, make_bank, make_params, short_lead
 from .core.engine import Bank, BankState, init_bank_state, tree_map
 
-__all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Checkpoint", "auto_length_unit",
+__all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "SkippedRowWarning", "Checkpoint", "auto_length_unit",
            "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
 
 #: 9: the settings hold the lead head's delay (``StreamConfig.lead_delay``: BOA's learning rate over a lead
@@ -308,6 +308,10 @@ def _median(values) -> float:
     if len(ordered) % 2:
         return float(ordered[middle])
     return float((ordered[middle - 1] + ordered[middle]) / 2.0)
+
+
+class SkippedRowWarning(RuntimeWarning):
+    """A row was skipped because its time was not after its track's last time (said once per predictor)."""
 
 
 class GapTracker:
@@ -643,6 +647,9 @@ class TrackPredictor:
     ----------
     skipped : int
         Rows skipped because their time was not after their track's previous time.
+    warn_skipped : bool
+        Whether the next row that :meth:`step_row` / :meth:`step_rows` skips for its time gives a
+        :class:`SkippedRowWarning` (once: then False).
     rows : int
         Rows processed (including skipped ones), counted over saves and resumes.
     output : dict or None
@@ -666,6 +673,8 @@ class TrackPredictor:
         self.states: dict[Any, BankState] = {}
         self.gaps: dict[Any, GapTracker] = {}
         self.skipped = 0
+        #: warn (once) when step_row / step_rows skips a row for its time (``kalmix predict`` counts them itself)
+        self.warn_skipped = True
         self.rows = 0
         self.outliers = 0   # rows the glitch screen did not learn (kalmix.core.screen)
         self.output: dict | None = None
@@ -1042,15 +1051,18 @@ class TrackPredictor:
         trackers: dict = {}
         runs: dict = {}          # track -> [(row, restart, next time)]
         outcome = [None] * n_rows
+        late = None   # the first row skipped for its time: (track, time, the track's last time)
         for i in range(n_rows):
             track = ids[i]
             gaps = trackers.get(track)
             if gaps is None:
                 known = self.gaps.get(track)
                 gaps = trackers[track] = GapTracker() if known is None else known.copy()
-            glitches = gaps.glitches
+            glitches, last = gaps.glitches, gaps.last_time
             new = gaps.advance(float(times[i]), self.config)
             if new is None:
+                if late is None and last is not None and math.isfinite(times[i]):
+                    late = (track, float(times[i]), last)
                 continue
             if self.config.time_unit is None and gaps.intervals:
                 self._learn_time_unit(gaps.intervals[0], track)
@@ -1097,6 +1109,12 @@ class TrackPredictor:
             self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
         self.rows += n_rows
         self.skipped += sum(r is None for r in results)
+        if late is not None and self.warn_skipped:
+            self.warn_skipped = False
+            warnings.warn(f"track {late[0]!r}: time {late[1]!r} is not after the track's last time {late[2]!r}, so the "
+                          "row was skipped (a stream cannot go back: a clock that restarts skips every later row of "
+                          "the track); TrackPredictor.skipped counts skipped rows; this is said once",
+                          SkippedRowWarning, stacklevel=4)
         return results
 
     # -- a table (or chunk) at once -----------------------------------------------------

@@ -548,6 +548,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
                        err=True)
         run.engine = _new_engine(settings, 1.0 if unit is None else unit, columns.positions, run.backend)
     engine = run.engine
+    engine.warn_skipped = False   # skipped rows are said line by line here
     run.open_output(run.out_fmt if run.output else ("jsonl" if is_json else "csv"))
     index = {name: i for i, name in enumerate(header)}
     counts: dict = {}
