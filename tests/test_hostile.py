@@ -243,6 +243,25 @@ def test_reproduce_writes_its_json_before_a_closed_stdout_ends_it(cli, tmp_path,
     assert result.exit_code != 0 and json.loads(target.read_text())["scenario"] == "quick"
 
 
+def test_a_reader_that_stops_early_ends_a_command_quietly(cli, tmp_path, monkeypatch):
+    """`kalmix servo | head` ended with "Error: Broken pipe" (exit 1) after head had what it wanted: a closed stdout
+    now ends the command with exit 1 and no message, as predict does."""
+    import click as click_module
+
+    import kalmix.commands.reproduce as reproduce_command
+
+    echo = click_module.echo
+
+    def closed_stdout(message=None, *args, err=False, **kwargs):
+        if not err:
+            raise BrokenPipeError(32, "Broken pipe")
+        echo(message, *args, err=err, **kwargs)
+
+    monkeypatch.setattr(reproduce_command.click, "echo", closed_stdout)
+    result = CliRunner().invoke(cli, ["reproduce", "table1", "--quick", "--seeds", "1"])
+    assert result.exit_code == 1 and "Broken pipe" not in result.output and "Error" not in result.output
+
+
 @pytest.mark.parametrize("args, message", [
     (["reproduce", "figure2", "--out", "fig.txt"], "expected a figure file ending in .png"),
     (["bench", "--quick", "--png", "b.txt"], "expected a figure file ending in .png"),

@@ -140,9 +140,21 @@ def user_errors():
                                        "experts, targets or rows") from error
         except EOFError as error:  # pandas on a truncated .gz; click would print a bare 'Aborted!'
             raise click.ClickException(f"the input ends early (a truncated or corrupt file?): {error}") from error
+        except BrokenPipeError:   # the reader stopped early (``kalmix servo | head``): what it wanted it has
+            silence_stdout()
+            raise SystemExit(1) from None
         except OSError as error:  # a disk, permission or device error: one line, not a traceback
             where = f" {error.filename!r}" if error.filename else ""
             raise click.ClickException(f"{error.strerror or error}{where}") from error
+
+
+def silence_stdout():
+    """After a broken pipe, send what is left in stdout's buffer nowhere (no second error at exit)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # no real file descriptor (e.g. a test runner's buffer)
+        pass
 
 
 @contextlib.contextmanager

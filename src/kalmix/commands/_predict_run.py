@@ -20,6 +20,7 @@ import sys
 import click
 import numpy as np
 
+from ._common import silence_stdout
 from ._durable import Interrupted, Output, OutputClosed, count_rows
 from .predict import _columns, _header, _input_format, _output_columns
 
@@ -699,7 +700,7 @@ def run_predict(guard, engine, settings, unit, input_path, state_path, save_ever
         run.stopped = stop
     except OutputClosed:
         run.closed = True
-        _silence_stdout()
+        silence_stdout()
     except BaseException:
         failed = True
         raise
@@ -707,12 +708,3 @@ def run_predict(guard, engine, settings, unit, input_path, state_path, save_ever
         with guard.deferred(deliver=False):
             run.finish(failed)
     run.report()
-
-
-def _silence_stdout():
-    """After a broken pipe, send what is left in stdout's buffer nowhere (no second error at exit)."""
-    try:
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-    except (OSError, ValueError, AttributeError):  # no real file descriptor (e.g. a test runner's buffer)
-        pass
