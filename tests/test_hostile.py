@@ -218,6 +218,12 @@ def test_servo_makes_a_nested_output_directory(cli, tmp_path, monkeypatch):
     monkeypatch.setattr(servo_command, "progress_bar", stop)
     result = CliRunner().invoke(cli, ["servo", "--out-dir", str(tmp_path / "new" / "nested")])
     assert result.exit_code == 1 and "stopped here: the options were taken" in result.output
+    # --json inside the --out-dir it makes was refused (its directory did not exist yet); elsewhere it still is
+    made = tmp_path / "made"
+    result = CliRunner().invoke(cli, ["servo", "--json", str(made / "s.json"), "--out-dir", str(made)])
+    assert result.exit_code == 1 and "stopped here: the options were taken" in result.output
+    result = CliRunner().invoke(cli, ["servo", "--json", str(tmp_path / "other" / "s.json"), "--out-dir", str(made)])
+    assert result.exit_code == 2 and "Invalid value for '--json': the directory" in result.output
 
 
 def test_servo_cells_never_read_zero_for_a_small_gain():

@@ -162,6 +162,18 @@ MAX_NOISE_PX = 1e4
 MAX_GAIN = 1e6
 
 
+def _json_file(ctx, param, value):
+    """click callback: ``--json`` as :func:`output_file`, but a file in ``--out-dir`` (checked first: eager), which
+    the command makes, may name a directory that does not exist yet (it was refused)."""
+    out_dir = ctx.params.get("out_dir")
+    if value is not None and out_dir is not None:
+        directory, made = os.path.dirname(os.path.abspath(value)), os.path.abspath(out_dir)
+        if not os.path.exists(directory) and os.path.commonpath([directory, made]) == made:
+            output_directory(ctx, param, directory)
+            return value
+    return output_file(ctx, param, value)
+
+
 @click.command()
 @click.option("--scenario", type=click.Choice(["paper", "circle", "random_walk"]), default="paper",
               show_default=True, help="Target trajectory.")
@@ -175,10 +187,10 @@ MAX_GAIN = 1e6
               help="Gain of the predicting modes and the oracle (default: --gain).")
 @click.option("--seed", default=0, show_default=True, type=SEED,
               help="Seed of the scenario, camera noise, SOM and predictors.")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, callback=output_file,
-              help="Write the summary as JSON.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, callback=_json_file,
+              help="Write the summary as JSON (may lie in --out-dir, made with it).")
 @click.option("--out-dir", type=click.Path(file_okay=False), default="servo_out", show_default=True,
-              callback=output_directory, help="Directory for the PNGs.")
+              callback=output_directory, is_eager=True, help="Directory for the PNGs.")
 @one_line_errors
 def servo(scenario, delay_frames, noise_px, gain, prediction_gain, seed, json_path, out_dir):
     """Track a 3-D target with the 3-joint arm through delayed stereo cameras; compare predictors."""
@@ -234,6 +246,7 @@ def servo(scenario, delay_frames, noise_px, gain, prediction_gain, seed, json_pa
     plot_learning_curve(history, figures["som_learning_curve"])
     data["figures"] = figures
     if json_path:
+        os.makedirs(os.path.dirname(os.path.abspath(json_path)), exist_ok=True)
         write_json(json_path, data)
 
     click.echo(f"scenario '{scenario}', seed {seed}")
