@@ -124,7 +124,7 @@ def plot_errors(result, path, speeds=None) -> None:
     import matplotlib.pyplot as plt
 
     rows = 2 if speeds is not None else 1
-    fig, axes = plt.subplots(rows, 1, figsize=(11.0, 6.5 if rows == 2 else 4.5), dpi=110, sharex=True,
+    fig, axes = plt.subplots(rows, 1, figsize=(11.0, 7.0 if rows == 2 else 5.0), dpi=110, sharex=True,
                              gridspec_kw={"height_ratios": [3, 1]} if rows == 2 else None)
     axes = np.atleast_1d(axes)
     ax = axes[0]
@@ -142,9 +142,11 @@ def plot_errors(result, path, speeds=None) -> None:
     # the floor under the smallest errors (the oracle's were mostly below a fixed 0.05: cut off)
     ax.set_ylim(bottom=max(1e-2, 0.5 * min(low)) if low else 0.05)
     ax.set_ylabel("||d_k - v_k|| (px, log)")
-    ax.set_title(f"tracking error against the true target, delay {result.config.delay_frames} frames")
+    fig.suptitle(f"tracking error against the true target, delay {result.config.delay_frames} frames")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=8, loc="lower right")
+    # above the axes: inside, any corner hid a stretch of some run's errors (lower right: the last 10 s)
+    ax.legend(fontsize=8, loc="lower left", bbox_to_anchor=(0.0, 1.01, 1.0, 0.1), ncol=2, mode="expand",
+              borderaxespad=0.0, frameon=False)
     if speeds is not None:
         axes[1].plot(result.times, speeds, color="black", lw=1.0)
         axes[1].set_ylabel("target speed (m/s)")
