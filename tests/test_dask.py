@@ -122,6 +122,26 @@ def test_dask_equals_single_machine_predict_over_many_files(cli, cluster, tmp_pa
     assert (owners.groupby("vessel")["file"].nunique() == 1).all()
 
 
+def test_the_gap_note_is_said_as_on_one_machine(cli, cluster, tmp_path):
+    """Irregular reports that the default gap rule splits at >= 5 % of the rows: the single-machine run says so and
+    what to do; the Dask run said nothing. Now the same note, from the segments it wrote."""
+    rng = np.random.default_rng(3)
+    frames = []
+    for k in range(6):
+        t = np.cumsum(rng.exponential(1.0, 120))
+        frames.append(pd.DataFrame({"vessel": f"v{k}", "t": t, "x": np.cumsum(rng.normal(size=120)),
+                                    "y": np.cumsum(rng.normal(size=120))}))
+    whole = _write(_split(pd.concat(frames, ignore_index=True), 3), str(tmp_path / "archive"), "parquet")
+    single = _run(cli, ["predict", whole, *FAST, "-o", str(tmp_path / "single.parquet")])
+    result = _run(cli, ["predict", str(tmp_path / "archive"), "--engine", "dask", "--scheduler",
+                        cluster.scheduler_address, *FAST, "-o", str(tmp_path / "out")])
+    assert single.exit_code == 0 and result.exit_code == 0, result.output
+    note = [line for line in single.stderr.splitlines() if "note: the gap rule" in line]
+    assert len(note) == 1 and note == [line for line in result.stderr.splitlines() if "note: the gap rule" in line]
+    splits = int(pd.read_parquet(tmp_path / "out").groupby("vessel")["segment"].max().sum())
+    assert f"started a new segment at {splits} of 720 rows" in note[0] and splits >= 36
+
+
 def test_dask_equals_single_machine_on_unsorted_rows_with_repeats(cli, cluster, tmp_path):
     """Rows of a track out of order across files, repeated timestamps in different files (the last row
     in file order is kept) and a row without a time: the single-machine run sorts them as one chunk."""

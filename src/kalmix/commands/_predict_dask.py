@@ -23,6 +23,7 @@ import time
 import click
 
 from ._durable import Interrupted
+from ._predict_run import gap_note
 
 #: Shuffle partitions per worker thread at least (smaller tasks balance the load across workers).
 PARTITIONS_PER_WORKER = 4
@@ -124,8 +125,8 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
         for note in column_notes(columns, _header(archive_files(input_path)[0][0], fmt)):
             _note(note)
         with _client(scheduler, workers) as client:
-            total, work = _compute(client, frame, columns, fmt, partial, settings, unit, chunk_rows, progress,
-                                   scheduler, partitions)
+            total, splits, work = _compute(client, frame, columns, fmt, partial, settings, unit, chunk_rows,
+                                           progress, scheduler, partitions)
     except Interrupted as stop:
         shutil.rmtree(partial, ignore_errors=True)
         _note(f"stopped by {stop.name}; nothing was written to {output}: run the same command again "
@@ -150,14 +151,25 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
     _note(f"{total} row(s) in, {written} prediction(s) written to {output} in {files} file(s){why}; "
           f"{time.perf_counter() - started:.1f} s ({work:.1f} s of work on the cluster after the start and "
           "the first chunk)")
+    gap_note(settings["max_gap"], settings["max_gap_factor"], splits, total)
 
 
 def _note(text):
     click.echo(f"kalmix: {text}", err=True)
 
 
+def _gap_splits(part, track_id) -> int:
+    """New segments the gap rule started in a partition of whole tracks (each track's segments count from 0)."""
+    if not len(part):
+        return 0
+    if track_id is None:
+        return max(int(part["segment"].max()), 0)
+    return int(part.groupby(track_id, sort=False)["segment"].max().clip(lower=0).sum())
+
+
 def _compute(client, frame, columns, fmt, partial, settings, unit, chunk_rows, progress, scheduler, partitions):
-    """Write the predictions into ``partial``; the number of input rows and the seconds the cluster took."""
+    """Write the predictions into ``partial``; the number of input rows, the gap rule's new segments and the seconds
+    the cluster took."""
     from distributed import progress as progress_bar
 
     from ..dask_predict import predict_dask
@@ -169,17 +181,19 @@ def _compute(client, frame, columns, fmt, partial, settings, unit, chunk_rows, p
     shutil.rmtree(partial, ignore_errors=True)  # what a killed run left
     write = result.to_parquet(partial, write_index=False, compute=False)
     rows_in = frame.map_partitions(len).sum()
+    # the gap rule's new segments (a partition holds whole tracks), from the same tasks as the written rows
+    splits = result.map_partitions(_gap_splits, columns.track_id, meta=(None, "int64")).sum()
     where = client.scheduler.address if scheduler else "a local cluster"
     _note(f"{frame.npartitions} input partition(s) -> {count} partition(s) by track, {threads} worker thread(s) "
           f"on {where}")
-    futures = client.compute([write, rows_in])
+    futures = client.compute([write, rows_in, splits])
     submitted = time.perf_counter()
     try:
         if sys.stderr.isatty() if progress is None else progress:
             with contextlib.redirect_stdout(sys.stderr):  # the bar is drawn on stdout
                 progress_bar(futures)
             click.echo("", err=True)
-        total = int(client.gather(futures)[1])
-        return total, time.perf_counter() - submitted
+        _, total, split = client.gather(futures)
+        return int(total), int(split), time.perf_counter() - submitted
     finally:
         client.cancel(futures)

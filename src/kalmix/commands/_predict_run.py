@@ -45,6 +45,17 @@ _MAX_PIECES = 64
 SPLIT_NOTE = 0.05
 
 
+def gap_note(max_gap, max_gap_factor, splits: int, rows: int) -> None:
+    """Say (on stderr) that the default gap rule split at least :data:`SPLIT_NOTE` of a run's ``rows`` (``splits``
+    new segments), and what to do if those steps are the sampling."""
+    if max_gap is None and math.isfinite(max_gap_factor) and rows >= 100 and splits >= SPLIT_NOTE * rows:
+        click.echo(f"kalmix: note: the gap rule (--max-gap auto: {max_gap_factor:g} x each track's reference "
+                   f"interval) started a new segment at {splits} of {rows} rows ({splits / rows:.0%}), and the "
+                   "experts start again at each; the rows before them get no calibrated interval. If such steps "
+                   "are the sampling (irregular reports), not lost targets, --max-gap none --reach 8 predicts "
+                   "across them (README, 'Missing data and time gaps')", err=True)
+
+
 def _gap_splits(engine) -> int:
     """Segments started by the gap rule so far, over the engine's tracks (a track's first is not one)."""
     return 0 if engine is None else sum(max(gaps.segment, 0) for gaps in engine.gaps.values())
@@ -115,15 +126,9 @@ class Run:
             click.echo(f"kalmix: {engine.outliers - self.outliers0} outlier(s): glitches far from their track's "
                        "extrapolation, not learned (one in a track's first rows: the track started again after it); "
                        "their predictions are still written", err=True)
-        splits = _gap_splits(engine) - self.splits0
-        if (engine is not None and engine.config.max_gap is None and math.isfinite(engine.config.max_gap_factor)
-                and self.rows >= 100 and splits >= SPLIT_NOTE * self.rows):
-            click.echo(f"kalmix: note: the gap rule (--max-gap auto: {engine.config.max_gap_factor:g} x each track's "
-                       f"reference interval) started a new segment at {splits} of {self.rows} rows "
-                       f"({splits / self.rows:.0%}), and the experts start again at each; the rows before them get "
-                       "no calibrated interval. If such steps are the sampling (irregular reports), not lost "
-                       "targets, --max-gap none --reach 8 predicts across them (README, 'Missing data and time "
-                       "gaps')", err=True)
+        if engine is not None:
+            gap_note(engine.config.max_gap, engine.config.max_gap_factor, _gap_splits(engine) - self.splits0,
+                     self.rows)
         if self.rows and not self.measured and self.stopped is None:
             click.echo(f"kalmix: warning: none of the {self.rows} input row(s) has a position (every value empty "
                        "or NaN): nothing was learned and every prediction is empty", err=True)
