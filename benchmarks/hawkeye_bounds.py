@@ -16,7 +16,10 @@ no online predictor of the same kind can do better:
 - a ground-bounce rule on top of the two-point extrapolation: below a floor (the lowest height seen so
   far, plus an offset) the forecast height is reflected with a restitution; restitution and offset chosen
   in hindsight. This is physics of a ball, not something kalmix's experts know; it measures what such
-  knowledge could bring.
+  knowledge could bring;
+- the same bounce rule on the default mixture's own forecasts (``python -m benchmarks.ablation``'s
+  protocol: the default bank through the compiled engine on the same segments and scored rows): what a
+  bounce correction after the mixture could bring at best.
 
 It also prints how the squared error of the two-point extrapolation is spread over the rows.
 """
@@ -133,6 +136,49 @@ def bounce_oracle(tracks):
     return best
 
 
+def mixture_bounce_oracle():
+    """The default mixture's one-step RMS on the ablation's scored rows, and the best (RMS, restitution, offset)
+    of the ground-bounce rule applied to its forecasts (the floor: the lowest height measured before the row)."""
+    from kalmix.bank import DEFAULT_BANK, make_bank
+    from kalmix.core.compiled import engine as ce
+    from kalmix.streaming import auto_length_unit, auto_time_unit
+
+    streams = split_streams(load_dataset("hawkeye_ball"))
+    values, times = streams.values, streams.times
+    lengths = np.bincount(streams.track_of, weights=streams.lengths).astype(int)
+    cut = np.ceil(0.2 * lengths[streams.track_of]).astype(int)
+    present = streams.sample_index >= 0
+    scored = present & (streams.sample_index >= cut[None, :])
+    tuning = present & ~scored
+    bank = make_bank(values.shape[2], **DEFAULT_BANK, length_unit=auto_length_unit(np.where(tuning[..., None], values, np.nan)),
+                     time_unit=auto_time_unit(np.where(tuning, times, np.nan)))
+    forecasts = ce.run(bank, values, times, lengths=streams.lengths, score=scored).forecasts
+    height = np.where(np.isfinite(values[..., 2]), values[..., 2], np.inf)
+    floor = np.full_like(height, np.inf)
+    floor[1:] = np.minimum.accumulate(height, axis=0)[:-1]          # the lowest height before each row
+    last = np.full_like(height, np.nan)                               # the last measured height before each row
+    for j in range(values.shape[1]):
+        seen = np.where(np.isfinite(values[:, j, 2]), np.arange(len(values)), -1)
+        before = np.maximum.accumulate(seen)[:-1]
+        last[1:, j] = np.where(before >= 0, values[np.maximum(before, 0), j, 2], np.nan)
+
+    def rms(f):
+        error = np.where(scored[..., None], values - f, np.nan)
+        return float(np.sqrt(np.nanmean(error ** 2)))
+
+    best = (np.inf, None, None)
+    for restitution in RESTITUTIONS:
+        for offset in OFFSETS:
+            level = floor + offset
+            below = (forecasts[..., 2] < level) & (level <= last)
+            bounced = forecasts.copy()
+            bounced[..., 2] = np.where(below, level + restitution * (level - forecasts[..., 2]), forecasts[..., 2])
+            value = rms(bounced)
+            if value < best[0]:
+                best = (value, restitution, offset)
+    return rms(forecasts), best
+
+
 def combined_oracle(tracks, restitution, offset, lags=21):
     """The bounce rule's forecast plus the best linear correction from the last ``lags`` velocities of all
     three coordinates, fitted in hindsight on the scored rows."""
@@ -170,6 +216,12 @@ def main(argv=None):
     result["bounce_and_linear_oracle"] = both
     print(f"both: the bounce rule and the best linear correction (all coordinates, 21 velocities) in hindsight: "
           f"{both:.5f} ({both / BEST_PEER:.4f}x)")
+    plain, (value, restitution, offset) = mixture_bounce_oracle()
+    result["default_mixture"] = plain
+    result["default_mixture_bounce_oracle"] = {"rms": value, "restitution": restitution, "offset": offset}
+    print(f"the default mixture (the ablation's protocol): {plain:.5f} ({plain / BEST_PEER:.4f}x); with the ground "
+          f"bounce on its forecasts, tuned in hindsight (restitution {restitution}, offset {offset} m): "
+          f"{value:.5f} ({value / BEST_PEER:.4f}x)")
     if args.json:
         with open(args.json, "w") as handle:
             json.dump(result, handle, indent=2)
