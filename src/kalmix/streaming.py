@@ -43,8 +43,10 @@ errors (:mod:`kalmix.core.lead`); a ``horizon`` H > 1 is the lead of H time unit
 
 A row whose time is not after its track's previous time (out of order or a repeated
 timestamp) cannot be undone in a stream: it is skipped and counted in
-:attr:`TrackPredictor.skipped`. (File inputs are sorted and de-duplicated when read,
-see :mod:`kalmix.io.tables`.)
+:attr:`TrackPredictor.skipped`; the first one that :meth:`~TrackPredictor.step_row` or
+:meth:`~TrackPredictor.step_rows` skips gives a :class:`SkippedRowWarning` (a sensor clock
+that restarts would otherwise skip every later row of its track in silence). (File inputs
+are sorted and de-duplicated when read, see :mod:`kalmix.io.tables`.)
 
 One exception keeps a single wrong timestamp from costing the rest of a track: when a
 track's previous row *jumped ahead* (a gap, or the track's first row) and the next row
