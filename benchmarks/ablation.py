@@ -120,17 +120,24 @@ def two_level(values, times, lengths, unit, tunit, combos):
     return out
 
 
-def run_dataset(name, configs, max_samples=None, two_levels=None):
+def scored_streams(name, max_samples=None):
+    """A data set as every row here sees it: its segments (``predict``'s gap rule), which of their rows are
+    scored ``(T, S)`` (the last 80 % of each track), and the length and time units from the first 20 %."""
     table = paper_table() if name == "paper" else load_dataset(name)
     streams = split_streams(table, max_samples=max_samples)
-    values, times = streams.values, streams.times
     track_lengths = np.bincount(streams.track_of, weights=streams.lengths).astype(int)
     cut = np.ceil(0.2 * track_lengths[streams.track_of]).astype(int)
     present = streams.sample_index >= 0
     scored = present & (streams.sample_index >= cut[None, :])
     tuning = present & ~scored
-    unit = auto_length_unit(np.where(tuning[..., None], values, np.nan))
-    tunit = auto_time_unit(np.where(tuning, times, np.nan))
+    unit = auto_length_unit(np.where(tuning[..., None], streams.values, np.nan))
+    tunit = auto_time_unit(np.where(tuning, streams.times, np.nan))
+    return streams, scored, unit, tunit
+
+
+def run_dataset(name, configs, max_samples=None, two_levels=None):
+    streams, scored, unit, tunit = scored_streams(name, max_samples)
+    values, times = streams.values, streams.times
     rows = {}
     for label, cfg in configs.items():
         cfg = dict(cfg)

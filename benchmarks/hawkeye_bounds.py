@@ -31,8 +31,7 @@ import json
 
 import numpy as np
 
-from kalmix.experiments.evaluate import split_streams
-from kalmix.io.datasets import load_dataset
+from benchmarks.ablation import scored_streams
 
 #: The best tuned peer's one-step RMS on these rows (river's Holt-Winters; "Choosing the default").
 BEST_PEER = 0.01908
@@ -40,11 +39,8 @@ BEST_PEER = 0.01908
 
 def scored_tracks():
     """Each segment's positions ``(T, 3)`` with no NaN, and which of its rows are scored."""
-    streams = split_streams(load_dataset("hawkeye_ball"))
+    streams, scored, _, _ = scored_streams("hawkeye_ball")
     values = streams.values
-    lengths = np.bincount(streams.track_of, weights=streams.lengths).astype(int)
-    cut = np.ceil(0.2 * lengths[streams.track_of]).astype(int)
-    scored = (streams.sample_index >= 0) & (streams.sample_index >= cut[None, :])
     out = []
     for j in range(values.shape[1]):
         keep = np.isfinite(values[:, j]).all(axis=1)
@@ -141,17 +137,10 @@ def mixture_bounce_oracle():
     of the ground-bounce rule applied to its forecasts (the floor: the lowest height measured before the row)."""
     from kalmix.bank import DEFAULT_BANK, make_bank
     from kalmix.core.compiled import engine as ce
-    from kalmix.streaming import auto_length_unit, auto_time_unit
 
-    streams = split_streams(load_dataset("hawkeye_ball"))
+    streams, scored, unit, tunit = scored_streams("hawkeye_ball")
     values, times = streams.values, streams.times
-    lengths = np.bincount(streams.track_of, weights=streams.lengths).astype(int)
-    cut = np.ceil(0.2 * lengths[streams.track_of]).astype(int)
-    present = streams.sample_index >= 0
-    scored = present & (streams.sample_index >= cut[None, :])
-    tuning = present & ~scored
-    bank = make_bank(values.shape[2], **DEFAULT_BANK, length_unit=auto_length_unit(np.where(tuning[..., None], values, np.nan)),
-                     time_unit=auto_time_unit(np.where(tuning, times, np.nan)))
+    bank = make_bank(values.shape[2], **DEFAULT_BANK, length_unit=unit, time_unit=tunit)
     forecasts = ce.run(bank, values, times, lengths=streams.lengths, score=scored).forecasts
     height = np.where(np.isfinite(values[..., 2]), values[..., 2], np.inf)
     floor = np.full_like(height, np.inf)

@@ -87,8 +87,8 @@ from .archive import open_archive, write_archive
 from .bank import DEFAULT_BANK, DEFAULT_REACH, check_horizon, check_length_unit, make_bank, make_params, short_lead
 from .core.engine import Bank, BankState, init_bank_state, tree_map
 
-__all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "SkippedRowWarning", "Checkpoint", "auto_length_unit",
-           "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
+__all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "SkippedRowWarning", "Checkpoint",
+           "auto_length_unit", "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
 
 #: 9: the settings hold the lead head's delay (``StreamConfig.lead_delay``: BOA's learning rate over a lead
 #: of H rows is divided by sqrt(H)); version 3-8 files are resumed with a delay of 1, as they ran.
