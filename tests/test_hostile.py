@@ -224,6 +224,19 @@ def test_servo_makes_a_nested_output_directory(cli, tmp_path, monkeypatch):
     assert result.exit_code == 1 and "stopped here: the options were taken" in result.output
     result = CliRunner().invoke(cli, ["servo", "--json", str(tmp_path / "other" / "s.json"), "--out-dir", str(made)])
     assert result.exit_code == 2 and "Invalid value for '--json': the directory" in result.output
+    # helper-33: only the out-dir itself is made for it (a typo'd subdirectory of an existing one is still refused),
+    # a name ending in / or the out-dir itself is refused before the work, as is an out-dir that is a broken link
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    for args, message in ((["--out-dir", str(tmp_path), "--json", str(tmp_path / "typo" / "s.json")], "does not exist"),
+                          (["--out-dir", str(made), "--json", str(made / "s.json") + "/"], "which names a directory"),
+                          (["--out-dir", str(made), "--json", str(made)], "is the --out-dir; give a file name"),
+                          (["--out-dir", str(tmp_path / "dangling")], "is a symbolic link to nothing")):
+        result = CliRunner().invoke(cli, ["servo", *args])
+        assert result.exit_code == 2 and message in result.output, result.output
+    assert not (tmp_path / "typo").exists() and not made.exists()
+    (tmp_path / "F").write_text("")
+    result = CliRunner().invoke(cli, ["servo", "--out-dir", str(tmp_path / "F" / "sub"), "--help"])
+    assert result.exit_code == 0 and "--out-dir" in result.output   # --help first, whatever comes before it
 
 
 def test_servo_cells_never_read_zero_for_a_small_gain():
@@ -626,6 +639,29 @@ def test_lists_of_labelled_rows_and_first_labels_are_taken_by_name():
     assert fresh.position_names == ("b", "a")
 
 
+def test_labels_are_not_adopted_once_rows_were_taken_by_position():
+    """helper-33: names were adopted from a labelled row after rows taken by position (x, y rows, then a row
+    labelled y, x: the coordinates swapped), and from a list that mixed labelled and plain rows (the plain rows
+    re-read in the adopted order); a dict of columns in step_rows was read as rows (transposed)."""
+    predictor = TrackPredictor(StreamConfig(length_unit=0.01, bank="kinematic"))
+    for k in range(5):
+        predictor.step_row(0, float(k), [float(k), 10.0 * k])
+    with pytest.raises(ValueError, match="need the predictor's position_names: rows were already taken by position"):
+        predictor.step_row(0, 5.0, {"y": 50.0, "x": 5.0})
+    assert predictor.position_names is None and predictor.rows == 5
+    with pytest.raises(ValueError, match="among rows by position need the predictor's position_names"):
+        TrackPredictor(StreamConfig(length_unit=0.01)).step_rows(
+            [0, 0, 0], [0.0, 1.0, 2.0], [[0.0, 0.0], {"y": 10.0, "x": 1.0}, [2.0, 20.0]])
+    plain = _walked().step_rows([0, 0], [20.0, 21.0], [[20.0, 100.0], [21.0, 100.0]])
+    columns = _walked().step_rows([0, 0], [20.0, 21.0], {"y": [100.0, 100.0], "x": [20.0, 21.0]})
+    assert all(np.array_equal(a.next, b.next) for a, b in zip(columns, plain))
+    fresh = TrackPredictor(StreamConfig(length_unit=0.01, bank="kinematic"))
+    fresh.step_rows([0, 0], [0.0, 1.0], {"x": [0.0, 1.0], "y": [0.0, 10.0]})
+    assert fresh.position_names == ("x", "y") and fresh.states[0] is not None
+    with pytest.raises(ValueError, match="expected columns of one length"):
+        _walked().step_rows([0, 0], [20.0, 21.0], {"x": [20.0, 21.0], "y": [100.0]})
+
+
 def test_mixture_predictor_takes_missing_values_as_the_track_predictor_does():
     """helper-30: MixturePredictor learned the value under a mask (np.asarray keeps it), refused None and pd.NA
     (TrackPredictor takes them as missing) and learned booleans as 1 and 0; run() with the wrong width named
@@ -713,3 +749,13 @@ def test_a_clock_that_restarts_is_said_once():
     assert predictor.skipped == 4
     with pytest.warns(SkippedRowWarning, match="time 19.0 is not after"):
         _walked().step_rows([0, 1], [19.0, 0.0], [[1.0, 1.0], [2.0, 2.0]])
+    # helper-33: a skip inside a call that then fails (rolled back) warned, and then a kept skip did not
+    leading = TrackPredictor(StreamConfig(lead=1000.0, length_unit=0.01, bank="kinematic"))
+    with w.catch_warnings():
+        w.simplefilter("error")
+        with pytest.raises(ValueError):
+            leading.step_rows([0, 0, 0], [0.0, 0.0, 1e-9], [[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])
+    assert leading.rows == 0 and leading.warn_skipped
+    fresh = _walked()
+    with pytest.warns(SkippedRowWarning):
+        fresh.step_rows([0, 0], [20.0, 20.0], [[20.0, 100.0], [20.0, 100.0]])

@@ -15,9 +15,9 @@ from .predictor import MixturePredictor, run
 
 __version__ = "0.1.0"
 __all__ = ["MixturePredictor", "make_params", "run", "RunResult", "TrackPredictor", "StreamConfig", "RowPrediction",
-           "__version__"]
+           "SkippedRowWarning", "__version__"]
 
-_STREAMING = ("TrackPredictor", "StreamConfig", "RowPrediction")
+_STREAMING = ("TrackPredictor", "StreamConfig", "RowPrediction", "SkippedRowWarning")
 
 
 def __getattr__(name):

@@ -677,6 +677,7 @@ class TrackPredictor:
         self.skipped = 0
         #: warn (once) when step_row / step_rows skips a row for its time (``kalmix predict`` counts them itself)
         self.warn_skipped = True
+        self._late = None   # the first row the step in progress skipped for its time: (track, time, last time)
         self.rows = 0
         self.outliers = 0   # rows the glitch screen did not learn (kalmix.core.screen)
         self.output: dict | None = None
@@ -907,7 +908,7 @@ class TrackPredictor:
 
         All or nothing: the track's tracker and state change only once the step succeeded.
         """
-        z, names = self._by_name(z, "z", self.position_names)
+        z, names = self._by_name(z, "z", self.position_names, self._may_adopt())
         if z is None:   # the whole row missing: as many NaN as the predictor has coordinates
             if self.params is None:
                 raise ValueError("z: None (a missing row) needs the number of coordinates, which the predictor "
@@ -928,15 +929,20 @@ class TrackPredictor:
             raise ValueError(f"time: expected a number, a date and time (datetime, ISO text) or a duration, "
                              f"got {time!r:.80}") from None
         out = self._step_checked([_track_key(track_id, "track_id")], np.array([time]), z[None, :])[0]
-        self.position_names = names
+        self._committed(names)
         return out
 
-    def _by_name(self, values, where: str, names=None):
+    def _may_adopt(self) -> bool:
+        """Whether a labelled row may give the predictor its :attr:`position_names`: none yet, and no row taken
+        by position before (a row labelled y, x after rows of x, y would swap them)."""
+        return self.position_names is None and self.rows == 0 and not self.states
+
+    def _by_name(self, values, where: str, names=None, adopt: bool = False):
         """Labelled coordinates (a pandas Series or a mapping for one row, a DataFrame's columns for rows) in the
         order of ``names`` (:attr:`position_names`), as :meth:`process_table` takes a table's columns by name;
-        they were taken in their own order, which silently swapped coordinates. With no names yet, a row's
-        text labels become them (as a table's columns do). Returns the values (unlabelled ones as given) and
-        the names."""
+        they were taken in their own order, which silently swapped coordinates. With no names yet and
+        ``adopt``, a row's text labels become them (as a table's columns do). Returns the values (unlabelled
+        ones as given; a mapping's values as a list) and the names."""
         if isinstance(values, Mapping):
             labels = list(values.keys())
         elif _is_pandas(values, "Series", "DataFrame"):
@@ -946,6 +952,10 @@ class TrackPredictor:
         else:
             return values, names
         if names is None:
+            if not adopt:
+                raise ValueError(f"{where}: coordinates by name ({labels}) need the predictor's position_names: "
+                                 "rows were already taken by position (label every row from the first, or give "
+                                 "position_names)")
             if not all(isinstance(label, str) for label in labels) or len(set(labels)) != len(labels):
                 raise ValueError(f"{where}: coordinates by name need distinct text labels, or the predictor's "
                                  f"position_names, got {labels}")
@@ -957,15 +967,41 @@ class TrackPredictor:
         return (values[list(names)] if _is_pandas(values, "Series") else values.loc[:, list(names)]), names
 
     def _rows_by_name(self, values, names):
-        """:meth:`_by_name` of each row of a list of rows (labelled ones: Series, mappings), or of the whole."""
+        """:meth:`step_rows`' values by name: a DataFrame's columns, a mapping of columns, or a list of rows some
+        of which are labelled (Series, mappings)."""
+        adopt = self._may_adopt()
+        if isinstance(values, Mapping):   # columns, as a DataFrame's
+            columns, names = self._by_name(values, "values", names, adopt)
+            try:
+                columns = [_measurements(column) for column in columns]
+            except (TypeError, ValueError, OverflowError):
+                raise ValueError(f"values: expected a column of numbers per coordinate, got {values!r:.80}") from None
+            if any(column.ndim != 1 for column in columns) or len({len(column) for column in columns}) > 1:
+                raise ValueError(f"values: expected columns of one length (one value per row), got shapes "
+                                 f"{[column.shape for column in columns]}")
+            return np.column_stack(columns), names
         if not (isinstance(values, (list, tuple))
                 and any(isinstance(row, Mapping) or _is_pandas(row, "Series") for row in values)):
-            return self._by_name(values, "values", names)
+            return self._by_name(values, "values", names, adopt)
+        if names is None and not all(isinstance(row, Mapping) or _is_pandas(row, "Series") for row in values):
+            raise ValueError("values: rows labelled by name (Series, dicts) among rows by position need the "
+                             "predictor's position_names")
         rows = []
         for i, row in enumerate(values):
-            row, names = self._by_name(row, f"values[{i}]", names)
+            row, names = self._by_name(row, f"values[{i}]", names, adopt)
             rows.append(row.tolist() if _is_pandas(row, "Series") else row)
         return rows, names
+
+    def _committed(self, names) -> None:
+        """After a step that succeeded: the names it took its rows by, and the warning of a row it skipped."""
+        self.position_names = names
+        late, self._late = self._late, None
+        if late is not None and self.warn_skipped:
+            self.warn_skipped = False
+            warnings.warn(f"track {late[0]!r}: time {late[1]!r} is not after the track's last time {late[2]!r}, so the "
+                          "row was skipped (a stream cannot go back: a clock that restarts skips every later row of "
+                          "the track); TrackPredictor.skipped counts skipped rows; this is said once",
+                          SkippedRowWarning, stacklevel=3)
 
     def step_rows(self, track_ids, times, values) -> list[RowPrediction | None]:
         """Rows that have already arrived, as :meth:`step_row` on each in turn, through one run of the core.
@@ -1018,11 +1054,12 @@ class TrackPredictor:
             i = int(np.flatnonzero(np.isinf(values).any(axis=-1))[0])
             raise ValueError(f"values[{i}]: expected finite numbers (NaN for a missing measurement), got {values[i]!r}")
         out = self._step_checked([_track_key(track, f"track_ids[{i}]") for i, track in enumerate(ids)], times, values)
-        self.position_names = names
+        self._committed(names)
         return out
 
     def _step_checked(self, ids, times, values) -> list[RowPrediction | None]:
         """:meth:`step_rows` on arguments already checked: all or nothing, row by row until the time unit is known."""
+        self._late = None
         if not ids:
             return []
         saved = self.checkpoint(list(dict.fromkeys(ids)))
@@ -1053,7 +1090,6 @@ class TrackPredictor:
         trackers: dict = {}
         runs: dict = {}          # track -> [(row, restart, next time)]
         outcome = [None] * n_rows
-        late = None   # the first row skipped for its time: (track, time, the track's last time)
         for i in range(n_rows):
             track = ids[i]
             gaps = trackers.get(track)
@@ -1063,8 +1099,8 @@ class TrackPredictor:
             glitches, last = gaps.glitches, gaps.last_time
             new = gaps.advance(float(times[i]), self.config)
             if new is None:
-                if late is None and last is not None and math.isfinite(times[i]):
-                    late = (track, float(times[i]), last)
+                if self._late is None and last is not None and math.isfinite(times[i]):
+                    self._late = (track, float(times[i]), last)   # said once the step succeeded (_committed)
                 continue
             if self.config.time_unit is None and gaps.intervals:
                 self._learn_time_unit(gaps.intervals[0], track)
@@ -1111,12 +1147,6 @@ class TrackPredictor:
             self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
         self.rows += n_rows
         self.skipped += sum(r is None for r in results)
-        if late is not None and self.warn_skipped:
-            self.warn_skipped = False
-            warnings.warn(f"track {late[0]!r}: time {late[1]!r} is not after the track's last time {late[2]!r}, so the "
-                          "row was skipped (a stream cannot go back: a clock that restarts skips every later row of "
-                          "the track); TrackPredictor.skipped counts skipped rows; this is said once",
-                          SkippedRowWarning, stacklevel=4)
         return results
 
     # -- a table (or chunk) at once -----------------------------------------------------

@@ -50,8 +50,14 @@ def missing_directory(path) -> tuple[str, bool] | None:
 def output_file(ctx, param, value):
     """click callback: a file to write, whose directory exists and is writable, checked before the work (a
     missing directory was a traceback after the whole run)."""
-    if value is None:
-        return value
+    if value is not None:
+        check_output_file(value)
+    return value
+
+
+def check_output_file(value, made_directory=None) -> None:
+    """:func:`output_file`'s checks (``click.BadParameter``). ``made_directory``: a directory the command makes
+    before it writes (and checks itself): a file directly in it may name it before it exists."""
     if not str(value).strip():
         raise click.BadParameter("expected a file name, got ''")
     if str(value) == "-":
@@ -59,18 +65,19 @@ def output_file(ctx, param, value):
                                  "is; ./- names a file called -)")
     if str(value).endswith(("/", os.sep)):
         raise click.BadParameter(f"expected a file name, got {value!r}, which names a directory")
+    directory = os.path.dirname(os.path.abspath(value))
+    if made_directory is not None and directory == os.path.abspath(made_directory) and not os.path.lexists(directory):
+        return
     problem = missing_directory(value)
     if problem:
         directory, taken = problem
         raise click.BadParameter(f"the directory {directory!r} of {value!r} "
                                  f"{'is not a directory' if taken else 'does not exist'}")
-    directory = os.path.dirname(os.path.abspath(value))
     if os.path.isfile(value) or os.path.abspath(value).startswith(("/dev/", "/proc/")):
         if not os.access(value, os.W_OK):
             raise click.BadParameter(f"{value!r} is not writable")
     elif not os.access(directory, os.W_OK):
         raise click.BadParameter(f"the directory {directory!r} of {value!r} is not writable")
-    return value
 
 
 def figure_format_problem(path) -> str | None:
@@ -109,6 +116,8 @@ def output_directory(ctx, param, value):
         raise click.BadParameter("expected a directory name, got ''")
     ancestor = os.path.abspath(value)
     while not os.path.exists(ancestor):
+        if os.path.islink(ancestor):   # a link to nothing: makedirs would fail after the work ("File exists")
+            raise click.BadParameter(f"{ancestor!r} is a symbolic link to nothing (to make or fill {value!r})")
         ancestor = os.path.dirname(ancestor)
     if not os.path.isdir(ancestor):
         raise click.BadParameter(f"{value!r} lies under {ancestor!r}, which is not a directory")

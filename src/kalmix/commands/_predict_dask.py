@@ -151,7 +151,7 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
     _note(f"{total} row(s) in, {written} prediction(s) written to {output} in {files} file(s){why}; "
           f"{time.perf_counter() - started:.1f} s ({work:.1f} s of work on the cluster after the start and "
           "the first chunk)")
-    gap_note(settings["max_gap"], settings["max_gap_factor"], splits, total)
+    gap_note(settings["max_gap"], settings["max_gap_factor"], splits, written)   # rows kept, as a local run counts
 
 
 def _note(text):

@@ -16,7 +16,7 @@ import click
 import numpy as np
 
 from ..archive import save_figure
-from ._common import SEED, Finite, one_line_errors, output_directory, output_file, progress_bar, write_json
+from ._common import SEED, Finite, check_output_file, one_line_errors, output_directory, progress_bar, write_json
 
 _LABELS = {
     "no_prediction": "no prediction (delayed e)",
@@ -164,16 +164,16 @@ MAX_NOISE_PX = 1e4
 MAX_GAIN = 1e6
 
 
-def _json_file(ctx, param, value):
-    """click callback: ``--json`` as :func:`output_file`, but a file in ``--out-dir`` (checked first: eager), which
-    the command makes, may name a directory that does not exist yet (it was refused)."""
-    out_dir = ctx.params.get("out_dir")
-    if value is not None and out_dir is not None:
-        directory, made = os.path.dirname(os.path.abspath(value)), os.path.abspath(out_dir)
-        if not os.path.exists(directory) and os.path.commonpath([directory, made]) == made:
-            output_directory(ctx, param, directory)
-            return value
-    return output_file(ctx, param, value)
+def _check_json(json_path, out_dir) -> None:
+    """``--json``, checked before the work as any output file, but it may lie directly in an ``--out-dir`` that
+    the command makes (it was refused because that directory did not exist yet)."""
+    if os.path.abspath(json_path) == os.path.abspath(out_dir):
+        raise click.BadParameter(f"{json_path!r} is the --out-dir; give a file name", param_hint="'--json'")
+    try:
+        check_output_file(json_path, made_directory=out_dir)
+    except click.BadParameter as error:
+        error.param_hint = "'--json'"
+        raise
 
 
 @click.command()
@@ -189,13 +189,15 @@ def _json_file(ctx, param, value):
               help="Gain of the predicting modes and the oracle (default: --gain).")
 @click.option("--seed", default=0, show_default=True, type=SEED,
               help="Seed of the scenario, camera noise, SOM and predictors.")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, callback=_json_file,
-              help="Write the summary as JSON (may lie in --out-dir, made with it).")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
+              help="Write the summary as JSON (it may lie in --out-dir, made with it).")
 @click.option("--out-dir", type=click.Path(file_okay=False), default="servo_out", show_default=True,
-              callback=output_directory, is_eager=True, help="Directory for the PNGs.")
+              callback=output_directory, help="Directory for the PNGs.")
 @one_line_errors
 def servo(scenario, delay_frames, noise_px, gain, prediction_gain, seed, json_path, out_dir):
     """Track a 3-D target with the 3-joint arm through delayed stereo cameras; compare predictors."""
+    if json_path is not None:
+        _check_json(json_path, out_dir)
     from ..scenarios import SCENARIOS
     from ..servo import Arm, ServoConfig, SOMConfig, plot_learning_curve, run_servo, train_som
     from ..vision import StereoCamera
@@ -248,7 +250,6 @@ def servo(scenario, delay_frames, noise_px, gain, prediction_gain, seed, json_pa
     plot_learning_curve(history, figures["som_learning_curve"])
     data["figures"] = figures
     if json_path:
-        os.makedirs(os.path.dirname(os.path.abspath(json_path)), exist_ok=True)
         write_json(json_path, data)
 
     click.echo(f"scenario '{scenario}', seed {seed}")
