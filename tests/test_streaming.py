@@ -7,7 +7,8 @@ import pandas as pd
 import pytest
 
 from kalmix import MixturePredictor
-from kalmix.streaming import STATE_FORMAT_VERSION, GapTracker, StreamConfig, TrackPredictor, auto_length_unit
+from kalmix.streaming import (STATE_FORMAT_VERSION, GapTracker, SkippedRowWarning, StreamConfig, TrackPredictor,
+                              auto_length_unit)
 
 
 def _table(seed=0, scale=0.01):
@@ -222,8 +223,9 @@ def test_out_of_order_rows_are_skipped():
     engine = TrackPredictor(StreamConfig(n_experts=2))
     assert engine.step_row(1, 0.0, [0.0]) is not None
     assert engine.step_row(1, 1.0, [1.0]) is not None
-    assert engine.step_row(1, 1.0, [1.0]) is None  # repeated timestamp
-    assert engine.step_row(1, 0.5, [1.0]) is None  # back in time
+    with pytest.warns(SkippedRowWarning, match="time 1.0 is not after the track's last time 1.0"):
+        assert engine.step_row(1, 1.0, [1.0]) is None  # repeated timestamp
+    assert engine.step_row(1, 0.5, [1.0]) is None  # back in time (not said again)
     assert engine.skipped == 2
 
 
@@ -389,6 +391,7 @@ def _interleaved_feed(seed, n_tracks=5):
 
 
 @pytest.mark.filterwarnings("ignore:the time unit:RuntimeWarning")   # its adversarial times include that case
+@pytest.mark.filterwarnings("ignore::kalmix.streaming.SkippedRowWarning")   # and rows out of order
 @pytest.mark.parametrize("time_unit, lead", [(None, {}), (1.0, {}), (None, {"lead": 2.5}), (1.0, {"horizon": 3})])
 def test_step_rows_equal_stream_rows_by_definition(time_unit, lead):
     """Rows stepped in batches of any size (one run of the core each, two with a lead) give every row's
