@@ -14,6 +14,8 @@ The issue-11 figures, each the median of ``--repeat`` timed runs after an untime
   interpreter and imports included, warm compiled cache): rows/s. Peer: a filterpy CV Kalman
   filter per track over the same CSV, read with pandas (a Python loop); and the same CSV piped into
   ``kalmix predict -`` (stdin: the lines that have arrived are stepped together);
+- **a live row**: ``TrackPredictor.step_row`` on one 3-D track, one row a call (a live feed): the median
+  latency. Peer: filterpy's IMM, a predict and an update a row;
 - **cold start** (``--cold``): ``kalmix predict`` of a 1,000-row CSV with an empty compiled-engine
   cache, i.e. what a fresh install costs before the first result.
 
@@ -94,6 +96,32 @@ def many_targets(targets: int, steps: int, repeats: int) -> dict:
             "simdkalman_cv_target_steps_per_s": target_steps / peer,
             "ratio_to_simdkalman_target_steps": (target_steps / seconds) / (target_steps / peer),
             "target_expert_steps_per_s": 5e6}
+
+
+def live_row(rows: int) -> dict:
+    """Latency of a live feed's row: ``TrackPredictor.step_row`` (the default bank with the screen and
+    intervals, as ``kalmix predict -`` runs it), one 3-D track, one row a call, after a warm-up of 200 rows:
+    the median and 90th percentile over ``rows`` calls. Peer: filterpy's IMM, a predict and update a row (the
+    Python loop of the one-stream peer), per row."""
+    from kalmix.peers import imm_predictions
+    from kalmix.streaming import StreamConfig, TrackPredictor
+
+    z = tracks(rows + 200, 1)[:, 0]
+    predictor = TrackPredictor(StreamConfig(length_unit=0.1))
+    for t in range(200):
+        predictor.step_row(0, float(t), z[t])
+    seconds = []
+    for t in range(200, rows + 200):
+        start = time.perf_counter()
+        predictor.step_row(0, float(t), z[t])
+        seconds.append(time.perf_counter() - start)
+    imm_predictions(z[:50])   # warm-up
+    start = time.perf_counter()
+    imm_predictions(z[:rows])
+    imm = (time.perf_counter() - start) / rows
+    median = float(np.median(seconds))
+    return {"rows": rows, "median_ms": 1e3 * median, "p90_ms": 1e3 * float(np.percentile(seconds, 90)),
+            "imm_ms_per_row": 1e3 * imm, "ratio_to_imm": median / imm}
 
 
 def write_csv(path, rows: int, n_tracks: int, seed: int = 0) -> None:
@@ -187,6 +215,8 @@ def main(argv=None) -> dict:
     print("one stream", results["one_stream"], flush=True)
     results["many_targets"] = many_targets(500 if quick else 10_000, 20 if quick else 50, args.repeat)
     print("many targets", results["many_targets"], flush=True)
+    results["live_row"] = live_row(300 if quick else 3000)
+    print("live row", results["live_row"], flush=True)
     results["cli"] = cli(5000 if quick else 100_000, 100, args.repeat)
     print("cli", results["cli"], flush=True)
     if args.cold:
