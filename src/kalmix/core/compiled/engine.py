@@ -84,22 +84,23 @@ def _rule_scalars(bank: Bank, params=None):
             float(getattr(params, "bound_forgetting", 1.0)), float(getattr(params, "delay", 1.0)))
 
 
-#: One new target's packed AKF state per family parameters (the kernels only read it): building it anew took
-#: ~20 % of a live feed's ``step_row`` (one row of one track a call).
-_FRESH: dict = {}
+#: Per AKF family parameters, the packed parameters and one new target's packed state (the kernels only read
+#: them): building them anew took ~20 % of a live feed's ``step_row`` (one row of one track a call).
+_PACKED: dict = {}
 
 
 def pack_akf(params, state):
-    """An AKF family's parameters, state (fresh copies, advanced in place) and one new target's state (read
-    only, kept per ``params``), packed for :mod:`.akf`."""
+    """An AKF family's parameters and one new target's state (both read only, kept per ``params``) and its
+    state (fresh copies, advanced in place), packed for :mod:`.akf`."""
     from ..fast import _pack_params, _pack_state
 
-    entry = _FRESH.get(id(params))
+    entry = _PACKED.get(id(params))
     if entry is None or entry[0] is not params:   # (the entry holds params: its id is not reused meanwhile)
-        if len(_FRESH) >= 32:
-            _FRESH.clear()
-        entry = _FRESH[id(params)] = (params, _pack_state(akf.init_state(params, 1, params.measurement_dim)))
-    return _pack_params(params), _pack_state(state), entry[1]
+        if len(_PACKED) >= 32:
+            _PACKED.clear()
+        entry = _PACKED[id(params)] = (params, _pack_params(params),
+                                       _pack_state(akf.init_state(params, 1, params.measurement_dim)))
+    return entry[1], _pack_state(state), entry[2]
 
 
 def akf_work(rows: int, n: int, k: int, p: int, later: bool, allocate=np.empty):
