@@ -639,6 +639,21 @@ def test_lists_of_labelled_rows_and_first_labels_are_taken_by_name():
     assert fresh.position_names == ("b", "a")
 
 
+def test_a_none_row_in_a_list_of_rows_is_a_missing_row():
+    """MixturePredictor.run and TrackPredictor.step_rows refused a list of rows holding None, which step(None) and
+    step_row(..., None) take as a missing row; now the same numbers as a row of NaN. Ragged rows are still refused."""
+    from kalmix import MixturePredictor
+
+    rows, nan_rows = [[1.0, 2.0], None, [3.0, 4.0]], [[1.0, 2.0], [np.nan, np.nan], [3.0, 4.0]]
+    assert np.array_equal(MixturePredictor(4, seed=1).run(rows).predictions,
+                          MixturePredictor(4, seed=1).run(nan_rows).predictions, equal_nan=True)
+    got = TrackPredictor(StreamConfig(length_unit=0.1)).step_rows([0, 0, 0], [0.0, 1.0, 2.0], rows)
+    want = TrackPredictor(StreamConfig(length_unit=0.1)).step_rows([0, 0, 0], [0.0, 1.0, 2.0], nan_rows)
+    assert all(np.array_equal(a.next, b.next, equal_nan=True) for a, b in zip(got, want))
+    with pytest.raises(TypeError, match="measurements: expected numbers"):
+        MixturePredictor(4, seed=1).run([[1.0, 2.0], None, [3.0]])
+
+
 def test_labels_are_not_adopted_once_rows_were_taken_by_position():
     """helper-33: names were adopted from a labelled row after rows taken by position (x, y rows, then a row
     labelled y, x: the coordinates swapped), and from a list that mixed labelled and plain rows (the plain rows

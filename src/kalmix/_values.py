@@ -14,6 +14,7 @@ def measurements(values) -> np.ndarray:
     ``TypeError`` for booleans (taken as 1 and 0 before), ``ValueError``/``TypeError`` for what is not numbers."""
     if _has_booleans(values):
         raise TypeError(f"expected numbers, got booleans {values!r:.80}")
+    values = _missing_rows(values)
     if isinstance(values, np.ma.MaskedArray) or (isinstance(values, (list, tuple)) and any(
             isinstance(row, np.ma.MaskedArray) for row in values)):   # a list of masked rows keeps their masks
         return np.ma.asarray(values, dtype=np.float64).filled(np.nan)
@@ -27,6 +28,19 @@ def measurements(values) -> np.ndarray:
         if not missing.any():
             raise
         return np.where(missing, np.nan, given).astype(np.float64)
+
+
+def _missing_rows(values):
+    """A list of rows in which some rows are None (a missing row, as ``step(None)``): those rows as NaN, as wide as
+    the others (which must agree); anything else as given."""
+    if not isinstance(values, (list, tuple)) or not any(row is None for row in values):
+        return values
+    rows = [row for row in values if row is not None]
+    widths = {np.shape(row) for row in rows}
+    if not rows or len(widths) != 1 or len(next(iter(widths))) != 1:   # scalars (a row's missing coordinates)
+        return values
+    width = next(iter(widths))[0]
+    return [[np.nan] * width if row is None else row for row in values]
 
 
 def _has_booleans(values, depth: int = 0) -> bool:
