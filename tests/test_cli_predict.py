@@ -411,7 +411,7 @@ def test_state_refuses_conflicting_settings(cli, tmp_path):
     (["--max-gap", "2"], ["--max-gap", "2"], None),
     (["--max-gap", "none"], ["--max-gap", "none", "--max-gap-factor", "5"], None),
     (["--max-gap-factor", "4"], [], None),
-    (["--max-gap", "5", "--max-gap-factor", "inf"], ["--max-gap", "5"], None),   # (helper-24: it was refused)
+    (["--max-gap", "5", "--max-gap-factor", "inf"], ["--max-gap", "5"], None),   # (it was refused)
 ])
 def test_state_refuses_another_gap_rule(cli, tmp_path, made, then, refused):
     """--max-gap / --max-gap-factor on a resumed run: refused when they change the state's gap rule, as every
@@ -444,7 +444,7 @@ def test_explicit_column_names(cli, tmp_path):
     ("t,a,b\n0,1,2\n", [], "Could not detect position columns"),
     ("t;x;y\n0;1;2\n", [], "looks separated by semicolons: kalmix reads comma-separated CSV"),
     ("0,1,2\n1,1,3\n", [], "The column names are numbers: the first line must be a header"),
-    # helper-25: a used column named as the table's id / time column inside, or one column in two roles, gave
+    # a used column named as the table's id / time column inside, or one column in two roles, gave
     # silently wrong output (positions in the id column; times as a position)
     ("obj,time,x,track_id\n1,0,1,2\n1,1,2,3\n", ["--id", "obj", "--position", "x,track_id"],
      "column 'track_id' is used as --position, but a track table names its id column 'track_id' (here 'obj')"),
@@ -589,7 +589,7 @@ def test_a_state_file_made_with_gate_options_still_resumes(tmp_path):
 
 
 def test_a_gap_rule_that_cuts_tracks_into_pieces_says_what_to_do(cli, tmp_path):
-    """helper-27: on tracks sampled at exponential intervals the default gap rule split 15 % of the rows (segments of
+    """On tracks sampled at exponential intervals the default gap rule split 15 % of the rows (segments of
     ~7 rows), and the rows before those splits got intervals holding 75-85 % of the measurements, silently. Such a
     run now says so, and what to use instead; a regular track, or --max-gap none, says nothing."""
     rng = np.random.default_rng(7)

@@ -229,7 +229,7 @@ def test_compiled_cache_is_keyed_on_the_sources(tmp_path, monkeypatch):
 
 
 def test_an_unusable_cache_directory_falls_back_to_a_keyed_temporary_one(tmp_path, monkeypatch):
-    """helper-26: KALMIX_CACHE_DIR naming a file left numba's default, the sources' __pycache__ (not keyed on the
+    """KALMIX_CACHE_DIR naming a file left numba's default, the sources' __pycache__ (not keyed on the
     constants the kernels import), silently; the comment said 'compiling without a cache'."""
     import tempfile
 
@@ -247,7 +247,7 @@ def test_an_unusable_cache_directory_falls_back_to_a_keyed_temporary_one(tmp_pat
         path = _cache.configure_cache.__wrapped__()
     assert path.parent.parent == tmp_path / "tmp" and path.name == f"numba-{_cache.source_hash()}" and path.is_dir()
     assert numba.config.CACHE_DIR == str(path)
-    # a fallback parent another user could write to (its pickled index could hand us code) is not used (helper-28)
+    # a fallback parent another user could write to (its pickled index could hand us code) is not used
     path.rmdir()
     path.parent.chmod(0o777)
     with pytest.warns(RuntimeWarning, match="cannot use the compiled-kernel cache"):

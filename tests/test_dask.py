@@ -440,7 +440,7 @@ def test_bad_input_is_one_line_before_any_work(cli, tmp_path, case, message):
         open(os.path.join(out, "x"), "w").close()
     elif case == "output_a_file":
         open(out, "w").close()
-    elif case == "output_a_file_name":   # helper-25: made a directory called out.csv
+    elif case == "output_a_file_name":   # made a directory called out.csv
         out = str(tmp_path / "out.csv")
     elif case == "output_inside_input":
         out = os.path.join(archive, "predictions")

@@ -66,7 +66,7 @@ def test_length_unit_follows_the_rule_and_can_be_given():
 
 
 def test_a_given_length_unit_is_the_mixtures_and_the_peers_keep_the_rules():
-    """helper-25: a given unit also scaled the peers' noise grids: 1e-8 stopped the run in the IMM's tuning ('Singular
+    """A given unit also scaled the peers' noise grids: 1e-8 stopped the run in the IMM's tuning ('Singular
     matrix') and 1e-3 changed the IMM's row."""
     table = _turning_tracks(n=120)
     auto = evaluate_table(table, n_experts=2)
@@ -79,7 +79,7 @@ def test_a_given_length_unit_is_the_mixtures_and_the_peers_keep_the_rules():
 
 
 def test_a_length_unit_that_falls_back_to_1_is_said():
-    """helper-25: with one tuning row per track the rule had nothing to estimate from and the unit became 1,
+    """With one tuning row per track the rule had nothing to estimate from and the unit became 1,
     silently (predict says so)."""
     said = []
     result = evaluate_table(_turning_tracks(n=120), n_experts=2, peers=False, tuning_fraction=0.01, log=said.append)
@@ -253,7 +253,7 @@ def test_cli_evaluate_refuses_up_front_what_it_cannot_do(tmp_path):
             (["--tracks", "t0,zz"], "tracks: ['zz'] not in the data (its track ids: ['t0', 't1'])"),
             (["--plot", str(tmp_path / "e.xyz")], "--plot: expected a figure file ending in .png"),
             (["--plot-intervals", str(tmp_path / "e.png"), str(one_d)], "needs two position coordinates, the data has 1"),
-            # helper-25: these were taken silently, or named the wrong thing
+            # these were taken silently, or named the wrong thing
             (["--track", "t0"], "--track: picks the track of --plot or --plot-intervals"),
             (["--tracks", ""], "--tracks: expected comma-separated track ids, got ''"),
             (["--plot", str(path) + "/e.png"], "is a file, not a directory")):
@@ -263,7 +263,7 @@ def test_cli_evaluate_refuses_up_front_what_it_cannot_do(tmp_path):
                                          "--json", str(tmp_path / "r.json")])
         assert result.exit_code == 1 and message in result.stderr, result.output
         assert not (tmp_path / "r.json").exists()
-    # helper-32: --json - wrote a file named '-' (predict's '-' is standard output)
+    # --json - wrote a file named '-' (predict's '-' is standard output)
     result = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--no-peers", "--json", "-"])
     assert result.exit_code == 1 and "--json: expected a file name, got '-'" in result.stderr, result.output
 

@@ -315,7 +315,7 @@ def test_a_failing_warm_up_does_not_break_the_run(monkeypatch, cold_cache):
 
 def test_a_compile_child_still_running_at_exit_is_ended():
     """A process that exits while a compile child runs (a warm-up thread dies with it) ends the child: no
-    orphan compiling for a minute after the command returned (helper-20: predict - with an empty stdin)."""
+    orphan compiling for a minute after the command returned (predict - with an empty stdin)."""
     import subprocess
     import sys
 

@@ -117,7 +117,7 @@ def test_a_target_at_rest_that_starts_to_move(start, unit):
 def test_a_glitch_on_a_track_in_exact_motion_is_an_outlier(size):
     """A noise-free track in uniform motion (simulated, interpolated): its extrapolation is exact, so the screen's
     scale is 0 and it tested nothing; a glitch was learned by everything, and one at 1e300 ruined the track for
-    good (helper-27: a forecast of -6.5e277 and std 1e150 370 rows later, the truth 40). threshold x the distance
+    good (a forecast of -6.5e277 and std 1e150 370 rows later, the truth 40). threshold x the distance
     the target moves in a step is now the scale: a jump of a million steps is an outlier, and the track goes on
     as if the row were missing."""
     t = np.arange(400) * 0.1

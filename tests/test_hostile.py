@@ -75,7 +75,7 @@ TIME_EXPECTED = r"time: expected a number, a date and time \(datetime, ISO text\
     (("a", 0.0, ["1", "x"]), ValueError, r"z: expected numbers .*got \['1', 'x'\]"),
     ((["a"], 0.0, [1.0, 2.0]), TypeError, r"track_id: expected a track id .*got list \['a'\]"),
     (("a", "noon", [1.0, 2.0]), ValueError, TIME_EXPECTED + "got 'noon'"),
-    # helper-27: True and 1+1j ran at time 1.0; a UUID or a Period id was taken and then refused by save()
+    # True and 1+1j ran at time 1.0; a UUID or a Period id was taken and then refused by save()
     (("a", True, [1.0, 2.0]), ValueError, TIME_EXPECTED + "got True"),
     (("a", 1 + 1j, [1.0, 2.0]), ValueError, TIME_EXPECTED + r"got \(1\+1j\)"),
     ((__import__("uuid").UUID(int=5), 0.0, [1.0, 2.0]), TypeError, "track_id: expected a track id .*got UUID"),
@@ -184,7 +184,7 @@ def test_an_empty_track_id_is_reported_in_a_whole_sentence(cli, tmp_path):
     (["reproduce", "figure2", "--out", "in.csv/f.png"], "of 'in.csv/f.png' is not a directory"),
     (["servo", "--noise", "nan"], "Invalid value for '--noise': expected a finite number, got 'nan'"),
     (["servo", "--gain", "inf"], "Invalid value for '--gain': expected a finite number, got 'inf'"),
-    # helper-29: 1e200 px failed after the SOM's training naming no option; a gain of 1e308 printed 1,021 warnings
+    # 1e200 px failed after the SOM's training naming no option; a gain of 1e308 printed 1,021 warnings
     (["servo", "--noise", "1e200"], "Invalid value for '--noise': expected a number <= 10000, got '1e200'"),
     (["servo", "--gain", "1e308"], "Invalid value for '--gain': expected a number <= 1e+06, got '1e308'"),
     (["servo", "--prediction-gain", "0"], "Invalid value for '--prediction-gain': expected a number > 0"),
@@ -195,7 +195,7 @@ def test_an_empty_track_id_is_reported_in_a_whole_sentence(cli, tmp_path):
     (["bench", "--quick", "--png", "nodir/b.png"], "Invalid value for '--png': the directory"),
 ])
 def test_the_other_commands_check_their_arguments_before_the_work(cli, tmp_path, monkeypatch, args, message):
-    """helper-26: a missing output directory was a traceback after the whole run (the table printed, the servo's
+    """A missing output directory was a traceback after the whole run (the table printed, the servo's
     PNGs written); a negative or huge seed, --experts 0, a nan or inf noise or gain were tracebacks from the
     library; --delay 1000 on a 1,000-frame run froze every mode and called them all diverged."""
     monkeypatch.chdir(tmp_path)
@@ -208,7 +208,7 @@ def test_the_other_commands_check_their_arguments_before_the_work(cli, tmp_path,
 
 
 def test_servo_makes_a_nested_output_directory(cli, tmp_path, monkeypatch):
-    """The --out-dir check must not refuse what os.makedirs makes (helper-28: a nested new directory was refused
+    """The --out-dir check must not refuse what os.makedirs makes (a nested new directory was refused
     by the first version of the check)."""
     import kalmix.commands.servo as servo_command
 
@@ -224,7 +224,7 @@ def test_servo_makes_a_nested_output_directory(cli, tmp_path, monkeypatch):
     assert result.exit_code == 1 and "stopped here: the options were taken" in result.output
     result = CliRunner().invoke(cli, ["servo", "--json", str(tmp_path / "other" / "s.json"), "--out-dir", str(made)])
     assert result.exit_code == 2 and "Invalid value for '--json': the directory" in result.output
-    # helper-33: only the out-dir itself is made for it (a typo'd subdirectory of an existing one is still refused),
+    # only the out-dir itself is made for it (a typo'd subdirectory of an existing one is still refused),
     # a name ending in / or the out-dir itself is refused before the work, as is an out-dir that is a broken link
     (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
     for args, message in ((["--out-dir", str(tmp_path), "--json", str(tmp_path / "typo" / "s.json")], "does not exist"),
@@ -240,7 +240,7 @@ def test_servo_makes_a_nested_output_directory(cli, tmp_path, monkeypatch):
 
 
 def test_servo_cells_never_read_zero_for_a_small_gain():
-    """helper-29: --gain 0.004 printed 0.00 in the gain column (and the option refuses a gain of 0)."""
+    """--gain 0.004 printed 0.00 in the gain column (and the option refuses a gain of 0)."""
     from kalmix.commands.servo import _cell
 
     assert _cell(0.004, 6, 2).strip() == "0.004"
@@ -249,7 +249,7 @@ def test_servo_cells_never_read_zero_for_a_small_gain():
 
 
 def test_reproduce_writes_its_json_before_a_closed_stdout_ends_it(cli, tmp_path, monkeypatch):
-    """helper-29: `kalmix reproduce table1 --json t.json | head -1` (and servo's figures) lost every file: the
+    """`kalmix reproduce table1 --json t.json | head -1` (and servo's figures) lost every file: the
     tables were echoed first and the closed pipe ended the command there. The files now come first."""
     import kalmix.commands.reproduce as reproduce_command
 
@@ -290,7 +290,7 @@ def test_a_reader_that_stops_early_ends_a_command_quietly(cli, tmp_path, monkeyp
 ])
 def test_a_figure_or_json_name_that_cannot_be_written_is_refused_before_the_work(cli, tmp_path, monkeypatch, args,
                                                                                  message):
-    """helper-29: a .txt figure failed after the whole run (bench: ~2 min, its JSON already written); 'x.png/' gave
+    """A .txt figure failed after the whole run (bench: ~2 min, its JSON already written); 'x.png/' gave
     'No such file or directory: x.png/.png' after it."""
     monkeypatch.chdir(tmp_path)
     result = CliRunner().invoke(cli, args)
@@ -363,14 +363,14 @@ def test_a_state_resumed_with_renamed_positions_is_refused(cli, tracks_csv, tmp_
     assert result.exit_code == 1 and "the state file tracks the coordinates" in result.stderr
 
 
-# -- a hostile pass over the Python API (helper-23): each test fails on the code before its fix --------------------
+# -- a hostile pass over the Python API: each test fails on the code before its fix --------------------
 def _table(n=8, ids=1, **columns):
     base = {"track_id": ids, "time": np.arange(float(n)), "x": np.arange(float(n)), "y": 0.0}
     return pd.DataFrame({**base, **columns})
 
 
 def test_a_missing_row_given_as_none():
-    """helper-26: z=None was refused, though None is a missing value; it is the whole row missing once the predictor
+    """z=None was refused, though None is a missing value; it is the whole row missing once the predictor
     knows how many coordinates a row has, and a named error before."""
     fresh = TrackPredictor(StreamConfig(length_unit=0.1))
     with pytest.raises(ValueError, match=r"z: None \(a missing row\) needs the number of coordinates"):
@@ -385,7 +385,7 @@ def test_a_missing_row_given_as_none():
 
 
 def test_times_empty_masked_or_boolean_in_a_list():
-    """helper-28: an empty text time made the whole step_rows call fail (a file skips such a row), a masked time's
+    """An empty text time made the whole step_rows call fail (a file skips such a row), a masked time's
     hidden value was used, and True among numbers was read as 1.0."""
     predictor = TrackPredictor(StreamConfig(length_unit=0.1))
     got = predictor.step_rows(["a"] * 3, ["0", " ", "2.0"], [[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])
@@ -399,7 +399,7 @@ def test_times_empty_masked_or_boolean_in_a_list():
 
 
 def test_step_rows_refuses_text_ids_and_two_dimensional_times():
-    """helper-27: step_rows("ab", ...) took the letters for the rows' ids, and times of shape (1, 2) were flattened."""
+    """step_rows("ab", ...) took the letters for the rows' ids, and times of shape (1, 2) were flattened."""
     predictor = TrackPredictor(StreamConfig(bank="kinematic", length_unit=1.0))
     with pytest.raises(TypeError, match="track_ids: expected a sequence of track ids, one per row, got the text 'ab'"):
         predictor.step_rows("ab", [0.0, 1.0], [[1.0, 2.0], [1.0, 2.0]])
@@ -409,14 +409,14 @@ def test_step_rows_refuses_text_ids_and_two_dimensional_times():
 
 
 def test_masked_values_are_missing_and_iso_text_times_are_dates():
-    """helper-27: a masked array's masked value was learned (np.asarray keeps it), and step_row refused ISO 8601
+    """A masked array's masked value was learned (np.asarray keeps it), and step_row refused ISO 8601
     text, which a file and stdin take."""
     z = np.ma.masked_array([[0.0, 0.0], [1.0, 0.5], [99.0, 99.0], [3.0, 1.5]], mask=[[0, 0], [0, 0], [1, 1], [0, 0]])
     masked, nan = TrackPredictor(StreamConfig(length_unit=0.1)), TrackPredictor(StreamConfig(length_unit=0.1))
     got = masked.step_rows(["a"] * 4, [0.0, 1.0, 2.0, 3.0], z)
     want = nan.step_rows(["a"] * 4, [0.0, 1.0, 2.0, 3.0], z.filled(np.nan))
     assert all(np.array_equal(a.next, b.next) for a, b in zip(got, want))
-    rows = TrackPredictor(StreamConfig(length_unit=0.1))   # a list of masked rows (helper-28: masks lost)
+    rows = TrackPredictor(StreamConfig(length_unit=0.1))   # a list of masked rows (masks lost)
     got = rows.step_rows(["a"] * 4, [0.0, 1.0, 2.0, 3.0], [z[k] for k in range(4)])
     assert all(np.array_equal(a.next, b.next) for a, b in zip(got, want))
     text, dates = TrackPredictor(StreamConfig(length_unit=0.1)), TrackPredictor(StreamConfig(length_unit=0.1))
@@ -559,7 +559,7 @@ def test_step_rows_takes_pandas_na_as_a_missing_measurement_as_step_row_does():
 
 
 def test_the_short_lead_warning_comes_from_the_data_not_from_the_warm_up(recwarn):
-    """helper-24: the warm-up's made-up rows are 1 apart, and its throwaway predictor learned a unit of 1 from them:
+    """The warm-up's made-up rows are 1 apart, and its throwaway predictor learned a unit of 1 from them:
     a lead of 0.4 on rows 0.5 apart was said to be too short. A lead just over MAX_HORIZON steps of its interim unit
     (rounding) failed at the first row, and warm_up failed for a lead over MAX_HORIZON."""
     import warnings as w
@@ -591,7 +591,7 @@ def _walked(**config):
 
 
 def test_labelled_coordinates_are_taken_by_name():
-    """helper-30: a Series labelled y, x (or a DataFrame with those columns in step_rows) was taken in its own
+    """A Series labelled y, x (or a DataFrame with those columns in step_rows) was taken in its own
     order, swapping the coordinates silently (process_table takes columns by name). Now by position_names, a dict
     too; labels that are not the names are refused; integer labels are positions."""
     plain = _walked().step_row(0, 20.0, [20.0, 100.0]).next
@@ -608,7 +608,7 @@ def test_labelled_coordinates_are_taken_by_name():
 
 
 def test_lists_of_labelled_rows_and_first_labels_are_taken_by_name():
-    """helper-32: a list of Series (or of dicts) in step_rows was taken by position, and so was a Series given to a
+    """A list of Series (or of dicts) in step_rows was taken by position, and so was a Series given to a
     predictor without position_names: y, x learned as x, y. Now each row by name, and with no names yet the first
     labelled row's labels become position_names (as a table's columns do); a failed step adopts nothing."""
     plain = _walked().step_rows([0, 0], [20.0, 21.0], [[20.0, 100.0], [21.0, 100.0]])
@@ -655,7 +655,7 @@ def test_a_none_row_in_a_list_of_rows_is_a_missing_row():
 
 
 def test_labels_are_not_adopted_once_rows_were_taken_by_position():
-    """helper-33: names were adopted from a labelled row after rows taken by position (x, y rows, then a row
+    """Names were adopted from a labelled row after rows taken by position (x, y rows, then a row
     labelled y, x: the coordinates swapped), and from a list that mixed labelled and plain rows (the plain rows
     re-read in the adopted order); a dict of columns in step_rows was read as rows (transposed)."""
     predictor = TrackPredictor(StreamConfig(length_unit=0.01, bank="kinematic"))
@@ -678,7 +678,7 @@ def test_labels_are_not_adopted_once_rows_were_taken_by_position():
 
 
 def test_mixture_predictor_takes_missing_values_as_the_track_predictor_does():
-    """helper-30: MixturePredictor learned the value under a mask (np.asarray keeps it), refused None and pd.NA
+    """MixturePredictor learned the value under a mask (np.asarray keeps it), refused None and pd.NA
     (TrackPredictor takes them as missing) and learned booleans as 1 and 0; run() with the wrong width named
     neither `measurements` nor (T, p)."""
     from kalmix import MixturePredictor
@@ -703,7 +703,7 @@ def test_mixture_predictor_takes_missing_values_as_the_track_predictor_does():
 
 
 def test_values_too_large_for_a_float_and_booleans_are_named_errors():
-    """helper-30: 10**400 as a coordinate or a time gave a bare OverflowError; a non-sequence of ids 'int object is
+    """10**400 as a coordinate or a time gave a bare OverflowError; a non-sequence of ids 'int object is
     not iterable'; booleans were learned as 1 and 0 (bool times were already refused)."""
     with pytest.raises(ValueError, match="z: expected numbers"):
         _walked().step_row(0, 20.0, [10**400, 1.0])
@@ -713,14 +713,14 @@ def test_values_too_large_for_a_float_and_booleans_are_named_errors():
         _walked().step_rows([0], [20.0], [[10**400, 1.0]])
     with pytest.raises(TypeError, match="track_ids: expected a sequence of track ids"):
         _walked().step_rows(7, [20.0], [[1.0, 2.0]])
-    for booleans in ([True, False], [True, 1.0], np.array([True, False], dtype=object),   # helper-32: the last
+    for booleans in ([True, False], [True, 1.0], np.array([True, False], dtype=object),   # the last
                      pd.Series([True, False], index=["x", "y"], dtype="boolean")):           # three were taken
         with pytest.raises(ValueError, match="z: expected numbers"):
             _walked().step_row(0, 20.0, booleans)
 
 
 def test_a_short_first_step_does_not_make_every_later_row_a_gap():
-    """helper-30: a second frame 10 ms after the first, then 33 ms frames: the reference interval was that first
+    """A second frame 10 ms after the first, then 33 ms frames: the reference interval was that first
     step alone, every later step was a gap (3 x 10 ms < 33 ms) and a gap never entered the reference, so the track
     restarted at every row, for good, in step_row and process_table alike. While the reference is incomplete a
     gap's step now enters it: one early restart, then the track goes on. A real gap still splits."""
@@ -734,7 +734,7 @@ def test_a_short_first_step_does_not_make_every_later_row_a_gap():
     gapped = times[:100] + [t + 5.0 for t in times[100:]]   # 5 s lost after 100 rows
     again = TrackPredictor(StreamConfig(length_unit=0.01))
     assert [again.step_row("cam", t, [2 * t, 1.0]) for t in gapped][-1].segment == 2
-    # helper-32: a row coming back inside an early gap is a wrong timestamp, as after any gap (the first version
+    # a row coming back inside an early gap is a wrong timestamp, as after any gap (the first version
     # judged it as a first step is judged and skipped the row at 8)
     from kalmix.streaming import GapTracker
 
@@ -764,7 +764,7 @@ def test_a_clock_that_restarts_is_said_once():
     assert predictor.skipped == 4
     with pytest.warns(SkippedRowWarning, match="time 19.0 is not after"):
         _walked().step_rows([0, 1], [19.0, 0.0], [[1.0, 1.0], [2.0, 2.0]])
-    # helper-33: a skip inside a call that then fails (rolled back) warned, and then a kept skip did not
+    # a skip inside a call that then fails (rolled back) warned, and then a kept skip did not
     leading = TrackPredictor(StreamConfig(lead=1000.0, length_unit=0.01, bank="kinematic"))
     with w.catch_warnings():
         w.simplefilter("error")

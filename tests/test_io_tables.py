@@ -138,7 +138,7 @@ def test_datetime_time_in_parquet(tmp_path):
 
 def test_dates_are_read_to_the_float_nearest_the_instant(tmp_path):
     """Dates (ISO text, datetime and duration columns) are seconds to the float nearest the instant, as the same
-    instants written as numbers. Dividing the nanoseconds as one float lost up to ~2.4e-7 s (helper-27: steps of
+    instants written as numbers. Dividing the nanoseconds as one float lost up to ~2.4e-7 s (steps of
     0.25 s read as 0.25000024 / 0.24999976, and a 3-step gap rule then split a track where the numbers did not)."""
     from kalmix.io.tables import iso_seconds
 

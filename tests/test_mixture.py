@@ -177,7 +177,7 @@ def _steady(t_count, speed, noise, seed=0):
 
 @pytest.mark.parametrize("k_count", [3, 40])   # the scalar kernel, the experts-last one
 def test_a_target_moving_on_past_the_feature_limit_keeps_its_dynamics(k_count):
-    """helper-30: a smooth target crossing the feature limit (100 feature units, 1e4 length units) every 2,500
+    """A smooth target crossing the feature limit (100 feature units, 1e4 length units) every 2,500
     rows had its RLS dynamics reset there: errors up to 10 sigma for ~20 rows each time. The re-anchor now
     translates the statistics, the history and the drift: errors after each crossing are as elsewhere, and both
     kernels give the reference's bits."""
@@ -200,7 +200,7 @@ def test_a_target_moving_on_past_the_feature_limit_keeps_its_dynamics(k_count):
 
 
 def test_a_jump_past_the_feature_limit_still_restarts_the_dynamics():
-    """helper-31: a stationary target jumping 1.2-2 feature limits was taken as having moved on, and the jump went
+    """A stationary target jumping 1.2-2 feature limits was taken as having moved on, and the jump went
     into the translated RLS statistics: errors after it 20-200 times those of a restart (RMS 190 against 1.7).
     Only a step within miss_limit of the last measurement is moving on."""
     params = make_params(2)
@@ -217,7 +217,7 @@ def test_a_jump_past_the_feature_limit_still_restarts_the_dynamics():
 
 
 def test_little_forgetting_across_many_re_anchors_stays_finite():
-    """helper-31: with forgetting 0.999 the statistics keep data from far back; translated again and again they
+    """With forgetting 0.999 the statistics keep data from far back; translated again and again they
     grew until the solve failed, and a noise-free line was NaN from row 871 to the end (the reset kept it
     finite). Data held far from the new origin now start the dynamics again."""
     params = make_params(2, 3, seed=1, order=2, feature_scale=1.0, forgetting_levels=(0.999,))

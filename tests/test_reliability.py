@@ -262,7 +262,7 @@ def test_a_parquet_output_is_not_continued(cli, feed_csv, tmp_path):
     stopped = _run(cli, args, env={TEST_HOOK: "SIGINT:2"})
     assert stopped.exit_code == 130
     assert len(pd.read_parquet(out)) == 50  # a valid file of the committed chunk
-    # helper-27: the stop said "the same command resumes", which then failed as below; it says what does
+    # the stop said "the same command resumes", which then failed as below; it says what does
     assert "the same command with a new -o name resumes (a Parquet file cannot be continued" in stopped.stderr
     result = _run(cli, args)
     assert result.exit_code == 1 and "a Parquet file cannot be continued" in result.stderr
@@ -275,7 +275,7 @@ def test_a_parquet_output_is_not_continued(cli, feed_csv, tmp_path):
 
 
 def test_temporaries_of_a_killed_save_are_removed_by_the_next_holder_of_the_lock(cli, feed_csv, tmp_path):
-    """helper-27: a SIGKILL in the middle of a save leaves its temporary file, and nothing removed them."""
+    """A SIGKILL in the middle of a save leaves its temporary file, and nothing removed them."""
     state = str(tmp_path / "s.npz")
     stale = [tmp_path / ".s.npz.ab12cd_9.tmp", tmp_path / ".s.npz.zzzzzzzz.tmp"]
     kept = [tmp_path / ".s.npz.notes.tmp", tmp_path / ".other.npz.ab12cd_9.tmp", tmp_path / "s.npz.ab12cd_9.tmp"]
@@ -288,7 +288,7 @@ def test_temporaries_of_a_killed_save_are_removed_by_the_next_holder_of_the_lock
 
 # ------------------------------------------------------------------- 3: one writer per state file
 def test_a_state_file_and_a_link_to_it_share_one_lock(tmp_path):
-    """helper-28: the lock was taken on the path as given, the save on the file it points to, so a run through a link
+    """The lock was taken on the path as given, the save on the file it points to, so a run through a link
     and one through the target held different locks (and one's clean-up could remove the other's save)."""
     from kalmix.commands._durable import StateLock
 
@@ -344,7 +344,7 @@ def test_state_writes_are_unique_fsynced_and_keep_permissions(tmp_path, monkeypa
 
 
 def test_a_state_saved_through_a_link_replaces_the_target_and_other_files_are_refused(tmp_path):
-    """helper-23: save() replaced whatever was at the path (run as root, /dev/full became a plain file; a link
+    """save() replaced whatever was at the path (run as root, /dev/full became a plain file; a link
     became a file, its target unchanged), and an error named the hidden temporary file."""
     target, link = tmp_path / "target.npz", tmp_path / "link.npz"
     os.symlink(target, link)
@@ -694,7 +694,7 @@ def test_the_command_line_leaves_a_handler_it_did_not_install_alone(monkeypatch)
 
 
 def test_a_figure_or_json_interrupted_while_written_leaves_the_previous_file(tmp_path):
-    """helper-29: Ctrl-C while `reproduce figure2` saved its PNG left it at 0 bytes (table1's JSON cut at 12 of 16
+    """Ctrl-C while `reproduce figure2` saved its PNG left it at 0 bytes (table1's JSON cut at 12 of 16
     KB, servo_error.png at 124 bytes): they were written in place. Now every figure and JSON the commands write
     goes through a temporary file renamed over the old one, as the state file does."""
     import matplotlib
@@ -739,12 +739,12 @@ def test_a_figure_or_json_interrupted_while_written_leaves_the_previous_file(tmp
         save_figure(fig, os.devnull)
         write_json(os.devnull, {"a": 1})
     plt.close(fig)
-    # helper-32: /dev/stdout on a pipe resolves to /proc/<pid>/fd/pipe:[N], which does not exist: it failed
+    # /dev/stdout on a pipe resolves to /proc/<pid>/fd/pipe:[N], which does not exist: it failed
     piped = subprocess.run([sys.executable, "-c", "from kalmix.commands._common import write_json; "
                             "write_json('/dev/stdout', {'a': 1})"], capture_output=True, text=True)
     if os.path.exists("/dev/stdout"):
         assert piped.returncode == 0 and json.loads(piped.stdout) == {"a": 1}, piped.stderr
-    # a read-only file is refused, as open() refuses it, not replaced (helper-32; root may write anyway)
+    # a read-only file is refused, as open() refuses it, not replaced (root may write anyway)
     locked = tmp_path / "locked.json"
     write_json(str(locked), {"a": 1})
     os.chmod(locked, 0o444)

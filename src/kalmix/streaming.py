@@ -376,9 +376,9 @@ class GapTracker:
         if len(self.intervals) < REFERENCE_INTERVALS and (not gap or config.max_gap is None):
             # while the reference is incomplete a gap's step goes into it too: a short first step (10 ms among
             # 33 ms frames) made every later step a gap, kept out of the reference, so the track restarted at
-            # every row for good (helper-30). A row coming back inside that gap is still a wrong timestamp, as
-            # after any gap (jump_counted stays False: judging it as the first step is judged lost such a row,
-            # helper-32); the gap's step then stays in the reference, where the median outvotes it.
+            # every row for good. A row coming back inside that gap is still a wrong timestamp, as
+            # after any gap (jump_counted stays False: judging it as the first step is judged lost such a row);
+            # the gap's step then stays in the reference, where the median outvotes it.
             self.intervals.append(dt)
             self.jump_counted = unjudged
         self.last_time = time

@@ -178,7 +178,7 @@ def _warnings_to_stderr():
         with warnings.catch_warnings():
             warnings.simplefilter("always", RuntimeWarning)
             # the command's own warnings (warnings.warn: UserWarning) are said every time: an "ignore" filter a
-            # library or an earlier command in the same process added hid them (helper-26: an order-dependent test)
+            # library or an earlier command in the same process added hid them (an order-dependent test)
             warnings.simplefilter("always", UserWarning)
             warnings.showwarning = show
             yield
@@ -228,7 +228,7 @@ def progress_bar(total: int, description: str, unit: str):
     except ImportError:  # pragma: no cover - tqdm is in the cli extra
         yield lambda n=1, postfix=None: None
         return
-    # on a terminal only, as predict's: redirected to a log, every redraw was a line of \r updates (helper-29)
+    # on a terminal only, as predict's: redirected to a log, every redraw was a line of \r updates
     with tqdm(total=total, desc=description, unit=unit, leave=False, dynamic_ncols=True,
               disable=not _is_terminal(sys.stderr)) as bar:
         def update(n=1, postfix=None):

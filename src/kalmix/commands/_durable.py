@@ -297,7 +297,7 @@ class StateLock:
 def remove_stale_temporaries(path) -> int:
     """Remove the temporary files that saves of the state file ``path`` killed mid-write left beside it
     (``.NAME.`` + 8 random characters + ``.tmp``, :func:`kalmix.archive.write_archive`); how many. Only the holder of the state's
-    lock saves, so none of them is in use: each is a dead process's (helper-27: 25 SIGKILLs left two, one of
+    lock saves, so none of them is in use: each is a dead process's (25 SIGKILLs left two, one of
     5.5 MB, and nothing ever removed them)."""
     directory, name = os.path.split(os.path.realpath(path))
     pattern = re.compile(re.escape(f".{name}.") + r"[a-z0-9_]{8}\.tmp")

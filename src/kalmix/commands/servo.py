@@ -50,7 +50,7 @@ def format_table(result) -> str:
 def _cell(value, width, decimals):
     """``value`` right-aligned in ``width`` with ``decimals``, or in 3 significant digits where that would not fit
     (a gain of 1e6 printed 1000000.00 and shifted the row's other columns) or would read 0 (a gain of 0.004
-    printed 0.00, helper-29)."""
+    printed 0.00)."""
     text = f"{value:.{decimals}f}"
     if len(text) >= width or (value != 0 and float(text) == 0):
         text = f"{value:.3g}"
@@ -159,7 +159,7 @@ def plot_errors(result, path, speeds=None) -> None:
 
 #: Past these the run says nothing more (it diverges, or the features leave the image) and its arithmetic
 #: overflows: --noise 1e200 failed after the SOM's training naming no option, --gain 1e308 printed 1,021
-#: overflow warnings (helper-29).
+#: overflow warnings.
 MAX_NOISE_PX = 1e4
 MAX_GAIN = 1e6
 

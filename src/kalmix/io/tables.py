@@ -328,7 +328,7 @@ def _seconds_of(delta: pd.Series) -> np.ndarray:
     sign), each exact from the column's integer ticks, added: the float nearest the duration, or its neighbour
     where the two roundings meet (10 in 40,000 random durations). Dividing the nanoseconds as
     one float, as pandas does, lost up to ~2.4e-7 s on dates of this century (2^61 ns), and steps of 0.25 s read
-    as 0.25000024 / 0.24999976 (helper-27): a gap rule of 3 steps then split a track where the same times as
+    as 0.25000024 / 0.24999976: a gap rule of 3 steps then split a track where the same times as
     numbers did not."""
     unit = delta.dt.unit   # the column's own unit: converting to ns overflowed beyond 292 years
     per_second = {"s": 1, "ms": 1_000, "us": 1_000_000, "ns": 1_000_000_000}[unit]
