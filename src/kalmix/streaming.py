@@ -677,7 +677,8 @@ class TrackPredictor:
         self.skipped = 0
         #: warn (once) when step_row / step_rows skips a row for its time (``kalmix predict`` counts them itself)
         self.warn_skipped = True
-        self._late = None   # the first row the step in progress skipped for its time: (track, time, last time)
+        #: the first row the step in progress skipped for its time: (track, its index in the call, time, last time)
+        self._late = None
         self.rows = 0
         self.outliers = 0   # rows the glitch screen did not learn (kalmix.core.screen)
         self.output: dict | None = None
@@ -923,13 +924,14 @@ class TrackPredictor:
         z = given.reshape(-1)
         if np.isinf(z).any():
             raise ValueError(f"z: expected finite numbers (NaN for a missing measurement), got {z!r:.80}")
+        asked = time
         try:
             time = float(_row_times([time])[0])
         except (TypeError, ValueError, OverflowError):
             raise ValueError(f"time: expected a number, a date and time (datetime, ISO text) or a duration, "
                              f"got {time!r:.80}") from None
         out = self._step_checked([_track_key(track_id, "track_id")], np.array([time]), z[None, :])[0]
-        self._committed(names)
+        self._committed(names, [asked])
         return out
 
     def _may_adopt(self) -> bool:
@@ -992,13 +994,20 @@ class TrackPredictor:
             rows.append(row.tolist() if _is_pandas(row, "Series") else row)
         return rows, names
 
-    def _committed(self, names) -> None:
-        """After a step that succeeded: the names it took its rows by, and the warning of a row it skipped."""
+    def _committed(self, names, given) -> None:
+        """After a step that succeeded: the names it took its rows by, and the warning of a row it skipped (its
+        time as ``given``, the call's times, and in seconds where that is not a number)."""
         self.position_names = names
         late, self._late = self._late, None
         if late is not None and self.warn_skipped:
             self.warn_skipped = False
-            warnings.warn(f"track {late[0]!r}: time {late[1]!r} is not after the track's last time {late[2]!r}, so the "
+            track, index, seconds, last = late
+            shown = np.asarray(given, dtype=object).reshape(-1)[index]
+            if isinstance(shown, numbers.Real) and not isinstance(shown, bool):
+                said = f"time {seconds!r} is not after the track's last time {last!r}"
+            else:
+                said = f"time {shown!r} ({seconds!r} s) is not after the track's last time ({last!r} s)"
+            warnings.warn(f"track {track!r}: {said}, so the "
                           "row was skipped (a stream cannot go back: a clock that restarts skips every later row of "
                           "the track); TrackPredictor.skipped counts skipped rows; this is said once",
                           SkippedRowWarning, stacklevel=3)
@@ -1038,7 +1047,7 @@ class TrackPredictor:
         if np.ndim(times) > 1:
             raise ValueError(f"times: expected one time per row, a 1-D sequence, got shape {np.shape(times)}")
         try:
-            times = _row_times(times).reshape(-1)
+            asked, times = times, _row_times(times).reshape(-1)
         except (TypeError, ValueError, OverflowError):
             raise ValueError(f"times: expected numbers, dates and times (datetime, ISO text) or durations, "
                              f"got {times!r:.80}") from None
@@ -1054,7 +1063,7 @@ class TrackPredictor:
             i = int(np.flatnonzero(np.isinf(values).any(axis=-1))[0])
             raise ValueError(f"values[{i}]: expected finite numbers (NaN for a missing measurement), got {values[i]!r}")
         out = self._step_checked([_track_key(track, f"track_ids[{i}]") for i, track in enumerate(ids)], times, values)
-        self._committed(names)
+        self._committed(names, asked)
         return out
 
     def _step_checked(self, ids, times, values) -> list[RowPrediction | None]:
@@ -1068,16 +1077,17 @@ class TrackPredictor:
             start = 0
             self._ensure_params(values.shape[1])
             while start < len(ids) and self.config.time_unit is None:   # one row at a time until it is known
-                out.extend(self._step_batch(ids[start:start + 1], times[start:start + 1], values[start:start + 1]))
+                out.extend(self._step_batch(ids[start:start + 1], times[start:start + 1], values[start:start + 1],
+                                            start))
                 start += 1
             if start < len(ids):
-                out.extend(self._step_batch(ids[start:], times[start:], values[start:]))
+                out.extend(self._step_batch(ids[start:], times[start:], values[start:], start))
             return out
         except BaseException:
             self.rollback(saved)
             raise
 
-    def _step_batch(self, ids, times, values) -> list[RowPrediction | None]:
+    def _step_batch(self, ids, times, values, first: int = 0) -> list[RowPrediction | None]:
         """:meth:`step_rows` (and :meth:`step_row`, one row): the gap rule row by row, then one run of the core with
         every row's forecast one reference interval on (its ``ahead``: the same computation as
         :meth:`_forecast_next` from the state after the row). A bank with a lead takes its ``ahead`` for
@@ -1100,7 +1110,7 @@ class TrackPredictor:
             new = gaps.advance(float(times[i]), self.config)
             if new is None:
                 if self._late is None and last is not None and math.isfinite(times[i]):
-                    self._late = (track, float(times[i]), last)   # said once the step succeeded (_committed)
+                    self._late = (track, first + i, float(times[i]), last)   # said once the step succeeded
                 continue
             if self.config.time_unit is None and gaps.intervals:
                 self._learn_time_unit(gaps.intervals[0], track)
