@@ -486,7 +486,7 @@ def test_make_bank_names_what_it_cannot_take():
     banks without the AKF family; a NaN or negative fixed-share scale, read as 0; a negative scale factor; a seed
     or AKF size of any type when the bank has no AKF family) or refused without their name."""
     for kwargs, kind, message in (
-            (dict(kind="kinematic", length_unit=1e-200), ValueError, r"length_unit: expected a number in \[1e-100"),
+            (dict(kind="kinematic", length_unit=1e-200), ValueError, r"length_unit: expected a number in \[1e-60"),
             (dict(length_unit=1e300), ValueError, "length_unit: expected a number in"),
             (dict(rule="fixed_share", rule_options={"scale": float("nan")}), ValueError, r"rule_options\['scale'\]"),
             (dict(rule="fixed_share", rule_options={"scale_factor": -1}), ValueError, "scale_factor"),

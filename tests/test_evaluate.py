@@ -221,7 +221,7 @@ def test_plot_intervals_writes_a_png(tmp_path):
     result = CliRunner().invoke(build(), ["evaluate", str(path), "--no-peers", "--experts", "4", "--no-per-track",
                                           "--plot-intervals", str(out), "--track", "t1"], catch_exceptions=False)
     assert result.exit_code == 0, result.output
-    assert "intervals:" in result.output and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "mixture one-step intervals, " in result.output and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_experts_and_family_options_reach_the_bank_as_in_predict():
@@ -305,10 +305,58 @@ def test_plots_pick_a_track_with_scored_errors_and_the_imm_says_when_it_was_not_
     ok = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--json", str(tmp_path / "r.json"),
                                  "--plot", str(tmp_path / "e.png")])
     assert ok.exit_code == 0, ok.output
-    assert "no scored error (too few rows after the tuning part, or alone in their segments): track(s) a" in ok.stdout
+    assert "no scored error (too few rows after the tuning part, alone in their segments, or no measurement): track(s) a" in ok.stdout
     assert "track a\n" not in ok.stdout                            # not a table of NaN
     assert (tmp_path / "e.png").read_bytes()[:4] == b"\x89PNG"
     assert "the grid's middle" in json.loads((tmp_path / "r.json").read_text())["tuned"]["IMM (filterpy)"]["untuned"]
     bad = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--no-peers", "--plot",
                                   str(tmp_path / "f.png"), "--track", "a"])
     assert bad.exit_code == 1 and "--track a: no scored error to plot" in bad.stderr
+
+
+def test_one_wild_value_leaves_the_imm_out_instead_of_failing_the_run(tmp_path):
+    """A 1e5 glitch on a unit-scale track made filterpy's frame-based IMM raise ('The input matrix must be symmetric
+    positive semidefinite'), outside the guard the other peers have, and the whole evaluate failed with no table.
+    Now it is left out, said on stderr and under the table; the table says when the intervals rest on few rows."""
+    pytest.importorskip("filterpy")
+    rows = ["track_id,time,x,y"] + [f"a,{i * 0.1},{1e5 if i == 70 else np.sin(i / 10)},{np.cos(i / 10)}"
+                                    for i in range(100)]
+    path = tmp_path / "glitch.csv"
+    path.write_text("\n".join(rows) + "\n")
+    result = CliRunner().invoke(build(), ["evaluate", str(path), "--experts", "2", "--no-per-track"])
+    assert result.exit_code == 0, result.output
+    assert "IMM (filterpy): left out, it failed on this data" in result.stderr
+    assert "note: IMM (filterpy) is not in the table: it failed on this data" in result.stdout
+    assert "\nIMM (filterpy) " not in result.stdout and "\nmixture " in result.stdout
+    assert "mixture one-step intervals, 80 scored row(s)" in result.stdout and "too few rows to judge the intervals" in result.stdout
+
+
+def test_tracks_are_taken_as_written_and_the_automatic_unit_range_is_said(tmp_path):
+    """--tracks stripped its entries, so ' 7' (a track of its own) evaluated '7'; 'a,' failed on the empty entry.
+    Data far outside the length-unit range blamed --length-unit, which the user had not given, as a bad value."""
+    rng = np.random.default_rng(0)
+    frame = pd.concat([pd.DataFrame({"track_id": name, "time": np.arange(n) * 0.1,
+                                     "x": np.cumsum(rng.normal(size=n)), "y": np.cumsum(rng.normal(size=n))})
+                       for name, n in ((" 7", 60), ("7", 40))])
+    path = tmp_path / "ids.csv"
+    frame.to_csv(path, index=False)
+    runner = CliRunner()
+    for tracks, rows in ((" 7", 60), ("7,", 40), ("7, 7", 100)):
+        result = runner.invoke(build(), ["evaluate", str(path), "--no-peers", "--experts", "2", "--tracks", tracks])
+        assert result.exit_code == 0, result.output
+        assert f"samples in" in result.stdout and f" {rows} samples" in result.stdout, (tracks, result.stdout[:200])
+    frame.assign(x=frame["x"] * 1e300, y=frame["y"] * 1e300).to_csv(tmp_path / "huge.csv", index=False)
+    result = runner.invoke(build(), ["evaluate", str(tmp_path / "huge.csv"), "--no-peers", "--experts", "2"])
+    assert result.exit_code == 1 and "the automatic length unit" in result.output and "rescale the data" in result.output
+
+
+def test_error_summary_of_errors_near_the_double_range():
+    """Errors near 1e300 (a glitch) gave an RMS and std of inf (their squares overflowed) and a JSON null, though
+    the figures are finite; ordinary errors keep their bits (the scaled form is only taken on an overflow)."""
+    from kalmix.metrics import error_summary
+
+    huge = error_summary(np.array([1e300, -1e300, 0.0, 1.0]))
+    assert huge["rms"] == pytest.approx(np.sqrt(0.5) * 1e300, rel=1e-12)
+    assert huge["mean_abs"] == pytest.approx(5e299, rel=1e-12) and huge["std"] == pytest.approx(5e299, rel=1e-12)
+    plain = np.array([0.3, -1.7, 2.2])
+    assert error_summary(plain)["rms"] == float(np.sqrt(np.mean(plain ** 2)))

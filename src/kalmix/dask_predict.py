@@ -465,6 +465,7 @@ def predict_dask(frame, columns: TrackColumns | None = None, *, length_unit: flo
     """
     import dask
 
+    from .bank import check_automatic_length_unit
     from .streaming import StreamConfig
 
     chunk_rows, batch_tracks = int(chunk_rows), int(batch_tracks)
@@ -483,21 +484,12 @@ def predict_dask(frame, columns: TrackColumns | None = None, *, length_unit: flo
     if log is not None and length_unit is None:
         log(f"length unit {unit:.6g} (auto; pass --length-unit to override)" if why is None else
             f"length unit 1 (auto could not estimate it: the first chunk has {why}; pass --length-unit)")
-    _check_length_unit(unit)
+    check_automatic_length_unit(unit)
     settings = {**asdict(config), "length_unit": unit, "time_unit": time_unit}
     meta = dask.delayed(_meta)(sample, columns, settings).compute()  # on a worker, which loads the engine now
     shuffled = frame.shuffle(on="track_id", npartitions=int(partitions or frame.npartitions))
     return shuffled.map_partitions(_predict_partition, columns, settings, chunk_rows, batch_tracks,
                                    first_appearance, meta, meta=meta, enforce_metadata=False)
-
-
-def _check_length_unit(unit):
-    from .bank import LENGTH_UNIT_RANGE
-
-    low, high = LENGTH_UNIT_RANGE
-    if not low <= unit <= high:
-        raise ValueError(f"--length-unit: the automatic length unit {unit:.3g} is outside [{low:g}, {high:g}]; "
-                         "rescale the data or pass --length-unit")
 
 
 def _meta(sample, columns, settings):

@@ -22,13 +22,17 @@ def error_summary(errors: np.ndarray) -> dict[str, float]:
     values = values[np.isfinite(values)]
     if values.size == 0:
         return {"mean_abs": float("nan"), "std": float("nan"), "max": float("nan"), "rms": float("nan"), "count": 0}
-    return {
-        "mean_abs": float(values.mean()),
-        "std": float(values.std()),
-        "max": float(values.max()),
-        "rms": float(np.sqrt(np.mean(values**2))),
-        "count": int(values.size),
-    }
+    with np.errstate(over="ignore", invalid="ignore"):
+        summary = {"mean_abs": float(values.mean()), "std": float(values.std()), "max": float(values.max()),
+                   "rms": float(np.sqrt(np.mean(values**2))), "count": int(values.size)}
+        top = summary["max"]
+        if top > 0 and not all(np.isfinite(summary[k]) for k in ("mean_abs", "std", "rms")):
+            # errors near 1e300 (a glitch): their squares (or sums) overflowed to inf, though the figures do not;
+            # taken on the errors / their largest (only then: elsewhere the same bits as before)
+            scaled = values / top
+            summary.update(mean_abs=float(top * scaled.mean()), std=float(top * scaled.std()),
+                           rms=float(top * np.sqrt(np.mean(scaled**2))))
+    return summary
 
 
 def paper_axes_summary(errors: np.ndarray) -> dict[str, dict[str, float]]:

@@ -199,9 +199,12 @@ def write_json(path: str, data) -> None:
     writes leaves the previous file)."""
     from ..archive import replaced_file
 
-    with replaced_file(path, "w", what="a JSON file path", output=True) as handle:
-        json.dump(data, handle, indent=1, default=_json_default)
-        handle.write("\n")
+    try:
+        with replaced_file(path, "w", what="a JSON file path", output=True) as handle:
+            json.dump(data, handle, indent=1, default=_json_default)
+            handle.write("\n")
+    except OSError as error:   # a full disk, a device: which file (it said "No space left on device" alone)
+        raise ValueError(f"cannot write the JSON file {path!r}: {error.strerror or error}") from None
 
 
 def one_line_errors(function):

@@ -164,13 +164,10 @@ def _check_resumed(engine, columns):
 
 
 def _new_engine(settings, unit, positions, backend="cpu"):
-    from ..bank import LENGTH_UNIT_RANGE
+    from ..bank import check_automatic_length_unit
     from ..streaming import StreamConfig, TrackPredictor
 
-    low, high = LENGTH_UNIT_RANGE
-    if not low <= unit <= high:
-        raise ValueError(f"--length-unit: the automatic length unit {unit:.3g} is outside [{low:g}, {high:g}]; "
-                         "rescale the data or pass --length-unit")
+    check_automatic_length_unit(unit)
     return TrackPredictor(StreamConfig(length_unit=unit, **settings), positions, backend=backend)
 
 

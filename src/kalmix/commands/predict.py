@@ -509,7 +509,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
             label = os.path.basename(input_path)
         if tracks is not None and not tracks.strip(", "):
             raise ValueError(f"--tracks: expected comma-separated track ids, got {tracks!r}")
-        wanted = [t.strip() for t in tracks.split(",")] if tracks else None
+        wanted = _wanted_tracks(tracks, table) if tracks else None
         if plot_track is not None and not (plot_path or intervals_path):
             raise ValueError("--track: picks the track of --plot or --plot-intervals; give one of them")
         for flag, path in (("--plot", plot_path), ("--plot-intervals", intervals_path)):   # before the work
@@ -535,8 +535,11 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
         if json_path:
             from ..archive import replaced_file
 
-            with replaced_file(json_path, "w", what="a JSON file path", output=True) as handle:
-                json.dump(result.to_json(), handle, indent=2)
+            try:
+                with replaced_file(json_path, "w", what="a JSON file path", output=True) as handle:
+                    json.dump(result.to_json(), handle, indent=2)
+            except OSError as error:   # a full disk, a device: it said "No space left on device" alone
+                raise ValueError(f"--json: cannot write {json_path!r}: {error.strerror or error}") from None
         if plot_path:
             plot_errors(result, plot_path, plot_track)
             click.echo(f"wrote {plot_path}")
@@ -563,6 +566,17 @@ def _table(title, summaries, horizon):
     return lines
 
 
+def _wanted_tracks(tracks: str, table) -> list[str]:
+    """``--tracks``' ids: each as written when the data has it (" 7" is not "7"), else without the spaces around
+    it ("a, b"); empty entries (a trailing comma) are skipped."""
+    have = set(table["track_id"].astype(str))
+    return [entry if entry in have else entry.strip() for entry in tracks.split(",") if entry.strip()]
+
+
+#: Fewer scored rows than this: the interval line of ``kalmix evaluate`` says they are too few to judge.
+FEW_CALIBRATION_ROWS = 100
+
+
 def format_result(result, per_track=True) -> str:
     """The text tables printed by ``kalmix evaluate``."""
     streams = result.streams
@@ -586,13 +600,21 @@ def format_result(result, per_track=True) -> str:
         label = "one-step" if which == "one_step" else f"{result.horizon}-step"
         nees = f", mean NEES {entry['mean_nees']:.3g} (median {entry['median_nees']:.3g}; p = " \
                f"{len(streams.position_names)} if Gaussian)" if "mean_nees" in entry else ""
-        lines.append(f"mixture {label} intervals: {entry['coverage_95']:.1%} of the scored values inside "
-                     f"pred ± 1.96 std (aim 95 %){nees}")
+        count = int(entry.get("count", 0))
+        few = ("; too few rows to judge the intervals (a 95 % coverage needs hundreds)"
+               if count < FEW_CALIBRATION_ROWS else "")
+        lines.append(f"mixture {label} intervals, {count} scored row(s): {entry['coverage_95']:.1%} of the scored "
+                     f"values inside pred ± 1.96 std (aim 95 %){nees}{few}")
     partial = {name: entry for name, entry in result.tuned.items()
                if isinstance(entry, dict) and "rows_evaluated" in entry and entry["rows_evaluated"] < entry["rows"]}
     for name, entry in partial.items():
         lines.append(f"note: {name} ran on a subsample, the first rows of each segment: {entry['rows_evaluated']} of "
                      f"{entry['rows']} rows (a Python loop; its errors are not on the same pairs as the other rows)")
+    for name, entry in result.tuned.items():   # said on stderr as they happened; the table says it too
+        if isinstance(entry, dict) and "left_out" in entry:
+            lines.append(f"note: {name} is not in the table: it failed on this data ({entry['left_out']})")
+        elif isinstance(entry, dict) and "untuned" in entry:
+            lines.append(f"note: {name} ran with its default settings, not tuned ({entry['untuned']})")
     if per_track:
         unscored = []
         for track, summaries in result.per_track.items():
@@ -601,7 +623,8 @@ def format_result(result, per_track=True) -> str:
                 continue
             lines += [""] + _table(f"track {track}", summaries, result.horizon)
         if unscored:
-            lines += ["", f"no scored error (too few rows after the tuning part, or alone in their segments): track(s) "
+            lines += ["", f"no scored error (too few rows after the tuning part, alone in their segments, or no "
+                          f"measurement): track(s) "
                           f"{', '.join(unscored[:20])}{' ...' if len(unscored) > 20 else ''}"]
     return "\n".join(lines)
 
@@ -683,21 +706,25 @@ def plot_errors(result, path, track=None):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    import pandas as pd
+
     streams = result.streams
     track, columns = _track_columns(result, track)
-    fig, ax = plt.subplots(figsize=(10, 4.5))
-    for name, errors in result.errors.items():
+    fig, ax = plt.subplots(figsize=(12, 4.8))
+    colours = plt.get_cmap("tab20").colors   # 20 distinct colours: the default 10 repeated past 10 predictors
+    window = max(1, int(streams.lengths[columns].sum()) // 100)
+    for index, (name, errors) in enumerate(result.errors.items()):
         times, norms = [], []
-        for j in columns:
+        for j in columns:   # a segment at a time, a gap (NaN) between them: a line no longer bridges a time gap
             n = streams.lengths[j]
-            times.append(streams.times[:n, j])
-            norms.append(np.sqrt(np.sum(errors[:n, j] ** 2, axis=-1)))
+            e = np.sqrt(np.sum(errors[:n, j] ** 2, axis=-1))
+            if window > 1:   # over the scored rows only: the median is not spread over the unscored ones
+                e = np.where(np.isfinite(e), pd.Series(e).rolling(window, min_periods=1, center=True).median(), np.nan)
+            times += [streams.times[:n, j], [np.nan]]
+            norms += [e, [np.nan]]
         t, e = np.concatenate(times), np.concatenate(norms)
-        window = max(1, len(e) // 100)
-        if window > 1:
-            import pandas as pd
-            e = pd.Series(e).rolling(window, min_periods=1, center=True).median().to_numpy()
-        style = dict(lw=2.0, color="black") if name == "mixture" else dict(lw=1.0, alpha=0.8)
+        style = (dict(lw=2.0, color="black") if name == "mixture" else
+                 dict(lw=1.0, alpha=0.85, color=colours[(2 * index) % 20 + (index // 10) % 2]))
         if np.isfinite(e).sum() < 50:   # a few errors: their points, which a line would not show alone
             style["marker"] = "o"
         ax.plot(t, e, label=name, **style)
@@ -705,7 +732,8 @@ def plot_errors(result, path, track=None):
     ax.set_xlabel("time")
     ax.set_ylabel("one-step error |e| (data units)" + (f", rolling median of {window}" if window > 1 else ""))
     ax.set_title(f"{result.dataset}: track {track}")
-    ax.legend(fontsize=8, ncol=2)
+    # beside the axes: inside, it hid the errors of some predictor wherever it sat
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
     plt.close(fig)

@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from ..bank import DEFAULT_BANK, GATE_OPTIONS, check_horizon, check_length_unit, make_bank, make_params
+from ..bank import DEFAULT_BANK, GATE_OPTIONS, check_automatic_length_unit, check_horizon, check_length_unit, make_bank, make_params
 from ..core.mixture import init_state, predict, step
 from ..metrics import error_summary
 from ..streaming import GapTracker, StreamConfig, _length_unit_rule, auto_time_unit
@@ -616,10 +616,10 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         unit = rule = float(length_unit)
         tuned["length_unit"] = {"given": unit, "peers": peer_unit}
     else:
-        rule = peer_unit
+        rule = check_automatic_length_unit(peer_unit)
         unit, scores = rule, {}
         if tune_units and tuning.any():
-            log(f"mixture: tuning the length unit around the rule's {rule:.4g}")
+            log(f"AKF rows: tuning their length unit around the rule's {rule:.4g}")
             unit, scores = _tune_unit(values, tuning, rule, n_experts, seed, options)
         tuned["length_unit"] = {"rule": rule, "chosen": unit, "tuning_rms": scores}
 
@@ -670,18 +670,25 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
             imm_predictions = None
         if imm_predictions is not None:
             log("IMM (filterpy): tuning")
-            best = _tune_imm(streams, tune_scored, peer_unit, tuned["CV Kalman"]["measurement_noise"])
-            note = best.pop("untuned", None)
-            tuned["IMM (filterpy)"] = {k: v * peer_unit**2 if k != "switch_probability" else v for k, v in best.items()}
-            if note:
-                tuned["IMM (filterpy)"]["untuned"] = note
-                log(f"IMM (filterpy): not tuned ({note})")
-            log("IMM (filterpy): running")
-            imm = np.full_like(values, np.nan)
-            for j in range(s):
-                n = streams.lengths[j]
-                imm[:n, j] = imm_predictions(values[:n, j], length_unit=peer_unit, **best)
-            predictions["IMM (filterpy)"] = (imm, None)
+            try:
+                best = _tune_imm(streams, tune_scored, peer_unit, tuned["CV Kalman"]["measurement_noise"])
+                note = best.pop("untuned", None)
+                imm_tuned = {k: v * peer_unit**2 if k != "switch_probability" else v for k, v in best.items()}
+                if note:
+                    imm_tuned["untuned"] = note
+                    log(f"IMM (filterpy): not tuned ({note})")
+                log("IMM (filterpy): running")
+                imm = np.full_like(values, np.nan)
+                for j in range(s):
+                    n = streams.lengths[j]
+                    imm[:n, j] = imm_predictions(values[:n, j], length_unit=peer_unit, **best)
+            except Exception as error:   # noqa: BLE001 - as the other peers: one wild value made filterpy's
+                reason = f"{type(error).__name__}: {error}"   # matrices singular, and the whole run failed
+                log(f"IMM (filterpy): left out, it failed on this data ({reason})")
+                tuned["IMM (filterpy)"] = {"left_out": reason}
+            else:
+                tuned["IMM (filterpy)"] = imm_tuned
+                predictions["IMM (filterpy)"] = (imm, None)
 
     if peers:
         _run_peer_models(streams, tune_scored, peer_unit, horizon, predictions, tuned, log)
