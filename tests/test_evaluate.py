@@ -312,6 +312,7 @@ def test_plots_pick_a_track_with_scored_errors_and_the_imm_says_when_it_was_not_
     bad = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--no-peers", "--plot",
                                   str(tmp_path / "f.png"), "--track", "a"])
     assert bad.exit_code == 1 and "--track a: no scored error to plot" in bad.stderr
+    assert "kalmix: mixture" not in bad.stderr   # said before the work (it was after the whole run)
 
 
 def test_one_wild_value_leaves_the_imm_out_instead_of_failing_the_run(tmp_path):

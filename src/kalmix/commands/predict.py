@@ -524,6 +524,11 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
             if str(plot_track) not in names:
                 raise ValueError(f"--track: expected one of {names[:20]}{' ...' if len(names) > 20 else ''}, "
                                  f"got {plot_track!r}")
+            rows = int((table["track_id"].astype(str) == str(plot_track)).sum())
+            rows = rows if max_samples is None else min(rows, int(max_samples))
+            if max(rows, 1) <= max(math.ceil(tuning_fraction * rows), 1):   # nothing after its tuning part
+                raise ValueError(f"--track {plot_track}: no scored error to plot (its {rows} row(s) are in the tuning "
+                                 "part, or alone); pick a longer track")
         result = evaluate_table(table, horizon=horizon, n_experts=n_experts, seed=seed, length_unit=unit,
                                 tuning_fraction=tuning_fraction, max_gap=gap,
                                 max_gap_factor=math.inf if never else max_gap_factor, max_samples=max_samples,
