@@ -361,3 +361,23 @@ def test_error_summary_of_errors_near_the_double_range():
     assert huge["mean_abs"] == pytest.approx(5e299, rel=1e-12) and huge["std"] == pytest.approx(5e299, rel=1e-12)
     plain = np.array([0.3, -1.7, 2.2])
     assert error_summary(plain)["rms"] == float(np.sqrt(np.mean(plain ** 2)))
+
+
+def test_an_automatic_unit_near_the_top_of_the_range_is_tuned_within_it(tmp_path):
+    """The length-unit tuning tries the rule's unit x 1, 3, 10, 30: with the rule's unit within 30x of the range's
+    top, the larger ones were refused and the run failed after its start; now they are skipped."""
+    import re
+
+    from kalmix.bank import LENGTH_UNIT_RANGE
+
+    rng = np.random.default_rng(1)
+    frame = pd.DataFrame({"track_id": "a", "time": np.arange(150) * 0.1,
+                          "x": np.cumsum(rng.normal(size=150)), "y": np.cumsum(rng.normal(size=150))})
+    frame.to_csv(tmp_path / "plain.csv", index=False)
+    runner = CliRunner()
+    plain = runner.invoke(build(), ["evaluate", str(tmp_path / "plain.csv"), "--no-peers", "--experts", "2"])
+    rule = float(re.search(r"around the rule's (\S+)", plain.stderr).group(1))
+    scale = 0.3 * LENGTH_UNIT_RANGE[1] / rule
+    frame.assign(x=frame["x"] * scale, y=frame["y"] * scale).to_csv(tmp_path / "big.csv", index=False)
+    big = runner.invoke(build(), ["evaluate", str(tmp_path / "big.csv"), "--no-peers", "--experts", "2"])
+    assert big.exit_code == 0, big.output

@@ -652,6 +652,13 @@ def test_a_none_row_in_a_list_of_rows_is_a_missing_row():
     assert all(np.array_equal(a.next, b.next, equal_nan=True) for a, b in zip(got, want))
     with pytest.raises(TypeError, match="measurements: expected numbers"):
         MixturePredictor(4, seed=1).run([[1.0, 2.0], None, [3.0]])
+    # rows that are all None: as wide as the predictor's coordinates, once it knows them
+    mixture = MixturePredictor(4, seed=1)
+    mixture.run(rows)
+    assert mixture.run([None, None]).predictions.shape == (2, 2)
+    tracks = TrackPredictor(StreamConfig(length_unit=0.1))
+    tracks.step_row("a", 0.0, [5.0, 5.0])
+    assert np.isnan(tracks.step_rows(["a", "b"], [5.0, 5.0], [None, None])[1].next).all()
 
 
 def test_labels_are_not_adopted_once_rows_were_taken_by_position():

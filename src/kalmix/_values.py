@@ -8,13 +8,13 @@ import numpy as np
 __all__ = ["measurements"]
 
 
-def measurements(values) -> np.ndarray:
+def measurements(values, width: int | None = None) -> np.ndarray:
     """Positions as float64, with pandas' NA and None as NaN (a missing measurement) as in a table, and a masked
     array's masked values too (``np.asarray`` kept the value under the mask, which was then learned).
     ``TypeError`` for booleans (taken as 1 and 0 before), ``ValueError``/``TypeError`` for what is not numbers."""
     if _has_booleans(values):
         raise TypeError(f"expected numbers, got booleans {values!r:.80}")
-    values = _missing_rows(values)
+    values = _missing_rows(values, width)
     if isinstance(values, np.ma.MaskedArray) or (isinstance(values, (list, tuple)) and any(
             isinstance(row, np.ma.MaskedArray) for row in values)):   # a list of masked rows keeps their masks
         return np.ma.asarray(values, dtype=np.float64).filled(np.nan)
@@ -30,16 +30,18 @@ def measurements(values) -> np.ndarray:
         return np.where(missing, np.nan, given).astype(np.float64)
 
 
-def _missing_rows(values):
+def _missing_rows(values, width: int | None = None):
     """A list of rows in which some rows are None (a missing row, as ``step(None)``): those rows as NaN, as wide as
-    the others (which must agree); anything else as given."""
+    the others (which must agree), or ``width`` wide (the caller's number of coordinates) when every row is None;
+    anything else as given."""
     if not isinstance(values, (list, tuple)) or not any(row is None for row in values):
         return values
     rows = [row for row in values if row is not None]
     widths = {np.shape(row) for row in rows}
-    if not rows or len(widths) != 1 or len(next(iter(widths))) != 1:   # scalars (a row's missing coordinates)
+    if rows and len(widths) == 1 and len(next(iter(widths))) == 1:
+        width = next(iter(widths))[0]
+    elif rows or width is None:   # scalars (a row's missing coordinates), ragged rows, or no width known
         return values
-    width = next(iter(widths))[0]
     return [[np.nan] * width if row is None else row for row in values]
 
 

@@ -31,10 +31,10 @@ MAX_HORIZON = 10_000
 MAX_SEED = 2**63 - 1
 #: Accepted ``length_unit`` range. The bank squares it (noise variances) and multiplies variances;
 #: within 1e-60 .. 1e60 those stay inside double range and the predictions are scale-equivariant
-#: (data and unit scaled together give predictions and intervals scaled alike, to 1e-11 relative,
+#: (data and unit scaled together give predictions and intervals scaled alike, to 1e-9 relative,
 #: tested at both ends for the default bank and the paper's mixture). Measured: the default bank
-#: holds from 1e-70 to 1e75 and departs beyond (the kinematic filters' variance products overflow or
-#: vanish: at 1e-80 the forecasts moved 9 %, at 1e100 110 %; the range was 1e+-100 before).
+#: holds from about 1e-75 to 1e73 and departs beyond (variance products overflow or vanish: at 1e74
+#: the forecasts moved 35-120 %, at 1e-80 9 %, at 1e100 110 %; the range was 1e+-100 before).
 LENGTH_UNIT_RANGE = (1e-60, 1e60)
 
 #: Process-noise levels of the grid span this range (measurement units squared per frame).

@@ -30,11 +30,11 @@ FORMAT_VERSION = 1
 _MAGIC = "kalmix-predictor"
 
 
-def _as_measurements(value, name: str = "z") -> np.ndarray:
+def _as_measurements(value, name: str = "z", width: int | None = None) -> np.ndarray:
     """Numeric float array; NaN allowed (missing, as pandas' NA, None and a masked array's masked values), +-inf
     refused."""
     try:
-        array = _measurements(value)
+        array = _measurements(value, width)
     except (TypeError, ValueError, OverflowError) as error:
         raise TypeError(f"{name}: expected numbers (NaN for a missing measurement), got {value!r:.80}") from error
     if np.isinf(array).any():
@@ -160,7 +160,8 @@ class MixturePredictor:
         Returns a :class:`~kalmix.core.run.RunResult` whose arrays have the stream axis
         removed for a single stream; ``predictions[t]`` predicts frame ``t + horizon``.
         """
-        array = _as_measurements(measurements, "measurements")
+        array = _as_measurements(measurements, "measurements",
+                                 None if self._params is None else self._params.measurement_dim)
         if array.ndim not in (2, 3) or array.shape[0] < 1:
             raise ValueError(f"measurements: expected shape (T, p) or (T, N, p) with T >= 1, got {array.shape}")
         horizon = check_horizon(horizon)

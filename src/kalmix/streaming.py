@@ -84,7 +84,8 @@ import numpy as np
 
 from ._values import measurements as _measurements
 from .archive import open_archive, write_archive
-from .bank import DEFAULT_BANK, DEFAULT_REACH, check_horizon, check_length_unit, make_bank, make_params, short_lead
+from .bank import (DEFAULT_BANK, DEFAULT_REACH, LENGTH_UNIT_RANGE, check_horizon, check_length_unit, make_bank,
+                   make_params, short_lead)
 from .core.engine import Bank, BankState, init_bank_state, tree_map
 
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "SkippedRowWarning", "Checkpoint",
@@ -1053,7 +1054,7 @@ class TrackPredictor:
                              f"got {times!r:.80}") from None
         values, names = self._rows_by_name(values, self.position_names)
         try:
-            values = _measurements(values)
+            values = _measurements(values, None if self.params is None else self.params.measurement_dim)
         except (TypeError, ValueError, OverflowError):
             raise ValueError(f"values: expected numbers (NaN for a missing measurement), got {values!r:.80}") from None
         if values.ndim != 2 or len(values) != len(ids) or len(times) != len(ids):
@@ -1461,6 +1462,13 @@ class TrackPredictor:
                 entries = [(_id_from_meta(entry["id"]), GapTracker(**entry["gaps"]), bool(entry["state"]))
                            for entry in meta["tracks"]]
             except (KeyError, TypeError, ValueError) as error:
+                settings = meta.get("config") if isinstance(meta, dict) else None
+                unit = settings.get("length_unit") if isinstance(settings, dict) else None
+                low, high = LENGTH_UNIT_RANGE
+                if isinstance(unit, numbers.Real) and not low <= unit <= high:   # an older version took 1e+-100
+                    raise ValueError(f"{path}: the state file's length unit {unit!r} is outside this version's range "
+                                     f"[{low:g}, {high:g}] (where the predictions are scale-equivariant); start "
+                                     "a new state file with a unit in it") from error
                 raise ValueError(f"{path}: the kalmix state file's settings are incomplete or corrupt: "
                                  f"{error!r}") from error
             count = sum(has_state for _, _, has_state in entries)

@@ -718,18 +718,24 @@ def plot_errors(result, path, track=None):
     fig, ax = plt.subplots(figsize=(12, 4.8))
     colours = plt.get_cmap("tab20").colors   # 20 distinct colours: the default 10 repeated past 10 predictors
     window = max(1, int(streams.lengths[columns].sum()) // 100)
-    for index, (name, errors) in enumerate(result.errors.items()):
+    peers = 0
+    for name, errors in result.errors.items():
         times, norms = [], []
         for j in columns:   # a segment at a time, a gap (NaN) between them: a line no longer bridges a time gap
             n = streams.lengths[j]
             e = np.sqrt(np.sum(errors[:n, j] ** 2, axis=-1))
-            if window > 1:   # over the scored rows only: the median is not spread over the unscored ones
-                e = np.where(np.isfinite(e), pd.Series(e).rolling(window, min_periods=1, center=True).median(), np.nan)
-            times += [streams.times[:n, j], [np.nan]]
+            scored = np.isfinite(e)   # the scored rows only: a missing measurement joins its neighbours
+            e, t = e[scored], streams.times[:n, j][scored]
+            if window > 1:
+                e = pd.Series(e).rolling(window, min_periods=1, center=True).median().to_numpy()
+            times += [t, [np.nan]]
             norms += [e, [np.nan]]
         t, e = np.concatenate(times), np.concatenate(norms)
-        style = (dict(lw=2.0, color="black") if name == "mixture" else
-                 dict(lw=1.0, alpha=0.85, color=colours[(2 * index) % 20 + (index // 10) % 2]))
+        if name == "mixture":   # on top of the others
+            style = dict(lw=2.0, color="black", zorder=3)
+        else:   # the strong shades of tab20 first, then the pale ones
+            style = dict(lw=1.0, alpha=0.85, color=colours[(2 * peers) % 20 + (peers // 10) % 2])
+            peers += 1
         if np.isfinite(e).sum() < 50:   # a few errors: their points, which a line would not show alone
             style["marker"] = "o"
         ax.plot(t, e, label=name, **style)

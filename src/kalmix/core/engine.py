@@ -102,7 +102,12 @@ class Family:
 
 @dataclass(frozen=True, eq=False)
 class Bank:
-    """Families of experts and the rule that aggregates them. Build it with :func:`kalmix.bank.make_bank`."""
+    """Families of experts and the rule that aggregates them. Build it with :func:`kalmix.bank.make_bank`.
+
+    A bank and its families' parameters are values: make another (``make_bank``, ``dataclasses.replace``,
+    ``params._replace``) rather than change their arrays in place; the compiled engine keeps packed copies
+    of an AKF family's parameters from call to call (:func:`kalmix.core.compiled.engine.pack_akf`).
+    """
 
     measurement_dim: int
     families: tuple

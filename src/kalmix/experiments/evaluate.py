@@ -41,7 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from ..bank import DEFAULT_BANK, GATE_OPTIONS, check_automatic_length_unit, check_horizon, check_length_unit, make_bank, make_params
+from ..bank import (DEFAULT_BANK, GATE_OPTIONS, LENGTH_UNIT_RANGE, check_automatic_length_unit, check_horizon,
+                    check_length_unit, make_bank, make_params)
 from ..core.mixture import init_state, predict, step
 from ..metrics import error_summary
 from ..streaming import GapTracker, StreamConfig, _length_unit_rule, auto_time_unit
@@ -471,7 +472,7 @@ def _tune_unit(values, tuning, rule, n_experts, seed, options):
     columns = np.flatnonzero(tuning.any(axis=0))
     part, mask = part[:, columns], tuning[:last, columns]
     scores = {}
-    for factor in UNIT_FACTORS:
+    for factor in [f for f in UNIT_FACTORS if rule * f <= LENGTH_UNIT_RANGE[1]]:   # (near the top: fewer)
         params = make_params(values.shape[2], n_experts, seed=seed, length_unit=rule * factor, **options)
         errors = _errors(_run(params, part, 1, lengths=mask.sum(axis=0))[0], part, 1, mask)
         scores[factor] = float(np.sqrt(np.nanmean(errors**2))) if np.isfinite(errors).any() else math.inf

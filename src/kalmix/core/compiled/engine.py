@@ -85,7 +85,8 @@ def _rule_scalars(bank: Bank, params=None):
 
 
 #: Per AKF family parameters, the packed parameters and one new target's packed state (the kernels only read
-#: them): building them anew took ~20 % of a live feed's ``step_row`` (one row of one track a call).
+#: them): building them anew took ~20 % of a live feed's ``step_row`` (one row of one track a call). Keyed on
+#: the parameters object: parameters are values, not changed in place (see :class:`kalmix.core.engine.Bank`).
 _PACKED: dict = {}
 
 
