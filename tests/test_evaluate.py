@@ -345,7 +345,7 @@ def test_tracks_are_taken_as_written_and_the_automatic_unit_range_is_said(tmp_pa
     for tracks, rows in ((" 7", 60), ("7,", 40), ("7, 7", 100)):
         result = runner.invoke(build(), ["evaluate", str(path), "--no-peers", "--experts", "2", "--tracks", tracks])
         assert result.exit_code == 0, result.output
-        assert f"samples in" in result.stdout and f" {rows} samples" in result.stdout, (tracks, result.stdout[:200])
+        assert "samples in" in result.stdout and f" {rows} samples" in result.stdout, (tracks, result.stdout[:200])
     frame.assign(x=frame["x"] * 1e300, y=frame["y"] * 1e300).to_csv(tmp_path / "huge.csv", index=False)
     result = runner.invoke(build(), ["evaluate", str(tmp_path / "huge.csv"), "--no-peers", "--experts", "2"])
     assert result.exit_code == 1 and "the automatic length unit" in result.output and "rescale the data" in result.output
