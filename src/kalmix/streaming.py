@@ -983,10 +983,11 @@ class TrackPredictor:
                 raise ValueError(f"values: expected columns of one length (one value per row), got shapes "
                                  f"{[column.shape for column in columns]}")
             return np.column_stack(columns), names
-        if not (isinstance(values, (list, tuple))
-                and any(isinstance(row, Mapping) or _is_pandas(row, "Series") for row in values)):
+        labelled = [isinstance(row, Mapping) or _is_pandas(row, "Series") for row in values] \
+            if isinstance(values, (list, tuple)) else []
+        if not any(labelled):
             return self._by_name(values, "values", names, adopt)
-        if names is None and not all(isinstance(row, Mapping) or _is_pandas(row, "Series") for row in values):
+        if names is None and not all(labelled):
             raise ValueError("values: rows labelled by name (Series, dicts) among rows by position need the "
                              "predictor's position_names")
         rows = []

@@ -367,6 +367,13 @@ PEER_LABELS = {"cv_dt": "CV Kalman (real dt)", "ca_dt": "CA Kalman (real dt)", "
                "rls_ar": "RLS AR (padasip)", "ucm_llt": "local linear trend (statsmodels ML)"}
 
 
+def _leave_out(label, error, tuned, log) -> None:
+    """A peer that failed on this data: said now (``log``) and recorded in ``tuned`` (the table names it)."""
+    reason = f"{type(error).__name__}: {error}"
+    log(f"{label}: left out, it failed on this data ({reason})")
+    tuned[label] = {"left_out": reason}
+
+
 def _run_peer_models(streams, tuning, unit, horizon, predictions, tuned, log):
     """Tune every installed peer of :mod:`kalmix.peer_models` on the tuning part and run it on every segment.
 
@@ -396,9 +403,7 @@ def _run_peer_models(streams, tuning, unit, horizon, predictions, tuned, log):
                 if horizon > 1:
                     ahead[:n, j] = peer.predict(v, t, params, horizon=horizon)
         except Exception as error:   # noqa: BLE001 - a peer library that fails on this data is left out, said
-            reason = f"{type(error).__name__}: {error}"
-            log(f"{label}: left out, it failed on this data ({reason})")
-            tuned[label] = {"left_out": reason}
+            _leave_out(label, error, tuned, log)
             continue
         predictions[label] = (one, ahead)
         tuned[label] = {**params, "rows_evaluated": int(keep.sum()), "rows": int(streams.lengths.sum())}
@@ -684,9 +689,7 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
                     n = streams.lengths[j]
                     imm[:n, j] = imm_predictions(values[:n, j], length_unit=peer_unit, **best)
             except Exception as error:   # noqa: BLE001 - as the other peers: one wild value made filterpy's
-                reason = f"{type(error).__name__}: {error}"   # matrices singular, and the whole run failed
-                log(f"IMM (filterpy): left out, it failed on this data ({reason})")
-                tuned["IMM (filterpy)"] = {"left_out": reason}
+                _leave_out("IMM (filterpy)", error, tuned, log)   # matrices singular, and the whole run failed
             else:
                 tuned["IMM (filterpy)"] = imm_tuned
                 predictions["IMM (filterpy)"] = (imm, None)
