@@ -13,6 +13,9 @@ no online predictor of the same kind can do better:
   translation-invariant predictor that forecasts a linear, time-invariant function of the last L + 1
   positions (CV, CA, fixed AR models of the velocity, damped or not, and any fixed convex or affine
   combination of them) is in this class;
+- the same with terms no linear model of the velocity forms: a constant per coordinate (gravity), the
+  last velocity times the speed (quadratic drag) and its squares (``kinematic_features``): what a
+  generic nonlinear kinematic expert could bring at best;
 - a ground-bounce rule on top of the two-point extrapolation: below a floor (the lowest height seen so
   far, plus an offset) the forecast height is reflected with a restitution; restitution and offset chosen
   in hindsight. This is physics of a ball, not something kalmix's experts know; it measures what such
@@ -72,11 +75,17 @@ def velocities(z):
     return v
 
 
-def linear_oracle(tracks, lags: int, across: bool, target=None):
+def kinematic_features(velocity):
+    """Terms a linear model of the velocity cannot form, from the last velocity ``v``: a constant (gravity),
+    ``|v| v`` (quadratic drag along the motion) and ``v * v`` per coordinate."""
+    return np.concatenate([[1.0], np.linalg.norm(velocity) * velocity, velocity * velocity])
+
+
+def linear_oracle(tracks, lags: int, across: bool, target=None, extra=None):
     """RMS of the best linear predictor of each coordinate's next velocity (or of ``target(z)``, the
     residual of another forecast) from the last ``lags`` velocities (of that coordinate, or of all three
-    with ``across``), fitted on the scored rows; and the fitted coefficients' sums (the velocity's
-    persistence) per coordinate."""
+    with ``across``), and ``extra(last velocity)``'s terms if given, fitted on the scored rows; and the
+    fitted coefficients' sums (the velocity's persistence) per coordinate."""
     total, count, persistence = 0.0, 0, []
     designs = {c: ([], []) for c in range(3)}
     for z, scored in tracks:
@@ -86,15 +95,16 @@ def linear_oracle(tracks, lags: int, across: bool, target=None):
             if not scored[t]:
                 continue
             past = v[t - lags:t][::-1]
+            more = [] if extra is None else extra(past[0])
             for c in range(3):
-                designs[c][0].append(past.reshape(-1) if across else past[:, c])
+                designs[c][0].append(np.concatenate([past.reshape(-1) if across else past[:, c], more]))
                 designs[c][1].append(y_all[t, c])
     for c in range(3):
         x, y = np.asarray(designs[c][0]), np.asarray(designs[c][1])
         beta, *_ = np.linalg.lstsq(x, y, rcond=None)
         total += float(((y - x @ beta) ** 2).sum())
         count += len(y)
-        own = beta.reshape(lags, 3)[:, c] if across else beta
+        own = beta[:3 * lags].reshape(lags, 3)[:, c] if across else beta[:lags]
         persistence.append(float(own.sum()))
     return float(np.sqrt(total / count)), persistence
 
@@ -197,6 +207,12 @@ def main(argv=None):
             result["linear_oracle"][label] = {"rms": value, "persistence": persistence}
             print(f"best linear predictor in hindsight, {label}: {value:.5f} ({value / BEST_PEER:.4f}x); "
                   f"its own velocity weights sum to {', '.join(f'{x:.3f}' for x in persistence)} (x, y, z)")
+    result["kinematic_features_oracle"] = {}
+    for lags in (2, 5, 21):
+        value, _ = linear_oracle(tracks, lags, True, extra=kinematic_features)
+        result["kinematic_features_oracle"][f"all coordinates, {lags} velocities"] = value
+        print(f"best linear predictor in hindsight, all coordinates, {lags} velocities, with a constant (gravity), "
+              f"|v| v (drag) and v*v terms: {value:.5f} ({value / BEST_PEER:.4f}x)")
     value, restitution, offset = bounce_oracle(tracks)
     result["bounce_oracle"] = {"rms": value, "restitution": restitution, "offset": offset}
     print(f"two-point + ground bounce, tuned in hindsight (restitution {restitution}, offset {offset} m): "
