@@ -7,8 +7,8 @@ Every bank (with the glitch screen at its default threshold unless the row says 
 runs through the compiled engine on the segments ``kalmix predict`` makes
 (gap rule), with the length unit of :func:`kalmix.streaming.auto_length_unit` and the
 time unit :func:`kalmix.streaming.auto_time_unit`, both from the first 20 % of each track.
-Rows named "boa" run the original rule (``bound_forgetting`` 1.0, not the default 0.99); the
-rows with "bound forgetting .99" run the default's.
+Rows named "boa" run the original rule (``bound_forgetting`` 1.0 and no ``clip``, not the default's
+0.99 and 3); the rows with "bound forgetting .99" or "clip" run those.
 """
 
 from __future__ import annotations
@@ -80,6 +80,19 @@ CONFIGS = {
     "mixed68+ar48+turn5 (gains .5-2.5) boa, bound forgetting .99": dict(
         kind="mixed+ar+turn", rule="boa", turn_gains=(0.5, 1.0, 1.5, 2.0, 2.5),
         rule_options={"bound_forgetting": 0.99}),
+    # BOA on errors clipped at c times their RMS so far (kalmix.core.aggregators.boa, ``clip``)
+    "mixed68+ar48+turn3 boa, bound forgetting .99, clip 3 (the default)": dict(
+        kind="mixed+ar+turn", rule="boa", rule_options={"bound_forgetting": 0.99, "clip": 3.0}),
+    "mixed68+ar48+turn3 boa, bound forgetting .99, clip 2": dict(
+        kind="mixed+ar+turn", rule="boa", rule_options={"bound_forgetting": 0.99, "clip": 2.0}),
+    "mixed68+ar48+turn3 boa, bound forgetting .99, clip 5": dict(
+        kind="mixed+ar+turn", rule="boa", rule_options={"bound_forgetting": 0.99, "clip": 5.0}),
+    "mixed68+ar48+turn3 boa, clip 3 (bound not forgotten)": dict(
+        kind="mixed+ar+turn", rule="boa", rule_options={"clip": 3.0}),
+    "kinematic28 boa, bound forgetting .99, clip 3": dict(
+        kind="kinematic", rule="boa", rule_options={"bound_forgetting": 0.99, "clip": 3.0}),
+    "kinematic28+ar48+turn3 boa, bound forgetting .99, clip 3": dict(
+        kind="kinematic+ar+turn", rule="boa", rule_options={"bound_forgetting": 0.99, "clip": 3.0}),
 }
 
 
@@ -145,6 +158,7 @@ def run_dataset(name, configs, max_samples=None, two_levels=None):
         options = dict(cfg.pop("rule_options", {}))
         if cfg.get("rule") == "boa":
             options.setdefault("bound_forgetting", 1.0)   # "boa" rows: the original rule; the others say so
+            options.setdefault("clip", float("inf"))
         if fixed is not None:
             options["scale"] = fixed * unit
         bank = make_bank(values.shape[2], length_unit=unit, time_unit=tunit, rule_options=options, **cfg)

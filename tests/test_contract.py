@@ -142,7 +142,8 @@ def test_boa_delay_divides_the_second_order_rate_and_the_lead_head_takes_its_row
     from kalmix.core import engine
     from kalmix.core.aggregators import boa
 
-    state = boa.State(np.zeros((1, 3)), np.array([[4.0, 0.01, 0.0]]), np.array([[0.1, 0.1, 0.1]]))
+    state = boa.State(np.zeros((1, 3)), np.array([[4.0, 0.01, 0.0]]), np.array([[0.1, 0.1, 0.1]]), np.zeros(1),
+                      np.zeros(1))
     for delay in (1.0, 4.0):
         eta = boa.learning_rates(state, 3, delay)[0]
         expected = np.minimum(1 / (2 * 0.1), np.sqrt(np.log(3) / (delay * np.array([4.0, 0.01]))))
@@ -160,6 +161,76 @@ def test_boa_delay_divides_the_second_order_rate_and_the_lead_head_takes_its_row
     assert np.array_equal(delayed.forecasts, plain.forecasts, equal_nan=True)   # the one-step rule is the same
     assert np.array_equal(delayed.state.rule.regret, plain.state.rule.regret)
     assert not np.allclose(delayed.lead, plain.lead, equal_nan=True)   # the lead head's is not
+
+
+def test_boa_clip_shrinks_the_error_its_regrets_learn_from_not_its_range_bound():
+    """One BOA step by hand, ``clip`` 3, after 10 rows of squared error norm 1 (s = 1): an error of norm 10 is
+    shrunk to 3 in the regrets and their variance; the range bound takes the whole regret; so does the scale. An
+    error within 3 s, and any error during the warm-up or with ``clip`` off, is taken whole."""
+    from kalmix.core.aggregators import boa
+
+    experts = np.array([[[0.0, 0.0], [2.0, 0.0]]])
+    awake, learn = np.ones((1, 2), bool), np.array([True])
+    params = boa.Params(clip=3.0)
+    state = boa.init(params, 1, 2)._replace(error_scale=np.array([1.0]), error_count=np.array([10.0]))
+    mix = boa.weights(params, state, awake)[0] @ experts[0]           # uniform: (1, 0)
+    for y, factor in ((np.array([[-9.0, 0.0]]), 0.3), (np.array([[-1.0, 0.0]]), 1.0)):
+        whole = 2 * ((mix - y[0]) * (mix - experts[0])).sum(axis=-1)  # (2,): the linearised regrets
+        shrunk = factor * whole
+        new = boa.update(params, state, experts, y, awake, learn)
+        eta = np.minimum(1 / (2 * np.abs(whole)), np.sqrt(np.log(2) / shrunk ** 2))
+        np.testing.assert_allclose(new.regret[0], shrunk - eta * shrunk ** 2, rtol=1e-15)
+        np.testing.assert_allclose(new.variance[0], shrunk ** 2, rtol=1e-15)
+        np.testing.assert_allclose(new.bound[0], np.abs(whole), rtol=1e-15)
+        np.testing.assert_allclose(new.error_scale, [1.0 + (((mix - y[0]) ** 2).sum() - 1.0) / 11], rtol=1e-15)
+        assert new.error_count[0] == 11
+    # the warm-up (9 rows) and clip off take the error whole
+    big = np.array([[-9.0, 0.0]])
+    whole = 2 * ((mix - big[0]) * (mix - experts[0])).sum(axis=-1)
+    young = boa.update(params, state._replace(error_count=np.array([9.0])), experts, big, awake, learn)
+    off = boa.update(boa.Params(), state, experts, big, awake, learn)
+    for new in (young, off):
+        np.testing.assert_allclose(new.variance[0], whole ** 2, rtol=1e-15)
+    assert off.error_count[0] == 10 and off.error_scale[0] == 1.0   # clip off keeps no scale
+
+
+def test_boa_clip_keeps_a_kick_from_moving_the_weights():
+    """Two experts, the truth and a biased one (+0.5), measured with unit noise; one kick (a measurement 100 off,
+    the biased expert a little closer) at row 100. Unclipped, the kick's regret moves a tenth of the weight to
+    the biased expert for the next hundred rows; with ``clip`` 3 the weights stay where they were."""
+    from kalmix.core.aggregators import boa
+
+    rng = np.random.default_rng(0)
+    truth = rng.normal(size=(300, 1, 1)).cumsum(axis=0)
+    experts = np.concatenate([truth, truth + 0.5], axis=1)[:, None]        # (T, N=1, K=2, p=1)
+    y = truth[:, :, 0] + rng.normal(size=(300, 1))
+    y[100] += 100.0
+    awake, learn = np.ones((1, 2), bool), np.array([True])
+    lowest = {}
+    for clip in (np.inf, 3.0):
+        params = boa.Params(bound_forgetting=0.99, clip=clip)
+        state, on_truth = boa.init(params, 1, 2), []
+        for t in range(300):
+            on_truth.append(boa.weights(params, state, awake)[0, 0])
+            state = boa.update(params, state, experts[t], y[t], awake, learn)
+        assert on_truth[99] > 0.96   # before the kick, either way
+        lowest[clip] = min(on_truth[101:201])
+    assert lowest[np.inf] < 0.92 and lowest[3.0] > 0.96, lowest
+
+
+def test_boa_clip_in_a_bank_passes_the_contract():
+    """``clip`` off (the original rule) and ``clip`` 1 (most rows shrunk) keep the contract, compiled = reference
+    bit for bit, on benign and adversarial input (the default, 3, runs in every other contract test)."""
+    for z, t in (benign_tracks(seed=1), adversarial_tracks(seed=2, t_count=200)):
+        for clip in (np.inf, 1.0):
+            check_bank(make_bank(2, "kinematic+ar", length_unit=0.3, lead=2.0, rule_options={"clip": clip}), z, t)
+
+
+@pytest.mark.parametrize("clip, error", [(0.0, ValueError), (-1.0, ValueError), (float("nan"), ValueError),
+                                         ("3", TypeError), (True, TypeError)])
+def test_a_bad_clip_is_refused_by_name(clip, error):
+    with pytest.raises(error, match=r"rule_options\['clip'\]: expected a number > 0"):
+        make_bank(2, "kinematic", length_unit=0.3, rule_options={"clip": clip})
 
 
 @pytest.mark.parametrize("options, error", [

@@ -32,6 +32,9 @@ def _rows(engine, table):
 CONFIG = dict(n_experts=6, seed=3, length_unit=0.01, horizon=3)
 #: State members that older files lack: the lead's issued intervals (before 6), the warm-up audit's (before 7).
 OLDER_MEMBERS = ("state/lead/issued", "state/screen/low", "state/screen/high")
+#: BOA's running error scale, which files before version 10 lack (their BOA did not clip).
+CLIP_MEMBERS = ("state/rule/error_scale", "state/rule/error_count", "state/lead/rule/error_scale",
+                "state/lead/rule/error_count")
 
 
 def test_rows_equal_batched_table():
@@ -113,11 +116,15 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     """Rows of a predictor over the whole table, and of one over its first ``cut`` rows, saved, made into a
     version-``version`` file (without the archive ``members`` and the ``settings``), loaded and run over the
     rest: ``(whole, resumed, loaded predictor, the saved archive)``. Both run as such a file ran: before
-    version 9, the lead head learned at the one-step rate (``lead_delay`` 1, a setting those files lack)."""
+    version 9, the lead head learned at the one-step rate (``lead_delay`` 1, a setting those files lack);
+    before version 10, BOA did not clip (``clip`` inf, and no error scale in the state)."""
     import json
 
     if version < 9:
         config, settings = {**config, "lead_delay": 1.0}, (*settings, "lead_delay")
+    if version < 10:
+        config = {**config, "rule_options": {"clip": float("inf"), **config.get("rule_options", {})}}
+        members = (*members, *CLIP_MEMBERS)
     table = _table()
     whole = _rows(TrackPredictor(StreamConfig(**config)), table)
     first = TrackPredictor(StreamConfig(**config))
@@ -125,10 +132,12 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     first.save(tmp_path / "s.npz")
     saved = dict(np.load(tmp_path / "s.npz"))
     meta = json.loads(str(saved["meta"]))
-    assert meta["format_version"] == STATE_FORMAT_VERSION == 9
+    assert meta["format_version"] == STATE_FORMAT_VERSION == 10
     meta["format_version"] = version
     for name in settings:
         del meta["config"][name]
+    if version < 10 and "rule_options" in meta["config"]:
+        del meta["config"]["rule_options"]["clip"]
     older = {name: value for name, value in saved.items() if name not in members and name != "meta"}
     np.savez(tmp_path / "older.npz", **older, meta=np.array(json.dumps(meta)))
     second = TrackPredictor.load(tmp_path / "older.npz")
@@ -145,7 +154,7 @@ def test_version_4_files_resume_as_they_ran(tmp_path):
     original = dict(CONFIG, rule_options={"bound_forgetting": 1.0})
     whole, resumed, second, _ = _as_older_file(tmp_path, original, 70, 4, OLDER_MEMBERS,
                                                ("rule_options", "reach"))
-    assert second.config.rule_options == {"bound_forgetting": 1.0}
+    assert second.config.rule_options == {"bound_forgetting": 1.0, "clip": float("inf")}
     assert np.array_equal(_next(resumed), _next(whole), equal_nan=True)
     # the default now forgets the bound, and that changes the forecasts
     default = _rows(TrackPredictor(StreamConfig(**CONFIG)), _table())
@@ -196,7 +205,7 @@ def test_version_8_files_resume_with_the_lead_learning_at_the_one_step_rate(tmp_
     for field in ("next", "ahead"):
         assert np.array_equal(np.array([getattr(r, field) for r in resumed]),
                               np.array([getattr(r, field) for r in whole]), equal_nan=True), field
-    today = TrackPredictor(StreamConfig(**CONFIG))
+    today = TrackPredictor(StreamConfig(**CONFIG, rule_options={"clip": float("inf")}))   # as version 9 ran
     rows = _rows(today, _table())
     assert today.params.lead.frames == 3 and today.params.lead_rule_params.delay == 3.0
     assert np.array_equal(_next(rows), _next(whole), equal_nan=True)   # the one-step rule did not change
@@ -204,6 +213,24 @@ def test_version_8_files_resume_with_the_lead_learning_at_the_one_step_rate(tmp_
     assert not np.array_equal(ahead, np.array([r.ahead for r in whole]), equal_nan=True)
     today.save(tmp_path / "today.npz")
     assert TrackPredictor.load(tmp_path / "today.npz").config.lead_delay is None
+
+
+def test_version_9_files_resume_without_the_clip(tmp_path):
+    """Version 9 files were written when BOA did not clip its errors: such a file resumes with ``clip`` off and no
+    error scale (as it ran), bit for bit, lead forecasts included; today's default clips, which changes the
+    forecasts, and its files keep the scale (resumed bit for bit by test_save_and_resume_is_bit_for_bit)."""
+    whole, resumed, second, _ = _as_older_file(tmp_path, CONFIG, 70, 9)
+    assert second.config.rule_options == {"clip": float("inf")}
+    assert second.params.rule_params.clip == second.params.lead_rule_params.clip == float("inf")
+    for field in ("next", "ahead"):
+        assert np.array_equal(np.array([getattr(r, field) for r in resumed]),
+                              np.array([getattr(r, field) for r in whole]), equal_nan=True), field
+    today = TrackPredictor(StreamConfig(**CONFIG))
+    assert not np.array_equal(_next(_rows(today, _table())), _next(whole), equal_nan=True)
+    today.save(tmp_path / "today.npz")
+    saved = np.load(tmp_path / "today.npz")
+    assert (saved["state/rule/error_count"] > 0).all() and (saved["state/lead/rule/error_count"] > 0).all()
+    assert TrackPredictor.load(tmp_path / "today.npz").params.rule_params.clip == 3.0
 
 
 def test_load_rejects_other_files(tmp_path):

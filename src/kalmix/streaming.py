@@ -91,6 +91,9 @@ from .core.engine import Bank, BankState, init_bank_state, tree_map
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "SkippedRowWarning", "Checkpoint",
            "auto_length_unit", "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
 
+#: 10: BOA clips the errors its regrets learn from (``clip``, :mod:`kalmix.core.aggregators.boa`) and keeps
+#: their running scale (``error_scale``, ``error_count``); version 3-9 files are resumed with ``clip`` off
+#: (and no scale), as they ran.
 #: 9: the settings hold the lead head's delay (``StreamConfig.lead_delay``: BOA's learning rate over a lead
 #: of H rows is divided by sqrt(H)); version 3-8 files are resumed with a delay of 1, as they ran.
 #: 8: the settings hold the bank's reach (``StreamConfig.reach``); version 3-7 files are resumed
@@ -108,8 +111,8 @@ __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Ski
 #: ``bound_forgetting`` 1.0, as they ran. Version 3 files (no calibration yet) are resumed with a
 #: fresh calibration as well; files of versions 1 and 2 held the previous single-mixture state and
 #: cannot be resumed.
-STATE_FORMAT_VERSION = 9
-_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9)
+STATE_FORMAT_VERSION = 10
+_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10)
 _MAGIC = "kalmix-track-predictor"
 #: Number of first non-gap time steps whose median is a track's reference interval.
 REFERENCE_INTERVALS = 16
@@ -1452,7 +1455,9 @@ class TrackPredictor:
                 if meta["format_version"] < 9:
                     config.setdefault("lead_delay", 1.0)   # the lead head learned at the one-step rate then
                 if meta["format_version"] < 5 and config.get("rule") == "boa":
-                    config["rule_options"] = {"bound_forgetting": 1.0, **config.get("rule_options", {})}
+                    config["rule_options"] = {"bound_forgetting": 1.0, **(config.get("rule_options") or {})}
+                if meta["format_version"] < 10 and config.get("rule") == "boa":
+                    config["rule_options"] = {"clip": math.inf, **(config.get("rule_options") or {})}
                 engine = cls(StreamConfig(**config), meta.get("position_names"))
                 engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
                 engine.outliers = int(meta.get("outliers", 0))
@@ -1479,7 +1484,8 @@ class TrackPredictor:
                 version = meta["format_version"]
                 fresh = lambda name: ((version == 3 and name.startswith("state/calibration/"))  # noqa: E731
                                       or (version <= 5 and name == "state/lead/issued")
-                                  or (version <= 6 and name in ("state/screen/low", "state/screen/high")))
+                                  or (version <= 6 and name in ("state/screen/low", "state/screen/high"))
+                                  or (version <= 9 and name.startswith(("state/rule/error_", "state/lead/rule/error_"))))
                 stacked = {name: (np.broadcast_to(expected, (count, *expected.shape[1:])) if fresh(name)
                                   else archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name))
                            for name, expected in _leaves(template)}

@@ -25,7 +25,7 @@ KERNEL_SOURCES = (
 GPU_SOURCES = ("compiled/gpu.py", "compiled/gpu_staged.py")
 #: The other kalmix files the kernel sources import from: numba freezes a global (``screen.ZERO``,
 #: ``families/kinematic.RESTART_NIS``) into the compiled code, so they key the cache too (a test checks the list).
-CONSTANT_SOURCES = ("screen.py", "families/kinematic.py", "calibration.py")
+CONSTANT_SOURCES = ("screen.py", "families/kinematic.py", "calibration.py", "aggregators/boa.py")
 #: What the cache directory is keyed on (with numba's version).
 COMPILED_SOURCES = KERNEL_SOURCES + GPU_SOURCES + CONSTANT_SOURCES
 

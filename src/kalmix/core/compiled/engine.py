@@ -59,6 +59,7 @@ def pack_rule(bank: Bank, state, n: int):
     d, e = np.zeros(n), np.zeros(n)
     if bank.rule == "boa":
         a[:], b[:], c[:] = state.regret, state.variance, state.bound
+        d[:], e[:] = state.error_scale, state.error_count
     elif bank.rule == "mlpoly":
         a[:], b[:], d[:] = state.regret, state.variance, state.bound
     else:
@@ -69,7 +70,7 @@ def pack_rule(bank: Bank, state, n: int):
 def unpack_rule(bank: Bank, a, b, c, d, e):
     module = bank.rule_module
     if bank.rule == "boa":
-        return module.State(a, b, c)
+        return module.State(a, b, c, d, e)
     if bank.rule == "mlpoly":
         return module.State(a, b, d)
     return module.State(a, d, e)
@@ -77,11 +78,12 @@ def unpack_rule(bank: Bank, a, b, c, d, e):
 
 def _rule_scalars(bank: Bank, params=None):
     """The rule's scalars as the kernels take them: code, forgetting, share, scale, scale_factor, bound_forgetting,
-    delay (of ``params``, default the bank's one-step rule's)."""
+    delay, clip (of ``params``, default the bank's one-step rule's)."""
     params = bank.rule_params if params is None else params
     return (crules.RULE_CODES[bank.rule], float(getattr(params, "forgetting", 1.0)), float(params.share),
             float(getattr(params, "scale", 0.0)), float(getattr(params, "scale_factor", 0.0)),
-            float(getattr(params, "bound_forgetting", 1.0)), float(getattr(params, "delay", 1.0)))
+            float(getattr(params, "bound_forgetting", 1.0)), float(getattr(params, "delay", 1.0)),
+            float(getattr(params, "clip", np.inf)))
 
 
 #: Per AKF family parameters, the packed parameters and one new target's packed state (the kernels only read

@@ -105,7 +105,7 @@ def sleep_beyond(far, x, span, reach):
 
 
 def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, mean, cov, last_time, initialised,
-           rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
+           rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
            threshold, max_rejects, warmup, window, position, velocity, seen, spread, count, rejects, outliers,
            points, low, high, cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale,
            cal_initial, variance, n_errors, log_scale, z, times, lengths, learn, out, out_std, ahead_times, out_ahead,
@@ -162,7 +162,7 @@ def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, 
         if code == 1 and awake_count > 0:
             calibrate_row(x, z[t, n], awake, awake_count, mix, sigma, var_n, errors_n, ls, cal_window, cal_rate,
                           cal_level, z_level, cal_max_variance, max_log_scale)
-            learn_rule(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a[:, n], b[:, n],
+            learn_rule(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a[:, n], b[:, n],
                        c[:, n], dn, en, x, z[t, n], awake, awake_count, w, mix, rr)
         if code == 4:   # a cold restart: forecast by the old rule and calibration, which start again
             cold_row(a[:, n], b[:, n], c[:, n], dn, en, var_n, errors_n, ls, cal_initial)

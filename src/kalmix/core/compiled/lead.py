@@ -17,7 +17,7 @@ configure_cache()
 __all__ = ["run_block"]
 
 
-def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
+def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
               due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep, restart,
               out, out_std, out_cov, cold, initial_variance):
@@ -27,14 +27,14 @@ def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forget
     (``issued``: its mean and standard deviations, the miss the calibration learns from). On a ``cold``
     row (the screen's cold restart, which scores nothing) the lead rule and calibration first start
     again (the variances at ``initial_variance``). Targets ``lo .. hi - 1``."""
-    _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
+    _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
                due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep, restart,
                out, out_std, out_cov, cold, float(initial_variance), *scratch(ahead_experts.shape[2], z.shape[2]))
 
 
 @nb.njit(**KERNEL_JIT)
-def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
+def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
                due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep, restart,
                out, out_std, out_cov, cold, initial_variance, awake, w, logw, r, mix, cov):
@@ -62,8 +62,8 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
                             calibrate_issued_row(x, y, awake, count, mix, cov, issued[n, s], variance[n],
                                                  n_errors[n], ls, window, rate, level, z_level, max_variance,
                                                  max_log_scale)
-                            _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a[n], b[n],
-                                   c[n], dn, en, x, y, awake, count, w, mix, r)
+                            _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a[n],
+                                   b[n], c[n], dn, en, x, y, awake, count, w, mix, r)
                 kept = 0
                 for s in range(slots):
                     if not due[n, s] <= now + tolerance:

@@ -6,7 +6,7 @@ Every rule's state is packed into the same five arrays (``a, b, c`` of shape ``(
 =============  ===============  ===============  =============  ===========  =========
 rule           a                b                c              d            e
 =============  ===============  ===============  =============  ===========  =========
-boa            regret           variance         bound          --           --
+boa            regret           variance         bound          error_scale  error_count
 mlpoly         regret           variance         --             bound        --
 fixed_share    log_weights      --               --             squared      count
 =============  ===============  ===============  =============  ===========  =========
@@ -19,11 +19,15 @@ import math
 import numba as nb
 import numpy as np
 
+from ..aggregators import boa as _boa
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
 from .calibration import calibrate_row, moments_row
 
 configure_cache()
+
+#: BOA's rows before its errors are clipped (the spec's).
+CLIP_WARMUP = float(_boa.CLIP_WARMUP)
 
 #: Rule codes of the driver, in the order of :data:`kalmix.core.aggregators.RULES`.
 RULE_CODES = {"boa": 0, "mlpoly": 1, "fixed_share": 2}
@@ -117,18 +121,32 @@ def _mix(x, w, awake, out):
 
 
 @nb.njit(**_JIT)
-def _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e, x, y, awake, count, w,
-           mix, r):
+def _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e, x, y, awake,
+           count, w, mix, r):
     k_count = w.shape[0]
     p = x.shape[1]
     if rule == 0 or rule == 1:
+        # BOA's clip (see the spec, kalmix.core.aggregators.boa): the error shrunk to clip x its running RMS
+        factor = 1.0
+        squared = 0.0
+        clipping = rule == 0 and math.isfinite(clip)
+        if clipping:
+            for ci in range(p):
+                squared += (mix[ci] - y[ci]) * (mix[ci] - y[ci])
+            if not math.isfinite(squared):
+                return  # an overflowing squared error norm teaches nothing
+            norm = math.sqrt(squared)
+            if e[0] >= CLIP_WARMUP and d[0] > 0:
+                limit = clip * math.sqrt(d[0])
+                if norm > limit:
+                    factor = limit / norm
         biggest = 0.0
         for k in range(k_count):
             if awake[k]:
                 acc = 0.0
                 for ci in range(p):
                     acc += (mix[ci] - y[ci]) * (mix[ci] - x[k, ci])
-                r[k] = 2.0 * acc
+                r[k] = 2.0 * acc   # the whole regret (BOA's range bound takes it; the rest the clipped one)
             else:
                 r[k] = 0.0
             if not math.isfinite(r[k] * r[k]):
@@ -137,15 +155,24 @@ def _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay
                 biggest = r[k] * r[k]
         if not math.isfinite(biggest):
             return  # an overflowing regret teaches nothing
+        if clipping:
+            e[0] = e[0] + 1.0
+            d[0] = d[0] + (squared - d[0]) / e[0]
         rho = forgetting
         if rule == 0:
             log_k = math.log(max(k_count, 2)) / delay
             for k in range(k_count):
                 if awake[k]:
-                    variance = rho * b[k] + r[k] * r[k]
+                    rk = r[k]
+                    if factor != 1.0:
+                        acc = 0.0
+                        for ci in range(p):
+                            acc += ((mix[ci] - y[ci]) * factor) * (mix[ci] - x[k, ci])
+                        rk = 2.0 * acc
+                    variance = rho * b[k] + rk * rk
                     bound = max(bound_forgetting * c[k], abs(r[k]))
                     eta = min(1.0 / (2.0 * bound), math.sqrt(log_k / variance)) if variance > 0 else 0.0
-                    a[k] = rho * a[k] + r[k] - eta * r[k] * r[k]
+                    a[k] = rho * a[k] + rk - eta * rk * rk
                     b[k] = variance
                     c[k] = bound
         else:
@@ -234,7 +261,7 @@ def cold_row(a, b, c, d, e, variance, n_errors, log_scale, initial_variance):
     log_scale[0] = 0.0
 
 
-def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
+def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
               experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
               out_ahead_std, cold, initial_variance):
@@ -242,14 +269,14 @@ def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forget
     where ``learn`` (the rule and the calibration); ``out_cov`` and the others are optional (size 0).
     A ``cold`` row (the screen's cold restart) is forecast by the old rule and calibration, which then
     start again (the variances at ``initial_variance``) before its ahead forecast. Targets ``lo .. hi - 1``."""
-    _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
+    _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
                experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
                out_ahead_std, cold, float(initial_variance), *scratch(experts.shape[2], z.shape[2]))
 
 
 @nb.njit(**KERNEL_JIT)
-def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a, b, c, d, e,
+def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
                experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
                out_ahead_std, cold, initial_variance, awake, w, logw, r, mix, cov):
@@ -275,8 +302,8 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
             if learn[t, n] and count > 0:
                 calibrate_row(x, z[t, n], awake, count, mix, cov, variance[n], n_errors[n], ls, window, rate,
                               level, z_level, max_variance, max_log_scale)
-                _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, a[n], b[n], c[n], dn, en,
-                       x, z[t, n], awake, count, w, mix, r)
+                _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a[n], b[n], c[n], dn,
+                       en, x, z[t, n], awake, count, w, mix, r)
             if cold[t, n]:
                 cold_row(a[n], b[n], c[n], dn, en, variance[n], n_errors[n], ls, initial_variance)
             if want_ahead:
