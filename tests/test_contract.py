@@ -218,6 +218,21 @@ def test_boa_clip_keeps_a_kick_from_moving_the_weights():
     assert lowest[np.inf] < 0.92 and lowest[3.0] > 0.96, lowest
 
 
+def test_the_lead_head_learns_its_errors_whole():
+    """The one-step rule clips (the default, 3), the lead head's does not: its forecasts are those of a bank with
+    ``clip`` off, bit for bit, while the one-step forecasts differ."""
+    from kalmix.core import engine
+
+    z, t = benign_tracks(seed=1)
+    z[40, 0] += 50.0   # a surprise, which the one-step rule clips
+    clipped = make_bank(2, "kinematic+ar", length_unit=0.3, lead=3.0)
+    whole = make_bank(2, "kinematic+ar", length_unit=0.3, lead=3.0, rule_options={"clip": np.inf})
+    assert clipped.rule_params.clip == 3.0 and clipped.lead_rule_params.clip == np.inf
+    one, other = engine.run(clipped, z, t), engine.run(whole, z, t)
+    assert np.array_equal(one.lead, other.lead, equal_nan=True)
+    assert not np.array_equal(one.forecasts, other.forecasts, equal_nan=True)
+
+
 def test_boa_clip_in_a_bank_passes_the_contract():
     """``clip`` off (the original rule) and ``clip`` 1 (most rows shrunk) keep the contract, compiled = reference
     bit for bit, on benign and adversarial input (the default, 3, runs in every other contract test)."""

@@ -1485,7 +1485,8 @@ class TrackPredictor:
                 fresh = lambda name: ((version == 3 and name.startswith("state/calibration/"))  # noqa: E731
                                       or (version <= 5 and name == "state/lead/issued")
                                   or (version <= 6 and name in ("state/screen/low", "state/screen/high"))
-                                  or (version <= 9 and name.startswith(("state/rule/error_", "state/lead/rule/error_"))))
+                                  or (version <= 9
+                                      and name.startswith(("state/rule/error_", "state/lead/rule/error_"))))
                 stacked = {name: (np.broadcast_to(expected, (count, *expected.shape[1:])) if fresh(name)
                                   else archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name))
                            for name, expected in _leaves(template)}

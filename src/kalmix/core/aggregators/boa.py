@@ -37,10 +37,11 @@ the squared loss its regrets outweigh hundreds of ordinary rows (on hawkeye_ball
 hold 73 % of the squared error). With ``clip`` such a row moves the weights no more than a bad
 ordinary row, and only slows the learning for a while (its :math:`B_k`, forgotten at
 :math:`\\beta`). :math:`s` takes the whole errors: a lasting change of the error level (a target
-that moved 0.5 mm a row and now moves 3 m) raises it within a row or two, so the rule still
-follows a real change of motion (a scale of shrunk errors took hundreds of rows there). Both
-choices were measured (README, "Choosing the default"); ``clip`` 3 is the default's. A row whose
-squared error norm overflows teaches nothing, as a row whose regret overflows.
+that moved 0.5 mm a row and now moves 3 m) raises it at once, so the rule still follows a real
+change of motion; a scale of the shrunk errors grows by a few percent a row there. Both choices
+were measured (README, "Choosing the default"; ``python -m benchmarks.clip_variants``); ``clip`` 3
+is the default's. A row whose squared error norm overflows teaches nothing, as a row whose
+regret overflows.
 """
 
 from __future__ import annotations
@@ -137,9 +138,9 @@ def update(params: Params, state: State, experts, measurement, awake, learn) -> 
                                             np.sqrt(_log_experts(r.shape[-1], params.delay) / variance)), 0.0)
     with np.errstate(invalid="ignore", over="ignore"):
         regret = rho * state.regret + r - eta * r * r
-    with np.errstate(over="ignore", invalid="ignore"):
-        finite = np.isfinite(whole * whole).all(axis=-1) & np.isfinite(squared)   # an overflowing regret (errors ~1e77 and up) or
-    go = (learn & finite)[:, None] & awake                  # squared error norm teaches nothing
+    with np.errstate(over="ignore", invalid="ignore"):   # an overflowing regret (errors ~1e77 and up) or squared
+        finite = np.isfinite(whole * whole).all(axis=-1) & np.isfinite(squared)   # error norm teaches nothing
+    go = (learn & finite)[:, None] & awake
     count = state.error_count + 1.0
     scale = state.error_scale + (squared - state.error_scale) / count
     clipping = math.isfinite(params.clip) & learn & finite & awake.any(axis=-1)

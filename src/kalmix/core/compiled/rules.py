@@ -302,8 +302,8 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
             if learn[t, n] and count > 0:
                 calibrate_row(x, z[t, n], awake, count, mix, cov, variance[n], n_errors[n], ls, window, rate,
                               level, z_level, max_variance, max_log_scale)
-                _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a[n], b[n], c[n], dn,
-                       en, x, z[t, n], awake, count, w, mix, r)
+                _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a[n], b[n], c[n],
+                       dn, en, x, z[t, n], awake, count, w, mix, r)
             if cold[t, n]:
                 cold_row(a[n], b[n], c[n], dn, en, variance[n], n_errors[n], ls, initial_variance)
             if want_ahead:
