@@ -22,7 +22,9 @@ no online predictor of the same kind can do better:
   knowledge could bring;
 - the same bounce rule on the default mixture's own forecasts (``python -m benchmarks.ablation``'s
   protocol: the default bank through the compiled engine on the same segments and scored rows): what a
-  bounce correction after the mixture could bring at best.
+  bounce correction after the mixture could bring at best;
+- where the default mixture's squared error lies against the two-point extrapolation's: the kick rows (the
+  latter's 47 worst), the three rows after each, and the others.
 
 It also prints how the squared error of the two-point extrapolation is spread over the rows.
 """
@@ -165,6 +167,7 @@ def mixture_bounce_oracle():
         error = np.where(scored[..., None], values - f, np.nan)
         return float(np.sqrt(np.nanmean(error ** 2)))
 
+    by_rows = error_by_rows(values, forecasts, scored)
     best = (np.inf, None, None)
     for restitution in RESTITUTIONS:
         for offset in OFFSETS:
@@ -175,7 +178,26 @@ def mixture_bounce_oracle():
             value = rms(bounced)
             if value < best[0]:
                 best = (value, restitution, offset)
-    return rms(forecasts), best
+    return rms(forecasts), best, by_rows
+
+
+def error_by_rows(values, forecasts, scored, kicks=47, after=3):
+    """Squared error (summed over the coordinates) of ``forecasts`` and of the two-point extrapolation on the
+    scored rows where both forecast: on the ``kicks`` rows where the latter errs most, on the ``after`` rows
+    after each, and on the others (the layout of the segments, ``(T, S, p)``)."""
+    two = np.full_like(values, np.nan)
+    two[2:] = 2 * values[1:-1] - values[:-2]
+    squared = {name: np.where(scored, ((values - f) ** 2).sum(axis=-1), np.nan)
+               for name, f in (("two-point", two), ("mixture", forecasts))}
+    ok = np.isfinite(squared["two-point"]) & np.isfinite(squared["mixture"])
+    kick = ok & (squared["two-point"] >= np.sort(squared["two-point"][ok])[-kicks])
+    following = np.zeros_like(kick)
+    for lag in range(1, after + 1):
+        following[lag:] |= kick[:-lag]
+    following &= ok & ~kick
+    rows = {"kick rows": kick, f"{after} rows after each": following, "other rows": ok & ~kick & ~following}
+    return {label: {"rows": int(mask.sum()), **{name: float(sq[mask].sum()) for name, sq in squared.items()}}
+            for label, mask in rows.items()}
 
 
 def combined_oracle(tracks, restitution, offset, lags=21):
@@ -221,12 +243,16 @@ def main(argv=None):
     result["bounce_and_linear_oracle"] = both
     print(f"both: the bounce rule and the best linear correction (all coordinates, 21 velocities) in hindsight: "
           f"{both:.5f} ({both / BEST_PEER:.4f}x)")
-    plain, (value, restitution, offset) = mixture_bounce_oracle()
+    plain, (value, restitution, offset), by_rows = mixture_bounce_oracle()
     result["default_mixture"] = plain
+    result["default_mixture_squared_error_by_rows"] = by_rows
     result["default_mixture_bounce_oracle"] = {"rms": value, "restitution": restitution, "offset": offset}
     print(f"the default mixture (the ablation's protocol): {plain:.5f} ({plain / BEST_PEER:.4f}x); with the ground "
           f"bounce on its forecasts, tuned in hindsight (restitution {restitution}, offset {offset} m): "
           f"{value:.5f} ({value / BEST_PEER:.4f}x)")
+    print("  its squared error against the two-point extrapolation's, by rows: " + "; ".join(
+        f"{label} ({entry['rows']}) {entry['mixture']:.3f} against {entry['two-point']:.3f}"
+        for label, entry in by_rows.items()))
     if args.json:
         with open(args.json, "w") as handle:
             json.dump(result, handle, indent=2)
