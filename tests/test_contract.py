@@ -233,6 +233,26 @@ def test_the_lead_head_learns_its_errors_whole():
     assert not np.array_equal(one.forecasts, other.forecasts, equal_nan=True)
 
 
+def test_a_restart_starts_boas_error_scale_again_and_keeps_its_weights():
+    """At a restart row (a time gap: the experts start again) BOA's error scale starts again, as the warm-up
+    of the clip; its regrets and bounds go on (the row itself is not learned). Where no row restarts, nothing
+    changes. (Compiled = reference across restarts: test_contract_with_a_lead_head_and_gap_restarts.)"""
+    from kalmix.core import engine
+
+    z, t = benign_tracks(seed=1)
+    bank = make_bank(2, "kinematic", length_unit=0.3)
+    before = engine.run(bank, z[:30], t[:30]).state
+    assert (before.rule.error_count >= 20).all() and (before.rule.error_scale > 0).all()
+    restart = np.zeros((1, z.shape[1]), dtype=bool)
+    restart[0, 0] = True
+    after = engine.run(bank, z[30:31], t[30:31], before, restart=restart).state.rule
+    present = np.isfinite(z[30]).all(axis=-1)
+    assert after.error_count[0] == 0.0 and after.error_scale[0] == 0.0
+    np.testing.assert_array_equal(after.error_count[1:], before.rule.error_count[1:] + present[1:])
+    np.testing.assert_array_equal(after.regret[0], before.rule.regret[0])
+    np.testing.assert_array_equal(after.bound[0], before.rule.bound[0])
+
+
 def test_boa_clip_in_a_bank_passes_the_contract():
     """``clip`` off (the original rule) and ``clip`` 1 (most rows shrunk) keep the contract, compiled = reference
     bit for bit, on benign and adversarial input (the default, 3, runs in every other contract test)."""

@@ -217,8 +217,9 @@ def test_version_8_files_resume_with_the_lead_learning_at_the_one_step_rate(tmp_
 
 def test_version_9_files_resume_without_the_clip(tmp_path):
     """Version 9 files were written when BOA did not clip its errors: such a file resumes with ``clip`` off and no
-    error scale (as it ran), bit for bit, lead forecasts included; today's default clips, which changes the
-    forecasts, and its files keep the scale (resumed bit for bit by test_save_and_resume_is_bit_for_bit)."""
+    error scale (as it ran), bit for bit, lead forecasts included; today's default clips and its files keep the
+    scale (resumed bit for bit by test_save_and_resume_is_bit_for_bit). (On this short table no error reaches
+    3 RMS after a warm-up, so today's rows are the same: the settings carry the difference.)"""
     whole, resumed, second, _ = _as_older_file(tmp_path, CONFIG, 70, 9)
     assert second.config.rule_options == {"clip": float("inf")}
     assert second.params.rule_params.clip == second.params.lead_rule_params.clip == float("inf")
@@ -226,7 +227,7 @@ def test_version_9_files_resume_without_the_clip(tmp_path):
         assert np.array_equal(np.array([getattr(r, field) for r in resumed]),
                               np.array([getattr(r, field) for r in whole]), equal_nan=True), field
     today = TrackPredictor(StreamConfig(**CONFIG))
-    assert not np.array_equal(_next(_rows(today, _table())), _next(whole), equal_nan=True)
+    _rows(today, _table())
     today.save(tmp_path / "today.npz")
     saved = np.load(tmp_path / "today.npz")
     assert (saved["state/rule/error_count"] > 0).all()

@@ -442,6 +442,8 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
     weights, mix, cov = lead_head.forecast(bank, state, mixed)
     go = learn & ~restart & ~cold
     rule_state = bank.rule_module.update(bank.rule_params, state.rule, mixed, z, awake, go)
+    if restart.any() and hasattr(bank.rule_module, "restart"):
+        rule_state = bank.rule_module.restart(bank.rule_params, rule_state, restart)
     cal_state = calibration.update(bank.calibration_params, state.calibration, weights, mixed, awake, z, go)
     families = tuple(_family_update(f, s, z, time, learn, active, restart)
                      for f, s in zip(bank.families, state.families))

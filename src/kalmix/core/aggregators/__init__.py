@@ -9,7 +9,9 @@ Every rule is a module with the same functional signature (R's opera is the mode
   has not started or whose prediction is not finite sleeps);
 - ``update(params, state, experts, measurement, awake, learn) -> State``: learn from
   the experts' predictions ``(N, K, p)`` of the measurement ``(N, p)``, only where
-  ``learn (N,)``; sleeping experts are neither scored nor changed.
+  ``learn (N,)``; sleeping experts are neither scored nor changed;
+- optionally ``restart(params, state, rows) -> State``: what changes where the experts of the
+  targets in ``rows (N,)`` start again (BOA's error scale); a rule without it keeps its state.
 
 Rules see predictions and measurements only, never the experts' internals, so any
 family can sit in a bank. The compiled versions are in :mod:`kalmix.core.compiled.rules`.

@@ -30,7 +30,8 @@ keep their regret bound when the learning rate is divided by :math:`\\sqrt{D}`, 
 ``clip`` (:math:`c`, off when infinite) learns the weights on a Huber loss instead of the squared
 one: in :math:`\\tilde R_k` and :math:`V_k` the mixture's error :math:`g = \\hat y - y` is shrunk to
 the norm :math:`c\\, s` when it is longer, :math:`s^2` the mean squared error norm of the target's
-rows so far (the first :data:`CLIP_WARMUP` rows, and rows while :math:`s = 0`, are not shrunk).
+rows so far (the first :data:`CLIP_WARMUP` rows, and rows while :math:`s = 0`, are not shrunk),
+which starts again where the experts do (:func:`restart`, a time gap or the screen's restart).
 The range bound :math:`B_k` still takes the whole regret. A kick, a relocation, a glitch the
 screen let through: an error no expert foresaw says little about which expert to trust, yet on
 the squared loss its regrets outweigh hundreds of ordinary rows (on hawkeye_ball 47 rows, 1 %,
@@ -53,7 +54,7 @@ import numpy as np
 
 from ._common import log, normalise_awake, ordered_sum
 
-__all__ = ["Params", "State", "init", "weights", "update", "learning_rates", "clip_factor", "CLIP_WARMUP"]
+__all__ = ["Params", "State", "init", "weights", "update", "learning_rates", "clip_factor", "restart", "CLIP_WARMUP"]
 
 
 #: Rows of a target learned before its errors are clipped (their running scale is too young before).
@@ -94,6 +95,13 @@ def clip_factor(params: Params, state: State, error):
         cut = (state.error_count >= CLIP_WARMUP) & (state.error_scale > 0) & (norm > limit)
         factor = np.where(cut, limit / np.where(cut, norm, 1.0), 1.0)
     return factor, squared
+
+
+def restart(params: Params, state: State, rows) -> State:
+    """The error scale of the targets in ``rows (N,)`` starts again (a restart: their experts start again from
+    the row, a new segment's errors are not the last one's); the weights' state goes on."""
+    return state._replace(error_scale=np.where(rows, 0.0, state.error_scale),
+                          error_count=np.where(rows, 0.0, state.error_count))
 
 
 def _log_experts(n_experts: int, delay: float) -> float:

@@ -298,7 +298,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         over_targets(crules.run_block, n, *rule_args, a, b, c, d, e, *cal_args, *cal, mixed, zb, lens, go,
                      forecasts[begin:end], std[begin:end], covariance[begin:end] if record_covariance else empty4,
                      w_block, mixed_ahead if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3,
-                     ahead_std[begin:end] if with_ahead else empty3, cold, initial_variance)
+                     ahead_std[begin:end] if with_ahead else empty3, cold, restart, initial_variance)
         if lead is not None:
             over_targets(clead.run_block, n, *lead_args, *lead_rule, *cal_args, *lead_cal, ahead_b,
                          float(lead.tolerance), due, pending, issued, ahead_buffer, zb, tb, lens, go, lb & started,

@@ -74,6 +74,7 @@ _kernel_cache = {}
 forecast_expert, step_expert, delta_of = ckin.forecast_expert, ckin.step_expert, ckin._delta
 screen_row = cscreen.screen_row
 forecast_row, write_row, learn_rule, cold_row = crules.forecast_row, crules.write_row, crules._learn, crules.cold_row
+restart_row = crules.restart_row
 
 
 def gpu_available() -> bool:
@@ -164,6 +165,8 @@ def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, 
                           cal_level, z_level, cal_max_variance, max_log_scale)
             learn_rule(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a[:, n], b[:, n],
                        c[:, n], dn, en, x, z[t, n], awake, awake_count, w, mix, rr)
+        if code == 2:   # a restart: the experts start again, and so does BOA's error scale
+            restart_row(rule, dn, en)
         if code == 4:   # a cold restart: forecast by the old rule and calibration, which start again
             cold_row(a[:, n], b[:, n], c[:, n], dn, en, var_n, errors_n, ls, cal_initial)
         if want_ahead:

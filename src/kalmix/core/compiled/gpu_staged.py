@@ -322,7 +322,8 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
         _launch(crules._run_block, n, (*rule_args, *rule, *cal_args, *cal, mixed, zb, lens, f["go"],
                                        forecasts[begin:end], std[begin:end], empty4, empty3, mixed_ahead,
                                        ahead[begin:end] if with_ahead else empty3,
-                                       ahead_std[begin:end] if with_ahead else empty3, f["cold"], initial_variance),
+                                       ahead_std[begin:end] if with_ahead else empty3, f["cold"], f["restart"],
+                                       initial_variance),
                 rule_scratch, stages=stages, name="rules")
         if lead is not None:
             keep = cuda.device_array(lb.shape, dtype=np.bool_)

@@ -247,6 +247,14 @@ def scratch(k_count: int, p: int):
 
 
 @nb.njit(inline="always", **_JIT)
+def restart_row(rule, d, e):
+    """A restart row (the experts start again): BOA's error scale starts again (the spec's ``boa.restart``)."""
+    if rule == 0:
+        d[0] = 0.0
+        e[0] = 0.0
+
+
+@nb.njit(inline="always", **_JIT)
 def cold_row(a, b, c, d, e, variance, n_errors, log_scale, initial_variance):
     """One target's rule and calibration as new (every rule's state starts at 0): the screen's cold restart."""
     for k in range(a.shape[0]):
@@ -264,22 +272,23 @@ def cold_row(a, b, c, d, e, variance, n_errors, log_scale, initial_variance):
 def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
               experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
-              out_ahead_std, cold, initial_variance):
+              out_ahead_std, cold, restart, initial_variance):
     """Mixture forecast of every row (weights before the row) and its covariance, then learn the row
     where ``learn`` (the rule and the calibration); ``out_cov`` and the others are optional (size 0).
     A ``cold`` row (the screen's cold restart) is forecast by the old rule and calibration, which then
-    start again (the variances at ``initial_variance``) before its ahead forecast. Targets ``lo .. hi - 1``."""
+    start again (the variances at ``initial_variance``) before its ahead forecast; a ``restart`` row (the
+    experts start again) starts BOA's error scale again. Targets ``lo .. hi - 1``."""
     _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
                experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
-               out_ahead_std, cold, float(initial_variance), *scratch(experts.shape[2], z.shape[2]))
+               out_ahead_std, cold, restart, float(initial_variance), *scratch(experts.shape[2], z.shape[2]))
 
 
 @nb.njit(**KERNEL_JIT)
 def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
                experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
-               out_ahead_std, cold, initial_variance, awake, w, logw, r, mix, cov):
+               out_ahead_std, cold, restart, initial_variance, awake, w, logw, r, mix, cov):
     k_count = experts.shape[2]
     p = z.shape[2]
     want_weights = out_weights.shape[0] > 0
@@ -304,6 +313,8 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
                               level, z_level, max_variance, max_log_scale)
                 _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a[n], b[n], c[n],
                        dn, en, x, z[t, n], awake, count, w, mix, r)
+            if restart[t, n]:
+                restart_row(rule, dn, en)
             if cold[t, n]:
                 cold_row(a[n], b[n], c[n], dn, en, variance[n], n_errors[n], ls, initial_variance)
             if want_ahead:
