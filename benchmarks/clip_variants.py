@@ -7,7 +7,8 @@ depend on the rule) on the segments and scored rows of ``python -m benchmarks.ab
 0.99) is then replayed on their recorded forecasts in variants that kalmix does not ship:
 
 - ``shipped``: what :mod:`kalmix.core.aggregators.boa` does with ``clip`` 3 (the regrets and their variance see
-  the shrunk error, the range bound the whole one; the scale is the mean squared error norm of the rows so far);
+  the shrunk error, the range bound the whole one; the scale is the mean squared error norm of the last rows,
+  a memory of 1,000);
 - ``bound shrunk too``: the range bound also takes the regret of the shrunk error;
 - ``scale of shrunk errors``: the scale is the mean of the *shrunk* squared norms (a Huber scale);
 - ``regime change``: not a recording but a noise-free target that moves 0.5 mm a row and is kicked to 3 m a row
@@ -15,9 +16,9 @@ depend on the rule) on the segments and scored rows of ``python -m benchmarks.ab
   follows a lasting change of motion.
 
 The replay of ``shipped`` and of ``clip`` off gives the engine's own figures (both printed): the replay is the
-rule, not an approximation of it. On skillcorner they differ in the 4th digit: the glitch screen restarts the
-rule of 7 segments there (a cold restart), which the replay does not. Skillcorner's segments are replayed in
-batches of similar length.
+rule, not an approximation of it. On skillcorner they differ in the 4th digit: the replay learns every row,
+the engine not the 7 its glitch screen rejected there. Skillcorner's segments are replayed in batches of
+similar length.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from kalmix.core.compiled import engine as ce
 VARIANTS = {"clip off": dict(clip=np.inf), "shipped": dict(clip=3.0),
             "bound shrunk too": dict(clip=3.0, bound="shrunk"),
             "scale of shrunk errors": dict(clip=3.0, scale="shrunk")}
-WARMUP = 10
+WARMUP, MEMORY = 10, 1000   # kalmix.core.aggregators.boa's CLIP_WARMUP, CLIP_MEMORY
 
 
 def replay(x, y, clip, bound="whole", scale="whole", beta=0.99):
@@ -68,7 +69,7 @@ def replay(x, y, clip, bound="whole", scale="whole", beta=0.99):
         r = whole * factor[:, None]
         kept = np.where(cut, limit, norm) if scale == "shrunk" else norm
         if np.isfinite(clip):
-            count = count + learn
+            count = np.minimum(count + learn, MEMORY)
             mean_square = np.where(learn, mean_square + (kept * kept - mean_square) / np.maximum(count, 1), mean_square)
         new_variance = variance + r * r
         new_big = np.maximum(beta * big, np.abs(r if bound == "shrunk" else whole))

@@ -233,6 +233,35 @@ def test_the_lead_head_learns_its_errors_whole():
     assert not np.array_equal(one.forecasts, other.forecasts, equal_nan=True)
 
 
+def test_boa_clip_follows_a_change_of_motion_after_any_quiet_stretch():
+    """Two experts after a quiet stretch (errors ~0.5 mm): the target starts moving 3 m a row and only B follows.
+    Unclipped, B has 0.9 of the weight within 11 rows; with ``clip`` 3 within 18, after 1,000 quiet rows or after
+    200,000: the scale's memory (CLIP_MEMORY) keeps a long quiet stream from hiding the change (with a plain mean
+    over all rows it took 31 rows after 10,000 and 71 after 200,000)."""
+    from kalmix.core.aggregators import boa
+
+    awake, learn = np.ones((1, 2), bool), np.array([True])
+    follow = {}
+    for quiet in (1_000, 200_000):
+        for clip in (np.inf, 3.0):
+            rng = np.random.default_rng(0)
+            params = boa.Params(bound_forgetting=0.99, clip=clip)
+            state = boa.init(params, 1, 2)
+            state = state._replace(error_scale=np.array([2.5e-7]), error_count=np.array([float(quiet)]))
+            for _ in range(50):   # the end of the quiet stretch: A (0.5 mm off) a little better than B (1 mm)
+                y = rng.normal(0, 5e-4, (1, 1))
+                state = boa.update(params, state, np.array([[[y[0, 0] + 5e-4], [y[0, 0] + 1e-3]]]), y, awake, learn)
+            assert state.error_count[0] <= boa.CLIP_MEMORY or clip == np.inf
+            for row in range(1, 200):   # A stays, B follows the target to within 1 cm
+                state = boa.update(params, state, np.array([[[3.0], [rng.normal(0, 0.01)]]]), np.zeros((1, 1)),
+                                   awake, learn)
+                if boa.weights(params, state, awake)[0, 1] > 0.9:
+                    break
+            follow[quiet, clip] = row
+    assert follow[1_000, np.inf] == follow[200_000, np.inf] == 11
+    assert follow[1_000, 3.0] == follow[200_000, 3.0] <= 18, follow
+
+
 def test_a_restart_starts_boas_error_scale_again_and_keeps_its_weights():
     """At a restart row (a time gap: the experts start again) BOA's error scale starts again, as the warm-up
     of the clip; its regrets and bounds go on (the row itself is not learned). Where no row restarts, nothing

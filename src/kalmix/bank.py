@@ -371,8 +371,7 @@ BANK_KINDS = ("mixed", "kinematic", "akf", "ar", "kinematic+ar", "mixed+ar", "tu
 #: bound forgets at 0.99 a row: with the original rule (1.0) one kick of hawkeye_ball's ball capped every
 #: learning rate for the rest of the track (RMS 0.02007 against 0.01956; neutral on the other recordings).
 #: BOA's regrets see the errors clipped at 3 times their RMS so far (``clip``, :mod:`kalmix.core.aggregators.boa`):
-#: a kick or a relocation no longer moves the weights (ablation, one-step RMS: hawkeye_ball 0.019559 -> 0.019312,
-#: skillcorner 0.38368 -> 0.38159, the paper scenario 1.1696 -> 1.1679, cycling 1.3076 -> 1.3081).
+#: a kick or a relocation no longer moves the weights (ablation, one-step RMS, README "Clipped errors").
 DEFAULT_RULE_OPTIONS = {"boa": {"bound_forgetting": 0.99, "clip": 3.0}}
 #: make_bank's ``reach`` (time units): off by default, as no value wins everywhere. Measured (one-step RMS;
 #: benchmarks/irregular_sampling.py, benchmarks/lead_and_intervals.py): on AIS-like tracks bridged across their
@@ -525,7 +524,8 @@ def make_bank(
         The rule's parameters (e.g. ``{"forgetting": 0.999, "share": 0.01}``), over
         :data:`DEFAULT_RULE_OPTIONS` (BOA: ``bound_forgetting`` 0.99, ``clip`` 3; give
         ``{"bound_forgetting": 1.0, "clip": math.inf}`` for the original rule). A lead head's rule is the same, except
-        BOA's ``delay``, multiplied by the lead's frames (:attr:`kalmix.core.engine.Bank.lead_rule_params`).
+        BOA's ``delay``, multiplied by the lead's frames, and its ``clip``, off
+        (:attr:`kalmix.core.engine.Bank.lead_rule_params`).
     akf_options : dict, optional
         Other :func:`make_params` arguments of the AKF family's experts (``dynamics``,
         ``order``, the noise ranges, ...); those of the gate (:data:`GATE_OPTIONS`) are
@@ -600,9 +600,13 @@ def make_bank(
         if isinstance(clip, bool) or not isinstance(clip, numbers.Real):
             raise TypeError(f"rule_options['clip']: expected a number > 0 (inf: off), got {type(clip).__name__} "
                             f"{clip!r}")
-        if not float(clip) > 0:
+        try:
+            value = float(clip)
+        except OverflowError:   # an integer past float's range
+            value = math.inf
+        if not value > 0:
             raise ValueError(f"rule_options['clip']: expected a number > 0 (inf: off), got {clip!r}")
-        options["clip"] = float(clip)
+        options["clip"] = value
     if "share" in options:
         share = _check_positive("rule_options['share']", options["share"], allow_zero=True)
         if share >= 1:

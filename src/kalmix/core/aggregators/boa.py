@@ -30,18 +30,23 @@ keep their regret bound when the learning rate is divided by :math:`\\sqrt{D}`, 
 ``clip`` (:math:`c`, off when infinite) learns the weights on a Huber loss instead of the squared
 one: in :math:`\\tilde R_k` and :math:`V_k` the mixture's error :math:`g = \\hat y - y` is shrunk to
 the norm :math:`c\\, s` when it is longer, :math:`s^2` the mean squared error norm of the target's
-rows so far (the first :data:`CLIP_WARMUP` rows, and rows while :math:`s = 0`, are not shrunk),
-which starts again where the experts do (:func:`restart`, a time gap or the screen's restart).
+rows so far, over the last :data:`CLIP_MEMORY` rows or so once there are more (an exponential mean
+then: :math:`s^2 \\leftarrow s^2 + (\\lVert g \\rVert^2 - s^2) / \\min(n, M)`); the first
+:data:`CLIP_WARMUP` rows, and rows while :math:`s = 0`, are not shrunk. The scale starts again where
+the experts do (:func:`restart`, a time gap or the screen's restart).
 The range bound :math:`B_k` still takes the whole regret. A kick, a relocation, a glitch the
 screen let through: an error no expert foresaw says little about which expert to trust, yet on
 the squared loss its regrets outweigh hundreds of ordinary rows (on hawkeye_ball 47 rows, 1 %,
 hold 73 % of the squared error). With ``clip`` such a row moves the weights no more than a bad
 ordinary row, and only slows the learning for a while (its :math:`B_k`, forgotten at
 :math:`\\beta`). :math:`s` takes the whole errors: a lasting change of the error level (a target
-that moved 0.5 mm a row and now moves 3 m) raises it at once, so the rule still follows a real
-change of motion; a scale of the shrunk errors grows by a few percent a row there. Both choices
-were measured (README, "Choosing the default"; ``python -m benchmarks.clip_variants``); ``clip`` 3
-is the default's. A row whose squared error norm overflows teaches nothing, as a row whose
+that moved 0.5 mm a row and now moves 3 m) raises it within a few rows, so the rule still follows
+a real change of motion (a scale of the shrunk errors grows by a few percent a row there). Its
+memory bounds how long that takes on a long quiet stream: a plain mean over all rows would take
+the more rows the longer the stream was quiet (a rule that follows such a change in 11 rows
+unclipped took 31 after 10,000 quiet rows and 71 after 200,000; with the memory of 1,000 rows, 18
+at most). These choices were measured (README, "Choosing the default"; ``python -m
+benchmarks.clip_variants``); ``clip`` 3 is the default's. A row whose squared error norm overflows teaches nothing, as a row whose
 regret overflows.
 """
 
@@ -54,11 +59,13 @@ import numpy as np
 
 from ._common import log, normalise_awake, ordered_sum
 
-__all__ = ["Params", "State", "init", "weights", "update", "learning_rates", "clip_factor", "restart", "CLIP_WARMUP"]
+__all__ = ["Params", "State", "init", "weights", "update", "learning_rates", "clip_factor", "restart", "CLIP_WARMUP", "CLIP_MEMORY"]
 
 
 #: Rows of a target learned before its errors are clipped (their running scale is too young before).
 CLIP_WARMUP = 10
+#: The clip's scale is the mean over about this many of the last rows (its count stops growing here).
+CLIP_MEMORY = 1000.0
 
 
 class Params(NamedTuple):
@@ -73,8 +80,8 @@ class State(NamedTuple):
     regret: np.ndarray     # (N, K) regularised cumulative regret R~
     variance: np.ndarray   # (N, K) V
     bound: np.ndarray      # (N, K) B
-    error_scale: np.ndarray   # (N,) s^2, the mean squared error norm of the rows so far (with clip)
-    error_count: np.ndarray   # (N,) rows that made it
+    error_scale: np.ndarray   # (N,) s^2, the mean squared error norm of the last rows (with clip)
+    error_count: np.ndarray   # (N,) rows that made it, at most CLIP_MEMORY
 
 
 def init(params: Params, n_targets: int, n_experts: int) -> State:
@@ -149,7 +156,7 @@ def update(params: Params, state: State, experts, measurement, awake, learn) -> 
     with np.errstate(over="ignore", invalid="ignore"):   # an overflowing regret (errors ~1e77 and up) or squared
         finite = np.isfinite(whole * whole).all(axis=-1) & np.isfinite(squared)   # error norm teaches nothing
     go = (learn & finite)[:, None] & awake
-    count = state.error_count + 1.0
+    count = np.minimum(state.error_count + 1.0, CLIP_MEMORY)
     scale = state.error_scale + (squared - state.error_scale) / count
     clipping = math.isfinite(params.clip) & learn & finite & awake.any(axis=-1)
     return State(np.where(go, regret, state.regret), np.where(go, variance, state.variance),

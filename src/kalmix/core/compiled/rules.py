@@ -26,8 +26,9 @@ from .calibration import calibrate_row, moments_row
 
 configure_cache()
 
-#: BOA's rows before its errors are clipped (the spec's).
+#: BOA's rows before its errors are clipped, and the memory of their scale (the spec's).
 CLIP_WARMUP = float(_boa.CLIP_WARMUP)
+CLIP_MEMORY = float(_boa.CLIP_MEMORY)
 
 #: Rule codes of the driver, in the order of :data:`kalmix.core.aggregators.RULES`.
 RULE_CODES = {"boa": 0, "mlpoly": 1, "fixed_share": 2}
@@ -156,7 +157,7 @@ def _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay
         if not math.isfinite(biggest):
             return  # an overflowing regret teaches nothing
         if clipping:
-            e[0] = e[0] + 1.0
+            e[0] = min(e[0] + 1.0, CLIP_MEMORY)
             d[0] = d[0] + (squared - d[0]) / e[0]
         rho = forgetting
         if rule == 0:
