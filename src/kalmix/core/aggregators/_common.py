@@ -15,13 +15,17 @@ def normalise_awake(log_weights, awake):
     return np.where(total > 0, w / np.where(total > 0, total, 1.0), 0.0)
 
 
-def linearised_regret(weights, experts, measurement, awake):
-    """:math:`r_k = 2 (\\hat y - y) \\cdot (\\hat y - x_k)`, the regret of the gradient trick, ``(N, K)``.
-
-    :math:`\\hat y = \\sum_k w_k x_k` over the awake experts; zero for sleeping experts.
-    """
+def mixture_and_regret(weights, experts, measurement, awake):
+    """The mixture :math:`\\hat y = \\sum_k w_k x_k` over the awake experts ``(N, p)`` and the regret of the
+    gradient trick :math:`r_k = 2 (\\hat y - y) \\cdot (\\hat y - x_k)` ``(N, K)``, zero for sleeping experts."""
     x = np.where(awake[..., None], experts, 0.0)
     mix = ordered_sum(weights[..., None] * x, axis=1)
     with np.errstate(over="ignore", invalid="ignore"):
         r = 2.0 * ordered_sum((mix - measurement)[:, None, :] * (mix[:, None, :] - x))
-    return np.where(awake, r, 0.0)
+    return mix, np.where(awake, r, 0.0)
+
+
+def linearised_regret(weights, experts, measurement, awake):
+    """:math:`r_k = 2 (\\hat y - y) \\cdot (\\hat y - x_k)`, the regret of the gradient trick, ``(N, K)``
+    (:func:`mixture_and_regret`'s)."""
+    return mixture_and_regret(weights, experts, measurement, awake)[1]

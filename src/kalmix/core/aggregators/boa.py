@@ -46,8 +46,8 @@ memory bounds how long that takes on a long quiet stream: a plain mean over all 
 the more rows the longer the stream was quiet (a rule that follows such a change in 11 rows
 unclipped took 31 after 10,000 quiet rows and 71 after 200,000; with the memory of 1,000 rows, 18
 at most). These choices were measured (README, "Choosing the default"; ``python -m
-benchmarks.clip_variants``); ``clip`` 3 is the default's. A row whose squared error norm overflows teaches nothing, as a row whose
-regret overflows.
+benchmarks.clip_variants``); ``clip`` 3 is the default's. A row whose squared error norm overflows
+teaches nothing, as a row whose regret overflows.
 """
 
 from __future__ import annotations
@@ -57,9 +57,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._common import log, normalise_awake, ordered_sum
+from ._common import log, mixture_and_regret, normalise_awake, ordered_sum
 
-__all__ = ["Params", "State", "init", "weights", "update", "learning_rates", "clip_factor", "restart", "CLIP_WARMUP", "CLIP_MEMORY"]
+__all__ = ["Params", "State", "init", "weights", "update", "learning_rates", "clip_factor", "restart", "CLIP_WARMUP",
+           "CLIP_MEMORY"]
 
 
 #: Rows of a target learned before its errors are clipped (their running scale is too young before).
@@ -136,13 +137,11 @@ def weights(params: Params, state: State, awake: np.ndarray) -> np.ndarray:
 
 def update(params: Params, state: State, experts, measurement, awake, learn) -> State:
     w = weights(params, state, awake)
-    x = np.where(awake[..., None], experts, 0.0)
-    mix = ordered_sum(w[..., None] * x, axis=1)
-    error = mix - np.where(learn[:, None], measurement, 0.0)
-    factor, squared = clip_factor(params, state, error)
+    y = np.where(learn[:, None], measurement, 0.0)
+    mix, whole = mixture_and_regret(w, experts, y, awake)   # the whole regret: the range bound's
+    factor, squared = clip_factor(params, state, mix - y)
     with np.errstate(over="ignore", invalid="ignore"):
-        whole = np.where(awake, 2.0 * ordered_sum(error[:, None, :] * (mix[:, None, :] - x)), 0.0)   # for B
-        r = np.where(awake, 2.0 * ordered_sum((error * factor[:, None])[:, None, :] * (mix[:, None, :] - x)), 0.0)
+        r = whole * factor[:, None]   # the regret of the clipped error (linear in it)
     rho = params.forgetting
     with np.errstate(over="ignore"):
         variance = rho * state.variance + r * r

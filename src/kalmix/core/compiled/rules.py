@@ -147,7 +147,7 @@ def _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay
                 acc = 0.0
                 for ci in range(p):
                     acc += (mix[ci] - y[ci]) * (mix[ci] - x[k, ci])
-                r[k] = 2.0 * acc   # the whole regret (BOA's range bound takes it; the rest the clipped one)
+                r[k] = 2.0 * acc   # the whole regret (BOA's range bound takes it)
             else:
                 r[k] = 0.0
             if not math.isfinite(r[k] * r[k]):
@@ -164,12 +164,7 @@ def _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay
             log_k = math.log(max(k_count, 2)) / delay
             for k in range(k_count):
                 if awake[k]:
-                    rk = r[k]
-                    if factor != 1.0:
-                        acc = 0.0
-                        for ci in range(p):
-                            acc += ((mix[ci] - y[ci]) * factor) * (mix[ci] - x[k, ci])
-                        rk = 2.0 * acc
+                    rk = r[k] * factor   # the regret of the clipped error (the whole one's, scaled)
                     variance = rho * b[k] + rk * rk
                     bound = max(bound_forgetting * c[k], abs(r[k]))
                     eta = min(1.0 / (2.0 * bound), math.sqrt(log_k / variance)) if variance > 0 else 0.0
