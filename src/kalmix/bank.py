@@ -21,20 +21,18 @@ __all__ = ["make_params", "noise_grid", "check_horizon", "check_length_unit", "M
            "TURN_GAINS", "recipe_parts", "GATE_OPTIONS"]
 
 #: Largest prediction horizon (frames ahead). A prediction H frames ahead costs H - 1
-#: matrix-vector products per expert and stream, so every call is bounded (about 30 ms for
-#: one stream of 40 experts at H = 10 000 on the numpy path); 10 000 frames is 10 s at 1 kHz or
-#: 5.5 min at 30 fps, past any useful motion forecast, and with the default spectral-radius
-#: guard (1.02) the extrapolation stays finite there (1.02**10 000 ~ 1e86), which it does not
-#: at 10**6 (NaN).
+#: matrix-vector products per expert and stream, so the bound keeps every call's cost bounded;
+#: 10 000 frames is 10 s at 1 kHz or 5.5 min at 30 fps, past any useful motion forecast, and with
+#: the default spectral-radius guard (1.02) the extrapolation stays finite there
+#: (1.02**10 000 ~ 1e86), which it does not at 10**6 (NaN).
 MAX_HORIZON = 10_000
 #: Largest seed: the compiled kernels hold it in a signed 64-bit integer.
 MAX_SEED = 2**63 - 1
 #: Accepted ``length_unit`` range. The bank squares it (noise variances) and multiplies variances;
 #: within 1e-60 .. 1e60 those stay inside double range and the predictions are scale-equivariant
 #: (data and unit scaled together give predictions and intervals scaled alike, to 1e-9 relative,
-#: tested at both ends for the default bank and the paper's mixture). Measured: the default bank
-#: holds from about 1e-75 to 1e73 and departs beyond (variance products overflow or vanish: at 1e74
-#: the forecasts moved 35-120 %, at 1e-80 9 %, at 1e100 110 %; the range was 1e+-100 before).
+#: tested at both ends for the default bank and the paper's mixture). Far outside it the variance
+#: products overflow or vanish and the predictions depart from scale-equivariance.
 LENGTH_UNIT_RANGE = (1e-60, 1e60)
 
 #: Process-noise levels of the grid span this range (measurement units squared per frame).
@@ -149,10 +147,9 @@ def _levels(low: float, high: float, count: int) -> np.ndarray:
 def noise_grid(n_experts: int) -> tuple[int, int]:
     """Grid shape (process levels, measurement levels) for K experts: 8 x 5 for K = 40.
 
-    The measurement axis has ``min(5, ceil(K / 8))`` levels... more precisely
-    :math:`n_R = \\max(1, \\mathrm{round}(\\sqrt{K \\cdot 5/8}))`,
-    :math:`n_Q = \\lceil K / n_R \\rceil`; the first K points (process level
-    varying fastest) are used.
+    The measurement axis has :math:`n_R = \\max(1, \\mathrm{round}(\\sqrt{K \\cdot 5/8}))`
+    levels and the process axis :math:`n_Q = \\lceil K / n_R \\rceil`; the first K points
+    (process level varying fastest) are used.
     """
     n_r = max(1, round(math.sqrt(n_experts * 5 / 8)))
     n_q = math.ceil(n_experts / n_r)
@@ -368,18 +365,16 @@ def make_params(
 BANK_KINDS = ("mixed", "kinematic", "akf", "ar", "kinematic+ar", "mixed+ar", "turn", "kinematic+ar+turn",
               "mixed+ar+turn")
 #: Options of each rule that :func:`make_bank` uses unless ``rule_options`` says otherwise. BOA's range
-#: bound forgets at 0.99 a row: with the original rule (1.0) one kick of hawkeye_ball's ball capped every
-#: learning rate for the rest of the track (RMS 0.02007 against 0.01956; neutral on the other recordings).
-#: BOA's regrets see the errors clipped at 3 times their RMS so far (``clip``, :mod:`kalmix.core.aggregators.boa`):
-#: a kick or a relocation no longer moves the weights (ablation, one-step RMS, README "Clipped errors").
+#: bound forgets at 0.99 a row: without forgetting (1.0, the original rule) one large error, such as a
+#: ball's kick, caps every learning rate for the rest of the track. BOA's regrets see the errors clipped
+#: at 3 times their RMS so far (``clip``, :mod:`kalmix.core.aggregators.boa`), so a kick or a relocation
+#: does not move the weights. Both were chosen by the ablation (benchmarks/results/ablation_*.json).
 DEFAULT_RULE_OPTIONS = {"boa": {"bound_forgetting": 0.99, "clip": 3.0}}
-#: make_bank's ``reach`` (time units): off by default, as no value wins everywhere. Measured (one-step RMS;
-#: benchmarks/irregular_sampling.py, benchmarks/lead_and_intervals.py): on AIS-like tracks bridged across their
-#: reports (--max-gap none) reach 1.5 to 16 takes the mixture from 26.5 m to 10.2-10.3 m (restarting at gaps:
-#: 21.2 m); but skillcorner bridged across its gaps goes from 8.2 to 22.4 (across a lost player's gap, staying
-#: near the last position, as the frame-based AKF does, beats extrapolating a velocity), and H = 10 forecasts
-#: with the one-step weights get worse on the paper scenario (22.6 -> 66.2), cycling and skillcorner (the lead
-#: head, the default for H-step forecasts, is not affected). Use reach 8 on tracks sampled at irregular intervals.
+#: make_bank's ``reach`` (time units): off by default, as no value wins everywhere. A reach helps on tracks
+#: sampled at irregular intervals and bridged across their gaps (``--max-gap none``); it hurts where staying
+#: near the last position across a gap beats extrapolating a velocity (a lost player), and it worsens H-step
+#: forecasts made with the one-step weights (the lead head is not affected); see
+#: benchmarks/results/irregular_sampling.json. Use reach 8 on tracks sampled at irregular intervals.
 DEFAULT_REACH = None
 
 #: Process-noise levels q of the kinematic experts, in length_unit^2 per time_unit^3 (CV).
@@ -545,7 +540,7 @@ def make_bank(
         The lead head's rule learns with BOA's ``delay`` multiplied by this (see
         :mod:`kalmix.core.aggregators.boa`): a forecast is scored that many rows after it is
         made. Default: the lead's rows, ``round(lead / time_unit)``; 1 is the one-step
-        rule's learning rate (as state files before format 9 ran). Only BOA has a delay; without
+        rule's learning rate. Only BOA has a delay; without
         a ``lead`` it is checked and unused.
     level : float
         The central interval whose coverage the calibration aims at
@@ -690,7 +685,7 @@ def make_bank(
 
 
 #: The default bank and rule of ``kalmix predict`` / ``evaluate`` / :class:`kalmix.streaming.TrackPredictor`,
-#: chosen by the ablation on the shipped recordings and the paper scenario (README, "Choosing the default").
+#: chosen by the ablation on the shipped recordings and the paper scenario (benchmarks/results/ablation_*.json).
 DEFAULT_BANK = {"kind": "mixed+ar+turn", "rule": "boa"}
 
 #: :func:`make_params` arguments of the paper's gate and its eq. 11/12 noise feedback: the AKF

@@ -27,11 +27,10 @@ time is dropped, a time-less track counts its rows. (A single-machine run needs 
 rows in increasing time order across its chunks; here the whole archive is sorted.)
 
 Memory: a partition of the shuffle is held whole by one worker thread, about 300 bytes per
-row at its peak (its rows, the time sort, the output; measured with 2 positions); it is stepped
-in batches of at most ``batch_tracks`` tracks (the bank states, 3-60 KB per track, are dropped
+row at its peak with 2 positions (its rows, the time sort, the output); it is stepped in
+batches of at most ``batch_tracks`` tracks (the bank states, 3-60 KB per track, are dropped
 after each batch), each batch in engine calls of at most ``chunk_rows`` cells of the dense
-(time step x track) array, about 700 bytes
-per cell at the default bank: a track's k-th rows
+(time step x track) array, about 700 bytes per cell at the default bank: a track's k-th rows
 of a batch go together, so tracks of very different lengths do not pad each other. So a worker
 thread needs about ``300 B x rows per partition + 700 B x chunk_rows + 3 x batch_tracks x state
 size``; rows per partition is the archive's rows / ``partitions`` (more for an unusually long

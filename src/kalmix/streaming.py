@@ -23,9 +23,9 @@ says little about the motion after it), while the aggregation rule and the calib
 keep what they learned on the track (a warm start, :func:`kalmix.core.engine.run`'s
 ``restart``). The threshold is ``max_gap`` (in the time column's units)
 when given, else ``max_gap_factor`` (3) times the track's *reference interval*: the
-median of the first (up to 16) positive time steps of the track (a gap among them too: a
-short first step made every later step a gap, and a gap that never entered the reference kept
-it so); once it has 16, a gap's step does not change it.
+median of the first (up to 16) positive time steps of the track (a gap among them too, so
+that one short first step cannot make every later step a gap); once it has 16, a gap's step
+does not change it.
 The rule is causal (it only looks at rows already seen), so a row-by-row stream and a
 whole file give the same segments, and it survives a ``--state`` save and resume.
 
@@ -91,26 +91,9 @@ from .core.engine import Bank, BankState, init_bank_state, tree_map
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "SkippedRowWarning", "Checkpoint",
            "auto_length_unit", "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
 
-#: 10: BOA clips the errors its regrets learn from (``clip``, :mod:`kalmix.core.aggregators.boa`) and keeps
-#: their running scale (``error_scale``, ``error_count``); version 3-9 files are resumed with ``clip`` off
-#: (and no scale), as they ran.
-#: 9: the settings hold the lead head's delay (``StreamConfig.lead_delay``: BOA's learning rate over a lead
-#: of H rows is divided by sqrt(H)); version 3-8 files are resumed with a delay of 1, as they ran.
-#: 8: the settings hold the bank's reach (``StreamConfig.reach``); version 3-7 files are resumed
-#: without one (none), as they ran.
-#: 7: the glitch screen keeps its warm-up's extreme distances for the warm-up audit
-#: (:mod:`kalmix.core.screen`); version 3-6 files are resumed with a track still in its warm-up
-#: audited over the rest of it only (the distances before the save are not known), and a track
-#: past it not audited.
-#: 6: one state per track for a bank of expert families (kalmix.core.engine) with its
-#: calibration and lead head (whose pending forecasts keep the interval they were issued with),
-#: gap trackers with the time-glitch bookkeeping, the output the file belongs to (``kalmix
-#: predict -o``) and the rule's options. Version 5 files (no issued intervals yet) are resumed
-#: with none: a lead forecast pending at the save is scored against today's interval, as then.
-#: Version 4 files were written when BOA's range bound did not forget: they are resumed with
-#: ``bound_forgetting`` 1.0, as they ran. Version 3 files (no calibration yet) are resumed with a
-#: fresh calibration as well; files of versions 1 and 2 held the previous single-mixture state and
-#: cannot be resumed.
+#: Format version of the state files :meth:`TrackPredictor.save` writes. :meth:`TrackPredictor.load` reads
+#: versions 3 to 10 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
+#: versions", says what each version adds).
 STATE_FORMAT_VERSION = 10
 _READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10)
 _MAGIC = "kalmix-track-predictor"
@@ -378,11 +361,11 @@ class GapTracker:
         if gap:
             self.segment += 1
         if len(self.intervals) < REFERENCE_INTERVALS and (not gap or config.max_gap is None):
-            # while the reference is incomplete a gap's step goes into it too: a short first step (10 ms among
-            # 33 ms frames) made every later step a gap, kept out of the reference, so the track restarted at
-            # every row for good. A row coming back inside that gap is still a wrong timestamp, as
-            # after any gap (jump_counted stays False: judging it as the first step is judged lost such a row);
-            # the gap's step then stays in the reference, where the median outvotes it.
+            # while the reference is incomplete a gap's step goes into it too: otherwise a short first step
+            # (10 ms among 33 ms frames) would make every later step a gap, kept out of the reference, and the
+            # track would restart at every row. A row coming back inside that gap is still a wrong timestamp, as
+            # after any gap (jump_counted stays False: the first step's test would lose such a row); the gap's
+            # step then stays in the reference, where the median outvotes it.
             self.intervals.append(dt)
             self.jump_counted = unjudged
         self.last_time = time
@@ -558,8 +541,8 @@ _ID_TYPES = (str, int, float, bytes, decimal.Decimal, datetime.date, datetime.ti
 
 def _keyable(key) -> bool:
     """Whether ``key`` (from :func:`_id_to_json`) can be a track id: one the state file keeps (text, a number, a
-    date, time or duration, a decimal, bytes). Others (a UUID, a Period, a tuple) were taken and then refused by
-    ``save``, at the end of a long stream."""
+    date, time or duration, a decimal, bytes). Others (a UUID, a Period, a tuple) are refused at the row rather
+    than by ``save`` at the end of a long stream."""
     return isinstance(key, _ID_TYPES)
 
 
@@ -782,7 +765,7 @@ class TrackPredictor:
         return init_bank_state(self.params, 1)
 
     def _states_or_fresh(self, tracks) -> list:
-        """Each track's state, or a fresh one: the new tracks' made at once (100 tracks one by one: 50 ms), each
+        """Each track's state, or a fresh one: the new tracks' made at once (cheaper than one by one), each
         a view of that batch (the same bits as :meth:`_fresh`), so only for :func:`_stack`, which copies."""
         place = {t: i for i, t in enumerate(t for t in tracks if t not in self.states)}
         batch = init_bank_state(self.params, len(place)) if place else None
@@ -836,8 +819,8 @@ class TrackPredictor:
     def warm_up(self, measurement_dim: int | None = None) -> None:
         """Load the compiled kernels this predictor's runs use now (or compile them, on a fresh install).
 
-        numba loads a kernel from its cache (or compiles it) at its first call; that is ~0.3 s
-        for the default bank with a warm cache, and minutes the first time. Call this where
+        numba loads a kernel from its cache (or compiles it) at its first call; that takes a
+        fraction of a second with a warm cache, and minutes the first time. Call this where
         that wait does no harm: before a live feed starts, or in a thread while the feed is
         silent (``kalmix predict -`` does, until stdin's first rows). It runs a throwaway copy
         of this predictor on a tiny made-up table (two tracks, a missing row, a gap that
@@ -945,8 +928,8 @@ class TrackPredictor:
 
     def _by_name(self, values, where: str, names=None, adopt: bool = False):
         """Labelled coordinates (a pandas Series or a mapping for one row, a DataFrame's columns for rows) in the
-        order of ``names`` (:attr:`position_names`), as :meth:`process_table` takes a table's columns by name;
-        they were taken in their own order, which silently swapped coordinates. With no names yet and
+        order of ``names`` (:attr:`position_names`), as :meth:`process_table` takes a table's columns by name
+        (not in their own order, which would silently swap coordinates). With no names yet and
         ``adopt``, a row's text labels become them (as a table's columns do). Returns the values (unlabelled
         ones as given; a mapping's values as a list) and the names."""
         if isinstance(values, Mapping):
@@ -1447,13 +1430,13 @@ class TrackPredictor:
             meta = archive.meta
             try:
                 config = dict(meta["config"])
-                if config.get("options"):   # gate arguments were taken, without effect, before they were refused
+                if config.get("options"):   # older files may hold gate arguments (without effect): drop them
                     from .bank import GATE_OPTIONS
                     config["options"] = {k: v for k, v in config["options"].items() if k not in GATE_OPTIONS}
                 if meta["format_version"] < 8:
-                    config.setdefault("reach", None)   # no reach then, whatever today's default
+                    config.setdefault("reach", None)   # files before version 8 ran without a reach
                 if meta["format_version"] < 9:
-                    config.setdefault("lead_delay", 1.0)   # the lead head learned at the one-step rate then
+                    config.setdefault("lead_delay", 1.0)   # files before version 9 ran at the one-step rate
                 if meta["format_version"] < 5 and config.get("rule") == "boa":
                     config["rule_options"] = {"bound_forgetting": 1.0, **(config.get("rule_options") or {})}
                 if meta["format_version"] < 10 and config.get("rule") == "boa":
@@ -1471,7 +1454,7 @@ class TrackPredictor:
                 settings = meta.get("config") if isinstance(meta, dict) else None
                 unit = settings.get("length_unit") if isinstance(settings, dict) else None
                 low, high = LENGTH_UNIT_RANGE
-                if isinstance(unit, numbers.Real) and not low <= unit <= high:   # an older version took 1e+-100
+                if isinstance(unit, numbers.Real) and not low <= unit <= high:   # older versions had a wider range
                     raise ValueError(f"{path}: the state file's length unit {unit!r} is outside this version's range "
                                      f"[{low:g}, {high:g}] (where the predictions are scale-equivariant); start "
                                      "a new state file with a unit in it") from error

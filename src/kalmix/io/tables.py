@@ -265,8 +265,8 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
 
 def _check_roles(track_id, time, positions) -> None:
     """``ValueError`` for a column in two roles, or a name that clashes with the ones a track table uses inside
-    (the id column becomes ``track_id``, the time column ``time``): a position named ``time`` was read as
-    positions while the times came from elsewhere, and the output mixed them up."""
+    (the id column becomes ``track_id``, the time column ``time``): a position named ``time`` would be read as
+    a position while the times came from elsewhere, and the output would mix them up."""
     roles = [("--id", track_id), ("--time", time), *(("--position", name) for name in positions)]
     seen: dict = {}
     for flag, column in roles:
@@ -326,11 +326,10 @@ def iso_seconds(text, errors: str = "raise") -> np.ndarray:
 def _seconds_of(delta: pd.Series) -> np.ndarray:
     """Float seconds of a Series of durations (NaT: NaN): the whole seconds and their fraction (of the same
     sign), each exact from the column's integer ticks, added: the float nearest the duration, or its neighbour
-    where the two roundings meet (10 in 40,000 random durations). Dividing the nanoseconds as
-    one float, as pandas does, lost up to ~2.4e-7 s on dates of this century (2^61 ns), and steps of 0.25 s read
-    as 0.25000024 / 0.24999976: a gap rule of 3 steps then split a track where the same times as
-    numbers did not."""
-    unit = delta.dt.unit   # the column's own unit: converting to ns overflowed beyond 292 years
+    where the two roundings meet. Dividing the nanoseconds as one float, as pandas does, loses up to ~2.4e-7 s
+    on dates of this century (2^61 ns), enough for a gap rule to split a track of regular date-times where the
+    same times as numbers do not."""
+    unit = delta.dt.unit   # the column's own unit: converting to ns would overflow beyond 292 years
     per_second = {"s": 1, "ms": 1_000, "us": 1_000_000, "ns": 1_000_000_000}[unit]
     missing = delta.isna().to_numpy()
     ticks = np.where(missing, 0, delta.to_numpy(f"timedelta64[{unit}]").view(np.int64))
@@ -436,7 +435,7 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
     else:
         out = out.sort_values(["track_id", "time"], kind="stable")
     # sorted by track, then time: a repeated time is the next row's. What duplicated(keep="last") finds, but
-    # cheaper (100k rows, text ids: 1.3 ms against 3-6 ms, and 33 ms for its first call in a kalmix predict)
+    # cheaper
     codes = pd.factorize(out["track_id"], sort=False)[0]
     stamp = out["time"].to_numpy()
     dup = np.zeros(len(out), dtype=bool)
