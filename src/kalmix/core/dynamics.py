@@ -9,7 +9,8 @@ The Kalman state of every expert is a delay embedding of normalised features
 Two ways to get the system matrix :math:`A_k` (and a drift :math:`u_k`):
 
 ``literal``
-    The paper's eq. (6)/(7) (eq. 7 as corrected in NOTES.md):
+    The paper's eq. (6)/(7) (eq. 7 without its misprinted factor :math:`C_k^T`, which makes it
+    equal to eq. 6):
     :math:`\\hat A_k = C^+ z_k (z_{k-1}^T G^{-1} z_{k-1})^{-1} z_{k-1}^T G^{-1} C`,
     :math:`G = C C^T`, which equals :math:`x_k x_{k-1}^+` with :math:`x = C^+ z`.
 ``rls``

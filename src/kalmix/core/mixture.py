@@ -21,11 +21,9 @@ Extreme input keeps every number finite, the same way in the compiled kernels:
   ``feature_scale`` = 1e4 length units by default) moves the origin there (:func:`reanchor`):
   the experts' means move with it; a target that moved on keeps its dynamics (translated,
   :func:`translates`), one that jumped (or whose statistics hold data from far back) starts them
-  again from the prior. The RLS fit of
-  a regressor that far from its origin is ill-conditioned (at 3000 feature units the numpy and
-  compiled paths already differ by 1e-8, at 1e4 by 1e-2; beyond, its Cholesky fails), and
-  squared features overflow near 1e154. Where the distance itself overflows, the target
-  restarts (:func:`restart`);
+  again from the prior. The RLS fit of a regressor that far from its origin is ill-conditioned
+  (the engines drift apart and, further out, its Cholesky fails), and squared features overflow
+  near 1e154. Where the distance itself overflows, the target restarts (:func:`restart`);
 - an expert whose prediction misses the measurement by more than ``miss_limit`` feature units
   (1000 length units by default; after a long run of missing measurements its extrapolation can
   run off by any amount) starts again from it, rather than being pulled back by a Kalman update
@@ -301,10 +299,10 @@ def _far(params: MixtureParams, state: MixtureState, z: np.ndarray, valid: np.nd
 def translates(params: MixtureParams, state: MixtureState, delta: np.ndarray) -> np.ndarray:
     """Per target, whether a re-anchor by ``delta (N, p)`` keeps the dynamics, translated (:func:`reanchor`):
     ``rls`` dynamics, a target that moved on (its step from the last learned measurement within
-    ``miss_limit``: a jump of even one feature limit was learned, with errors 20-200 times those of a
-    restart), and data the statistics still hold near it (the weighted mean of every expert's regressors
-    within ``feature_limit`` of the new origin: with little forgetting they keep data from far back,
-    whose translated statistics grew until the solve failed, NaN for good). Otherwise they start again."""
+    ``miss_limit``: dynamics that learned a jump forecast worse than a restart), and data the statistics
+    still hold near it (the weighted mean of every expert's regressors within ``feature_limit`` of the new
+    origin: with little forgetting they keep data from far back, whose translated statistics would grow
+    until the solve fails). Otherwise they start again."""
     n = params.order * params.measurement_dim
     previous = state.history[:, 0, :]
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -322,10 +320,9 @@ def reanchor(params: MixtureParams, state: MixtureState, mask: np.ndarray, z: np
     The experts' means move with it (:math:`\\hat x \\leftarrow \\hat x - [\\delta; \\dots; \\delta]`;
     :math:`P`, the noise levels and the gate are kept). Where :func:`translates` (a target that moved on)
     nothing is lost: the history moves too, and the RLS statistics and the drift are those of the same
-    data in the new coordinates (:func:`_translated`); a target moving steadily crossed
-    ``feature_limit`` every 1e4 length units, and restarting its dynamics there cost ~20 rows of errors
-    up to 10 sigma. Otherwise the dynamics start again (RLS statistics zero, :math:`A, u` the prior's,
-    no history).
+    data in the new coordinates (:func:`_translated`), so a target moving steadily, which crosses
+    ``feature_limit`` every 1e4 length units by default, keeps forecasting well there. Otherwise the
+    dynamics start again (RLS statistics zero, :math:`A, u` the prior's, no history).
     """
     with np.errstate(invalid="ignore"):  # inf where the distance overflowed (those are not in mask)
         step = np.where(mask[:, None], delta, 0.0)

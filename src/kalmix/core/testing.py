@@ -11,7 +11,7 @@ and every rule by the test suite, each check a plain function raising AssertionE
   every family and rule: both do the same operations in the same order (sums and matrix
   products in index order, the C library's exp, expm1, log, sin, cos, atan2). A looser
   tolerance would not do: an ulp of difference in an expert, summed by a rule's regrets over
-  thousands of rows at a 1e8 offset, became 2e-9 of the positions;
+  thousands of rows at a 1e8 offset, grows into a visible difference in the positions;
 - every forecast is finite once the target has started, for finite input.
 """
 

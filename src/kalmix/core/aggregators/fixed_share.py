@@ -5,8 +5,8 @@
     \\log w_k \\leftarrow \\log w_k - \\frac{\\lVert y - x_k \\rVert^2}{2 \\sigma^2},\\qquad
     w \\leftarrow (1 - \\alpha)\\, \\mathrm{normalise}(w) + \\alpha / K_{awake}.
 
-With ``scale > 0`` the loss scale is fixed, :math:`\\sigma` = ``scale`` (the previous
-default, kept for the ablation: it is exponential weighting with the fixed learning
+With ``scale > 0`` the loss scale is fixed, :math:`\\sigma` = ``scale`` (kept for the
+ablation: it is exponential weighting with the fixed learning
 rate :math:`1/(2\\sigma^2)`, so the result depends on the data's units). With
 ``scale = 0`` (the default) it is learned online: :math:`\\sigma^2 = c\\, m`, with
 :math:`m` the running mean of the mixture's squared error per coordinate and

@@ -2,9 +2,9 @@
 
 Every kernel of the compiled engine advances targets ``lo .. hi - 1`` of its arrays, and
 targets are independent, so ranges run at once on a pool of Python threads (the kernels
-are compiled ``nogil``): the same numbers as one call over every target. This replaces
-numba's ``parallel=True`` loops, whose compilation took more than half of a fresh
-install's first run (103 s of the 1,000-row ``kalmix predict``, 48 s without them).
+are compiled ``nogil``): the same numbers as one call over every target. numba's
+``parallel=True`` loops are not used: compiling them would take most of a fresh install's
+first run.
 
 The number of threads is numba's (``NUMBA_NUM_THREADS``, :func:`numba.set_num_threads`);
 a call over few targets runs in the calling thread.
@@ -49,8 +49,8 @@ def over_targets(kernel, n_targets: int, *args) -> None:
         kernel(0, n_targets, *args)
         return
     # a few ranges per thread, taken in turn, so that targets of unequal lengths still share the work; as many
-    # for each thread (7 ranges on 2 threads left one thread 4/7 of the work: 100 targets of 1,000 rows, default
-    # bank, 2 cores, 1.23 s a run; 6 ranges 1.11 s), each of at least MIN_CHUNK targets
+    # for each thread (7 ranges on 2 threads would leave one thread 4/7 of the work), each of at least
+    # MIN_CHUNK targets
     per_thread = min(4, n_targets // (MIN_CHUNK * threads))
     pieces = threads * per_thread if per_thread else n_targets // MIN_CHUNK
     edges = [round(i * n_targets / pieces) for i in range(pieces + 1)]
@@ -72,8 +72,7 @@ def group_size(n_targets: int, largest: int) -> int | None:
     stays in the caches). With several threads and enough targets to split, groups are also
     made small enough for about two a thread: a stage split over the threads waits for its
     slowest range, and the threads idle while this one does the Python work between stages;
-    whole groups overlap one group's Python work with the others' kernels (100 tracks of a
-    100k-row file, default bank, 2 cores: ~0.14 s of a ~2.5 s ``kalmix predict``). Within a
+    whole groups overlap one group's Python work with the others' kernels. Within a
     group (an ``inline`` thread) only the first rule applies. The groups are of equal size (to a
     target), and of at least :data:`MIN_CHUNK` targets unless ``largest`` is smaller.
     """

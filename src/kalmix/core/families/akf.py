@@ -3,7 +3,7 @@
 The experts are those of :mod:`kalmix.core.mixture` (``rls`` / ``literal`` / ``fixed``
 dynamics, each with its own noise levels); only their predictions leave the family,
 so it has no gate: :func:`kalmix.bank.make_bank` builds it with ``gating="none"``
-(nothing is scored or learned for a gate, which took ~8 % of an AKF-only bank's run) and
+(nothing is scored or learned for a gate, which would only cost time) and
 ``adapt_noise=False`` (the paper's eq. 11/12 feedback from the gate belongs to the
 paper's own mixture, :func:`kalmix.core.mixture.step`).
 

@@ -29,7 +29,7 @@ forecast is :math:`z + v_2 \\Delta`, with none it is :math:`z`. The state is per
 Why a family of it: on the cycling recording the turn explains what the velocity
 models miss across the track (the cross-track error is larger than the along-track one),
 and because the rules' weights are convex, gains of 0.5 to 1.5 let the mixture reach
-the right fraction of the turn (README, "Choosing the default").
+the right fraction of the turn (the ablation: benchmarks/results/ablation_turn.json).
 
 The forecast's variance is the running mean squared velocity error of the expert
 (per coordinate, about ``window`` samples, one pseudo-sample of ``length_unit^2`` to
