@@ -3,9 +3,9 @@
 A Python signal handler runs in the main thread between two bytecodes, wherever they are. During a
 numba compile that is often code that LLVM calls back from C (llvmlite's object cache), or a
 finaliser freeing LLVM objects: an exception raised there is printed ("Exception ignored in ...")
-and dropped: a Ctrl-C during a fresh install's first compile let ``kalmix predict`` run its chunk to
-the end, and left ``kalmix demo`` without numba's compiled object (a 140-line traceback instead of
-"Aborted!"). Handlers that ask :func:`swallowing` do not raise in such a frame; they send the
+and dropped: a Ctrl-C during a fresh install's first compile would let ``kalmix predict`` run its
+chunk to the end, and leave ``kalmix demo`` without numba's compiled object (a long traceback
+instead of "Aborted!"). Handlers that ask :func:`swallowing` do not raise in such a frame; they send the
 signal again a moment later (:func:`send_again_later`), to a frame that can stop.
 """
 

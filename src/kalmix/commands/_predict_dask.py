@@ -135,7 +135,7 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
     except KilledWorker as error:  # one task took its worker down, again and again
         shutil.rmtree(partial, ignore_errors=True)
         raise ValueError(f"the task {error.task!r} killed its worker {error.allowed_failures + 1} times (out of "
-                         "memory? see 'Memory per worker' in the README: more --partitions, a smaller "
+                         "memory? see 'Memory per worker' in the documentation: more --partitions, a smaller "
                          "--chunk-rows)") from None
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)

@@ -27,13 +27,10 @@ from .predict import _columns, _header, _input_format, _output_columns
 #: A chunk is stepped in pieces of about this many rows (each track's rows split in order,
 #: so every piece holds every track of the chunk and the batch stays as wide): the progress
 #: bar moves and a stop signal is honoured after each piece, not once per chunk. Each piece
-#: costs a fixed share of Python work (stacking and splitting the tracks' states): measured on
-#: a 100-track 100k-row CSV, 4,096 rows a piece took 4.10-4.33 s, 16,384 took 3.57-3.78 s
-#: (about 0.6 s a piece: still a responsive stop), 32,768 no less; the same output bit for bit.
-#: Since the engine runs a hundred targets in whole groups, one per thread (:func:`kalmix.core.
-#: compiled._threads.group_size`), each run also ends waiting for its slowest group: the whole
-#: command took (medians of 5, alternated) 2.21 s at 8,192 rows a piece, 2.12 s at 16,384, 2.06 s
-#: at 32,768, 1.97 s at 65,536. A piece of 65,536 rows is ~1.2 s on 2 cores: the stop's delay.
+#: costs a fixed share of Python work (stacking and splitting the tracks' states) and ends
+#: waiting for the engine's slowest group of targets (:func:`kalmix.core.compiled._threads.group_size`),
+#: so larger pieces run faster, with the same output bit for bit; this size keeps the delay of a
+#: stop to about a second.
 PIECE_ROWS = 65_536
 #: Warnings of one kind printed line by line on stdin (rows skipped, time glitches, rows without a time);
 #: the rest are counted in the run's summary.
@@ -53,7 +50,7 @@ def gap_note(max_gap, max_gap_factor, splits: int, rows: int) -> None:
                    f"interval) started a new segment at {splits} of {rows} rows ({splits / rows:.0%}), and the "
                    "experts start again at each; the rows before them get no calibrated interval. If such steps "
                    "are the sampling (irregular reports), not lost targets, --max-gap none --reach 8 predicts "
-                   "across them (README, 'Missing data and time gaps')", err=True)
+                   "across them (documentation, 'Missing data and time gaps')", err=True)
 
 
 def _gap_splits(engine) -> int:
@@ -172,8 +169,8 @@ def _new_engine(settings, unit, positions, backend="cpu"):
 
 
 def warm_up_meanwhile(run, settings, unit) -> None:
-    """Load the compiled kernels in a thread while stdin has nothing for this one (~0.5 s with numba's cache
-    warm, minutes on a fresh install): a live feed's first line is answered sooner. Only a head start: the
+    """Load the compiled kernels in a thread while stdin has nothing for this one (a fraction of a second with
+    numba's cache warm, minutes on a fresh install): a live feed's first line is answered sooner. Only a head start: the
     first run waits for the kernels, or loads them itself if this fails (and a bad setting is reported there,
     not here). (Of no use for a file: the main thread is busy too, and the loading needs the GIL.)"""
     import threading
@@ -596,7 +593,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
 
     def warn(kind, text):
         """A line's warning; after STDIN_WARNINGS of a kind, one line that says the rest are only counted (a
-        replayed feed skips every row already processed: one line each flooded the terminal)."""
+        replayed feed skips every row already processed: one line each would flood the terminal)."""
         count = warned[kind] = warned.get(kind, 0) + 1
         if count <= STDIN_WARNINGS:
             click.echo(f"kalmix: warning: {text}", err=True)

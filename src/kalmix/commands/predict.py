@@ -350,7 +350,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
 
     With --engine dask, INPUT is a directory or glob of Parquet (or CSV) files, rows of a track
     in any of them, and -o a new directory that receives a partitioned Parquet dataset with the
-    same rows and columns (see the README, 'Beyond one machine').
+    same rows and columns (see 'Beyond one machine' in the documentation).
     """
     from ..streaming import TrackPredictor
     from ._durable import SignalGuard, StateLock
@@ -543,7 +543,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
             try:
                 with replaced_file(json_path, "w", what="a JSON file path", output=True) as handle:
                     json.dump(result.to_json(), handle, indent=2)
-            except OSError as error:   # a full disk, a device: it said "No space left on device" alone
+            except OSError as error:   # a full disk, a device: name the option and the path, not only the OS error
                 raise ValueError(f"--json: cannot write {json_path!r}: {error.strerror or error}") from None
         if plot_path:
             plot_errors(result, plot_path, plot_track)
@@ -721,7 +721,7 @@ def plot_errors(result, path, track=None):
     peers = 0
     for name, errors in result.errors.items():
         times, norms = [], []
-        for j in columns:   # a segment at a time, a gap (NaN) between them: a line no longer bridges a time gap
+        for j in columns:   # a segment at a time, a gap (NaN) between them: no line bridges a time gap
             n = streams.lengths[j]
             e = np.sqrt(np.sum(errors[:n, j] ** 2, axis=-1))
             scored = np.isfinite(e)   # the scored rows only: a missing measurement joins its neighbours
@@ -743,7 +743,7 @@ def plot_errors(result, path, track=None):
     ax.set_xlabel("time")
     ax.set_ylabel("one-step error |e| (data units)" + (f", rolling median of {window}" if window > 1 else ""))
     ax.set_title(f"{result.dataset}: track {track}")
-    # beside the axes: inside, it hid the errors of some predictor wherever it sat
+    # beside the axes: inside, it would hide the errors of some predictor wherever it sat
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     save_figure(fig, path, dpi=110)

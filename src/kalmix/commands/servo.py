@@ -49,8 +49,8 @@ def format_table(result) -> str:
 
 def _cell(value, width, decimals):
     """``value`` right-aligned in ``width`` with ``decimals``, or in 3 significant digits where that would not fit
-    (a gain of 1e6 printed 1000000.00 and shifted the row's other columns) or would read 0 (a gain of 0.004
-    printed 0.00)."""
+    (a gain of 1e6 as 1000000.00 would shift the row's other columns) or would read 0 (a gain of 0.004 as
+    0.00)."""
     text = f"{value:.{decimals}f}"
     if len(text) >= width or (value != 0 and float(text) == 0):
         text = f"{value:.3g}"
@@ -139,12 +139,12 @@ def plot_errors(result, path, speeds=None) -> None:
             low.append(np.percentile(finite, 5))
     ax.axhline(result.config.divergence_px, color="grey", ls=":", lw=0.8, label="divergence threshold")
     ax.set_yscale("log")
-    # the floor under the smallest errors (the oracle's were mostly below a fixed 0.05: cut off)
+    # the floor under the smallest errors (a fixed 0.05 would cut off most of the oracle's)
     ax.set_ylim(bottom=max(1e-2, 0.5 * min(low)) if low else 0.05)
     ax.set_ylabel("||d_k - v_k|| (px, log)")
     fig.suptitle(f"tracking error against the true target, delay {result.config.delay_frames} frames")
     ax.grid(alpha=0.3, which="both")
-    # above the axes: inside, any corner hid a stretch of some run's errors (lower right: the last 10 s)
+    # above the axes: inside, any corner would hide a stretch of some run's errors
     ax.legend(fontsize=8, loc="lower left", bbox_to_anchor=(0.0, 1.01, 1.0, 0.1), ncol=2, mode="expand",
               borderaxespad=0.0, frameon=False)
     if speeds is not None:
@@ -158,15 +158,14 @@ def plot_errors(result, path, speeds=None) -> None:
 
 
 #: Past these the run says nothing more (it diverges, or the features leave the image) and its arithmetic
-#: overflows: --noise 1e200 failed after the SOM's training naming no option, --gain 1e308 printed 1,021
-#: overflow warnings.
+#: overflows (a failure that names no option, or a flood of overflow warnings).
 MAX_NOISE_PX = 1e4
 MAX_GAIN = 1e6
 
 
 def _check_json(json_path, out_dir) -> None:
     """``--json``, checked before the work as any output file, but it may lie directly in an ``--out-dir`` that
-    the command makes (it was refused because that directory did not exist yet)."""
+    the command makes (that directory need not exist yet)."""
     if os.path.abspath(json_path) == os.path.abspath(out_dir):
         raise click.BadParameter(f"{json_path!r} is the --out-dir; give a file name", param_hint="'--json'")
     try:
