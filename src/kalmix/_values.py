@@ -10,8 +10,9 @@ __all__ = ["measurements"]
 
 def measurements(values, width: int | None = None) -> np.ndarray:
     """Positions as float64, with pandas' NA and None as NaN (a missing measurement) as in a table, and a masked
-    array's masked values too (``np.asarray`` kept the value under the mask, which was then learned).
-    ``TypeError`` for booleans (taken as 1 and 0 before), ``ValueError``/``TypeError`` for what is not numbers."""
+    array's masked values too (``np.asarray`` would keep the value under the mask, to be learned).
+    ``TypeError`` for booleans (rather than taking them as 1 and 0), ``ValueError``/``TypeError`` for what is not
+    numbers."""
     if _has_booleans(values):
         raise TypeError(f"expected numbers, got booleans {values!r:.80}")
     values = _missing_rows(values, width)

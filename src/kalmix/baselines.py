@@ -1,7 +1,7 @@
 """Baselines in the same engine, so that every row of a comparison is computed alike.
 
-Each factory returns a :class:`~kalmix.predictor.MixturePredictor`; the single AKF is
-defined up front (the paper's baseline, NOTES.md): the bank recipe with K = 1, i.e. the
+Each factory returns a :class:`~kalmix.predictor.MixturePredictor`; the single AKF (the
+paper's baseline) is fixed before any result was seen: the bank recipe with K = 1, i.e. the
 middle of the noise grid, with eq. (11)/(12) off.
 """
 

@@ -27,8 +27,8 @@ def error_summary(errors: np.ndarray) -> dict[str, float]:
                    "rms": float(np.sqrt(np.mean(values**2))), "count": int(values.size)}
         top = summary["max"]
         if top > 0 and not all(np.isfinite(summary[k]) for k in ("mean_abs", "std", "rms")):
-            # errors near 1e300 (a glitch): their squares (or sums) overflowed to inf, though the figures do not;
-            # taken on the errors / their largest (only then: elsewhere the same bits as before)
+            # errors near 1e300 (a glitch): their squares (or sums) overflow to inf, though the figures do not;
+            # taken on the errors / their largest (only then: elsewhere the plain formulas' bits)
             scaled = values / top
             summary.update(mean_abs=float(top * scaled.mean()), std=float(top * scaled.std()),
                            rms=float(top * np.sqrt(np.mean(scaled**2))))

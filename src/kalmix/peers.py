@@ -21,7 +21,7 @@ IMM was searched in three stages of about a hundred runs each, each stage centre
 previous optimum until it lay inside the grid (:data:`IMM_COARSE_GRID`,
 :data:`IMM_FINE_GRID`, :data:`IMM_GRID`); the fixed CV/CA filters over :data:`FIXED_GRID`.
 The mixture gets no such search on this scenario: its defaults are the bank recipe of
-:func:`kalmix.bank.make_params`, and the single AKF is fixed in advance (NOTES.md). The
+:func:`kalmix.bank.make_params`, and the single AKF is fixed in advance (:mod:`kalmix.baselines`). The
 tuning scenario shares the deterministic curve of the evaluation scenarios (only the
 random moves and the pixel noise differ), which if anything favours the tuned peers.
 
@@ -59,7 +59,7 @@ TUNING_SEED = 1000
 
 #: Tuned on ``PaperScenario(seed=TUNING_SEED)`` by :func:`tune` in three stages
 #: (:data:`IMM_COARSE_GRID`, :data:`IMM_FINE_GRID`, :data:`IMM_GRID`); the last optimum is
-#: inside its grid on every axis: one-step RMS 1.280 px on the tuning seed.
+#: inside its grid on every axis.
 IMM_DEFAULTS: dict[str, float] = {
     "cv_process_noise": 0.3,
     "ca_process_noise": 3.0,
@@ -67,14 +67,14 @@ IMM_DEFAULTS: dict[str, float] = {
     "switch_probability": 0.03,
 }
 #: Tuned by :func:`tune_fixed` for :func:`kalmix.baselines.cv_kalman` over :data:`FIXED_GRID`.
-#: Optimum at the grid's corner (q/r = 1e5): the RMS is flat there (1.7854 px vs 1.7855 px at
-#: q/r = 2000), the limit of a gain of one, i.e. :math:`\hat z_{k+1} = 2 z_k - z_{k-1}`.
+#: Optimum at the grid's corner (q/r = 1e5), where the RMS is flat: the limit of a gain of one,
+#: i.e. :math:`\hat z_{k+1} = 2 z_k - z_{k-1}`.
 CV_DEFAULTS: dict[str, float] = {"process_noise": 1000.0, "measurement_noise": 0.01}
 #: Tuned by :func:`tune_fixed` for :func:`kalmix.baselines.ca_kalman` over :data:`FIXED_GRID`.
 CA_DEFAULTS: dict[str, float] = {"process_noise": 0.1, "measurement_noise": 0.05}
 
 #: First, coarse stage of the IMM search (4 x 4 x 3 x 3 = 144 runs); its optimum on the
-#: tuning seed was cv 1, ca 10, r 1, switch 0.01 (RMS 1.306 px), on two edges of the grid.
+#: tuning seed is cv 1, ca 10, r 1, switch 0.01, on two edges of the grid.
 IMM_COARSE_GRID: dict[str, tuple[float, ...]] = {
     "cv_process_noise": (0.1, 1.0, 10.0, 100.0),
     "ca_process_noise": (0.01, 0.1, 1.0, 10.0),
@@ -82,7 +82,7 @@ IMM_COARSE_GRID: dict[str, tuple[float, ...]] = {
     "switch_probability": (0.01, 0.05, 0.2),
 }
 #: Second stage, beyond the coarse optimum (3 x 4 x 4 x 3 = 144 runs); optimum cv 0.3, ca 3,
-#: r 0.5, switch 0.03 (RMS 1.280 px), again on edges.
+#: r 0.5, switch 0.03, again on edges.
 IMM_FINE_GRID: dict[str, tuple[float, ...]] = {
     "cv_process_noise": (0.3, 1.0, 3.0),
     "ca_process_noise": (3.0, 10.0, 30.0, 100.0),

@@ -688,8 +688,8 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
                 for j in range(s):
                     n = streams.lengths[j]
                     imm[:n, j] = imm_predictions(values[:n, j], length_unit=peer_unit, **best)
-            except Exception as error:   # noqa: BLE001 - as the other peers: one wild value made filterpy's
-                _leave_out("IMM (filterpy)", error, tuned, log)   # matrices singular, and the whole run failed
+            except Exception as error:   # noqa: BLE001 - as the other peers: one wild value can make filterpy's
+                _leave_out("IMM (filterpy)", error, tuned, log)   # matrices singular; left out, the run goes on
             else:
                 tuned["IMM (filterpy)"] = imm_tuned
                 predictions["IMM (filterpy)"] = (imm, None)

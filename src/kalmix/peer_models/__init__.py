@@ -25,9 +25,8 @@ Input (one track segment)
 
 :data:`PEERS` maps a name to a :class:`Peer`. ``Peer.max_rows`` is set for the peers
 that cannot keep up with ~500k rows in a few minutes, filterpy's IMM and MMAE (Python
-loops over rows and filters: on 50,000 rows, 16 s and 27 s at horizon 1, 49 s and 25 s at
-horizon 5, measured by ``python -m benchmarks.peer_models_timing``; river's and padasip's
-loops take 0.2 s and 1-2 s there and need no cap): evaluate them on the first ``n`` rows of
+loops over rows and filters; ``python -m benchmarks.peer_models_timing`` times every peer,
+and river's and padasip's loops need no cap): evaluate them on the first ``n`` rows of
 every segment, the largest ``n`` that keeps the total within ``max_rows``
 (:func:`row_budget`, deterministic). The tuning of the loop peers (filterpy, river,
 padasip) scores each candidate on at most ``TUNE_ROWS`` rows chosen the same way from the

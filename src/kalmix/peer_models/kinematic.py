@@ -12,9 +12,8 @@ Per coordinate the state is ``[pos, vel]`` (CV) or ``[pos, vel, acc]`` (CA), wit
 - initial state at the first valid measurement ``z₀``: ``[z₀, 0(, 0)]`` with
   ``P₀ = r · diag(1, V(, V))``, ``V =`` :data:`INITIAL_VARIANCE_RATIO` = 10⁴ (a velocity
   standard deviation of 100 measurement-noise standard deviations per time unit: two
-  measurements Δt apart then shrink the measured velocity by only ``2 / (V Δt²)``; a larger
-  ``V`` loses digits, at 10¹⁰ the CA filter agrees with filterpy and with a long-double run
-  only to ~10⁻⁶). ``P₀ ∝ r`` makes the predictions depend on ``q / r`` only, which
+  measurements Δt apart then shrink the measured velocity by only ``2 / (V Δt²)``; a much
+  larger ``V`` loses digits in the first updates). ``P₀ ∝ r`` makes the predictions depend on ``q / r`` only, which
   :func:`tune_cv` uses to calibrate the scale;
 - the update is filterpy's Joseph form ``P = (I - KH) P (I - KH)ᵀ + K R Kᵀ``.
 

@@ -2,8 +2,8 @@
 
 Wira, Urban & Gresser (2001, section 5) test the predictors on "an accelerating curved trajectory
 which ends with little random movements in a restricted area", with target speed from 0.01 to
-1.5 m/s. The paper gives no more detail; :class:`PaperScenario` is the documented reading of
-``NOTES.md`` section 3. Every scenario is a frozen dataclass with its own ``seed`` and a
+1.5 m/s. The paper gives no more detail; :class:`PaperScenario` is our reading of it, documented
+field by field. Every scenario is a frozen dataclass with its own ``seed`` and a
 ``generate()`` method returning a :class:`Trajectory`; nothing uses the global random state.
 """
 

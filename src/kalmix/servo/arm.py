@@ -17,7 +17,7 @@ Geometry (defaults of :class:`Arm`, in metres)
   centre of the target region.
 - Upper arm 0.6 m and forearm 0.6 m (reach 1.2 m).
 
-Why these numbers (NOTES §4 proposed 0.45 m links): the yaw axis must stay out
+Why these numbers (and not shorter links, such as 0.45 m): the yaw axis must stay out
 of the workspace (on it the base joint moves nothing, ``det J = 0``), which
 pushes the shoulder at least ~0.35 m away from the cube ``(0, 0, 1.2) ± 0.35``
 m; the far corners of the cube are then ~1.15 m from the shoulder, beyond the
@@ -60,7 +60,7 @@ WORKSPACE_CENTRE = (0.0, 0.0, 1.2)
 WORKSPACE_HALF_WIDTHS = (0.35, 0.35, 0.35)
 #: Half-widths (m) of the box the simulated target visits: a circle of radius
 #: 0.25 m in the x-y plane with a small depth oscillation, then small moves in
-#: a 4 cm cube (NOTES §3), plus a margin.
+#: a 4 cm cube (:class:`kalmix.scenarios.PaperScenario`), plus a margin.
 TARGET_REGION_HALF_WIDTHS = (0.3, 0.3, 0.15)
 
 

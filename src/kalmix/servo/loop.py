@@ -160,9 +160,9 @@ class ServoConfig:
         Smallest image move (px) learned online.
     online_rate : float or None, default 0.01
         Widrow–Hoff rate of the online updates (None: the SOM's ``map_rate_final``, 0.05).
-        Measured on the paper scenario (seed 0): at 0.05 the pixel noise on the learned moves
-        drifts the SOM from 3.7 % to 6–8 % median relative error over the run, at 0.01 it stays
-        at about 4 %; the tracking error is the same within 0.5 % either way.
+        At 0.05 the pixel noise on the learned moves makes the SOM drift from its trained
+        accuracy over a run of the paper scenario; at 0.01 it stays close to it, for the same
+        tracking error.
     divergence_px : float, default 300.0
         A mode has *diverged* if its tracking error ever exceeds this (or turns non-finite).
     modes : tuple of str

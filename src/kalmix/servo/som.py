@@ -7,7 +7,7 @@ supervised Self-Organizing Map" (their ref. [2], Urban, Buessler & Gresser
 1998): a Kohonen lattice over joint space whose neurons each hold a reference
 vector :math:`\mathbf w_r` and a local linear map :math:`\mathbf B_r`, trained
 by error correction on pairs :math:`(\Delta\mathbf q, \Delta\mathbf v)` from
-random "babbling" moves (NOTES §4).
+random "babbling" moves.
 
 One training move
 -----------------
@@ -73,33 +73,21 @@ with :math:`\tau` = ``blend_width`` (lattice units); ``lookup="winner"``
 returns :math:`\mathbf B_r` of the winner alone (piecewise constant, the
 classic SOM).
 
-Why the defaults (measured on the default :class:`~kalmix.servo.arm.Arm` and
-camera, a 6×6×6 lattice over ``Arm().joint_box()`` = the target region in joint
-space plus 0.1 rad, 10 000 moves, 0.5 px noise; median relative error on 500
-configurations from the inverse kinematics of the target region, seeds 0 and 1):
+Why the defaults (compared on the default :class:`~kalmix.servo.arm.Arm` and camera by the
+median relative error of the learned inverse Jacobian over the target region):
 
-======================================================  ===================
-variant                                                 median error
-======================================================  ===================
-defaults (``interpolated`` update, ``blend`` lookup)    4.7–5.0 %
-``neighbourhood`` update, ``winner`` lookup (ref. [2])  10.9–11.4 %
-``neighbourhood`` update, ``blend`` lookup              9.1–9.5 %
-``interpolated`` update, ``winner`` lookup              18–19 %
-defaults without pixel noise                            3.7–3.8 %
-defaults with ``babbling_step_rad=0.05``                7–8 %
-defaults with a 4×4×4 / 8×8×8 lattice                   6.2–6.5 / 5.0–5.1 %
-defaults with 3 000 moves                               6.2–7.0 %
-======================================================  ===================
-
-- Even with every :math:`\mathbf B_r` set to the exact inverse at its node, a
-  winner-only lookup is 8.8 % off (the Jacobian turns across one cell); a blend
-  with :math:`\tau = 0.5` brings that floor to 1.5 %.
-- The whitening :math:`\mathbf T` matters (without it, ≈ 16 % instead of
-  13 % in an early trial of the neighbourhood rule): stereo disparity changes
-  four times less than the image position per metre, so raw
-  :math:`\Delta\mathbf v` is badly conditioned and normalised LMS converges
-  slowly along it.
-- A 0.1 rad babbling step keeps the 0.7 px noise of a pixel difference small
+- the ``interpolated`` update with the ``blend`` lookup has about half the error of the
+  classic SOM of ref. [2] (``neighbourhood`` update, ``winner`` lookup); the ``interpolated``
+  update with a ``winner`` lookup is worse than either;
+- even with every :math:`\mathbf B_r` set to the exact inverse at its node, a winner-only
+  lookup stays several percent off (the Jacobian turns across one cell); a blend with
+  :math:`\tau = 0.5` removes most of that floor;
+- a coarser lattice, fewer moves or a smaller babbling step each cost accuracy; a finer
+  lattice gains little;
+- the whitening :math:`\mathbf T` matters: stereo disparity changes four times less than the
+  image position per metre, so raw :math:`\Delta\mathbf v` is badly conditioned and
+  normalised LMS converges slowly along it;
+- a 0.1 rad babbling step keeps the 0.7 px noise of a pixel difference small
   against the move; filing the move at its midpoint removes most of the
   curvature bias of the larger step.
 
@@ -153,7 +141,7 @@ class SOMConfig:
         Standard deviation of each joint's babbling move (rad).
     feature_noise_px : float, default 0.5
         Standard deviation of the pixel noise on each observed feature during
-        babbling (the camera noise of the paper's scenario, NOTES §3).
+        babbling (the camera noise of the paper's scenario).
     map_update : {"interpolated", "neighbourhood"}
         Widrow–Hoff on the blended output (default) or on each neuron's own
         output weighted by the neighbourhood (ref. [2]); see the module notes.
