@@ -1024,7 +1024,7 @@ class TrackPredictor:
             Per row, its :class:`RowPrediction`, or None for a skipped row (at or before its
             track's last time).
         """
-        if isinstance(track_ids, (str, bytes)):   # its letters were taken for the rows' ids
+        if isinstance(track_ids, (str, bytes)):   # its letters would be taken for the rows' ids
             raise TypeError(f"track_ids: expected a sequence of track ids, one per row, got the text {track_ids!r:.80} "
                             "(one row: step_row)")
         try:

@@ -487,7 +487,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
         _distinct_files(("INPUT", input_path), ("--json", json_path), ("--plot", plot_path),
                         ("--plot-intervals", intervals_path))
         for flag, named in (("--json", json_path), ("--plot", plot_path), ("--plot-intervals", intervals_path)):
-            if named == "-":   # a file named '-' was written (predict's '-' is standard output)
+            if named == "-":   # it would write a file named '-' (predict's '-' is standard output)
                 raise ValueError(f"{flag}: expected a file name, got '-' (standard output is not taken here: "
                                  "/dev/stdout is; ./- names a file called -)")
         _directory_exists("--json", json_path)
