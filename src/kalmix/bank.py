@@ -231,8 +231,10 @@ def make_params(
         :math:`\\kappa`, default ``100 * length_unit``.
     velocity_scale : float
         :math:`v_0` of the gating input, in normalised features per frame.
-    process_noise_range, measurement_noise_range : (float, float)
-        Ranges of the grid's :math:`q_i, r_i` (units squared).
+    process_noise_range : (float, float)
+        Range of the grid's process-noise levels :math:`q_i` (units squared).
+    measurement_noise_range : (float, float)
+        Range of the grid's measurement-noise levels :math:`r_i` (units squared).
     forgetting_levels : sequence of float in (0, 1]
         :math:`\\lambda` values of the RLS dynamics.
     ridge_levels : sequence of float > 0
@@ -251,14 +253,20 @@ def make_params(
         T of eq. (8) (and the likelihood tempering of the fixed-share gate).
     gate_share : float
         :math:`\\alpha_s \\in [0, 1]` of the fixed-share gate.
-    eta_initial, eta_minimum, eta_decay_steps : float
-        :math:`\\eta(t) = \\eta_{min} + (\\eta_0 - \\eta_{min}) e^{-t/\\tau}`.
+    eta_initial : float
+        :math:`\\eta_0` of :math:`\\eta(t) = \\eta_{min} + (\\eta_0 - \\eta_{min}) e^{-t/\\tau}`.
+    eta_minimum : float
+        :math:`\\eta_{min}`, the rate's floor.
+    eta_decay_steps : float
+        :math:`\\tau`, the rate's decay time (measurements).
     eta_sensitivity : float
         :math:`\\alpha` of :math:`\\eta_k = \\eta(t)(1 - e^{-\\alpha\\varepsilon})` (units^-2).
     adapt_noise : bool
         Apply eq. (11)/(12).
-    process_noise_shrink, measurement_noise_shrink : float
-        :math:`\\beta, \\beta'` of eq. (11)/(12).
+    process_noise_shrink : float
+        :math:`\\beta` of eq. (11).
+    measurement_noise_shrink : float
+        :math:`\\beta'` of eq. (12).
     noise_floor : float
         :math:`\\phi`: Q and R never fall below :math:`\\phi` times their initial value
         (0 = the paper's rule).
@@ -513,8 +521,10 @@ def make_bank(
         Seed of the AKF family's draws.
     n_akf : int
         Experts of the AKF family (``akf`` and ``mixed``).
-    process_levels, measurement_levels : sequence of float
-        The kinematic grid, in units of ``length_unit**2`` (per ``time_unit**3`` for q).
+    process_levels : sequence of float
+        The kinematic grid's process-noise levels q, in units of ``length_unit**2`` per ``time_unit**3``.
+    measurement_levels : sequence of float
+        The kinematic grid's measurement-noise levels r, in units of ``length_unit**2``.
     rule_options : dict, optional
         The rule's parameters (e.g. ``{"forgetting": 0.999, "share": 0.01}``), over
         :data:`DEFAULT_RULE_OPTIONS` (BOA: ``bound_forgetting`` 0.99, ``clip`` 3; give
@@ -547,9 +557,10 @@ def make_bank(
         (:mod:`kalmix.core.calibration`); intervals are ``±z(level) std``.
     ar_orders : sequence of int
         Orders of the AR families (previous velocities in the regressor), each >= 1.
-    ar_forgetting, ar_ridge : sequence of float
-        Each AR family's grid: forgetting factors in (0, 1] and ridge strengths > 0 (how many
-        typical samples the persistence prior weighs).
+    ar_forgetting : sequence of float
+        Each AR family's forgetting factors, in (0, 1].
+    ar_ridge : sequence of float
+        Each AR family's ridge strengths > 0 (how many typical samples the persistence prior weighs).
     ar_options : dict, optional
         Other :class:`kalmix.core.families.ar.ARParams` fields (``bias``, ``jump_threshold``, ...).
     turn_gains : sequence of float

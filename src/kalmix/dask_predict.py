@@ -224,8 +224,12 @@ def read_archive(source, *, time=None, positions=None, track_id=None, piece_rows
     source : str
         A directory (searched recursively), a glob (``'reports/2024-*.parquet'``) or a file,
         of Parquet or CSV (``.csv.gz`` too) track files with the same columns.
-    time, positions, track_id : optional
-        Column names, detected as in ``kalmix predict`` when omitted.
+    time : str, optional
+        The time column's name, detected as in ``kalmix predict`` when omitted.
+    positions : str or sequence of str, optional
+        The position columns' names, detected when omitted.
+    track_id : str, optional
+        The track id column's name, detected when omitted.
     piece_rows : int
         Rows of Parquet row groups read as one partition (a CSV file is one partition).
 

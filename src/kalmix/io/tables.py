@@ -206,8 +206,10 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
     ----------
     columns : sequence of str
         Column names of the file.
-    time, track_id : str, optional
-        Explicit column names.
+    time : str, optional
+        Explicit time column name.
+    track_id : str, optional
+        Explicit track id column name.
     positions : str or sequence of str, optional
         Explicit position column names (1 to 3).
 
