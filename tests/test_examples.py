@@ -114,6 +114,13 @@ def check_functional_core(out: str, cwd: Path) -> None:
     assert 0.9 <= number(r"one-step RMS error over frames 51-99: ([\d.]+)", out) < 1.5   # noise 1 per coordinate
 
 
+def check_dask_archive(out: str, cwd: Path) -> None:
+    assert "parquet archive: 600 predictions" in out
+    assert "'pred10_x', 'pred10_y', 'std10_x', 'std10_y']" in out
+    assert "the same numbers as one machine: True" in out
+    assert sorted(p.name for p in (cwd / "predictions").iterdir())   # the partitioned output dataset
+
+
 CHECKS = {
     "quickstart.py": check_quickstart,
     "live_feed.py": check_live_feed,
@@ -121,7 +128,10 @@ CHECKS = {
     "paper_mixture.py": check_paper_mixture,
     "many_tracks.py": check_many_tracks,
     "functional_core.py": check_functional_core,
+    "dask_archive.py": check_dask_archive,
 }
+#: examples that need an optional extra: the module to find first
+REQUIRES = {"dask_archive.py": "dask.dataframe"}
 
 
 def test_every_example_is_checked():
@@ -135,6 +145,8 @@ def test_quickstart_is_short():
 
 @pytest.mark.parametrize("name", SCRIPTS)
 def test_example_runs(name, tmp_path):
+    if name in REQUIRES:
+        pytest.importorskip(REQUIRES[name])
     before = sorted(p.name for p in EXAMPLES.iterdir())
     out = run_example(name, tmp_path)
     CHECKS[name](out, tmp_path)
