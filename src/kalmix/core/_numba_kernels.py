@@ -743,7 +743,7 @@ def _normalise_log(log_joint, out):
 
 # ---------------------------------------------------------------- one target, all steps
 # Inlined into its one caller (run_targets): numba re-optimises a callee inside each caller's module, so this
-# saves a pass over the largest function (AKF kernel compiled alone: 32-33 s instead of 39-41 s).
+# saves a compile pass over the largest function.
 @jit
 def _take(buffer, position, shape):
     """The next ``shape`` of ``buffer`` from ``position`` (a C-contiguous view), and the position after it."""

@@ -3,8 +3,7 @@
 The experts-last kernel (:mod:`kalmix.core._numba_kernels`) vectorises across the
 experts; with fewer experts than fill a few vectors its unit-stride loops are mostly
 overhead, and this kernel, which advances each expert with scalar loops on small
-matrices and keeps its running sums in registers, is faster (K = 1 ... 4; see the
-README's performance section). Same operations as the numpy reference
+matrices and keeps its running sums in registers, is faster there. Same operations as the numpy reference
 (:func:`kalmix.core.mixture.step`), same numbers to rounding; :func:`run_targets` has
 the signature of the other kernel's.
 """

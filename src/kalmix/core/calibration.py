@@ -85,7 +85,7 @@ def update(params: CalibrationParams, state: CalibrationState, weights, experts,
 
     ``issued (N, 2, p)``, for forecasts made rows earlier (the lead head), is the interval then
     issued (its mean and standard deviations): the miss is that interval's, as adaptive conformal
-    inference with delayed feedback asks (today's interval where it is NaN).
+    inference with delayed feedback asks (the current interval where it is NaN).
     """
     mean, cov = moments(params, state, weights, experts, awake)
     z = np.where(learn[:, None], measurement, 0.0)

@@ -17,9 +17,10 @@ it needs no knowledge of the data's units: ``s`` is learned per target. A distan
 only once ``s`` is above that, or, for a target whose extrapolation has been exact (``s = 0``:
 a simulated or interpolated track in uniform motion), once the distance it moves in the step,
 ``|v| dt``, is: ``threshold |v| dt`` is then the scale, so ``d > threshold^2 |v| dt`` (a million
-steps) is an outlier. Without it a glitch on such a track was learned by everything, and one at
-1e300 ruined it for good; with ``threshold |v| dt`` alone (tried) a ball rolling at 0.5 mm a row
-and kicked to 3 m a row was rejected twice and restarted, where it used to be followed. A
+steps) is an outlier. Without it a glitch on such a track would be learned by everything (one at
+1e300 would ruin it for good); the square keeps a kick followed, not rejected: with
+``threshold |v| dt`` alone, a ball rolling at 0.5 mm a row and kicked to 3 m a row would be
+rejected twice and restarted. A
 target at rest through its warm-up (the same position on every row: a moored vessel, a ball
 before a kick, quantised positions) has neither, and every move would be an outlier; its first
 moves are learned instead (so a glitch on a target at rest is learned too: with no motion there

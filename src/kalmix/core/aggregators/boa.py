@@ -36,17 +36,16 @@ then: :math:`s^2 \\leftarrow s^2 + (\\lVert g \\rVert^2 - s^2) / \\min(n, M)`); 
 the experts do (:func:`restart`, a time gap or the screen's restart).
 The range bound :math:`B_k` still takes the whole regret. A kick, a relocation, a glitch the
 screen let through: an error no expert foresaw says little about which expert to trust, yet on
-the squared loss its regrets outweigh hundreds of ordinary rows (on hawkeye_ball 47 rows, 1 %,
-hold 73 % of the squared error). With ``clip`` such a row moves the weights no more than a bad
+the squared loss its regrets outweigh hundreds of ordinary rows. With ``clip`` such a row moves the
+weights no more than a bad
 ordinary row, and only slows the learning for a while (its :math:`B_k`, forgotten at
 :math:`\\beta`). :math:`s` takes the whole errors: a lasting change of the error level (a target
 that moved 0.5 mm a row and now moves 3 m) raises it within a few rows, so the rule still follows
 a real change of motion (a scale of the shrunk errors grows by a few percent a row there). Its
 memory bounds how long that takes on a long quiet stream: a plain mean over all rows would take
-the more rows the longer the stream was quiet (a rule that follows such a change in 11 rows
-unclipped took 31 after 10,000 quiet rows and 71 after 200,000; with the memory of 1,000 rows, 18
-at most). These choices were measured (README, "Choosing the default"; ``python -m
-benchmarks.clip_variants``); ``clip`` 3 is the default's. A row whose squared error norm overflows
+the more rows the longer the stream was quiet. These choices come from the ablation and ``python -m
+benchmarks.clip_variants`` (benchmarks/results/ablation_clip.json, clip_variants.json); ``clip`` 3 is
+the default's. A row whose squared error norm overflows
 teaches nothing, as a row whose regret overflows.
 """
 

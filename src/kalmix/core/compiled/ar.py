@@ -229,11 +229,9 @@ def _run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, p
                z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead, x, v, h,
                a, rhs, low, y, sol, acc, go, new_scale, informative):
     # The default bank's orders as constants of the compiled loops, so that LLVM unrolls them (the helpers are
-    # not inlined by numba: its inlining of _learn into five copies took the compile from ~4 s to ~40 s; LLVM
+    # not inlined by numba: its inlining of _learn into five copies would multiply the compile time; LLVM
     # inlines them); other orders and the bias as they come. The same operations in the same order: the same
-    # bits. Measured on one thread, 100 targets x 1,000 rows, ns an expert-step for orders 1 / 2 / 3 / 5:
-    # 64 / 87 / 121 / 191 -> 34 / 54 / 79 / 168; the compile takes ~7 s longer (in `kalmix predict`'s first
-    # run it overlaps the AKF kernel's compile in the second process: 27.2-27.5 s -> 27.4-27.9 s cold).
+    # bits.
     # (Arguments in tuples: numba cannot inline a call of more than 30, which Python makes a *args call.)
     constants = (forgetting, ridge, length_unit, time_unit, persistence, initial_error, jump_threshold, window,
                  max_step, max_velocity)

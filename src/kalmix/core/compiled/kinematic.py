@@ -195,10 +195,8 @@ def _run_block(lo, hi, order, q, r, initial, time_unit, max_step, max_variance,
                z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
                m_pred, c_pred, f, work, gain, a):
     # The order (2: CV, 3: CA; kalmix.core.engine.Family refuses others) as a constant of the compiled loops, so
-    # that LLVM unrolls them (the helpers are not inlined by numba, whose inlining of two copies tripled the
-    # compile time; LLVM inlines them). The same operations in the same order: the same bits. Measured on one
-    # thread, 100 targets x 1,000 rows: CV 81 -> 52 ns, CA 170 -> 85 ns an expert-step; the compile time did
-    # not change (8.0 s for a kinematic bank).
+    # that LLVM unrolls them (the helpers are not inlined by numba, whose inlining of two copies would triple the
+    # compile time; LLVM inlines them). The same operations in the same order: the same bits.
     args = (q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised, z, times, lengths,
             learn, restart, out, out_var, offset, ahead_times, out_ahead, m_pred, c_pred, f, work, gain, a)
     if order == 2:

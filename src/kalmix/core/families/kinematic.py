@@ -72,9 +72,9 @@ class KinematicState(NamedTuple):
 
 
 #: An innovation whose NIS (squared distance in its own standard deviations) exceeds this, 1e6 standard
-#: deviations, restarts the filter at the measurement: a glitch it took in (before the glitch screen's
-#: warm-up is over) no longer leaves a slope of 1e10 that a filter of low process noise keeps for
-#: thousands of rows. Real motion never comes near it.
+#: deviations, restarts the filter at the measurement, so that a glitch it took in (before the glitch
+#: screen's warm-up is over) cannot leave it a slope (of 1e10, say) that a filter of low process noise
+#: would keep for thousands of rows. Real motion never comes near it.
 RESTART_NIS = 1e12
 
 
