@@ -65,6 +65,8 @@ def script() -> None:
       loading numba's kernels allocates ~250,000, so the default ran it ~350 times (0.12 s of a
       2.4 s 100k-row ``kalmix predict``, 0.04 s now). Memory is freed as before; cycles a little later.
     - Ctrl-C stops a numba compile too (:mod:`kalmix.commands._interrupt`).
+    - While kalmix's kernels compile (a fresh install's first run), stderr says so, with the elapsed
+      seconds (:class:`kalmix.commands._common.CompileDisplay`).
     - After a command that succeeded, the process ends without the interpreter's teardown, which
       frees numba's, pandas' and the data's objects one by one (~0.2 s at the end of that run):
       threads are joined, atexit handlers run and stdout/stderr are flushed first, as at a normal
@@ -78,6 +80,12 @@ def script() -> None:
 
     gc.set_threshold(10_000, 10, 10)
     install_keyboard_interrupt()
+    try:
+        from .commands._common import show_compiling
+    except ImportError:   # the cli extra is missing: main() says so
+        pass
+    else:
+        show_compiling()
     try:
         main()
     except SystemExit as stop:

@@ -1,4 +1,5 @@
-"""Helpers shared by the sub-commands: one-line errors, checked options, JSON output and progress bars."""
+"""Helpers shared by the sub-commands: one-line errors, checked options, JSON output, progress bars and the
+notice while kalmix's kernels compile."""
 
 from __future__ import annotations
 
@@ -7,7 +8,9 @@ import functools
 import json
 import math
 import os
+import shutil
 import sys
+import threading
 import warnings
 
 import click
@@ -239,3 +242,167 @@ def progress_bar(total: int, description: str, unit: str):
                 bar.set_postfix_str(postfix, refresh=False)
             bar.update(n)
         yield update
+
+
+# ------------------------------------------------------------------------------------------ compile notice
+class CompileDisplay:
+    """The command line's stderr display of kalmix's kernel compiles (:mod:`kalmix.core.compiled._notice`).
+
+    Not on a terminal (a log, a pipe): one line when the compile starts and one with its time when it ends.
+    On a terminal: one line that counts the seconds (redrawn from the notice's thread) and becomes the
+    end line; while another writer uses stderr (a warning, click's ``Aborted!`` after a Ctrl-C) the line
+    is cleared first (``sys.stderr`` is wrapped while it is drawn). While a tqdm progress bar is up (``kalmix
+    predict``'s rows, ``reproduce``'s runs), the start and end lines are written above the bars
+    (``tqdm.write``) and the bars are redrawn every tick, so their elapsed time counts. Nothing is written
+    to standard output (a terminal's ``sys.stdout`` is wrapped too, to clear the line before its writes).
+    """
+
+    def __init__(self, stream=None):
+        self.stream = sys.stderr if stream is None else stream
+        self.terminal = _is_terminal(self.stream)
+        self.lock = threading.RLock()
+        self.drawn = 0          # width of the status line now on the terminal (0: none)
+        self.announced = False  # the start line was written whole (not a status line)
+        self.first = True
+        self.proxies: dict = {}   # sys.stderr / sys.stdout's name: its _ClearingStream
+
+    # -- texts
+    def _start_text(self) -> str:
+        from ..core.compiled._notice import START, START_MORE
+
+        return "kalmix: " + (START if self.first else START_MORE)
+
+    def _status_text(self, elapsed: float) -> str:
+        text = f"kalmix: compiling kalmix's kernels for this machine, first run only ... {elapsed:.0f} s"
+        width = shutil.get_terminal_size(fallback=(80, 24)).columns - 1
+        return text if len(text) <= width else text[:max(width, 1)]
+
+    @staticmethod
+    def _done_text(elapsed: float, finished: bool) -> str:
+        if finished:
+            return f"kalmix: compiled kalmix's kernels in {elapsed:.0f} s (cached: later runs start at once)"
+        return f"kalmix: compiling kalmix's kernels stopped after {elapsed:.0f} s"
+
+    # -- the notice's calls
+    def start(self, first: bool) -> None:
+        with self.lock:
+            self.first, self.announced, self.drawn = first, False, 0
+        if self.terminal and not _live_bars():
+            self._draw(0.0)
+        else:
+            self.announced = True
+            self._line(self._start_text())
+
+    def tick(self, elapsed: float) -> None:
+        if not self.terminal:
+            return
+        bars = _live_bars()
+        if not bars:
+            self._draw(elapsed)
+            return
+        # a bar came up (over the status line, which its first write cleared): the start line above the bars
+        with self.lock:
+            self._erase()
+            announce, self.announced = not self.announced, True
+        if announce:
+            self._line(self._start_text())
+        for bar in bars:
+            with contextlib.suppress(Exception):
+                bar.refresh()
+
+    def done(self, elapsed: float, finished: bool) -> None:
+        with self.lock:
+            self._erase()
+            self._unwrap()
+        self._line(self._done_text(elapsed, finished))
+
+    # -- drawing
+    def _draw(self, elapsed: float) -> None:
+        with self.lock:
+            text = self._status_text(elapsed).ljust(self.drawn)   # (covers a longer line drawn before)
+            self.stream.write("\r" + text)
+            self.stream.flush()
+            self.drawn = max(len(text), 1)
+            self._wrap()
+
+    def _erase(self) -> None:
+        """Clear the status line, if drawn (under the lock)."""
+        if self.drawn:
+            self.stream.write("\r" + " " * self.drawn + "\r")
+            self.stream.flush()
+            self.drawn = 0
+
+    def _line(self, text: str) -> None:
+        """A whole line on the stream, above any progress bars."""
+        bars = _live_bars()
+        if bars:
+            from tqdm import tqdm
+
+            tqdm.write(text, file=self.stream)   # clears the bars on the stream, writes, redraws them
+            return
+        with self.lock:
+            self.stream.write(text + "\n")
+            self.stream.flush()
+
+    def _wrap(self) -> None:
+        """Wrap ``sys.stderr``, and ``sys.stdout`` if it is a terminal too (the same screen), in a
+        :class:`_ClearingStream` (their bytes are not changed)."""
+        for name in ("stderr", "stdout"):
+            stream = getattr(sys, name)
+            if isinstance(stream, _ClearingStream) or (name == "stdout" and not _is_terminal(stream)):
+                continue
+            if name == "stderr" and stream is not self.stream:
+                continue
+            proxy = self.proxies.get(name)
+            if proxy is None or proxy._wrapped is not stream:
+                proxy = self.proxies[name] = _ClearingStream(stream, self)
+            setattr(sys, name, proxy)
+
+    def _unwrap(self) -> None:
+        for name, proxy in self.proxies.items():
+            if getattr(sys, name) is proxy:
+                setattr(sys, name, proxy._wrapped)
+
+
+class _ClearingStream:
+    """``sys.stderr`` (and a terminal's ``sys.stdout``) while the status line is drawn: a write clears the line
+    first (the next tick redraws it), then goes through unchanged. ``_wrapped`` and ``==`` make tqdm take it
+    for the stream it wraps."""
+
+    def __init__(self, stream, display: CompileDisplay):
+        self._wrapped = stream
+        self._display = display
+
+    def write(self, text):
+        with self._display.lock:
+            self._display._erase()
+            return self._wrapped.write(text)
+
+    def __getattr__(self, name):
+        return getattr(self._wrapped, name)
+
+    def __eq__(self, other):
+        return other is self or other is self._wrapped
+
+    def __hash__(self):
+        return hash(self._wrapped)
+
+
+def _live_bars() -> list:
+    """tqdm bars now drawn (tqdm drops a disabled bar from its instances)."""
+    tqdm_module = sys.modules.get("tqdm")
+    if tqdm_module is None:
+        return []
+    try:
+        return [bar for bar in list(tqdm_module.tqdm._instances) if not getattr(bar, "disable", False)]
+    except (AttributeError, TypeError, RuntimeError):   # (RuntimeError: a bar came or went meanwhile)
+        return []
+
+
+def show_compiling(stream=None) -> CompileDisplay:
+    """Show kalmix's kernel compiles on stderr (:class:`CompileDisplay`); the display."""
+    from ..core.compiled import _notice
+
+    display = CompileDisplay(stream)
+    _notice.add_display(display)
+    return display

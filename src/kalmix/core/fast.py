@@ -133,6 +133,9 @@ def run_fast(
     """
     import numba
 
+    from .compiled._notice import watch
+
+    watch()   # a fresh install: say so while the kernels compile (kalmix.core.compiled._notice)
     kernels = _kernels(params.n_experts)
     measurements = np.ascontiguousarray(measurements, dtype=np.float64)
     t_count, n = measurements.shape[:2]

@@ -31,6 +31,8 @@ import threading
 
 import numpy as np
 
+from ._notice import compiling
+
 __all__ = ["compile_ahead", "kernel_cached"]
 
 #: Longest wait for the child (seconds); past it this process compiles the kernel itself.
@@ -104,20 +106,21 @@ def compile_ahead(bank) -> int | None:
         except (OSError, pickle.PicklingError):
             return None
         _children.add(child)
-        try:
-            _tiny_run(dataclasses.replace(bank, families=tuple(f for f in bank.families if f.kind != "akf")))
-        except Exception:   # noqa: BLE001 - only a warm-up: the real run compiles what is missing, and reports
-            pass
-        except BaseException:   # Ctrl-C or a stop signal: stop now, not after the child's compile (~25 s)
-            _end(child)
-            raise
-        try:
-            status = child.wait(timeout=WAIT_SECONDS)
-        except subprocess.TimeoutExpired:
-            status = _end(child)
-        except BaseException:   # interrupted while waiting
-            _end(child)
-            raise
+        with compiling():   # the wait for the child is compile time too (the notice, ._notice)
+            try:
+                _tiny_run(dataclasses.replace(bank, families=tuple(f for f in bank.families if f.kind != "akf")))
+            except Exception:   # noqa: BLE001 - only a warm-up: the real run compiles what is missing, and reports
+                pass
+            except BaseException:   # Ctrl-C or a stop signal: stop now, not after the child's compile (~25 s)
+                _end(child)
+                raise
+            try:
+                status = child.wait(timeout=WAIT_SECONDS)
+            except subprocess.TimeoutExpired:
+                status = _end(child)
+            except BaseException:   # interrupted while waiting
+                _end(child)
+                raise
         _children.discard(child)
         return status
 

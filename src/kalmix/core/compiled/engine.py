@@ -29,6 +29,7 @@ from . import turn as cturn
 from .calibration import pack_params as pack_calibration
 from . import screen as cscreen
 from ._threads import families_in_parallel, group_size, over_groups, over_targets
+from ._notice import watch as watch_compiles
 from ._warm import compile_ahead
 
 __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
@@ -187,6 +188,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     """
     z, times, state, lengths, learn = prepare(bank, measurements, times, state, lengths, learn)
     _, ahead_times, ahead_frames = check_run_options(z.shape[:2], None, ahead_times, ahead_frames)
+    watch_compiles()   # a fresh install: say so on stderr while the kernels compile (._notice)
     compile_ahead(bank)   # a fresh install: the AKF kernel compiles in a second process meanwhile
     t_count, n, p = z.shape
     size = group_size(n, TARGET_GROUP)
