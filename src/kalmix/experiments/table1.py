@@ -54,6 +54,9 @@ __all__ = [
     "table1",
     "aggregate",
     "check_claims",
+    "explain_claim",
+    "ROW_LABELS",
+    "CLAIM_LINKS",
 ]
 
 ROWS = ("single_akf", "mixture_softmax", "mixture_random", "default_bank", "imm_filterpy", "cv_kalman",
@@ -66,6 +69,30 @@ DEFAULT_ROWS = ("default_bank", "default_best_expert")
 FRAME_RATE = 25.0
 STATS = ("mean_abs", "std", "max", "rms")
 ONE_HOT_THRESHOLD = 0.8
+#: How the rows are named in the printed table and in the claims' explanations.
+ROW_LABELS = {
+    "single_akf": "single AKF",
+    "mixture_softmax": "mixture, softmax gate",
+    "mixture_random": "mixture, random gate",
+    "default_bank": "default bank (predict)",
+    "imm_filterpy": "IMM CV+CA (filterpy)",
+    "cv_kalman": "CV Kalman",
+    "ca_kalman": "CA Kalman",
+    "best_expert_hindsight": "best expert (hindsight)",
+    "default_best_expert": "  its best expert",
+    "no_prediction": "no prediction",
+}
+#: The page (relative to the repository, and its anchor) that explains each claim's outcome.
+CLAIM_LINKS = {
+    "ordering": "docs/paper.md#claim-ordering",
+    "single_over_softmax_3x": "docs/paper.md#claim-single-3x",
+    "random_over_single_3x": "docs/paper.md#claim-random-3x",
+    "one_hot": "docs/paper.md#claim-one-hot",
+    "mixture_beats_peers": "docs/paper.md#our-claims",
+    "within_5pct_of_best_expert": "docs/paper.md#our-claims",
+    "default_beats_peers_by_3pct": "docs/paper.md#our-claims",
+    "default_within_5pct_of_best_expert": "docs/paper.md#our-claims",
+}
 
 
 def _paper_axis(mean: float, std: float, maximum: float) -> dict[str, float]:
@@ -256,13 +283,16 @@ def _suffix(mode: str) -> str:
     return "" if mode == "rls" else f"_{mode}"
 
 
-def aggregate(per_seed: list[dict[str, Any]], modes: Iterable[str] = ("rls", "literal")) -> dict[str, Any]:
+def aggregate(per_seed: list[dict[str, Any]], modes: Iterable[str] = ("rls", "literal"), *,
+              gating: str | None = None) -> dict[str, Any]:
     """Combine :func:`run_seed` outputs into the JSON shape of ``kalmix reproduce table1``.
 
     Each number is the mean over seeds; ``rows_spread`` (``rows_literal_spread``) holds
     the standard deviation over seeds (0 for one seed). ``rows`` is the ``rls`` mode,
     ``rows_literal`` the ``literal`` mode. ``claims`` (``claims_literal``) evaluates
-    :func:`check_claims` on the mean rows, ``claims_per_seed`` on each seed.
+    :func:`check_claims` on the mean rows, each with its ``why`` (:func:`explain_claim`;
+    ``gating`` is the gate the mixture rows ran with, default fixed-share) and ``link``;
+    ``claims_per_seed`` evaluates them on each seed.
     """
     modes = tuple(modes)
     result: dict[str, Any] = {"paper": PAPER_TABLE1, "seeds": [item["seed"] for item in per_seed],
@@ -278,7 +308,11 @@ def aggregate(per_seed: list[dict[str, Any]], modes: Iterable[str] = ("rls", "li
         result[f"best_expert{suffix}"] = [{"seed": item["seed"], "index": item["modes"][mode]["best_expert_index"],
                                            "source": item["modes"][mode]["best_expert_source"]}
                                           for item in per_seed]
-        result[f"claims{suffix}"] = check_claims(result[key], result[f"max_weight_above_0.8_fraction{suffix}"])
+        claims = check_claims(result[key], result[f"max_weight_above_0.8_fraction{suffix}"])
+        for claim in claims:
+            claim["why"] = explain_claim(claim, result[key], mode=mode, gating=gating)
+            claim["link"] = CLAIM_LINKS[claim["name"]]
+        result[f"claims{suffix}"] = claims
     result["claims_per_seed"] = {
         mode: [check_claims({**item["modes"][mode]["rows"], **item["peers"]},
                             item["modes"][mode]["max_weight_above_0.8_fraction"]) for item in per_seed]
@@ -298,16 +332,22 @@ def table1(seeds: Iterable[int] = range(5), *, modes: Iterable[str] = ("rls", "l
     modes = tuple(modes)
     per_seed = [run_seed(seed, modes=modes, n_experts=n_experts, scenario=scenario,
                          mixture_options=mixture_options, peers=peers, progress=progress) for seed in seeds]
-    return aggregate(per_seed, modes)
+    return aggregate(per_seed, modes, gating=(mixture_options or {}).get("gating"))
 
 
 def _claim(name: str, source: str, statement: str, holds: bool, numbers: dict[str, float]) -> dict[str, Any]:
-    return {"name": name, "source": source, "statement": statement, "holds": bool(holds),
+    if source == "paper":
+        verdict = "reproduced" if holds else "not reproduced"
+    else:
+        verdict = "holds" if holds else "does not hold"
+    return {"name": name, "source": source, "statement": statement, "holds": bool(holds), "verdict": verdict,
             "numbers": {key: float(value) for key, value in numbers.items()}}
 
 
 #: The peer rows our claims compare against.
 _CLAIM_PEERS = ("imm_filterpy", "cv_kalman", "ca_kalman", "single_akf", "no_prediction")
+_SHORT = {"imm_filterpy": "IMM", "cv_kalman": "CV", "ca_kalman": "CA", "single_akf": "single AKF",
+          "no_prediction": "no prediction"}
 
 
 def _best_expert_claim(name, subject, oracle, row, best, tolerance) -> list[dict[str, Any]]:
@@ -315,7 +355,7 @@ def _best_expert_claim(name, subject, oracle, row, best, tolerance) -> list[dict
     if not best:
         return []
     numbers = {f"{axis}.ratio": row[axis]["rms"] / best[axis]["rms"] for axis in ("X", "Y")}
-    return [_claim(name, "ours", f"{subject} RMS <= {1 + tolerance:.2f} x {oracle} in hindsight, X and Y",
+    return [_claim(name, "ours", f"{subject} RMS <= {1 + tolerance:.2f}x {oracle} in hindsight, X and Y",
                    all(v <= 1.0 + tolerance for v in numbers.values()), numbers)]
 
 
@@ -323,8 +363,9 @@ def check_claims(rows: dict[str, Any], one_hot_fraction: float | None = None,
                  best_expert_tolerance: float = 0.05) -> list[dict[str, Any]]:
     """The paper's claims and ours, evaluated on one table of rows.
 
-    Returns a list of ``{"name", "source": "paper" | "ours", "statement", "holds", "numbers"}``.
-    Claims whose rows are absent are skipped.
+    Returns a list of ``{"name", "source": "paper" | "ours", "statement", "holds", "verdict", "numbers"}``;
+    ``verdict`` is "reproduced" / "not reproduced" for the paper's claims, "holds" / "does not hold" for
+    ours. Claims whose rows are absent are skipped.
     """
     claims = []
     single, softmax, random = (rows.get(name) for name in ("single_akf", "mixture_softmax", "mixture_random"))
@@ -336,8 +377,8 @@ def check_claims(rows: dict[str, Any], one_hot_fraction: float | None = None,
                 numbers.update({f"{axis}.{stat}.softmax": values[0], f"{axis}.{stat}.single": values[1],
                                 f"{axis}.{stat}.random": values[2]})
                 ok &= values[0] < values[1] < values[2]
-        claims.append(_claim("ordering", "paper", "softmax mixture < single AKF < random mixture, on std and on "
-                             "max, for X and Y", ok, numbers))
+        claims.append(_claim("ordering", "paper", "softmax mixture < single AKF < random mixture, in std and in "
+                             "max, X and Y", ok, numbers))
     if single and softmax:
         numbers, ok = {}, True
         for axis in ("X", "Y"):
@@ -345,17 +386,18 @@ def check_claims(rows: dict[str, Any], one_hot_fraction: float | None = None,
             max_ratio = single[axis]["max"] / softmax[axis]["max"]
             numbers.update({f"{axis}.rms_ratio": ratio, f"{axis}.max_ratio": max_ratio})
             ok &= ratio >= 3.0 and max_ratio >= 3.0
-        claims.append(_claim("single_over_softmax_3x", "paper", "single-AKF RMS / softmax RMS >= 3 and softmax max "
-                             "error >= 3x below the single's, X and Y", ok, numbers))
+        claims.append(_claim("single_over_softmax_3x", "paper", "single AKF >= 3x the softmax mixture, in RMS and "
+                             "in max, X and Y", ok, numbers))
     if single and random:
         numbers = {f"{axis}.rms_ratio": random[axis]["rms"] / single[axis]["rms"] for axis in ("X", "Y")}
-        claims.append(_claim("random_over_single_3x", "paper", "random-mixture RMS >= 3x the single AKF's, X and Y",
+        claims.append(_claim("random_over_single_3x", "paper", "random mixture >= 3x the single AKF in RMS, X and Y",
                              all(v >= 3.0 for v in numbers.values()), numbers))
     if one_hot_fraction is not None:
-        claims.append(_claim("one_hot", "paper", f"gating weights mostly near one-hot: largest weight > "
-                             f"{ONE_HOT_THRESHOLD} on more than half of the steps", one_hot_fraction > 0.5,
+        claims.append(_claim("one_hot", "paper", f"gating weights mostly one-hot: largest > {ONE_HOT_THRESHOLD} "
+                             "on over half the frames", one_hot_fraction > 0.5,
                              {"fraction": one_hot_fraction}))
     peers = [name for name in _CLAIM_PEERS if name in rows]
+    peer_text = ", ".join(_SHORT[name] for name in peers)
     if softmax:
         numbers, ok = {}, True
         for axis in ("X", "Y"):
@@ -363,10 +405,10 @@ def check_claims(rows: dict[str, Any], one_hot_fraction: float | None = None,
             for name in peers:
                 numbers[f"{axis}.{name}"] = rows[name][axis]["rms"]
                 ok &= softmax[axis]["rms"] <= rows[name][axis]["rms"]
-        claims.append(_claim("mixture_beats_peers", "ours", "softmax-mixture RMS <= every peer row (" +
-                             ", ".join(peers) + "), X and Y", ok, numbers))
-        claims += _best_expert_claim("within_5pct_of_best_expert", "softmax-mixture", "best single expert", softmax,
-                                     rows.get("best_expert_hindsight"), best_expert_tolerance)
+        claims.append(_claim("mixture_beats_peers", "ours", f"mixture RMS <= every peer's ({peer_text}), X and Y",
+                             ok, numbers))
+        claims += _best_expert_claim("within_5pct_of_best_expert", "mixture", "its best single expert",
+                                     softmax, rows.get("best_expert_hindsight"), best_expert_tolerance)
     default = rows.get("default_bank")
     if default:
         numbers, ok = {}, True
@@ -375,8 +417,102 @@ def check_claims(rows: dict[str, Any], one_hot_fraction: float | None = None,
             best_peer = min(rows[name][axis]["rms"] for name in peers) if peers else float("inf")
             numbers[f"{axis}.ratio_to_best_peer"] = default[axis]["rms"] / best_peer
             ok &= default[axis]["rms"] <= 0.97 * best_peer
-        claims.append(_claim("default_beats_peers_by_3pct", "ours", "default-bank RMS <= 0.97 x the best peer row (" +
-                             ", ".join(peers) + "), X and Y", ok, numbers))
+        claims.append(_claim("default_beats_peers_by_3pct", "ours", "default-bank RMS <= 0.97x the best peer's, X "
+                             "and Y", ok, numbers))
         claims += _best_expert_claim("default_within_5pct_of_best_expert", "default-bank", "its best single expert",
                                      default, rows.get("default_best_expert"), best_expert_tolerance)
     return claims
+
+
+def _pair(numbers: dict[str, float], key: str, unit: str = "x", digits: int = 2) -> str:
+    """``"1.14x / 1.14x"`` (``unit`` "x") or ``"1.051 / 1.080 px"`` (a unit with a space): the X and the Y
+    value, ``numbers["X.<key>"]`` and ``numbers["Y.<key>"]``."""
+    values = [numbers[f"{axis}.{key}"] for axis in ("X", "Y")]
+    if unit.startswith(" "):
+        return " / ".join(f"{value:.{digits}f}" for value in values) + unit
+    return " / ".join(f"{value:.{digits}f}{unit}" for value in values)
+
+
+def explain_claim(claim: dict[str, Any], rows: dict[str, Any], *, mode: str = "rls",
+                  gating: str | None = None) -> str:
+    """One line: what was measured for ``claim`` (from :func:`check_claims` on ``rows``) and, where it is
+    known, why the paper's claim is or is not reproduced (the page ``claim["link"]`` explains it at length).
+
+    ``mode`` is the AKF mode and ``gating`` the gate (None: the default, fixed-share) the rows ran with.
+    """
+    name, holds, numbers = claim["name"], claim["holds"], claim["numbers"]
+    literal, paper_gate = mode == "literal", gating == "paper"
+    same_dynamics = "eq. 6 gives all experts the same dynamics"
+    slow_gate = "the paper's gate learns too slowly, its weights stay near uniform"
+    if name == "ordering":
+        if holds:
+            if literal or paper_gate:
+                return "std and max: mixture < single AKF < random mixture, X and Y"
+            return "with our fixed-share gate; not with the paper's own gate (--gating paper)"
+        broken = []
+        for axis in ("X", "Y"):
+            for stat in ("std", "max"):
+                mixture, single, random = (numbers[f"{axis}.{stat}.{row}"] for row in ("softmax", "single", "random"))
+                if not mixture < single:
+                    broken.append(f"{stat} {axis}: mixture {mixture:.3g} >= single {single:.3g}")
+                if not single < random:
+                    broken.append(f"{stat} {axis}: single {single:.3g} >= random {random:.3g}")
+        text = broken[0] + (f" (+{len(broken) - 1} more)" if len(broken) > 1 else "")
+        cause = same_dynamics if literal else slow_gate if paper_gate else None
+        return f"{text}: {cause}" if cause else text
+    if name == "single_over_softmax_3x":
+        ratios = f"{_pair(numbers, 'rms_ratio')} in RMS, {_pair(numbers, 'max_ratio')} in max"
+        if holds:
+            return ratios
+        if literal:
+            return f"{ratios}: {same_dynamics}"
+        if paper_gate:
+            return f"{ratios}: {slow_gate}"
+        best, single = rows.get("best_expert_hindsight"), rows.get("single_akf")
+        if best and single:
+            gap = 100 * max(single[axis]["rms"] / best[axis]["rms"] - 1.0 for axis in ("X", "Y"))
+            if gap <= 20:
+                return f"{ratios}: our single AKF is already within {max(gap, 0):.0f} % of the best expert in RMS"
+        return ratios
+    if name == "random_over_single_3x":
+        ratios = _pair(numbers, "rms_ratio")
+        if holds:
+            return ratios
+        return f"{ratios}: every expert of the bank predicts well, so a random mix of them does too"
+    if name == "one_hot":
+        share = f"largest > {ONE_HOT_THRESHOLD} on {100 * numbers['fraction']:.1f} % of the frames"
+        if holds:
+            return share
+        if literal:
+            return f"{share}: {same_dynamics}, none stands out"
+        if paper_gate:
+            return f"{share}: {slow_gate}"
+        return f"{share}: the fixed-share gate spreads it over near-equal experts"
+    if name == "mixture_beats_peers":
+        peers = sorted({key.split(".", 1)[1] for key in numbers} - {"softmax"}, key=_CLAIM_PEERS.index)
+        mixture = {axis: numbers[f"{axis}.softmax"] for axis in ("X", "Y")}
+        if holds:
+            best = {axis: min(peers, key=lambda peer: numbers[f"{axis}.{peer}"]) for axis in ("X", "Y")}
+            if best["X"] == best["Y"]:
+                peer_text = f"{_SHORT[best['X']]} {_pair(numbers, best['X'], ' px', 3)}"
+            else:
+                peer_text = " / ".join(f"{_SHORT[best[axis]]} {numbers[f'{axis}.{best[axis]}']:.3f}"
+                                       for axis in ("X", "Y")) + " px"
+            return f"mixture {_pair(numbers, 'softmax', ' px', 3)}, best peer {peer_text}"
+        beaten = []
+        for axis in ("X", "Y"):
+            better = sorted((peer for peer in peers if numbers[f"{axis}.{peer}"] < mixture[axis]),
+                            key=lambda peer: numbers[f"{axis}.{peer}"])
+            if better:
+                beaten.append(f"{axis}: mixture {mixture[axis]:.3f} px > " +
+                              ", ".join(f"{_SHORT[peer]} {numbers[f'{axis}.{peer}']:.3f}" for peer in better))
+        return "; ".join(beaten)
+    if name in ("within_5pct_of_best_expert", "default_within_5pct_of_best_expert"):
+        text = f"ratio {_pair(numbers, 'ratio', '', 3)}"
+        if all(numbers[f"{axis}.ratio"] < 1.0 for axis in ("X", "Y")):
+            text += ": better than the oracle"
+        return text
+    if name == "default_beats_peers_by_3pct":
+        return (f"default bank {_pair(numbers, 'default', ' px', 3)}, "
+                f"{_pair(numbers, 'ratio_to_best_peer', 'x', 3)} the best peer")
+    return ""
