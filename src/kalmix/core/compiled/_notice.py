@@ -1,8 +1,10 @@
 """Saying so while kalmix's kernels compile (a fresh install's first run, or the first after an upgrade).
 
 numba compiles a kernel the first time it is called, unless its on-disk cache (see
-:mod:`kalmix.core.compiled`) holds it already: about a minute for the default bank on two
-cores, once. This module tells the user, instead of a minute of silence.
+:mod:`kalmix.core.compiled`) holds it already. Measured on two cores shared with other work
+(load average ~5), an empty cache: ``kalmix predict`` of a 1,000-row file 53 s, ``kalmix
+reproduce table1`` 2 min, nearly all of it compiling; once. This module tells the user,
+instead of minutes of silence.
 
 How a compile is seen: numba fires a ``numba:compile`` event around every compile that its
 cache could not serve, and none when the cache serves the kernel, so a run with a warm cache
@@ -52,7 +54,7 @@ QUIET_SECONDS = 1.5
 #: How often displays are told the elapsed time.
 TICK_SECONDS = 1.0
 
-START = "compiling kalmix's kernels for this machine, first run only (about a minute) ..."
+START = "compiling kalmix's kernels for this machine, first run only (a minute or two) ..."
 START_MORE = "compiling more of kalmix's kernels for this machine, first run only ..."
 
 _lock = threading.Lock()
