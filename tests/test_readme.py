@@ -21,3 +21,28 @@ def test_readme_opens_with_the_two_setup_commands():
     assert "pip install" in first_block[0] and "kalmix" in first_block[0]
     assert "pip install \".[test]\"" in first_block[1] and "pytest" in first_block[1]
     assert first_block[1].split("&&", 1)[1].strip() in (Path(README.parent, ".ci/run").read_text())
+
+
+def test_readme_python_is_the_quickstart_example():
+    """The README shows examples/quickstart.py as it is (the docs include the file; tests/test_examples.py runs it)."""
+    quickstart = (README.parent / "examples" / "quickstart.py").read_text()
+    assert BLOCKS == [quickstart]
+
+
+def test_readme_is_a_page_a_person_reads():
+    """The README stays short: the details live in docs/, history in CHANGELOG.md."""
+    text = README.read_text()
+    assert len(text.splitlines()) <= 250
+    assert "<!--" not in text                                   # no placeholder left unfilled
+    assert not re.search(r"\b20\d\d-\d\d-\d\d\b", text)        # no dated prose
+
+
+def test_readme_results_table_is_generated():
+    """The README's table of what to expect is `python -m benchmarks.results_tables --headline`, not typed by hand."""
+    import sys
+
+    sys.path.insert(0, str(README.parent))
+    from benchmarks.results_tables import Results, headline
+
+    table = "\n\n".join(t.markdown() for t in headline(Results()))
+    assert table.strip() in README.read_text()
