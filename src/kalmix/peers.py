@@ -7,6 +7,10 @@ Both models share one state so that the IMM can mix them: per measured coordinat
 (:math:`n = 3p`); the CV model has zero-acceleration dynamics (its acceleration
 component is reset to 0 by :math:`F`), the CA model integrates the acceleration.
 Units are measurement units (pixels) and frames (:math:`\\Delta t = 1`).
+:func:`imm_predictions` runs filterpy's IMM equations on arrays
+(:mod:`kalmix.peer_models._batched`: many candidates and tracks in one pass, one Python
+step per row); the test suite checks it against filterpy's ``IMMEstimator`` stepped row by
+row (equal within rounding).
 
 Fair tuning
 -----------
@@ -27,8 +31,8 @@ random moves and the pixel noise differ), which if anything favours the tuned pe
 
 On your own data, tune on a separate part of it: ``imm_predictions(test, **tune(train)["best"])``.
 
-filterpy is an optional dependency (extra ``peers``); it is imported inside the
-functions that need it.
+filterpy (extra ``peers``) is needed only to check :func:`imm_predictions` against it;
+``kalmix evaluate`` shows the IMM row to users who have it.
 """
 
 from __future__ import annotations
@@ -119,30 +123,51 @@ def _check_positive(name: str, value) -> float:
     return value
 
 
-def _models(p: int, cv_process_noise: float, ca_process_noise: float, measurement_noise: float,
-            initial_variance: tuple[float, float, float]):
-    """The CV and CA filterpy KalmanFilters on the shared state ``[pos, vel, acc] x p``."""
-    from filterpy.common import Q_discrete_white_noise
-    from filterpy.kalman import KalmanFilter
-    from scipy.linalg import block_diag
+#: The CV and CA models per coordinate on ``[pos, vel, acc]`` with Δt = 1 frame: ``F`` (the CV model resets the
+#: acceleration) and ``Q / variance`` (filterpy's ``Q_discrete_white_noise`` with ``dim=2``, ``dim=3``).
+_FRAME_F = np.array([[[1.0, 1.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]],
+                     [[1.0, 1.0, 0.5], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]]])
+_FRAME_Q = np.array([[[0.25, 0.5, 0.0], [0.5, 1.0, 0.0], [0.0, 0.0, 0.0]],
+                     [[0.25, 0.5, 0.5], [0.5, 1.0, 1.0], [0.5, 1.0, 1.0]]])
 
-    f_cv = np.array([[1.0, 1.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
-    f_ca = np.array([[1.0, 1.0, 0.5], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]])
-    q_cv = np.zeros((3, 3))
-    q_cv[:2, :2] = Q_discrete_white_noise(dim=2, dt=1.0, var=cv_process_noise)
-    q_ca = Q_discrete_white_noise(dim=3, dt=1.0, var=ca_process_noise)
-    h = np.zeros((p, 3 * p))
-    h[np.arange(p), 3 * np.arange(p)] = 1.0
-    filters = []
-    for f, q in ((f_cv, q_cv), (f_ca, q_ca)):
-        kf = KalmanFilter(dim_x=3 * p, dim_z=p)
-        kf.F = block_diag(*([f] * p))
-        kf.Q = block_diag(*([q] * p))
-        kf.H = h.copy()
-        kf.R = np.eye(p) * measurement_noise
-        kf.P = np.diag(np.tile(initial_variance, p))
-        filters.append(kf)
-    return filters, h
+
+def _frame_models(dt):
+    """``(F, Q / variance)`` of the CV and the CA model for each run of a batch (Δt is one frame)."""
+    count = len(dt)
+    return np.broadcast_to(_FRAME_F, (count, 2, 3, 3)), np.broadcast_to(_FRAME_Q, (count, 2, 3, 3))
+
+
+def _imm_many(pieces, candidates, length_unit=1.0, initial_variance=(1.0, 100.0, 10.0), modes=False):
+    """:func:`imm_predictions` of each candidate on each piece ``(T, p)``, in batches: ``out[c][i]``.
+
+    ``candidates`` are dicts of ``cv_process_noise, ca_process_noise, measurement_noise,
+    switch_probability``, all checked by the caller; with ``modes``, ``out[c][i]`` is
+    ``(predictions, mode probabilities)``.
+    """
+    from .peer_models._batched import imm_run
+    from .peer_models.kinematic import _batches
+
+    unit2 = float(length_unit) ** 2
+    table = np.array([[c["cv_process_noise"] * unit2, c["ca_process_noise"] * unit2,
+                       c["measurement_noise"] * unit2, float(c["switch_probability"])] for c in candidates])
+    p0 = np.array([v * unit2 for v in initial_variance])
+    out = [[None] * len(pieces) for _ in candidates]
+    k = len(candidates)
+    for batch in _batches([len(z) for z in pieces]):
+        t_count, s_count = len(pieces[batch[0]]), len(batch)
+        z = np.full((t_count, s_count, pieces[batch[0]].shape[1]), np.nan)
+        for s, j in enumerate(batch):
+            z[:len(pieces[j]), s] = pieces[j]
+        column = np.repeat(np.arange(k), s_count)
+        lengths = np.tile([len(pieces[j]) for j in batch], k)
+        result = imm_run(np.tile(z, (1, k, 1)), lengths, _frame_models, table[column, :2], table[column, 2],
+                         table[column, 3], np.broadcast_to(p0, (len(column), 3)), last_row=True, return_modes=modes)
+        for c in range(k):
+            for s, j in enumerate(batch):
+                n = len(pieces[j])
+                column = c * s_count + s
+                out[c][j] = (result[0][:n, column], result[1][:n, column]) if modes else result[:n, column]
+    return out
 
 
 def imm_predictions(
@@ -190,48 +215,20 @@ def imm_predictions(
         the predicted mode probabilities :math:`\\bar c = \\mu M`.
     mode_probabilities : ndarray, shape (T, 2), only if requested
     """
-    from filterpy.kalman import IMMEstimator
-
     z = _check_measurements(measurements)
-    unit2 = _check_positive("length_unit", length_unit) ** 2
-    cv_q = _check_positive("cv_process_noise", cv_process_noise) * unit2
-    ca_q = _check_positive("ca_process_noise", ca_process_noise) * unit2
-    r = _check_positive("measurement_noise", measurement_noise) * unit2
+    for name, value in (("length_unit", length_unit), ("cv_process_noise", cv_process_noise),
+                        ("ca_process_noise", ca_process_noise), ("measurement_noise", measurement_noise)):
+        _check_positive(name, value)
     s = float(switch_probability)
     if not 0.0 <= s <= 1.0:
         raise ValueError(f"switch_probability: expected a number in [0, 1], got {switch_probability!r}")
-    p0 = tuple(_check_positive("initial_variance", v) * unit2 for v in initial_variance)
+    p0 = tuple(_check_positive("initial_variance", v) for v in initial_variance)
     if len(p0) != 3:
         raise ValueError(f"initial_variance: expected 3 variances (pos, vel, acc), got {initial_variance!r}")
-    t_count, p = z.shape
-    filters, h = _models(p, cv_q, ca_q, r, p0)
-    transition = np.array([[1.0 - s, s], [s, 1.0 - s]])
-    imm = IMMEstimator(filters, [0.5, 0.5], transition)
-    predictions = np.full((t_count, p), np.nan)
-    modes = np.full((t_count, 2), np.nan)
-    started = False
-    for t in range(t_count):
-        row = z[t]
-        valid = bool(np.isfinite(row).all())
-        if not started:
-            if not valid:
-                continue
-            x0 = np.zeros((3 * p, 1))  # filterpy keeps column vectors
-            x0[0::3, 0] = row
-            for kf in filters:
-                kf.x = x0.copy()
-                kf.P = np.diag(np.tile(p0, p))
-            started = True
-        elif valid:
-            imm.update(row)
-        else:  # missing: the mode probabilities only go through the Markov chain
-            imm.mu = imm.cbar.copy()
-            imm._compute_mixing_probabilities()
-        imm.predict()
-        mixed = sum(c * kf.x for c, kf in zip(imm.cbar, filters))
-        predictions[t] = (h @ mixed)[:, 0]
-        modes[t] = imm.cbar
-    return (predictions, modes) if return_mode_probabilities else predictions
+    candidate = {"cv_process_noise": float(cv_process_noise), "ca_process_noise": float(ca_process_noise),
+                 "measurement_noise": float(measurement_noise), "switch_probability": s}
+    result = _imm_many([z], [candidate], float(length_unit), p0, modes=return_mode_probabilities)[0][0]
+    return result
 
 
 def one_step_rms(predictions: np.ndarray, measurements: np.ndarray) -> float:

@@ -34,6 +34,7 @@ mixture's bank with the lowest error over the reported part.
 
 from __future__ import annotations
 
+import importlib.util
 import itertools
 import math
 from dataclasses import dataclass, field
@@ -395,13 +396,15 @@ def _run_peer_models(streams, tuning, unit, horizon, predictions, tuned, log):
             params = peer.tune([c for c in cut if c[2].any()] or cut, unit=unit, time_unit=time_unit)
             one = np.full_like(streams.values, np.nan)
             ahead = np.full_like(streams.values, np.nan) if horizon > 1 else one
-            for j, n in enumerate(keep):
-                if n < 2:
-                    continue
-                v, t = streams.values[:n, j], streams.times[:n, j]
-                one[:n, j] = peer.predict(v, t, params, horizon=1)
-                if horizon > 1:
-                    ahead[:n, j] = peer.predict(v, t, params, horizon=horizon)
+            columns = [j for j, n in enumerate(keep) if n >= 2]
+            runs = [(streams.values[:keep[j], j], streams.times[:keep[j], j]) for j in columns]
+            for h, out in ((1, one), (horizon, ahead)) if horizon > 1 else ((1, one),):
+                if peer.predict_many is not None:   # every segment in one batched pass, the same numbers
+                    results = peer.predict_many(runs, params, horizon=h)
+                else:
+                    results = [peer.predict(v, t, params, horizon=h) for v, t in runs]
+                for j, result in zip(columns, results):
+                    out[:keep[j], j] = result
         except Exception as error:   # noqa: BLE001 - a peer library that fails on this data is left out, said
             _leave_out(label, error, tuned, log)
             continue
@@ -445,7 +448,7 @@ def _tune_fixed(order, degree, unit, values, tuning):
 
 
 def _tune_imm(streams, tuning, unit, measurement_noise):
-    from ..peers import imm_predictions
+    from ..peers import _imm_many
 
     order = np.argsort(-streams.lengths)[:3]
     pieces = []
@@ -456,12 +459,13 @@ def _tune_imm(streams, tuning, unit, measurement_noise):
     if not pieces:   # too short to tune on: the grid's middle, said in ``tuned``
         return {"measurement_noise": measurement_noise / unit**2, **{k: v[1] for k, v in _IMM_GRID.items()},
                 "untuned": "no track's tuning part has more than 10 rows: the grid's middle values"}
+    candidates = [dict(zip(_IMM_GRID, candidate), measurement_noise=measurement_noise / unit**2)
+                  for candidate in itertools.product(*_IMM_GRID.values())]
     best, best_rms = None, math.inf
-    for candidate in itertools.product(*_IMM_GRID.values()):
-        options = dict(zip(_IMM_GRID, candidate), measurement_noise=measurement_noise / unit**2)
+    for options, predictions in zip(candidates, _imm_many(pieces, candidates, unit)):   # all in one batched run
         squared, count = 0.0, 0
-        for z in pieces:
-            e = z[1:] - imm_predictions(z, length_unit=unit, **options)[:-1]
+        for z, prediction in zip(pieces, predictions):
+            e = z[1:] - prediction[:-1]
             e = e[np.isfinite(e)]
             squared, count = squared + float(np.sum(e**2)), count + e.size
         rms = math.sqrt(squared / count) if count else math.inf
@@ -669,12 +673,9 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         predictions[name] = _run(params, values, horizon, lengths=streams.lengths)[:2]
 
     if peers:
-        try:
-            from ..peers import imm_predictions
-            import filterpy  # noqa: F401
-        except ImportError:
-            imm_predictions = None
-        if imm_predictions is not None:
+        from ..peers import _imm_many
+
+        if importlib.util.find_spec("filterpy") is not None:   # the row of a user who has filterpy's IMM
             log("IMM (filterpy): tuning")
             try:
                 best = _tune_imm(streams, tune_scored, peer_unit, tuned["CV Kalman"]["measurement_noise"])
@@ -685,9 +686,9 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
                     log(f"IMM (filterpy): not tuned ({note})")
                 log("IMM (filterpy): running")
                 imm = np.full_like(values, np.nan)
-                for j in range(s):
-                    n = streams.lengths[j]
-                    imm[:n, j] = imm_predictions(values[:n, j], length_unit=peer_unit, **best)
+                runs = _imm_many([values[:n, j] for j, n in enumerate(streams.lengths)], [best], peer_unit)[0]
+                for j, n in enumerate(streams.lengths):
+                    imm[:n, j] = runs[j]
             except Exception as error:   # noqa: BLE001 - as the other peers: one wild value can make filterpy's
                 _leave_out("IMM (filterpy)", error, tuned, log)   # matrices singular; left out, the run goes on
             else:

@@ -24,9 +24,10 @@ Input (one track segment)
     of numbers, with the tuning RMS of the chosen candidate under ``"tuning_rms"``.
 
 :data:`PEERS` maps a name to a :class:`Peer`. ``Peer.max_rows`` is set for the peers
-that cannot keep up with ~500k rows in a few minutes, filterpy's IMM and MMAE (Python
-loops over rows and filters; ``python -m benchmarks.peer_models_timing`` times every peer,
-and river's and padasip's loops need no cap): evaluate them on the first ``n`` rows of
+that cannot keep up with ~500k rows in a few minutes, the IMM and MMAE (one step of
+9 x 9 matrix algebra per row, for all segments at once: a single long segment is the slow
+case; ``python -m benchmarks.peer_models_timing`` times every peer, and river's and
+padasip's loops need no cap): evaluate them on the first ``n`` rows of
 every segment, the largest ``n`` that keeps the total within ``max_rows``
 (:func:`row_budget`, deterministic). The tuning of the loop peers (filterpy, river,
 padasip) scores each candidate on at most ``TUNE_ROWS`` rows chosen the same way from the
@@ -38,7 +39,8 @@ Peers (modules):
 - ``cv_dt``, ``ca_dt`` (:mod:`.kinematic`): CV / CA Kalman filters with the real Δt, numpy,
   all 68 grid candidates in one batched pass;
 - ``imm_dt``, ``mmae_dt`` (:mod:`.multiple_model`): filterpy's IMM (CV + CA) and MMAE bank
-  (CV filters at several ``q``), real Δt;
+  (CV filters at several ``q``), real Δt, their equations batched in numpy (checked against
+  filterpy);
 - ``holt_winters`` (:mod:`.holt_winters`): river's Holt-Winters (level + trend), frame-based;
 - ``rls_ar`` (:mod:`.rls_ar`): padasip's RLS as an adaptive AR model of the velocity;
 - ``ucm_llt`` (:mod:`.ucm`): statsmodels' local linear trend, variances by maximum
@@ -75,8 +77,10 @@ class Peer:
 PEERS: dict[str, Peer] = {peer.name: peer for peer in (
     Peer("cv_dt", kinematic.tune_cv, kinematic.predict_cv, predict_many=kinematic.predict_many_cv),
     Peer("ca_dt", kinematic.tune_ca, kinematic.predict_ca, predict_many=kinematic.predict_many_ca),
-    Peer("imm_dt", multiple_model.tune_imm, multiple_model.predict_imm, ("filterpy",), max_rows=50_000),
-    Peer("mmae_dt", multiple_model.tune_mmae, multiple_model.predict_mmae, ("filterpy",), max_rows=50_000),
+    Peer("imm_dt", multiple_model.tune_imm, multiple_model.predict_imm, ("filterpy",), max_rows=50_000,
+         predict_many=multiple_model.predict_many_imm),
+    Peer("mmae_dt", multiple_model.tune_mmae, multiple_model.predict_mmae, ("filterpy",), max_rows=50_000,
+         predict_many=multiple_model.predict_many_mmae),
     Peer("holt_winters", holt_winters.tune, holt_winters.predict, ("river",)),
     Peer("rls_ar", rls_ar.tune, rls_ar.predict, ("padasip",)),
     Peer("ucm_llt", ucm.tune, ucm.predict, ("statsmodels",)),

@@ -16,22 +16,32 @@
 Both start as the kinematic filters do (first valid measurement, zero velocity and
 acceleration, ``P₀ = r diag(1, V, V)``). Measurement noise ``r`` and the centres of the
 process-noise grids come from :func:`~kalmix.peer_models.kinematic.tune_cv` (and
-``tune_ca``); see :func:`tune_imm` and :func:`tune_mmae`. These are Python loops over
-rows (filterpy objects): tuning uses at most :data:`TUNE_ROWS` rows (the first rows of
-each segment's tuning part, :func:`~kalmix.peer_models._common.tuning_rows`).
+``tune_ca``); see :func:`tune_imm` and :func:`tune_mmae`. Tuning uses at most
+:data:`TUNE_ROWS` rows (the first rows of each segment's tuning part,
+:func:`~kalmix.peer_models._common.tuning_rows`).
+
+filterpy's objects step one filter at a time in Python; here their equations run on arrays
+(:mod:`~kalmix.peer_models._batched`), every grid candidate and every segment in one pass
+with one Python step per row. The test suite checks the predictions against filterpy's
+``IMMEstimator`` and ``MMAEFilterBank`` stepped row by row (equal within rounding) and the
+tuning's choice against a grid search over them.
 """
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
+from ._batched import imm_run, mmae_run
 from ._common import check_horizon, check_positive, check_segment, check_segments, grid_search, one_step_rms, \
     tuning_rows
-from .kinematic import INITIAL_VARIANCE_RATIO, process_noise_shape, transition, tune_ca, tune_cv
+from .kinematic import INITIAL_VARIANCE_RATIO, _batches, _pad, process_noise_shape, transition, tune_ca, tune_cv
 
-__all__ = ["TUNE_ROWS", "MMAE_FILTERS", "tune_imm", "predict_imm", "tune_mmae", "predict_mmae"]
+__all__ = ["TUNE_ROWS", "MMAE_FILTERS", "tune_imm", "predict_imm", "predict_many_imm", "tune_mmae", "predict_mmae",
+           "predict_many_mmae"]
 
-#: Rows of the tuning part scored per candidate (filterpy is a Python loop).
+#: Rows of the tuning part scored per candidate.
 TUNE_ROWS = 3000
 #: Number of CV filters in the MMAE bank.
 MMAE_FILTERS = 5
@@ -50,82 +60,80 @@ def _read(params, names):
     return [check_positive(f"params[{name!r}]", params[name]) for name in names]
 
 
-def _filters(p, order_f, r, z0, count):
-    from filterpy.kalman import KalmanFilter
-
-    n = order_f
-    h = np.zeros((p, n * p))
-    h[np.arange(p), n * np.arange(p)] = 1.0
-    x0 = np.zeros((n * p, 1))
-    x0[0::n, 0] = z0
-    p0 = np.kron(np.eye(p), np.diag([r] + [r * INITIAL_VARIANCE_RATIO] * (n - 1)))
-    filters = []
-    for _ in range(count):
-        kf = KalmanFilter(dim_x=n * p, dim_z=p)
-        kf.H, kf.R, kf.x, kf.P = h.copy(), np.eye(p) * r, x0.copy(), p0.copy()
-        filters.append(kf)
-    return filters, h
-
-
-def _imm_models(dt, p, q_cv, q_ca):
-    """``(F, Q)`` of the CV and the CA model on the shared ``[pos, vel, acc]`` state."""
+def _imm_models(dt):
+    """Per coordinate, ``(F, Q / q)`` of the CV and the CA model on the shared ``[pos, vel, acc]`` state:
+    each ``(len(dt), 2, 3, 3)``."""
     f_cv = transition(dt, 3)
-    f_cv[1, 2] = f_cv[0, 2] = f_cv[2, 2] = 0.0
-    q_shape = np.zeros((3, 3))
-    q_shape[:2, :2] = process_noise_shape(dt, 2)
-    eye = np.eye(p)
-    return ((np.kron(eye, f_cv), np.kron(eye, q_cv * q_shape)),
-            (np.kron(eye, transition(dt, 3)), np.kron(eye, q_ca * process_noise_shape(dt, 3))))
+    f_cv[..., 1, 2] = f_cv[..., 0, 2] = f_cv[..., 2, 2] = 0.0
+    shape_cv = np.zeros(np.shape(dt) + (3, 3))
+    shape_cv[..., :2, :2] = process_noise_shape(dt, 2)
+    return (np.stack([f_cv, transition(dt, 3)], axis=-3),
+            np.stack([shape_cv, process_noise_shape(dt, 3)], axis=-3))
 
 
-def predict_imm(values, times, params: dict, horizon: int = 1) -> np.ndarray:
-    """Row ``t``: the IMM's open-loop prediction of row ``t + horizon`` from rows ``<= t``."""
-    from filterpy.kalman import IMMEstimator
-
+def _imm_params(params):
     q_cv, q_ca, r, s, time_unit = _read(params, ("cv_process_noise", "ca_process_noise", "measurement_noise",
                                                  "switch_probability", "time_unit"))
     if s >= 1:
         raise ValueError(f"params['switch_probability']: expected a number in (0, 1), got {s!r}")
-    horizon = check_horizon(horizon)
-    z, times = check_segment(values, times)
-    t_count, p = z.shape
-    out = np.full(z.shape, np.nan)
-    markov = np.array([[1.0 - s, s], [s, 1.0 - s]])
-    imm = filters = None
-    for t in range(t_count):
-        valid = bool(np.isfinite(z[t]).all())
-        if imm is None:
-            if not valid:
-                continue
-            filters, h = _filters(p, 3, r, z[t], 2)
-            imm = IMMEstimator(filters, [0.5, 0.5], markov)
-        elif valid:
-            imm.update(z[t][:, None])
-        else:  # missing: the mode probabilities only go through the Markov chain
-            imm.mu = imm.cbar.copy()
-            imm._compute_mixing_probabilities()
-        if t + 1 >= t_count:
-            break
-        for kf, (f, q) in zip(filters, _imm_models((times[t + 1] - times[t]) / time_unit, p, q_cv, q_ca)):
-            kf.F, kf.Q = f, q
-        imm.predict()
-        if t + horizon >= t_count:
-            continue
-        if horizon == 1:
-            out[t] = (h @ sum(c * kf.x for c, kf in zip(imm.cbar, filters)))[:, 0]
-            continue
-        saved = [(kf.x.copy(), kf.P.copy()) for kf in filters], imm.mu.copy(), imm.cbar.copy(), imm.omega.copy()
-        for k in range(t + 1, t + horizon):
-            imm.mu = imm.cbar.copy()
-            imm._compute_mixing_probabilities()
-            for kf, (f, q) in zip(filters, _imm_models((times[k + 1] - times[k]) / time_unit, p, q_cv, q_ca)):
-                kf.F, kf.Q = f, q
-            imm.predict()
-        out[t] = (h @ sum(c * kf.x for c, kf in zip(imm.cbar, filters)))[:, 0]
-        for kf, (x, cov) in zip(filters, saved[0]):
-            kf.x, kf.P = x, cov
-        imm.mu, imm.cbar, imm.omega = saved[1:]
+    return q_cv, q_ca, r, s, time_unit
+
+
+def _many(segments, candidates, horizon, run):
+    """``run(z, dt_raw, lengths, tau_raw, columns)`` over every candidate and segment, in batches of segments.
+
+    ``segments`` are checked ``(values, times)``; ``candidates`` a list of parameter tuples.
+    Returns ``out[c][i]``: candidate ``c``'s predictions ``(T_i, p)`` on segment ``i``.
+    """
+    out = [[np.full(z.shape, np.nan) for z, _ in segments] for _ in candidates]
+    if len({z.shape[1] for z, _ in segments}) > 1:
+        raise ValueError("segments: expected the same number of coordinates in every segment, got several")
+    for batch in _batches([len(t) for _, t in segments]):
+        z, dt, lengths, _, tau = _pad(segments, batch, 1.0, horizon)
+        k, s_count = len(candidates), len(batch)
+        predictions = run(np.tile(z, (1, k, 1)), np.tile(dt, (1, k)), np.tile(lengths, k), np.tile(tau, (1, k)),
+                          np.repeat(np.arange(k), s_count))
+        for c in range(k):
+            for s, j in enumerate(batch):
+                out[c][j][:] = predictions[:len(out[c][j]), c * s_count + s]
     return out
+
+
+def _predict_imm_many(segments, candidates, horizon):
+    """IMM predictions of each candidate ``(q_cv, q_ca, r, s, time_unit)`` on each segment (:func:`_many`)."""
+    table = np.array(candidates, dtype=float)
+
+    def run(z, dt, lengths, tau, column):
+        q_cv, q_ca, r, s, time_unit = table[column].T
+        initial = r[:, None] * np.array([1.0, INITIAL_VARIANCE_RATIO, INITIAL_VARIANCE_RATIO])
+        return imm_run(z, lengths, _imm_models, np.stack([q_cv, q_ca], -1), r, s, initial, dt=dt / time_unit,
+                       horizon=horizon)
+
+    return _many(segments, candidates, horizon, run)
+
+
+def predict_imm(values, times, params: dict, horizon: int = 1) -> np.ndarray:
+    """Row ``t``: the IMM's open-loop prediction of row ``t + horizon`` from rows ``<= t``."""
+    candidate = _imm_params(params)
+    horizon = check_horizon(horizon)
+    return _predict_imm_many([check_segment(values, times)], [candidate], horizon)[0][0]
+
+
+def predict_many_imm(segments, params: dict, horizon: int = 1) -> list[np.ndarray]:
+    """:func:`predict_imm` over a list of ``(values, times)`` in one batched pass."""
+    candidate = _imm_params(params)
+    horizon = check_horizon(horizon)
+    pieces = [check_segment(v, t, where=f" of segments[{i}]") for i, (v, t) in enumerate(segments)]
+    return _predict_imm_many(pieces, [candidate], horizon)[0]
+
+
+def _batched_search(grid, pieces, predict_many):
+    """:func:`grid_search` over ``grid`` with every candidate's predictions computed in one batched pass."""
+    names = list(grid)
+    candidates = [dict(zip(names, map(float, values))) for values in itertools.product(*grid.values())]
+    predictions = predict_many(candidates)
+    scores = {tuple(c.values()): one_step_rms(pieces, p) for c, p in zip(candidates, predictions)}
+    return grid_search(grid, lambda c: scores[tuple(c.values())])
 
 
 def tune_imm(segments, *, unit: float, time_unit: float) -> dict:
@@ -143,42 +151,42 @@ def tune_imm(segments, *, unit: float, time_unit: float) -> dict:
     grid = {"cv_process_noise": tuple(f * cv["process_noise"] for f in _IMM_CV_FACTORS),
             "ca_process_noise": tuple(f * ca_q for f in _IMM_CA_FACTORS), "switch_probability": _IMM_SWITCH}
     fixed = {"measurement_noise": r, "time_unit": float(time_unit)}
-    best, rms = grid_search(grid, lambda c: one_step_rms(
-        pieces, [predict_imm(z, t, {**c, **fixed}) for z, t, _ in pieces]))
+    best, rms = _batched_search(grid, pieces, lambda candidates: _predict_imm_many(
+        [(z, t) for z, t, _ in pieces], [_imm_params({**c, **fixed}) for c in candidates], 1))
     return {**best, **fixed, "tuning_rms": rms}
+
+
+def _mmae_params(params):
+    return tuple(_read(params, ("process_noise", "spread", "measurement_noise", "time_unit")))
+
+
+def _predict_mmae_many(segments, candidates, horizon):
+    """MMAE predictions of each candidate ``(q, spread, r, time_unit)`` on each segment (:func:`_many`)."""
+    table = np.array(candidates, dtype=float)
+    qs = np.array([q * spread ** (np.arange(MMAE_FILTERS) - MMAE_FILTERS // 2) for q, spread, _, _ in candidates])
+
+    def run(z, dt, lengths, tau, column):
+        r, time_unit = table[column, 2], table[column, 3]
+        initial = r[:, None] * np.array([1.0, INITIAL_VARIANCE_RATIO])
+        return mmae_run(z, lengths, qs[column], r, initial, lambda d: transition(d, 2),
+                        lambda d: process_noise_shape(d, 2), dt=dt / time_unit, tau=tau / time_unit)
+
+    return _many(segments, candidates, horizon, run)
 
 
 def predict_mmae(values, times, params: dict, horizon: int = 1) -> np.ndarray:
     """Row ``t``: the MMAE bank's open-loop prediction of row ``t + horizon`` from rows ``<= t``."""
-    from filterpy.kalman import MMAEFilterBank
-
-    q, spread, r, time_unit = _read(params, ("process_noise", "spread", "measurement_noise", "time_unit"))
+    candidate = _mmae_params(params)
     horizon = check_horizon(horizon)
-    z, times = check_segment(values, times)
-    t_count, p = z.shape
-    out = np.full(z.shape, np.nan)
-    qs = q * spread ** (np.arange(MMAE_FILTERS) - MMAE_FILTERS // 2)
-    bank = filters = None
-    eye = np.eye(p)
-    for t in range(t_count):
-        valid = bool(np.isfinite(z[t]).all())
-        if bank is None:
-            if not valid:
-                continue
-            filters, h = _filters(p, 2, r, z[t], MMAE_FILTERS)
-            bank = MMAEFilterBank(filters, np.full(MMAE_FILTERS, 1.0 / MMAE_FILTERS), dim_x=2 * p)
-        elif valid:
-            bank.update(z[t][:, None])
-        if t + horizon < t_count:
-            jump = np.kron(eye, transition((times[t + horizon] - times[t]) / time_unit, 2))
-            out[t] = (h @ jump @ sum(w * kf.x for w, kf in zip(bank.p, filters)))[:, 0]
-        if t + 1 < t_count:
-            dt = (times[t + 1] - times[t]) / time_unit
-            f, shape = np.kron(eye, transition(dt, 2)), np.kron(eye, process_noise_shape(dt, 2))
-            for kf, qi in zip(filters, qs):
-                kf.F, kf.Q = f, qi * shape
-            bank.predict()
-    return out
+    return _predict_mmae_many([check_segment(values, times)], [candidate], horizon)[0][0]
+
+
+def predict_many_mmae(segments, params: dict, horizon: int = 1) -> list[np.ndarray]:
+    """:func:`predict_mmae` over a list of ``(values, times)`` in one batched pass."""
+    candidate = _mmae_params(params)
+    horizon = check_horizon(horizon)
+    pieces = [check_segment(v, t, where=f" of segments[{i}]") for i, (v, t) in enumerate(segments)]
+    return _predict_mmae_many(pieces, [candidate], horizon)[0]
 
 
 def tune_mmae(segments, *, unit: float, time_unit: float) -> dict:
@@ -188,6 +196,6 @@ def tune_mmae(segments, *, unit: float, time_unit: float) -> dict:
     pieces = tuning_rows(segments, TUNE_ROWS)
     fixed = {"process_noise": cv["process_noise"], "measurement_noise": cv["measurement_noise"],
              "time_unit": float(time_unit)}
-    best, rms = grid_search({"spread": _MMAE_SPREADS}, lambda c: one_step_rms(
-        pieces, [predict_mmae(z, t, {**c, **fixed}) for z, t, _ in pieces]))
+    best, rms = _batched_search({"spread": _MMAE_SPREADS}, pieces, lambda candidates: _predict_mmae_many(
+        [(z, t) for z, t, _ in pieces], [_mmae_params({**c, **fixed}) for c in candidates], 1))
     return {**best, **fixed, "tuning_rms": rms}
