@@ -113,22 +113,28 @@ def test_display_off_a_terminal_is_a_start_and_an_end_line():
 
 
 def test_display_on_a_terminal_counts_and_clears_its_line_for_other_writers(monkeypatch):
+    import click
+
     terminal = Terminal()
     monkeypatch.setattr(sys, "stderr", terminal)
     monkeypatch.setattr(sys, "stdout", io.StringIO())   # not a terminal: left alone
+    click.echo("kalmix: length unit 1", err=True)   # (click keeps the stream it found: the display's wrapper differs)
     display = CompileDisplay()
     display.start(True)
-    assert terminal.getvalue().endswith("first run only ... 0 s") and sys.stderr is not terminal
+    assert terminal.getvalue().endswith("\n\rkalmix: compiling kalmix's kernels for this machine, first run only ... 0 s")
     display.tick(2.4)
     assert terminal.getvalue().endswith("first run only ... 2 s")
     width = display.drawn
-    sys.stderr.write("kalmix: warning: something\n")   # a warning while the line is drawn: the line goes first
+    click.echo("kalmix: warning: something", err=True)   # a warning while the line is drawn: the line goes first
     assert terminal.getvalue().endswith("... 2 s\r" + " " * width + "\rkalmix: warning: something\n")
     display.tick(3.0)
+    assert terminal.getvalue().endswith("\rkalmix: warning: something\n\r" + display._status_text(3.0))
     display.done(3.2, True)
     assert sys.stderr is terminal
-    screen = terminal.getvalue()
-    assert screen.endswith("\rkalmix: compiled kalmix's kernels in 3 s (cached: later runs start at once)\n")
+    end = "\rkalmix: compiled kalmix's kernels in 3 s (cached: later runs start at once)\n"
+    assert terminal.getvalue().endswith(end)
+    display.tick(4.0)   # a tick that comes after the end (the notice's thread): draws nothing
+    assert terminal.getvalue().endswith(end) and sys.stderr is terminal
     assert sys.stdout.getvalue() == ""
 
 
@@ -149,6 +155,8 @@ def test_display_under_a_progress_bar_writes_above_it(monkeypatch):
     screen = terminal.getvalue()
     assert "kalmix: " + _notice.START + "\n" in screen and "kalmix: compiled kalmix's kernels in 5 s" in screen
     assert "first run only ... " not in screen and sys.stderr is terminal
+    with tqdm(total=10, file=io.StringIO()) as elsewhere:   # a bar on another stream is not this display's
+        assert elsewhere in tqdm._instances and display._bars() == []
 
 
 def test_the_program_says_so_on_a_cold_cache_only(tmp_path):

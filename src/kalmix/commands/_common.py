@@ -43,6 +43,18 @@ class Finite(click.ParamType):
         return number
 
 
+def position_names(text):
+    """``--position``: 1 to 3 comma-separated column names as a list (None when not given);
+    ``click.BadParameter`` otherwise."""
+    if text is None:
+        return None
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    if not 1 <= len(names) <= 3:
+        raise click.BadParameter(f"expected 1 to 3 comma-separated column names, got {text!r}",
+                                 param_hint="--position")
+    return names
+
+
 def missing_directory(path) -> tuple[str, bool] | None:
     """``(directory, taken)`` when the directory a file ``path`` would be written in is not one (``taken``:
     something else, a file, stands there); None when it is a directory."""
@@ -250,21 +262,22 @@ class CompileDisplay:
 
     Not on a terminal (a log, a pipe): one line when the compile starts and one with its time when it ends.
     On a terminal: one line that counts the seconds (redrawn from the notice's thread) and becomes the
-    end line; while another writer uses stderr (a warning, click's ``Aborted!`` after a Ctrl-C) the line
-    is cleared first (``sys.stderr`` is wrapped while it is drawn). While a tqdm progress bar is up (``kalmix
-    predict``'s rows, ``reproduce``'s runs), the start and end lines are written above the bars
-    (``tqdm.write``) and the bars are redrawn every tick, so their elapsed time counts. Nothing is written
-    to standard output (a terminal's ``sys.stdout`` is wrapped too, to clear the line before its writes).
+    end line; while it is drawn, ``sys.stderr`` (and ``sys.stdout`` if it is a terminal too) is wrapped so
+    that another writer's text (a warning, click's ``Aborted!`` after a Ctrl-C) clears the line first, then
+    goes through unchanged. While a tqdm progress bar is up on stderr (``kalmix predict``'s rows,
+    ``reproduce``'s runs), the start and end lines are written above the bars and the bars are redrawn every
+    tick, so their elapsed time counts. Nothing is written to standard output.
     """
 
     def __init__(self, stream=None):
         self.stream = sys.stderr if stream is None else stream
         self.terminal = _is_terminal(self.stream)
         self.lock = threading.RLock()
+        self.open = False       # between start and done
         self.drawn = 0          # width of the status line now on the terminal (0: none)
         self.announced = False  # the start line was written whole (not a status line)
         self.first = True
-        self.proxies: dict = {}   # sys.stderr / sys.stdout's name: its _ClearingStream
+        self.proxies: dict = {}   # "stderr" / "stdout": its _ClearingStream
 
     # -- texts
     def _start_text(self) -> str:
@@ -283,26 +296,29 @@ class CompileDisplay:
             return f"kalmix: compiled kalmix's kernels in {elapsed:.0f} s (cached: later runs start at once)"
         return f"kalmix: compiling kalmix's kernels stopped after {elapsed:.0f} s"
 
-    # -- the notice's calls
+    # -- the notice's calls (start and done from the compiling thread or at exit, tick from the notice's thread)
     def start(self, first: bool) -> None:
         with self.lock:
-            self.first, self.announced, self.drawn = first, False, 0
-        if self.terminal and not _live_bars():
-            self._draw(0.0)
-        else:
-            self.announced = True
+            self.open, self.first, self.drawn = True, first, 0
+            self.announced = not self.terminal or bool(self._bars())
+        if self.announced:
             self._line(self._start_text())
+        else:
+            self._draw(0.0)
 
     def tick(self, elapsed: float) -> None:
         if not self.terminal:
             return
-        bars = _live_bars()
+        bars = self._bars()
         if not bars:
             self._draw(elapsed)
             return
-        # a bar came up (over the status line, which its first write cleared): the start line above the bars
+        # a bar is up (drawn over the status line, which its first write cleared): the start line above the bars
         with self.lock:
+            if not self.open:
+                return
             self._erase()
+            self._unwrap()
             announce, self.announced = not self.announced, True
         if announce:
             self._line(self._start_text())
@@ -312,6 +328,7 @@ class CompileDisplay:
 
     def done(self, elapsed: float, finished: bool) -> None:
         with self.lock:
+            self.open = False
             self._erase()
             self._unwrap()
         self._line(self._done_text(elapsed, finished))
@@ -319,6 +336,8 @@ class CompileDisplay:
     # -- drawing
     def _draw(self, elapsed: float) -> None:
         with self.lock:
+            if not self.open:   # (a tick that comes after done)
+                return
             text = self._status_text(elapsed).ljust(self.drawn)   # (covers a longer line drawn before)
             self.stream.write("\r" + text)
             self.stream.flush()
@@ -333,20 +352,48 @@ class CompileDisplay:
             self.drawn = 0
 
     def _line(self, text: str) -> None:
-        """A whole line on the stream, above any progress bars."""
-        bars = _live_bars()
-        if bars:
-            from tqdm import tqdm
+        """A whole line on the stream, above the progress bars on it (cleared, then redrawn: tqdm.write's way,
+        without its matching of streams, which a wrapped stream defeats)."""
+        bars = self._bars()
+        lock = sys.modules["tqdm"].tqdm.get_lock() if bars else contextlib.nullcontext()
+        with lock:   # (tqdm's lock, then this display's: the order a bar writing through the wrapper takes too)
+            for bar in bars:
+                with contextlib.suppress(Exception):
+                    bar.clear(nolock=True)
+            with self.lock:
+                self.stream.write(text + "\n")
+                self.stream.flush()
+            for bar in bars:
+                with contextlib.suppress(Exception):
+                    bar.refresh(nolock=True)
 
-            tqdm.write(text, file=self.stream)   # clears the bars on the stream, writes, redraws them
-            return
-        with self.lock:
-            self.stream.write(text + "\n")
-            self.stream.flush()
+    def _bars(self) -> list:
+        """The tqdm bars drawn on this display's stream (tqdm drops a disabled bar from its instances)."""
+        tqdm_module = sys.modules.get("tqdm")
+        if tqdm_module is None:
+            return []
+        try:
+            bars = list(tqdm_module.tqdm._instances)
+        except (AttributeError, TypeError, RuntimeError):   # (RuntimeError: a bar came or went meanwhile)
+            return []
+        return [bar for bar in bars if not getattr(bar, "disable", False) and self._ours(getattr(bar, "fp", None))]
+
+    def _ours(self, stream) -> bool:
+        """Whether ``stream`` (a bar's, which tqdm wraps) writes to this display's stream."""
+        for _ in range(4):
+            if stream is self.stream:
+                return True
+            if isinstance(stream, _ClearingStream):
+                stream = stream._stream
+            else:
+                stream = getattr(stream, "_wrapped", None)   # tqdm's wrapper of a bar's file
+                if stream is None:
+                    return False
+        return False
 
     def _wrap(self) -> None:
         """Wrap ``sys.stderr``, and ``sys.stdout`` if it is a terminal too (the same screen), in a
-        :class:`_ClearingStream` (their bytes are not changed)."""
+        :class:`_ClearingStream` (under the lock)."""
         for name in ("stderr", "stdout"):
             stream = getattr(sys, name)
             if isinstance(stream, _ClearingStream) or (name == "stdout" and not _is_terminal(stream)):
@@ -354,49 +401,32 @@ class CompileDisplay:
             if name == "stderr" and stream is not self.stream:
                 continue
             proxy = self.proxies.get(name)
-            if proxy is None or proxy._wrapped is not stream:
+            if proxy is None or proxy._stream is not stream:
                 proxy = self.proxies[name] = _ClearingStream(stream, self)
             setattr(sys, name, proxy)
 
     def _unwrap(self) -> None:
         for name, proxy in self.proxies.items():
             if getattr(sys, name) is proxy:
-                setattr(sys, name, proxy._wrapped)
+                setattr(sys, name, proxy._stream)
 
 
 class _ClearingStream:
     """``sys.stderr`` (and a terminal's ``sys.stdout``) while the status line is drawn: a write clears the line
-    first (the next tick redraws it), then goes through unchanged. ``_wrapped`` and ``==`` make tqdm take it
-    for the stream it wraps."""
+    first (the next tick redraws it), then goes through unchanged; the rest is the stream's. (No ``==`` to
+    the stream: click keys its stream cache on it, and would write past the wrapper.)"""
 
     def __init__(self, stream, display: CompileDisplay):
-        self._wrapped = stream
+        self._stream = stream
         self._display = display
 
     def write(self, text):
         with self._display.lock:
             self._display._erase()
-            return self._wrapped.write(text)
+            return self._stream.write(text)
 
     def __getattr__(self, name):
-        return getattr(self._wrapped, name)
-
-    def __eq__(self, other):
-        return other is self or other is self._wrapped
-
-    def __hash__(self):
-        return hash(self._wrapped)
-
-
-def _live_bars() -> list:
-    """tqdm bars now drawn (tqdm drops a disabled bar from its instances)."""
-    tqdm_module = sys.modules.get("tqdm")
-    if tqdm_module is None:
-        return []
-    try:
-        return [bar for bar in list(tqdm_module.tqdm._instances) if not getattr(bar, "disable", False)]
-    except (AttributeError, TypeError, RuntimeError):   # (RuntimeError: a bar came or went meanwhile)
-        return []
+        return getattr(self._stream, name)
 
 
 def show_compiling(stream=None) -> CompileDisplay:
