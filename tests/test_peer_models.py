@@ -305,13 +305,109 @@ def test_multiple_model_tuning_picks_filterpys_candidate(name):
     assert len(ranked) == 1 or ranked[1] > ranked[0] * (1 + 1e-6)   # the choice is not a rounding-level tie
 
 
-@pytest.mark.parametrize("name", ["imm_dt", "mmae_dt"])
-def test_multiple_model_predict_many_equals_predict(name):
+@pytest.mark.parametrize("name", ["imm_dt", "mmae_dt", "holt_winters", "rls_ar"])
+def test_loop_peers_predict_many_equals_predict(name):
     _peer(name)
     pieces = [_smooth(seed, n) for seed, n in ((1, 90), (2, 150), (3, 2), (4, 120))]
     batched = PEERS[name].predict_many(pieces, PARAMS[name], horizon=2)
     for (values, times), ours in zip(pieces, batched):
         np.testing.assert_array_equal(ours, PEERS[name].predict(values, times, PARAMS[name], 2))
+
+
+def _river_holt_winters(values, times, params, horizon):
+    """river's ``HoltWinters`` fed row by row: the reference ``holt_winters`` follows."""
+    from river.time_series import HoltWinters
+
+    from kalmix.peer_models._common import frame_steps
+
+    t_count, p = values.shape
+    valid = np.isfinite(values).all(axis=1)
+    steps = frame_steps(valid, horizon)
+    models = [HoltWinters(alpha=params["alpha"], beta=params["beta"]) for _ in range(p)]
+    out, seen, last = np.full(values.shape, np.nan), 0, None
+    for t in range(t_count - horizon):
+        if valid[t]:
+            for model, y in zip(models, values[t].tolist()):
+                model.learn_one(y)
+            seen, last = seen + 1, values[t]
+        if seen == 1:
+            out[t] = last
+        elif seen > 1:
+            out[t] = [model.forecast(int(steps[t]))[-1] for model in models]
+    return out
+
+
+def _padasip_rls_ar(values, times, params, horizon):
+    """padasip's ``FilterRLS`` adapted row by row: the reference ``rls_ar`` follows."""
+    from padasip.filters import FilterRLS
+
+    order, forgetting, unit, time_unit = (params[k] for k in ("order", "forgetting", "unit", "time_unit"))
+    t_count, p = values.shape
+    steps = np.diff(times) / time_unit
+    filters = [FilterRLS(order + 1, mu=forgetting, w="zeros") for _ in range(p)]
+    history = np.zeros((p, order + 1))
+    history[:, -1] = 1.0
+    out, last = np.full(values.shape, np.nan), None
+    for t in range(t_count - horizon):
+        if np.isfinite(values[t]).all():
+            if last is not None:
+                velocity = (values[t] - values[last]) / (times[t] - times[last]) * time_unit / unit
+                for j, rls in enumerate(filters):
+                    rls.adapt(velocity[j], history[j])
+                history[:, 1:order] = history[:, :order - 1]
+                history[:, 0] = velocity
+            last = t
+        if last is None:
+            continue
+        position, ahead = values[last].copy(), history.copy()
+        for k in range(last, t + horizon):
+            guess = np.array([rls.predict(ahead[j]) for j, rls in enumerate(filters)])
+            position += guess * steps[k] * unit
+            ahead[:, 1:order] = ahead[:, :order - 1]
+            ahead[:, 0] = guess
+        out[t] = position
+    return out
+
+
+_LOOP_REFERENCES = {"holt_winters": _river_holt_winters, "rls_ar": _padasip_rls_ar}
+
+
+@pytest.mark.parametrize("name, params", [
+    ("holt_winters", {"alpha": 0.7, "beta": 0.3}), ("holt_winters", {"alpha": 1.0, "beta": 0.02}),
+    ("rls_ar", {"order": 1, "forgetting": 0.9, "unit": 0.5, "time_unit": 1.3}),
+    ("rls_ar", {"order": 5, "forgetting": 0.999, "unit": 0.5, "time_unit": 1.3}),
+])
+@pytest.mark.parametrize("horizon", [1, 3])
+def test_loop_peers_equal_their_libraries(name, params, horizon):
+    """Holt-Winters and the RLS AR model, batched in numpy, give river's and padasip's numbers (irregular Δt,
+    missing and partly missing rows, a gap of several rows)."""
+    _peer(name)
+    values, times = _smooth(40, 150, p=3)
+    values[100:105] = np.nan
+    ours = PEERS[name].predict(values, times, params, horizon)
+    theirs = _LOOP_REFERENCES[name](values, times, params, horizon)
+    np.testing.assert_array_equal(np.isnan(ours), np.isnan(theirs))
+    np.testing.assert_allclose(ours, theirs, rtol=1e-12, atol=1e-12 * np.nanmax(np.abs(values)))
+
+
+@pytest.mark.parametrize("name", ["holt_winters", "rls_ar"])
+def test_loop_peers_tuning_picks_the_librarys_candidate(name):
+    """The batched grid search scores every candidate as river's / padasip's objects do."""
+    from kalmix.peer_models import holt_winters, rls_ar
+
+    _peer(name)
+    module = {"holt_winters": holt_winters, "rls_ar": rls_ar}[name]
+    segments = [(*_smooth(seed, 60), np.arange(60) < 45) for seed in (32, 33)]
+    tuned = PEERS[name].tune(segments, unit=0.5, time_unit=1.3)
+    pieces = tuning_rows(segments, module.TUNE_ROWS)
+    fixed = {"unit": 0.5, "time_unit": 1.3} if name == "rls_ar" else {}
+    reference = {}
+    for values in itertools.product(*module.GRID.values()):
+        candidate = {**dict(zip(module.GRID, values)), **fixed}
+        reference[values] = one_step_rms(pieces, [_LOOP_REFERENCES[name](z, t, candidate, 1) for z, t, _ in pieces])
+    best = min(reference, key=reference.get)
+    assert tuple(tuned[k] for k in module.GRID) == pytest.approx(best, rel=1e-12)
+    assert tuned["tuning_rms"] == pytest.approx(reference[best], rel=1e-12)
 
 
 # ---------------------------------------------------------------- every peer: the convention

@@ -26,7 +26,7 @@ the first sample). On the tuning part:
   ``cv_process ∈ {0.1, ..., 1000}``, ``ca_process ∈ {0.01, ..., 100}`` (decades),
   ``switch ∈ {0.02, 0.1}`` (times ``u²``) with the CV filter's tuned measurement
   noise, scored on the tuning part of up to 3 longest segments (at most 400 samples
-  each; filterpy is a Python loop). The IMM gives one-step predictions only.
+  each). The IMM gives one-step predictions only.
 
 The best expert in hindsight is an oracle: per track, the single expert of the
 mixture's bank with the lowest error over the reported part.

@@ -24,13 +24,13 @@ Input (one track segment)
     of numbers, with the tuning RMS of the chosen candidate under ``"tuning_rms"``.
 
 :data:`PEERS` maps a name to a :class:`Peer`. ``Peer.max_rows`` is set for the peers
-that cannot keep up with ~500k rows in a few minutes, the IMM and MMAE (one step of
-9 x 9 matrix algebra per row, for all segments at once: a single long segment is the slow
-case; ``python -m benchmarks.peer_models_timing`` times every peer, and river's and
-padasip's loops need no cap): evaluate them on the first ``n`` rows of
-every segment, the largest ``n`` that keeps the total within ``max_rows``
-(:func:`row_budget`, deterministic). The tuning of the loop peers (filterpy, river,
-padasip) scores each candidate on at most ``TUNE_ROWS`` rows chosen the same way from the
+that cannot keep up with ~500k rows in a few minutes, the IMM and MMAE: every peer steps
+all its segments (and, when tuning, all its candidates) at once, one step per row, and the
+multiple-model peers' steps are the costliest, so a single long segment is their slow case
+(``python -m benchmarks.peer_models_timing`` times every peer). The capped peers are
+evaluated on the first ``n`` rows of every segment, the largest ``n`` that keeps the total
+within ``max_rows`` (:func:`row_budget`, deterministic). The tuning of the peers that
+reproduce a library's loop (filterpy, river, padasip) scores each candidate on at most ``TUNE_ROWS`` rows chosen the same way from the
 tuning parts (a constant of each module). ``Peer.predict_many`` (when set) runs a list
 of ``(values, times)`` in one batched pass with the same results as ``predict`` on each.
 
@@ -81,8 +81,8 @@ PEERS: dict[str, Peer] = {peer.name: peer for peer in (
          predict_many=multiple_model.predict_many_imm),
     Peer("mmae_dt", multiple_model.tune_mmae, multiple_model.predict_mmae, ("filterpy",), max_rows=50_000,
          predict_many=multiple_model.predict_many_mmae),
-    Peer("holt_winters", holt_winters.tune, holt_winters.predict, ("river",)),
-    Peer("rls_ar", rls_ar.tune, rls_ar.predict, ("padasip",)),
+    Peer("holt_winters", holt_winters.tune, holt_winters.predict, ("river",), predict_many=holt_winters.predict_many),
+    Peer("rls_ar", rls_ar.tune, rls_ar.predict, ("padasip",), predict_many=rls_ar.predict_many),
     Peer("ucm_llt", ucm.tune, ucm.predict, ("statsmodels",)),
 )}
 

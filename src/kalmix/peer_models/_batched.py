@@ -24,11 +24,16 @@ The test suite checks these runs against filterpy's objects (differences at roun
 
 from __future__ import annotations
 
+import itertools
 import sys
 
 import numpy as np
 
-__all__ = ["block_diagonal", "log_likelihood", "likelihood", "imm_run", "mmae_run"]
+from ._common import grid_search, one_step_rms
+from .kinematic import _batches
+
+__all__ = ["block_diagonal", "log_likelihood", "likelihood", "imm_run", "mmae_run", "over_candidates", "batched_search",
+           "steps"]
 
 _LOG_2PI = np.log(2 * np.pi)
 _EPS_FACTOR = 1e6 * np.finfo(np.float64).eps   # scipy's cut for a "zero" eigenvalue of a covariance
@@ -270,3 +275,50 @@ def mmae_run(z, lengths, q, r, initial_variance, transition, noise_shape, *, dt,
             x[go] = (f @ x[go][..., None])[..., 0]
             cov[go] = (f @ cov[go]) @ f.swapaxes(-1, -2) + qq
     return out
+
+
+def over_candidates(segments, candidates, run):
+    """``run(z, times, lengths, column)`` over every candidate and segment, in batches of segments.
+
+    ``segments`` are checked ``(values, times)``; ``candidates`` a list of parameter tuples.
+    ``run`` gets the batch's columns (each segment once per candidate): ``z (T, B, p)`` and
+    ``times (T, B)`` NaN-padded, ``lengths (B,)`` and ``column (B,)`` the candidate's index.
+    Returns ``out[c][i]``: candidate ``c``'s predictions ``(T_i, p)`` on segment ``i``.
+    """
+    out = [[np.full(z.shape, np.nan) for z, _ in segments] for _ in candidates]
+    if len({z.shape[1] for z, _ in segments}) > 1:
+        raise ValueError("segments: expected the same number of coordinates in every segment, got several")
+    k = len(candidates)
+    for batch in _batches([len(t) for _, t in segments]):
+        t_count, s_count = len(segments[batch[0]][1]), len(batch)
+        z = np.full((t_count, s_count, segments[batch[0]][0].shape[1]), np.nan)
+        times = np.full((t_count, s_count), np.nan)
+        for s, j in enumerate(batch):
+            z[:len(segments[j][1]), s], times[:len(segments[j][1]), s] = segments[j]
+        lengths = np.array([len(segments[j][1]) for j in batch])
+        predictions = run(np.tile(z, (1, k, 1)), np.tile(times, (1, k)), np.tile(lengths, k),
+                          np.repeat(np.arange(k), s_count))
+        for c in range(k):
+            for s, j in enumerate(batch):
+                out[c][j][:] = predictions[:len(out[c][j]), c * s_count + s]
+    return out
+
+
+def steps(times, horizon=None):
+    """``times[t + 1] - times[t]`` (0 past the end), or with ``horizon`` ``times[t + horizon] - times[t]`` (NaN)."""
+    if horizon is None:
+        out = np.zeros_like(times)
+        out[:-1] = np.nan_to_num(times[1:] - times[:-1], nan=0.0)
+        return out
+    out = np.full_like(times, np.nan)
+    out[:-horizon] = times[horizon:] - times[:-horizon]
+    return out
+
+
+def batched_search(grid, pieces, predict_many):
+    """:func:`grid_search` over ``grid`` with every candidate's predictions computed in one batched pass."""
+    names = list(grid)
+    candidates = [dict(zip(names, map(float, values))) for values in itertools.product(*grid.values())]
+    predictions = predict_many(candidates)
+    scores = {tuple(c.values()): one_step_rms(pieces, p) for c, p in zip(candidates, predictions)}
+    return grid_search(grid, lambda c: scores[tuple(c.values())])

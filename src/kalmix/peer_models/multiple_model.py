@@ -29,14 +29,11 @@ tuning's choice against a grid search over them.
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 
-from ._batched import imm_run, mmae_run
-from ._common import check_horizon, check_positive, check_segment, check_segments, grid_search, one_step_rms, \
-    tuning_rows
-from .kinematic import INITIAL_VARIANCE_RATIO, _batches, _pad, process_noise_shape, transition, tune_ca, tune_cv
+from ._batched import batched_search, imm_run, mmae_run, over_candidates, steps
+from ._common import check_horizon, check_positive, check_segment, check_segments, tuning_rows
+from .kinematic import INITIAL_VARIANCE_RATIO, process_noise_shape, transition, tune_ca, tune_cv
 
 __all__ = ["TUNE_ROWS", "MMAE_FILTERS", "tune_imm", "predict_imm", "predict_many_imm", "tune_mmae", "predict_mmae",
            "predict_many_mmae"]
@@ -79,37 +76,17 @@ def _imm_params(params):
     return q_cv, q_ca, r, s, time_unit
 
 
-def _many(segments, candidates, horizon, run):
-    """``run(z, dt_raw, lengths, tau_raw, columns)`` over every candidate and segment, in batches of segments.
-
-    ``segments`` are checked ``(values, times)``; ``candidates`` a list of parameter tuples.
-    Returns ``out[c][i]``: candidate ``c``'s predictions ``(T_i, p)`` on segment ``i``.
-    """
-    out = [[np.full(z.shape, np.nan) for z, _ in segments] for _ in candidates]
-    if len({z.shape[1] for z, _ in segments}) > 1:
-        raise ValueError("segments: expected the same number of coordinates in every segment, got several")
-    for batch in _batches([len(t) for _, t in segments]):
-        z, dt, lengths, _, tau = _pad(segments, batch, 1.0, horizon)
-        k, s_count = len(candidates), len(batch)
-        predictions = run(np.tile(z, (1, k, 1)), np.tile(dt, (1, k)), np.tile(lengths, k), np.tile(tau, (1, k)),
-                          np.repeat(np.arange(k), s_count))
-        for c in range(k):
-            for s, j in enumerate(batch):
-                out[c][j][:] = predictions[:len(out[c][j]), c * s_count + s]
-    return out
-
-
 def _predict_imm_many(segments, candidates, horizon):
-    """IMM predictions of each candidate ``(q_cv, q_ca, r, s, time_unit)`` on each segment (:func:`_many`)."""
+    """IMM predictions of each candidate ``(q_cv, q_ca, r, s, time_unit)`` on each segment (:func:`~._batched.over_candidates`)."""
     table = np.array(candidates, dtype=float)
 
-    def run(z, dt, lengths, tau, column):
+    def run(z, times, lengths, column):
         q_cv, q_ca, r, s, time_unit = table[column].T
         initial = r[:, None] * np.array([1.0, INITIAL_VARIANCE_RATIO, INITIAL_VARIANCE_RATIO])
-        return imm_run(z, lengths, _imm_models, np.stack([q_cv, q_ca], -1), r, s, initial, dt=dt / time_unit,
-                       horizon=horizon)
+        return imm_run(z, lengths, _imm_models, np.stack([q_cv, q_ca], -1), r, s, initial,
+                       dt=steps(times) / time_unit, horizon=horizon)
 
-    return _many(segments, candidates, horizon, run)
+    return over_candidates(segments, candidates, run)
 
 
 def predict_imm(values, times, params: dict, horizon: int = 1) -> np.ndarray:
@@ -127,15 +104,6 @@ def predict_many_imm(segments, params: dict, horizon: int = 1) -> list[np.ndarra
     return _predict_imm_many(pieces, [candidate], horizon)[0]
 
 
-def _batched_search(grid, pieces, predict_many):
-    """:func:`grid_search` over ``grid`` with every candidate's predictions computed in one batched pass."""
-    names = list(grid)
-    candidates = [dict(zip(names, map(float, values))) for values in itertools.product(*grid.values())]
-    predictions = predict_many(candidates)
-    scores = {tuple(c.values()): one_step_rms(pieces, p) for c, p in zip(candidates, predictions)}
-    return grid_search(grid, lambda c: scores[tuple(c.values())])
-
-
 def tune_imm(segments, *, unit: float, time_unit: float) -> dict:
     """Grid over the CV and CA process noises and the switch probability (32 candidates).
 
@@ -151,7 +119,7 @@ def tune_imm(segments, *, unit: float, time_unit: float) -> dict:
     grid = {"cv_process_noise": tuple(f * cv["process_noise"] for f in _IMM_CV_FACTORS),
             "ca_process_noise": tuple(f * ca_q for f in _IMM_CA_FACTORS), "switch_probability": _IMM_SWITCH}
     fixed = {"measurement_noise": r, "time_unit": float(time_unit)}
-    best, rms = _batched_search(grid, pieces, lambda candidates: _predict_imm_many(
+    best, rms = batched_search(grid, pieces, lambda candidates: _predict_imm_many(
         [(z, t) for z, t, _ in pieces], [_imm_params({**c, **fixed}) for c in candidates], 1))
     return {**best, **fixed, "tuning_rms": rms}
 
@@ -161,17 +129,18 @@ def _mmae_params(params):
 
 
 def _predict_mmae_many(segments, candidates, horizon):
-    """MMAE predictions of each candidate ``(q, spread, r, time_unit)`` on each segment (:func:`_many`)."""
+    """MMAE predictions of each candidate ``(q, spread, r, time_unit)`` on each segment (:func:`~._batched.over_candidates`)."""
     table = np.array(candidates, dtype=float)
     qs = np.array([q * spread ** (np.arange(MMAE_FILTERS) - MMAE_FILTERS // 2) for q, spread, _, _ in candidates])
 
-    def run(z, dt, lengths, tau, column):
+    def run(z, times, lengths, column):
         r, time_unit = table[column, 2], table[column, 3]
         initial = r[:, None] * np.array([1.0, INITIAL_VARIANCE_RATIO])
         return mmae_run(z, lengths, qs[column], r, initial, lambda d: transition(d, 2),
-                        lambda d: process_noise_shape(d, 2), dt=dt / time_unit, tau=tau / time_unit)
+                        lambda d: process_noise_shape(d, 2), dt=steps(times) / time_unit,
+                        tau=steps(times, horizon) / time_unit)
 
-    return _many(segments, candidates, horizon, run)
+    return over_candidates(segments, candidates, run)
 
 
 def predict_mmae(values, times, params: dict, horizon: int = 1) -> np.ndarray:
@@ -196,6 +165,6 @@ def tune_mmae(segments, *, unit: float, time_unit: float) -> dict:
     pieces = tuning_rows(segments, TUNE_ROWS)
     fixed = {"process_noise": cv["process_noise"], "measurement_noise": cv["measurement_noise"],
              "time_unit": float(time_unit)}
-    best, rms = _batched_search({"spread": _MMAE_SPREADS}, pieces, lambda candidates: _predict_mmae_many(
+    best, rms = batched_search({"spread": _MMAE_SPREADS}, pieces, lambda candidates: _predict_mmae_many(
         [(z, t) for z, t, _ in pieces], [_mmae_params({**c, **fixed}) for c in candidates], 1))
     return {**best, **fixed, "tuning_rms": rms}

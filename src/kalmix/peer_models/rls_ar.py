@@ -12,17 +12,19 @@ the first interval are 0 (so the first predictions hold the last position).
 Row ``t`` predicts row ``t + horizon`` open loop: from the last valid row ``<= t`` the AR
 is iterated row by row, each predicted velocity fed back as a regressor and multiplied by
 that row's real ``Δt``. Tuning: ``order x forgetting`` over a 4 x 6 grid by one-step RMS on
-at most :data:`TUNE_ROWS` tuning rows (a Python loop per row and coordinate).
+at most :data:`TUNE_ROWS` tuning rows. padasip's update runs on arrays, every candidate,
+segment and coordinate at once (the test suite checks the numbers against padasip's filters
+adapted row by row).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._common import check_horizon, check_positive, check_segment, check_segments, grid_search, one_step_rms, \
-    tuning_rows
+from ._batched import batched_search, over_candidates
+from ._common import check_horizon, check_positive, check_segment, check_segments, tuning_rows
 
-__all__ = ["TUNE_ROWS", "GRID", "tune", "predict"]
+__all__ = ["TUNE_ROWS", "GRID", "tune", "predict", "predict_many"]
 
 #: Rows of the tuning part scored per candidate.
 TUNE_ROWS = 5000
@@ -46,45 +48,99 @@ def _read(params):
             check_positive("params['time_unit']", params["time_unit"]))
 
 
+def _run(z, times, lengths, order, forgetting, unit, time_unit, horizon):
+    """padasip's ``FilterRLS`` AR model for every column of ``z (T, B, p)`` at once (one AR ``order``).
+
+    ``forgetting``, ``unit``, ``time_unit`` (B,). padasip's arithmetic, in its order, on
+    arrays: ``e = d - w·x``; ``R ← (R - R x xᵀ R / (μ + xᵀ R x)) / μ``; ``w += R x e``,
+    starting from ``w = 0``, ``R = I / 0.001`` (padasip's ``eps``).
+    """
+    t_count, b_count, p = z.shape
+    n = order + 1
+    lengths = np.asarray(lengths)
+    mu = forgetting[:, None, None, None]
+    w = np.zeros((b_count, p, n))
+    big = 1 / 0.001 * np.identity(n)
+    r = np.broadcast_to(big, (b_count, p, n, n)).copy()
+    history = np.zeros((b_count, p, n))   # previous velocities, most recent first, then the bias
+    history[..., -1] = 1.0
+    step = np.zeros((t_count, b_count))
+    step[:-1] = np.nan_to_num((times[1:] - times[:-1]) / time_unit, nan=0.0)
+    last = np.full(b_count, -1)
+    z_last, t_last = np.full((b_count, p), np.nan), np.full(b_count, np.nan)
+    out = np.full(z.shape, np.nan)
+    columns = np.arange(b_count)
+    for t in range(t_count):
+        live = t < lengths - horizon
+        valid = live & np.isfinite(z[t]).all(axis=1)
+        learn = np.flatnonzero(valid & (last >= 0))
+        if learn.size:
+            velocity = (z[t, learn] - z_last[learn]) / (times[t, learn] - t_last[learn])[:, None] \
+                * time_unit[learn, None] / unit[learn, None]
+            x, rr, m = history[learn], r[learn], mu[learn]
+            e = velocity - (w[learn][..., None, :] @ x[..., :, None])[..., 0, 0]
+            r1 = (rr @ (x[..., :, None] * x[..., None, :])) @ rr
+            r2 = m + (x[..., None, :] @ rr) @ x[..., :, None]
+            rr = 1 / m * (rr - r1 / r2)
+            r[learn] = rr
+            w[learn] = w[learn] + (rr @ x[..., :, None])[..., 0] * e[..., None]
+            history[learn, :, 1:order] = history[learn, :, :order - 1]
+            history[learn, :, 0] = velocity
+        z_last[valid], t_last[valid], last[valid] = z[t, valid], times[t, valid], t
+        ready = np.flatnonzero(live & (last >= 0))
+        if not ready.size:
+            continue
+        position, ahead = z_last[ready].copy(), history[ready].copy()
+        count = t + horizon - last[ready]
+        for offset in range(int(count.max())):
+            going = offset < count
+            k = last[ready] + offset
+            guess = (w[ready][..., None, :] @ ahead[..., :, None])[..., 0, 0]
+            moved = position + guess * step[k, columns[ready]][:, None] * unit[ready, None]
+            position = np.where(going[:, None], moved, position)
+            shifted = ahead.copy()
+            shifted[..., 1:order] = ahead[..., :order - 1]
+            shifted[..., 0] = guess
+            ahead = np.where(going[:, None, None], shifted, ahead)
+        out[t, ready] = position
+    return out
+
+
+def _predict_many(segments, candidates, horizon):
+    """Predictions of each candidate ``(order, forgetting, unit, time_unit)`` on each segment."""
+    table = np.array(candidates, dtype=float)
+
+    def run(z, times, lengths, column):
+        out = np.full(z.shape, np.nan)
+        orders = table[column, 0].astype(int)
+        for order in np.unique(orders):   # one batched run per AR order
+            cols = np.flatnonzero(orders == order)
+            out[:, cols] = _run(z[:, cols], times[:, cols], lengths[cols], int(order), table[column[cols], 1],
+                                table[column[cols], 2], table[column[cols], 3], horizon)
+        return out
+
+    return over_candidates(segments, candidates, run)
+
+
 def predict(values, times, params: dict, horizon: int = 1) -> np.ndarray:
     """Row ``t``: the RLS AR model's open-loop prediction of row ``t + horizon`` from rows ``<= t``."""
-    from padasip.filters import FilterRLS
-
-    order, forgetting, unit, time_unit = _read(params)
+    candidate = _read(params)
     horizon = check_horizon(horizon)
-    z, times = check_segment(values, times)
-    t_count, p = z.shape
-    steps = np.diff(times) / time_unit
-    filters = [FilterRLS(order + 1, mu=forgetting, w="zeros") for _ in range(p)]
-    history = np.zeros((p, order + 1))  # previous velocities, most recent first, then the bias
-    history[:, -1] = 1.0
-    out = np.full(z.shape, np.nan)
-    last = None
-    for t in range(t_count - horizon):
-        if np.isfinite(z[t]).all():
-            if last is not None:
-                velocity = (z[t] - z[last]) / (times[t] - times[last]) * time_unit / unit
-                for j, rls in enumerate(filters):
-                    rls.adapt(velocity[j], history[j])
-                history[:, 1:order] = history[:, :order - 1]
-                history[:, 0] = velocity
-            last = t
-        if last is None:
-            continue
-        position, ahead = z[last].copy(), history.copy()
-        for k in range(last, t + horizon):
-            guess = np.array([rls.predict(ahead[j]) for j, rls in enumerate(filters)])
-            position += guess * steps[k] * unit
-            ahead[:, 1:order] = ahead[:, :order - 1]
-            ahead[:, 0] = guess
-        out[t] = position
-    return out
+    return _predict_many([check_segment(values, times)], [candidate], horizon)[0][0]
+
+
+def predict_many(segments, params: dict, horizon: int = 1) -> list[np.ndarray]:
+    """:func:`predict` over a list of ``(values, times)`` in one batched pass."""
+    candidate = _read(params)
+    horizon = check_horizon(horizon)
+    pieces = [check_segment(v, t, where=f" of segments[{i}]") for i, (v, t) in enumerate(segments)]
+    return _predict_many(pieces, [candidate], horizon)[0]
 
 
 def tune(segments, *, unit: float, time_unit: float) -> dict:
     """Best ``order, forgetting`` of :data:`GRID`; ``unit`` and ``time_unit`` scale the velocities."""
     fixed = {"unit": check_positive("unit", unit), "time_unit": check_positive("time_unit", time_unit)}
     pieces = tuning_rows(check_segments(segments), TUNE_ROWS)
-    best, rms = grid_search(GRID, lambda c: one_step_rms(
-        pieces, [predict(z, t, {**c, **fixed}) for z, t, _ in pieces]))
+    best, rms = batched_search(GRID, pieces, lambda candidates: _predict_many(
+        [(z, t) for z, t, _ in pieces], [_read({**c, **fixed}) for c in candidates], 1))
     return {**best, "order": int(best["order"]), **fixed, "tuning_rms": rms}
