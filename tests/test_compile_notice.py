@@ -9,7 +9,6 @@ import sys
 
 import pytest
 
-from kalmix.commands import _common
 from kalmix.commands._common import CompileDisplay
 from kalmix.core.compiled import _notice
 

@@ -215,7 +215,7 @@ def _close(episode: _Episode) -> None:
 
 
 def settle() -> None:
-    """End the open episode now if nothing compiles (at exit; tests)."""
+    """End the open episode now if nothing compiles (tests: without waiting for QUIET_SECONDS)."""
     with _lock:
         episode = _episode
         if episode is None or _active:
