@@ -41,7 +41,7 @@ def test_large_output_to_a_pipe_arrives_whole(tmp_path):
     assert done.returncode == 0, done.stderr
     lines = done.stdout.splitlines()
     assert lines[0].startswith("time,segment,pred_x") and len(lines) == 1 + 3000 + 1   # header, rows, atexit's
-    assert lines[-2].startswith("2999.0,") and lines[-1] == "atexit ran"
+    assert lines[-2].startswith("2999,") and lines[-1] == "atexit ran"   # the time as given
     assert not (tmp_path / "-").exists()
 
 
@@ -79,7 +79,8 @@ def test_a_stop_before_any_row_says_no_state_was_saved(tmp_path):
                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     process.stdin.write("id,time,x,y\n")
     process.stdin.flush()
-    assert "length unit" in process.stderr.readline()   # the header is read: the run is waiting for rows
+    # the header is read: the run is waiting for rows (on a cold cache a compile notice may come first)
+    assert any("length unit" in process.stderr.readline() for _ in range(5))
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=120)
     assert process.returncode == 130
