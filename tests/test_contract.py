@@ -41,12 +41,12 @@ def test_contract_adversarial(kind, rule):
 
 def _assert_identical(one, other):
     """Two engine results have the same bits in every output and every state leaf (shapes included)."""
-    from kalmix.streaming import _leaves
+    from kalmix.core.engine import tree_leaves
 
     for name in one._fields:
         a, b = getattr(one, name), getattr(other, name)
         if name == "state":
-            for (key, x), (_, y) in zip(_leaves(a), _leaves(b)):
+            for (key, x), (_, y) in zip(tree_leaves(a), tree_leaves(b)):
                 assert np.array_equal(x, y, equal_nan=True), key
         elif a is None:
             assert b is None, name
@@ -639,13 +639,13 @@ def test_bit_for_bit_at_the_edges_a_review_found():
     of losses overflows (the kernel stored inf where the spec skipped the row)."""
     from kalmix.core import engine
     from kalmix.core.compiled import engine as compiled
-    from kalmix.streaming import _leaves
+    from kalmix.core.engine import tree_leaves
 
     def same(bank, z, t):
         a, b = engine.run(bank, z, t, record_experts=True), compiled.run(bank, z, t, record_experts=True)
         for name in ("forecasts", "std", "experts", "weights"):
             assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True), name
-        for (key, x), (_, y) in zip(_leaves(a.state), _leaves(b.state)):
+        for (key, x), (_, y) in zip(tree_leaves(a.state), tree_leaves(b.state)):
             assert np.array_equal(x, y, equal_nan=True), key
 
     rng = np.random.default_rng(1)

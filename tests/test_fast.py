@@ -218,7 +218,7 @@ def test_other_sizes_including_the_eigenvalue_guard(p, order, degree, n_experts)
     z = np.concatenate([z, z[..., :2] + 7.0], axis=-1)[..., :p]
     params = make_params(p, n_experts, order=order, prior_degree=degree, seed=1)
     degree = min(order - 1, 1) if degree is None else degree
-    assert fast._fast_guard(params) == (p * (degree + 1) <= 6)
+    assert fast.fast_guard(params) == (p * (degree + 1) <= 6)
     _compare(run_core(params, z, backend="numpy"), run_core(params, z, backend="numba"))
 
 
@@ -259,8 +259,8 @@ def test_compile_ahead_runs_the_akf_kernel_in_a_child_and_changes_no_number(cold
     before = engine.run(bank, z, t)
     assert _REAL_KERNEL_CACHED(_numba_kernels.run_targets)   # the run above left it in the cache
     cold_cache._reset()   # that run (under the fixture) took this process's turn
-    assert cold_cache.compile_ahead(bank) == 0
-    assert cold_cache.compile_ahead(bank) is None   # once per process
+    assert cold_cache.compile_ahead(bank, engine.run) == 0
+    assert cold_cache.compile_ahead(bank, engine.run) is None   # once per process
     after = engine.run(bank, z, t)
     for name in ("forecasts", "std"):
         assert np.array_equal(getattr(before, name), getattr(after, name), equal_nan=True), name
@@ -305,12 +305,13 @@ def test_read_only_inputs_compile_no_second_kernel():
 def test_a_failing_warm_up_does_not_break_the_run(monkeypatch, cold_cache):
     """The tiny run is only a warm-up: if it raises, compile_ahead still waits for its child and returns."""
     from kalmix.bank import make_bank
+    from kalmix.core.compiled import engine
 
-    def broken(bank):
+    def broken(bank, run):
         raise RuntimeError("warm-up failed")
 
     monkeypatch.setattr(cold_cache, "_tiny_run", broken)
-    assert cold_cache.compile_ahead(make_bank(2, "mixed", n_akf=8, length_unit=0.3)) == 0
+    assert cold_cache.compile_ahead(make_bank(2, "mixed", n_akf=8, length_unit=0.3), engine.run) == 0
 
 
 def test_a_compile_child_still_running_at_exit_is_ended():
@@ -339,6 +340,7 @@ def test_an_interrupted_warm_up_ends_its_child_at_once(monkeypatch, cold_cache):
     import sys
 
     from kalmix.bank import make_bank
+    from kalmix.core.compiled import engine
 
     children = []
     popen = subprocess.Popen
@@ -349,13 +351,13 @@ def test_an_interrupted_warm_up_ends_its_child_at_once(monkeypatch, cold_cache):
         children.append(child)
         return child
 
-    def interrupted(bank):
+    def interrupted(bank, run):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(cold_cache.subprocess, "Popen", slow_child)
     monkeypatch.setattr(cold_cache, "_tiny_run", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        cold_cache.compile_ahead(make_bank(2, "mixed", n_akf=8, length_unit=0.3))
+        cold_cache.compile_ahead(make_bank(2, "mixed", n_akf=8, length_unit=0.3), engine.run)
     assert children[0].returncode == -signal.SIGKILL   # killed and reaped, not waited for
     assert not cold_cache._children
 

@@ -12,6 +12,7 @@ import numbers
 import numpy as np
 
 from .core.dynamics import polynomial_prior
+from .core.engine import MAX_HORIZON, Bank, Family, check_horizon
 from .core.gating import GATING_INPUTS
 from .core.mixture import DYNAMICS, GATINGS, MixtureParams
 
@@ -20,12 +21,6 @@ __all__ = ["make_params", "noise_grid", "check_horizon", "check_length_unit", "M
            "KINEMATIC_MEASUREMENT_LEVELS", "DEFAULT_BANK", "AR_ORDERS", "AR_FORGETTING", "AR_RIDGE",
            "TURN_GAINS", "recipe_parts", "GATE_OPTIONS"]
 
-#: Largest prediction horizon (frames ahead). A prediction H frames ahead costs H - 1
-#: matrix-vector products per expert and stream, so the bound keeps every call's cost bounded;
-#: 10 000 frames is 10 s at 1 kHz or 5.5 min at 30 fps, past any useful motion forecast, and with
-#: the default spectral-radius guard (1.02) the extrapolation stays finite there
-#: (1.02**10 000 ~ 1e86), which it does not at 10**6 (NaN).
-MAX_HORIZON = 10_000
 #: Largest seed: the compiled kernels hold it in a signed 64-bit integer.
 MAX_SEED = 2**63 - 1
 #: Accepted ``length_unit`` range. The bank squares it (noise variances) and multiplies variances;
@@ -72,13 +67,6 @@ def _check_int(name, value, minimum):
         raise TypeError(f"{name}: expected an integer >= {minimum}, got {type(value).__name__} {value!r}")
     if value < minimum:
         raise ValueError(f"{name}: expected an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
-def check_horizon(value, name: str = "horizon") -> int:
-    """``value`` as an int in [1, :data:`MAX_HORIZON`]; ``ValueError`` naming ``name`` otherwise."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 1 <= value <= MAX_HORIZON:
-        raise ValueError(f"{name}: expected an integer in [1, {MAX_HORIZON}], got {value!r}")
     return int(value)
 
 
@@ -573,7 +561,6 @@ def make_bank(
         at irregular intervals and not cut at gaps (``--max-gap none``).
     """
     from .core import aggregators
-    from .core.engine import Bank, Family
 
     p = _check_int("measurement_dim", measurement_dim, 1)
     _check_choice("kind", kind, BANK_KINDS)

@@ -325,7 +325,7 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
         positive time step); the first chunk's first rows (a sample of the data's types).
     """
     from .io import in_file_order, to_arrays
-    from .streaming import _length_unit_rule, learned_time_unit
+    from .streaming import learned_time_unit, length_unit_rule
 
     canon = _engine_columns(columns)
     counts = {} if columns.time is None else None
@@ -343,7 +343,7 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
         raise ValueError("The track files have no rows (only headers or nothing at all)")
     unit, why = config.length_unit, None
     if derive_length:
-        unit, why = _length_unit_rule(to_arrays(first, columns.positions).values)
+        unit, why = length_unit_rule(to_arrays(first, columns.positions).values)
     time_unit = config.time_unit
     if time_unit is None:  # one gap rule over the chunks' rows in file order, reading on only until it is learned
         continued: list = []
@@ -410,7 +410,7 @@ def predict_table(table, config: dict, positions, *, chunk_rows: int = 200_000, 
 
 
 def _predict_partition(frame, columns, config, chunk_rows, batch_tracks, first_appearance, meta):
-    from .commands.predict import _output_columns
+    from .streaming import with_input_names
 
     if columns.time is not None:
         frame = frame[frame["time"].notna()]  # a row without a time is dropped (as the file reader does)
@@ -421,7 +421,7 @@ def _predict_partition(frame, columns, config, chunk_rows, batch_tracks, first_a
         warnings.simplefilter("ignore", RuntimeWarning)  # sorting and repeated times: as a single-machine read
         table = _normalise(frame, _engine_columns(columns), first_appearance=first_appearance)
     out = predict_table(table, config, columns.positions, chunk_rows=chunk_rows, batch_tracks=batch_tracks)
-    return _output_columns(out, columns, columns.positions).astype(meta.dtypes.to_dict())
+    return with_input_names(out, columns).astype(meta.dtypes.to_dict())
 
 
 # --------------------------------------------------------------------------------------- the API
@@ -497,7 +497,7 @@ def predict_dask(frame, columns: TrackColumns | None = None, *, length_unit: flo
 
 def _meta(sample, columns, settings):
     """The output's empty frame, with the columns and types the partitions give (whatever columns they add)."""
-    from .commands.predict import _output_columns
+    from .streaming import with_input_names
 
     out = predict_table(sample, settings, columns.positions)
-    return _output_columns(out, columns, columns.positions).iloc[:0]
+    return with_input_names(out, columns).iloc[:0]

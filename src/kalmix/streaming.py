@@ -86,10 +86,11 @@ from ._values import measurements as _measurements
 from .archive import open_archive, write_archive
 from .bank import (DEFAULT_BANK, DEFAULT_REACH, LENGTH_UNIT_RANGE, check_horizon, check_length_unit, make_bank,
                    make_params, short_lead)
-from .core.engine import Bank, BankState, init_bank_state, tree_map
+from .core.engine import Bank, BankState, init_bank_state, tree_leaves, tree_map
 
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "SkippedRowWarning", "Checkpoint",
-           "auto_length_unit", "auto_time_unit", "learned_time_unit", "next_row_times", "STATE_FORMAT_VERSION"]
+           "auto_length_unit", "length_unit_rule", "auto_time_unit", "learned_time_unit", "next_row_times",
+           "id_to_json", "with_input_names", "STATE_FORMAT_VERSION"]
 
 #: Format version of the state files :meth:`TrackPredictor.save` writes. :meth:`TrackPredictor.load` reads
 #: versions 3 to 10 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
@@ -126,11 +127,11 @@ def auto_length_unit(values, *, minimum_samples: int = 8) -> float:
     float
         The ``length_unit`` to pass to :func:`kalmix.bank.make_params`.
     """
-    unit, _ = _length_unit_rule(values, minimum_samples)
+    unit, _ = length_unit_rule(values, minimum_samples)
     return unit
 
 
-def _length_unit_rule(values, minimum_samples: int = 8) -> tuple[float, str | None]:
+def length_unit_rule(values, minimum_samples: int = 8) -> tuple[float, str | None]:
     """:func:`auto_length_unit` and, when it fell back to 1, why (else None)."""
     try:
         z = np.asarray(values, dtype=np.float64)
@@ -428,16 +429,6 @@ class RowPrediction(NamedTuple):
     time_glitch: bool = False     # the row came back before its track's jump ahead (that timestamp was wrong)
 
 
-def _leaves(tree, prefix="state"):
-    """``[(name, array)]`` of a state tree, names like ``state/families/0/mean`` (None parts have none)."""
-    if tree is None:
-        return []
-    if isinstance(tree, tuple):
-        names = tree._fields if hasattr(tree, "_fields") else [str(i) for i in range(len(tree))]
-        return [leaf for name, part in zip(names, tree) for leaf in _leaves(part, f"{prefix}/{name}")]
-    return [(prefix, tree)]
-
-
 def _stack(states: list) -> BankState:
     return tree_map(lambda *arrays: np.concatenate(arrays, axis=0), *states)
 
@@ -473,7 +464,9 @@ def _is_missing(values) -> np.ndarray:
     return np.asarray(pd.isna(np.asarray(values, dtype=object)), dtype=bool)
 
 
-def _id_to_json(value):
+def id_to_json(value):
+    """A track id as the state file keeps it: numpy scalars as Python numbers, bools and text, numpy dates and
+    durations as pandas'; anything else as it is."""
     if isinstance(value, (np.datetime64, np.timedelta64)):   # (numpy's timedelta64 is an integer type)
         import pandas as pd
 
@@ -487,6 +480,12 @@ def _id_to_json(value):
     if isinstance(value, np.str_):
         return str(value)
     return value
+
+
+# Aliases of the public names, for the modules that still import the underscored ones
+# (kalmix.commands._predict_run, kalmix.experiments.evaluate).
+_length_unit_rule = length_unit_rule
+_id_to_json = id_to_json
 
 
 def _seconds(column) -> np.ndarray:
@@ -540,7 +539,7 @@ _ID_TYPES = (str, int, float, bytes, decimal.Decimal, datetime.date, datetime.ti
 
 
 def _keyable(key) -> bool:
-    """Whether ``key`` (from :func:`_id_to_json`) can be a track id: one the state file keeps (text, a number, a
+    """Whether ``key`` (from :func:`id_to_json`) can be a track id: one the state file keeps (text, a number, a
     date, time or duration, a decimal, bytes). Others (a UUID, a Period, a tuple) are refused at the row rather
     than by ``save`` at the end of a long stream."""
     return isinstance(key, _ID_TYPES)
@@ -557,7 +556,7 @@ def _track_key(value, where: str):
         missing = False
     if missing:
         raise ValueError(f"{where}: expected a track id (text or a number), got {value!r}")
-    key = _id_to_json(value)
+    key = id_to_json(value)
     if not _keyable(key):
         raise TypeError(f"{where}: expected a track id (text, a number, or a date), got {type(value).__name__} "
                         f"{value!r:.80}")
@@ -866,7 +865,7 @@ class TrackPredictor:
         :meth:`rollback` returns to it, provided only those tracks were touched in between.
         Cheap: the states are never modified in place, so only references are kept.
         """
-        ids = list(self.gaps) if track_ids is None else [_id_to_json(t) for t in track_ids]
+        ids = list(self.gaps) if track_ids is None else [id_to_json(t) for t in track_ids]
         tracks = {t: (self.gaps[t].copy() if t in self.gaps else None, self.states.get(t)) for t in ids}
         return Checkpoint(self.rows, self.skipped, self.position_names, tracks, self.config.time_unit, self.outliers)
 
@@ -1207,7 +1206,7 @@ class TrackPredictor:
         its track and the step learned (None: no such row). Nothing is changed."""
         trackers: dict = {}
         for i in range(len(ids)):
-            track = _id_to_json(ids[i])
+            track = id_to_json(ids[i])
             if track not in trackers:
                 trackers[track] = self.gaps[track].copy() if track in self.gaps else GapTracker()
             trackers[track].advance(float(times[i]), self.config)
@@ -1360,7 +1359,7 @@ class TrackPredictor:
             row = int(np.flatnonzero(index == missing[0])[0])
             raise ValueError(f"table: expected a track id in every row, got a missing value "
                              f"({uniques[missing[0]]!r}) in row {first_row + row} (counted from 0)")
-        keys = [_id_to_json(u) for u in uniques]
+        keys = [id_to_json(u) for u in uniques]
         for u, key in enumerate(keys):   # a tuple, say: step_row refuses it, and the state file could not give it back
             if not _keyable(key):
                 row = int(np.flatnonzero(index == u)[0])
@@ -1418,7 +1417,7 @@ class TrackPredictor:
                 "output": self.output}
         arrays = {}
         if with_state:
-            arrays = dict(_leaves(_stack([self.states[t] for t in with_state])))
+            arrays = dict(tree_leaves(_stack([self.states[t] for t in with_state])))
         write_archive(path, meta, arrays)
 
     @classmethod
@@ -1472,7 +1471,7 @@ class TrackPredictor:
                                       and name.startswith(("state/rule/error_", "state/lead/rule/error_"))))
                 stacked = {name: (np.broadcast_to(expected, (count, *expected.shape[1:])) if fresh(name)
                                   else archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name))
-                           for name, expected in _leaves(template)}
+                           for name, expected in tree_leaves(template)}
         engine.use_backend(backend)   # outside the checks of the file: a backend that cannot run is not corruption
         index = 0
         for track, gaps, has_state in entries:
@@ -1508,7 +1507,7 @@ def learned_time_unit(tables, config: StreamConfig, continued: list | None = Non
     scratch = TrackPredictor(replace(config, time_unit=None))
     for table in tables:
         for track, time in zip(table["track_id"].to_numpy(), _seconds(table["time"])):
-            key = _id_to_json(track)
+            key = id_to_json(track)
             seen = key in scratch.gaps
             _, new = scratch._advance(key, float(time))
             if scratch.config.time_unit is not None:
@@ -1529,6 +1528,18 @@ def next_row_times(parts, after: dict | None = None) -> list[dict]:
         firsts = part.groupby("track_id", sort=False)["time"].first()
         upcoming.update((track, float(t)) for track, t in zip(firsts.index, _seconds(firsts)))
     return out[::-1]
+
+
+def with_input_names(frame, columns):
+    """A :meth:`TrackPredictor.process_table` output with the input's column names: ``time`` renamed to the time
+    column's name (``row`` when the input had none) and ``track_id`` to the id column's, or dropped when the input
+    had none. ``columns`` names them (a :class:`kalmix.io.TrackColumns`)."""
+    renames = {"time": columns.time or "row"}
+    if columns.track_id is not None:
+        renames["track_id"] = columns.track_id
+    else:
+        frame = frame.drop(columns="track_id")
+    return frame.rename(columns=renames)
 
 
 class Checkpoint(NamedTuple):

@@ -22,6 +22,7 @@ import time
 
 import click
 
+from ._common import position_names
 from ._durable import Interrupted
 from ._predict_run import gap_note
 
@@ -115,12 +116,11 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
 
     from ..dask_predict import archive_files, read_archive
     from ..io.tables import _header, column_notes
-    from .predict import _positions
 
     started = time.perf_counter()
     partial = _partial_dir(output)
     try:
-        frame, columns, fmt = read_archive(input_path, time=time_column, positions=_positions(position_columns),
+        frame, columns, fmt = read_archive(input_path, time=time_column, positions=position_names(position_columns),
                                            track_id=id_column)
         for note in column_notes(columns, _header(archive_files(input_path)[0][0], fmt)):
             _note(note)

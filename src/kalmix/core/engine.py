@@ -53,6 +53,7 @@ expert (:func:`within_reach`).
 from __future__ import annotations
 
 import math
+import numbers
 import weakref
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -66,7 +67,14 @@ from .families import akf, ar, kinematic, turn
 
 __all__ = ["Family", "Bank", "BankState", "EngineResult", "StepOutput", "init_bank_state", "run", "step", "forecast",
            "cold_start", "FAMILY_KINDS", "FAMILY_MODULES", "LONG_STEP_KINDS", "span", "within_reach",
-           "check_run_arguments"]
+           "check_run_arguments", "check_horizon", "MAX_HORIZON", "tree_map", "tree_leaves"]
+
+#: Largest prediction horizon (frames ahead). A prediction H frames ahead costs H - 1
+#: matrix-vector products per expert and stream, so the bound keeps every call's cost bounded;
+#: 10 000 frames is 10 s at 1 kHz or 5.5 min at 30 fps, past any useful motion forecast, and with
+#: the default spectral-radius guard (1.02) the extrapolation stays finite there
+#: (1.02**10 000 ~ 1e86), which it does not at 10**6 (NaN).
+MAX_HORIZON = 10_000
 
 #: Family kinds: kinematic CV / CA, adaptive AR of the velocity and coordinated turns in real time,
 #: and the paper's AKF (frame-based).
@@ -107,7 +115,7 @@ class Bank:
 
     A bank and its families' parameters are values: make another (``make_bank``, ``dataclasses.replace``,
     ``params._replace``) rather than change their arrays in place; the compiled engine keeps packed copies
-    of an AKF family's parameters from call to call (:func:`kalmix.core.compiled.engine.pack_akf`).
+    of an AKF family's parameters from call to call (:func:`kalmix.core.compiled._akf_pack.pack_akf`).
     """
 
     measurement_dim: int
@@ -190,6 +198,16 @@ def tree_map(function, *trees):
         mapped = [tree_map(function, *parts) for parts in zip(*trees)]
         return type(first)(*mapped) if hasattr(first, "_fields") else tuple(mapped)
     return function(*trees)
+
+
+def tree_leaves(tree, prefix="state"):
+    """``[(name, array)]`` of a state tree, names like ``state/families/0/mean`` (None parts have none)."""
+    if tree is None:
+        return []
+    if isinstance(tree, tuple):
+        names = tree._fields if hasattr(tree, "_fields") else [str(i) for i in range(len(tree))]
+        return [leaf for name, part in zip(names, tree) for leaf in tree_leaves(part, f"{prefix}/{name}")]
+    return [(prefix, tree)]
 
 
 def init_bank_state(bank: Bank, n_targets: int) -> BankState:
@@ -320,6 +338,13 @@ def expert_forecasts(bank: Bank, state: BankState, time, frames: int = 1) -> np.
                           axis=1)
 
 
+def check_horizon(value, name: str = "horizon") -> int:
+    """``value`` as an int in [1, :data:`MAX_HORIZON`]; ``ValueError`` naming ``name`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not 1 <= value <= MAX_HORIZON:
+        raise ValueError(f"{name}: expected an integer in [1, {MAX_HORIZON}], got {value!r}")
+    return int(value)
+
+
 def forecast(bank: Bank, state: BankState, time, frames: int = 1, *, lead: bool = False):
     """Predict without learning: the mixture's mean ``(N, p)`` and covariance ``(N, p, p)`` at ``time (N,)``.
 
@@ -330,8 +355,6 @@ def forecast(bank: Bank, state: BankState, time, frames: int = 1, *, lead: bool 
     ``frames`` is an integer in [1, MAX_HORIZON]; ``time`` a finite time (or one per target), at
     or after each target's last learned row; ``ValueError`` naming the argument otherwise.
     """
-    from ..bank import check_horizon
-
     frames = check_horizon(frames, "frames")
     try:
         n = len(state.screen.time)

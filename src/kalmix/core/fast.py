@@ -33,12 +33,11 @@ from __future__ import annotations
 import numpy as np
 
 from . import dynamics as dyn
-from .mixture import DYNAMICS, GATINGS, MixtureParams, MixtureState, StepOutput, init_state
+from .mixture import DYNAMICS, GATINGS, MixtureParams, MixtureState, RunResult, StepOutput, init_state
 from .compiled._cache import numba_available
 from .compiled._threads import over_targets
-from .run import RunResult
 
-__all__ = ["numba_available", "run_fast", "step_fast"]
+__all__ = ["numba_available", "run_fast", "step_fast", "pack_params", "pack_state", "fast_guard"]
 
 _GATING_INPUTS = ("bias", "position", "velocity")
 
@@ -62,7 +61,7 @@ def _kernels(n_experts: int):
     return _numba_scalar
 
 
-def _pack_params(params: MixtureParams) -> tuple:
+def pack_params(params: MixtureParams) -> tuple:
     f = np.ascontiguousarray
     return (
         DYNAMICS.index(params.dynamics), GATINGS.index(params.gating), _GATING_INPUTS.index(params.gating_input),
@@ -76,12 +75,12 @@ def _pack_params(params: MixtureParams) -> tuple:
         float(params.eta_sensitivity), bool(params.adapt_noise), float(params.process_noise_shrink),
         float(params.measurement_noise_shrink), float(params.noise_floor), float(params.noise_reinflation),
         int(params.random_seed), float(params.state_jitter), dyn._GUARD_SHRINK.astype(np.float64),
-        float(params.max_variance), _fast_guard(params),
+        float(params.max_variance), fast_guard(params),
         float(params.feature_limit), float(params.miss_limit),
     )
 
 
-def _fast_guard(params: MixtureParams) -> bool:
+def fast_guard(params: MixtureParams) -> bool:
     """Whether the Schur-Cohn guard is exact enough: the prior's cluster of roots at 1 is small.
 
     The prior of degree g puts p (g + 1) eigenvalues at 1; the Schur-Cohn recursion was
@@ -99,7 +98,7 @@ def _fast_guard(params: MixtureParams) -> bool:
 _STATE_DTYPES = dict(steps=np.int64, valid_steps=np.int64, initialised=np.bool_, stream_ids=np.int64)
 
 
-def _pack_state(state: MixtureState) -> tuple:
+def pack_state(state: MixtureState) -> tuple:
     """Fresh contiguous copies (the kernel updates them in place; the input is not mutated)."""
     return tuple(np.array(value, dtype=_STATE_DTYPES.get(name, np.float64), order="C", copy=True)
                  for name, value in state._asdict().items())
@@ -142,8 +141,8 @@ def run_fast(
     if state is None:
         state = init_state(params, n)
     k, p = params.n_experts, params.measurement_dim
-    packed_params = _pack_params(params)
-    packed_state = _pack_state(state)
+    packed_params = pack_params(params)
+    packed_state = pack_state(state)
     if lengths is None:
         lengths = np.full(n, t_count, dtype=np.int64)
         fill = np.empty

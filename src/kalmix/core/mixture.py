@@ -45,7 +45,7 @@ from . import gating as gate
 from ._libm import first_max, ordered_matmul, ordered_sum
 from .kalman import cholesky_inverse
 
-__all__ = ["MixtureParams", "MixtureState", "StepOutput", "init_state", "step", "predict", "observation_matrix"]
+__all__ = ["MixtureParams", "MixtureState", "StepOutput", "RunResult", "init_state", "step", "predict", "observation_matrix"]
 
 DYNAMICS = ("rls", "literal", "fixed")
 GATINGS = ("fixed_share", "paper", "random", "none")
@@ -149,6 +149,23 @@ class StepOutput(NamedTuple):
     weights: np.ndarray             # (N, K) g_k
     responsibilities: np.ndarray    # (N, K) h_k (posterior of this frame's scoring)
     eta: np.ndarray                 # (N,) eta_k
+
+
+class RunResult(NamedTuple):
+    """Outputs of :func:`kalmix.core.run.run_core`; row ``t`` is what was known after measurement ``t``.
+
+    ``predictions[t]`` is the prediction of frame ``t + horizon`` (for ``horizon = 1``
+    the next frame), so ``predictions[t]`` is scored against ``measurements[t + horizon]``.
+    Diagnostics are ``None`` unless requested.
+    """
+
+    predictions: np.ndarray                 # (T, N, p)
+    state: MixtureState                     # final state (resume from it)
+    weights: np.ndarray | None = None       # (T, N, K) g_k
+    eta: np.ndarray | None = None           # (T, N)
+    process_noise: np.ndarray | None = None  # (T, N, K, p) diag Q
+    measurement_noise: np.ndarray | None = None  # (T, N, K, p) diag R
+    expert_predictions: np.ndarray | None = None  # (T, N, K, p), same horizon as predictions
 
 
 def observation_matrix(params: MixtureParams) -> np.ndarray:

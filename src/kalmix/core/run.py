@@ -2,33 +2,15 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 
-from .mixture import MixtureParams, MixtureState, init_state, predict, step
+from .fast import numba_available, run_fast
+from .mixture import MixtureParams, MixtureState, RunResult, init_state, predict, step
 
 __all__ = ["RunResult", "run_core", "BACKENDS"]
 
 #: Implementations of the time loop: the numpy reference and the compiled one.
 BACKENDS = ("auto", "numpy", "numba")
-
-
-class RunResult(NamedTuple):
-    """Outputs of :func:`run_core`; row ``t`` is what was known after measurement ``t``.
-
-    ``predictions[t]`` is the prediction of frame ``t + horizon`` (for ``horizon = 1``
-    the next frame), so ``predictions[t]`` is scored against ``measurements[t + horizon]``.
-    Diagnostics are ``None`` unless requested.
-    """
-
-    predictions: np.ndarray                 # (T, N, p)
-    state: MixtureState                     # final state (resume from it)
-    weights: np.ndarray | None = None       # (T, N, K) g_k
-    eta: np.ndarray | None = None           # (T, N)
-    process_noise: np.ndarray | None = None  # (T, N, K, p) diag Q
-    measurement_noise: np.ndarray | None = None  # (T, N, K, p) diag R
-    expert_predictions: np.ndarray | None = None  # (T, N, K, p), same horizon as predictions
 
 
 def run_core(
@@ -68,8 +50,6 @@ def run_core(
     if backend not in BACKENDS:
         raise ValueError(f"backend: expected one of {', '.join(map(repr, BACKENDS))}, got {backend!r}")
     if backend != "numpy":
-        from .fast import numba_available, run_fast
-
         if numba_available():
             return run_fast(params, measurements, state, horizon=horizon, diagnostics=diagnostics,
                             expert_predictions=expert_predictions, progress=progress)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .engine import Bank, init_bank_state, run
+from .engine import Bank, init_bank_state, run, tree_leaves
 
 __all__ = ["check_bank", "adversarial_tracks", "benign_tracks"]
 
@@ -109,14 +109,12 @@ def check_bank(bank: Bank, measurements, times, *, compiled=True, restart=None):
         from .compiled import engine as ce
 
         fast = ce.run(bank, z, times, restart=gaps(slice(None)), record_experts=True)
-        from ..streaming import _leaves
-
         for (name, a), (_, b) in zip(_outputs(fast), _outputs(reference)):
             assert np.array_equal(a, b, equal_nan=True), f"compiled != reference ({name}), bit for bit"
         for name in ("experts", "weights"):
             assert np.array_equal(getattr(fast, name), getattr(reference, name), equal_nan=True), \
                 f"compiled != reference ({name}), bit for bit"
-        for (key, a), (_, b) in zip(_leaves(fast.state), _leaves(reference.state)):
+        for (key, a), (_, b) in zip(tree_leaves(fast.state), tree_leaves(reference.state)):
             assert np.array_equal(a, b, equal_nan=True), f"compiled != reference ({key}), bit for bit"
         head = ce.run(bank, z[:cut], times[:cut], restart=gaps(slice(None, cut)))
         resumed = ce.run(bank, z[cut:], times[cut:], head.state, restart=gaps(slice(cut, None)))

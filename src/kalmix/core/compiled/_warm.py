@@ -8,8 +8,8 @@ default bank (compile events, 2 cores: 31 of 46 s; the rule driver 6 s, kinemati
 2.8 s, turn 1.7 s). numba holds a lock while it compiles, so threads cannot share the work;
 processes can, through the cache: they write the same cache directory.
 
-:func:`compile_ahead`, called by :func:`kalmix.core.compiled.engine.run`, does this once per
-process when a bank has an AKF family whose kernel is not in the cache yet and the machine
+:func:`compile_ahead`, called by :func:`kalmix.core.compiled.engine.run` (which passes itself), does
+this once per process when a bank has an AKF family whose kernel is not in the cache yet and the machine
 has at least two cores: a child process compiles the AKF kernel (on one tiny track, with the
 family's parameters) while this process compiles the other kernels of the bank (one tiny run
 of the bank without its AKF family); then this process waits for the child and loads the
@@ -85,10 +85,12 @@ def _eligible(bank):
     return None if kernel_cached(_akf_kernel(akf[0])) else akf[0]
 
 
-def compile_ahead(bank) -> int | None:
+def compile_ahead(bank, run) -> int | None:
     """Once per process: compile the AKF kernel in a child while this process compiles the others.
 
-    Returns the child's exit status (0: the kernel is in the cache), or None when no child ran.
+    ``run`` is the compiled engine's :func:`kalmix.core.compiled.engine.run`: this process compiles the bank's
+    other kernels by running it on a tiny track. Returns the child's exit status (0: the kernel is in the cache),
+    or None when no child ran.
     """
     global _done
     with _lock:
@@ -108,7 +110,7 @@ def compile_ahead(bank) -> int | None:
         _children.add(child)
         with compiling():   # the wait for the child is compile time too (the notice, ._notice)
             try:
-                _tiny_run(dataclasses.replace(bank, families=tuple(f for f in bank.families if f.kind != "akf")))
+                _tiny_run(dataclasses.replace(bank, families=tuple(f for f in bank.families if f.kind != "akf")), run)
             except Exception:   # noqa: BLE001 - only a warm-up: the real run compiles what is missing, and reports
                 pass
             except BaseException:   # Ctrl-C or a stop signal: stop now, not after the child's compile (~25 s)
@@ -146,10 +148,9 @@ def _tiny_track(p: int, rows: int = 4):
     return z, np.arange(float(rows))[:, None]
 
 
-def _tiny_run(bank) -> None:
-    """The bank on a 4-row track: compiles its kernels (the engine's argument types do not depend on sizes)."""
-    from .engine import run
-
+def _tiny_run(bank, run) -> None:
+    """The bank on a 4-row track through ``run``: compiles its kernels (the engine's argument types do not depend
+    on sizes)."""
     z, t = _tiny_track(bank.measurement_dim)
     run(bank, z, t, ahead_times=None if bank.lead is not None else t + 1.0)
 
@@ -158,7 +159,7 @@ def _child() -> None:
     """The child process: the AKF family (pickled on stdin) through the compiled engine's AKF driver."""
     from . import akf as cakf
     from ..families import akf
-    from .engine import akf_work, pack_akf
+    from ._akf_pack import akf_work, pack_akf
 
     params, p = pickle.loads(sys.stdin.buffer.read())
     z, _ = _tiny_track(p)

@@ -16,7 +16,6 @@ import numpy as np
 from ..calibration import CalibrationState
 from ..engine import (Bank, BankState, EngineResult, check_restart, check_run_arguments, check_run_options,
                       init_bank_state, tree_map, within_reach)
-from ..families import akf
 from ..lead import LeadState
 from ..mixture import MixtureState
 from ..screen import ScreenState
@@ -30,6 +29,7 @@ from .calibration import pack_params as pack_calibration
 from . import screen as cscreen
 from ._threads import families_in_parallel, group_size, over_groups, over_targets
 from ._notice import watch as watch_compiles
+from ._akf_pack import akf_work, pack_akf
 from ._warm import compile_ahead
 
 __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
@@ -85,33 +85,6 @@ def _rule_scalars(bank: Bank, params=None):
             float(getattr(params, "scale", 0.0)), float(getattr(params, "scale_factor", 0.0)),
             float(getattr(params, "bound_forgetting", 1.0)), float(getattr(params, "delay", 1.0)),
             float(getattr(params, "clip", np.inf)))
-
-
-#: Per AKF family parameters, the packed parameters and one new target's packed state (the kernels only read
-#: them): building them anew took ~20 % of a live feed's ``step_row`` (one row of one track a call). Keyed on
-#: the parameters object: parameters are values, not changed in place (see :class:`kalmix.core.engine.Bank`).
-_PACKED: dict = {}
-
-
-def pack_akf(params, state):
-    """An AKF family's parameters and one new target's state (both read only, kept per ``params``) and its
-    state (fresh copies, advanced in place), packed for :mod:`.akf`."""
-    from ..fast import _pack_params, _pack_state
-
-    entry = _PACKED.get(id(params))
-    if entry is None or entry[0] is not params:   # (the entry holds params: its id is not reused meanwhile)
-        if len(_PACKED) >= 32:
-            _PACKED.clear()
-        entry = _PACKED[id(params)] = (params, _pack_params(params),
-                                       _pack_state(akf.init_state(params, 1, params.measurement_dim)))
-    return entry[1], _pack_state(state), entry[2]
-
-
-def akf_work(rows: int, n: int, k: int, p: int, later: bool, allocate=np.empty):
-    """The AKF driver's work arrays of a block (fed, piece, predictions, recorded, later), by ``allocate(shape,
-    dtype)``; each target's rows are written before they are read."""
-    return (allocate((rows, n, p), np.float64), allocate((n,), np.int64), allocate((rows, n, p), np.float64),
-            allocate((rows, n, k, p), np.float64), allocate((rows, n, k, p) if later else (0, 0, 0, 0), np.float64))
 
 
 def family_module(family):
@@ -189,7 +162,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     z, times, state, lengths, learn = prepare(bank, measurements, times, state, lengths, learn)
     _, ahead_times, ahead_frames = check_run_options(z.shape[:2], None, ahead_times, ahead_frames)
     watch_compiles()   # a fresh install: say so on stderr while the kernels compile (._notice)
-    compile_ahead(bank)   # a fresh install: the AKF kernel compiles in a second process meanwhile
+    compile_ahead(bank, run)   # a fresh install: the AKF kernel compiles in a second process meanwhile
     t_count, n, p = z.shape
     size = group_size(n, TARGET_GROUP)
     if size is not None:
