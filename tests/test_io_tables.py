@@ -57,14 +57,21 @@ def test_a_file_whose_id_or_time_column_is_not_found_is_told_so(tmp_path):
     notes = column_notes(detect_columns(["vessel", "when", "lat", "lon"]), ["vessel", "when", "lat", "lon"])
     assert len(notes) == 2 and "pass --id" in notes[0] and "pass --time" in notes[1]
     assert all("'vessel', 'when'" in note for note in notes)
-    rows = "".join(f"{v},{t},{t * 0.1 + v},{v}\n" for t in range(6) for v in (1, 2))
-    path = write(tmp_path, "vessel,t,x,y\n" + rows)
+    rows = "".join(f"{v},{t},{t * 0.1 + v},{v},{0.5 * t + 0.1 * v}\n" for t in range(6) for v in (1, 2))
+    path = write(tmp_path, "vessel,t,x,y,heading\n" + rows)
+    # a column named like an id is taken as the id, with a note (more in tests/test_as_given.py)
     for command in (["predict", str(path), "--length-unit", "1"], ["evaluate", str(path), "--no-peers"]):
         result = CliRunner().invoke(build(), command)
-        assert "no track id column found" in result.stderr and "unused columns: 'vessel'" in result.stderr
+        assert result.exit_code == 0 and "taking 'vessel' as the track id" in result.stderr, result.output
         assert "no time column" not in result.stderr
+    assert result.stdout.count("track 1") == result.stdout.count("track 2") == 1   # evaluate: two tracks
     result = CliRunner().invoke(build(), ["predict", str(path), "--length-unit", "1", "--id", "vessel"])
-    assert result.exit_code == 0 and "no track id" not in result.stderr
+    assert result.exit_code == 0 and "no track id" not in result.stderr and "taking" not in result.stderr
+    # an unused column that does not look like an id (fractional numbers): the note that names it
+    path = write(tmp_path, "t,x,y,heading\n" + "".join(f"{t},{t},{t},{0.5 * t + 0.1}\n" for t in range(6)))
+    result = CliRunner().invoke(build(), ["predict", str(path), "--length-unit", "1"])
+    assert result.exit_code == 0 and "no track id column found" in result.stderr
+    assert "unused columns: 'heading'" in result.stderr
 
 
 def test_detect_columns_explicit_wins():

@@ -73,7 +73,9 @@ def json_value(value):
 
 
 def csv_value(value) -> str:
-    """A prediction value for a CSV line: NaN as an empty field, floats round-tripping, text quoted."""
+    """A prediction value for a CSV line: NaN and None as an empty field, floats round-tripping, text quoted."""
+    if value is None:
+        return ""
     if isinstance(value, (float, np.floating)):
         return "" if math.isnan(value) else repr(float(value))
     text = str(value)
@@ -137,6 +139,10 @@ def csv_text(frame, header: bool) -> str:
     try:
         columns = []
         for name in frame.columns:
+            if not isinstance(frame[name].dtype, np.dtype) and frame[name].dtype.kind in "iub":
+                # a nullable integer (the segment of a row not stepped): numpy would make it floats
+                columns.append(pa.array(frame[name]))
+                continue
             values = frame[name].to_numpy()
             column = pa.array(values, from_pandas=True)
             if values.dtype.kind == "f" and np.any(np.isfinite(values) & (values == np.round(values))):

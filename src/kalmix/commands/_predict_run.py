@@ -22,7 +22,7 @@ import numpy as np
 
 from ._common import silence_stdout
 from ._durable import Interrupted, Output, OutputClosed, count_rows
-from .predict import _columns, _header, _input_format, _output_columns
+from .predict import _columns, _header, _input_format, _output_columns, _sample
 
 #: A chunk is stepped in pieces of about this many rows (each track's rows split in order,
 #: so every piece holds every track of the chunk and the batch stays as wide): the progress
@@ -221,6 +221,74 @@ def merge(frames, chunk):
     return out.iloc[np.lexsort((out["time"].to_numpy(), codes))].reset_index(drop=True)
 
 
+def given_rows(frame, chunk, columns, fmt):
+    """A chunk's output: ``frame``, the predictions of the chunk rows the engine stepped (in chunk order, as
+    :func:`merge` gives them), laid out on the chunk's file rows in file order, each with its id and time as
+    the file gave them (:class:`kalmix.io.tables.AsGiven`; the time as :func:`given_times` writes it in
+    ``fmt``). A file row not stepped (no time, an earlier row of a repeated time) has empty predictions and
+    segment; one a resumed run skips as done before, or that shares such a row's fate, is left out (its run
+    wrote it)."""
+    import pandas as pd
+
+    given = chunk.attrs["as_given"]
+    n = len(chunk)
+    if len(frame) == n:   # every row stepped (a resumed run's first chunks skip some)
+        frame_row = np.arange(n)
+    else:   # the stepped rows of a chunk, in its order: found by (track, time), one row each in a chunk
+        keys = pd.MultiIndex.from_arrays([chunk["track_id"], chunk["time"]])
+        frame_row = np.full(n, -1, dtype=np.int64)
+        frame_row[keys.get_indexer(pd.MultiIndex.from_arrays([frame["track_id"], frame["time"]]))] = np.arange(
+            len(frame))
+    source = np.full(given.rows, -1, dtype=np.int64)   # each file row's prediction row (-1: none)
+    source[given.places] = frame_row
+    written = frame_row[given.owner] >= 0
+    every = bool(written.all())
+    if not every:
+        source = source[written]
+    out = {}
+    if columns.track_id is not None:
+        ids = given.ids if every else given.ids[written]
+        out[columns.track_id] = ids.reset_index(drop=True)
+    if columns.time is None:   # each track's row number: every file row is a chunk row
+        number = np.empty(given.rows, dtype=np.float64)
+        number[given.places] = chunk["time"].to_numpy()
+        out["row"] = (number if every else number[written]).astype(np.int64)
+    else:
+        times = given.times if every else given.times[written]
+        out[columns.time] = given_times(times.reset_index(drop=True), fmt)
+    stepped = source >= 0
+    whole = bool(stepped.all())
+    for name in frame.columns[2:]:
+        values = frame[name].to_numpy()
+        if whole:
+            out[name] = values[source]
+        elif name == "segment":
+            out[name] = pd.array(np.where(stepped, values[np.maximum(source, 0)], 0), dtype="Int64")
+            out[name][~stepped] = pd.NA
+        else:
+            out[name] = np.where(stepped, values[np.maximum(source, 0)], np.nan)
+    return pd.DataFrame(out)
+
+
+def given_times(times, fmt):
+    """A time column as the input gave it, for an output of format ``fmt``: a CSV file's or stdin's text as
+    written in a CSV output; in JSON lines and Parquet, text that holds numbers as those numbers (JSON: whole
+    numbers as integers, the others as floats; Parquet: float64, one type for every chunk), date-time text as
+    it is. Any other column (Parquet's own types) as it is."""
+    import pandas as pd
+
+    if fmt == "csv" or not pd.api.types.is_string_dtype(times):
+        return times
+    numbers = pd.to_numeric(times, errors="coerce")
+    if int(numbers.notna().sum()) != int(times.notna().sum()):
+        return times   # date-times
+    if fmt == "parquet":
+        return numbers.astype(np.float64)
+    whole = times.str.strip().str.fullmatch(r"[+-]?\d+").fillna(False).to_numpy(bool)
+    return pd.Series([int(text) if integer else float(number) for text, number, integer
+                      in zip(times.tolist(), numbers.tolist(), whole.tolist())], dtype=object)
+
+
 def predict_file(run, path, settings, unit, time_column, position_columns, id_column, chunk_rows, progress):
     import pandas as pd
     from tqdm import tqdm
@@ -233,7 +301,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     if os.path.isdir(path):
         raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {path!r}")
     in_fmt = _input_format(path)
-    columns = _columns(_header(path, in_fmt), time_column, position_columns, id_column)
+    columns = _columns(_header(path, in_fmt), time_column, position_columns, id_column, _sample(path, in_fmt))
     _check_resumed(run.engine, columns)
     run.open_output()
     show = sys.stderr.isatty() if progress is None else progress
@@ -253,7 +321,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     with tqdm(total=total, unit="rows", file=sys.stderr, disable=not show,
               desc="kalmix predict", smoothing=0.1) as bar:
         for index, chunk in enumerate(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
-                                                        ids_as_text=True)):
+                                                        ids_as_text=True, as_given=True)):
             if run.engine is None:
                 chosen, why = (unit, None) if unit is not None else _length_unit_rule(to_arrays(chunk).values)
                 if unit is None and why is None:
@@ -276,7 +344,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                     bar.update(len(piece))
                     if k >= (unit_at or 0):   # the rows before the time unit's step go with the next part
                         run.guard.tick()
-                frame = _output_columns(merge(frames, chunk), columns, columns.positions)
+                frame = given_rows(merge(frames, chunk), chunk, columns, run.sink.fmt)
                 with run.guard.deferred():
                     run.sink.write_frame(frame)
                     committed = True
@@ -368,8 +436,9 @@ def _parse_time(text, column, line_number):
 
 
 def _dated(rows, column):
-    """``rows`` (line, track, time, positions) with their ISO 8601 time text as seconds since 1970 UTC, all in
-    one conversion (as in a file: the same bits); cut before the first that is not a date-time, with its error."""
+    """``rows`` (line, track, time, positions, time as given) with their ISO 8601 time text as seconds since
+    1970 UTC, all in one conversion (as in a file: the same bits); cut before the first that is not a
+    date-time, with its error."""
     from ..io.tables import iso_seconds
 
     at = [k for k, row in enumerate(rows) if isinstance(row[2], str)]
@@ -378,11 +447,11 @@ def _dated(rows, column):
     seconds = iso_seconds([rows[k][2] for k in at], errors="coerce")
     out = list(rows)
     for k, value in zip(at, seconds):
-        number, track, text, values = rows[k]
+        number, track, text, values, given = rows[k]
         if math.isnan(value):
             return out[:k], ValueError(f"line {number}: column {column!r} must hold a number or an ISO 8601 "
                                        f"date-time (like 2024-05-01T12:00:00.5Z), got {text!r}")
-        out[k] = (number, track, float(value), values)
+        out[k] = (number, track, float(value), values, given)
     return out, None
 
 
@@ -542,6 +611,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         pending = []
     columns = _columns(header, time_column, position_columns, id_column)
     _check_resumed(run.engine, columns)
+    words = _IdWatch(columns, header, id_column)
     if run.engine is None:
         if unit is None:
             click.echo("kalmix: length unit 1 (stdin has no sample to estimate it from; pass --length-unit)",
@@ -549,6 +619,8 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         run.engine = _new_engine(settings, 1.0 if unit is None else unit, columns.positions, run.backend)
     engine = run.engine
     engine.warn_skipped = False   # skipped rows are said line by line here
+    done_before = {track: gaps.last_time for track, gaps in engine.gaps.items()}   # by the runs before this one
+    previous_written = [True]   # the last row with a time was written (a row without one shares its fate)
     run.open_output(run.out_fmt if run.output else ("jsonl" if is_json else "csv"))
     index = {name: i for i, name in enumerate(header)}
     counts: dict = {}
@@ -573,21 +645,25 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         return record[index[name]]
 
     def row_of(number, record):
-        """(line, track, time, positions) of a record; track None for a row without a time (skipped)."""
+        """(line, track, time, positions, time as given) of a record; positions None for a row without a time
+        (not stepped)."""
+        words.check(number, record, get)
         track = _parse_id(get(record, columns.track_id, number), columns.track_id, number) if columns.track_id else 0
         if columns.time is None:
             time = float(counts.get(track, engine.gaps[track].last_time + 1 if track in engine.gaps else 0))
             counts[track] = time + 1
+            given = int(time)
         else:
-            time = _parse_time(get(record, columns.time, number), columns.time, number)
+            given = get(record, columns.time, number)
+            time = _parse_time(given, columns.time, number)
             if not isinstance(time, str) and math.isnan(time):   # text: a date-time, see _dated
-                return number, None, time, None
+                return number, track, time, None, given
             kind = "date-time" if isinstance(time, str) else "number"
             if time_kind.setdefault("kind", kind) != kind:   # one or the other, as in a file
                 raise ValueError(f"line {number}: column {columns.time!r} holds a {kind} ({time!r}) where the lines "
                                  f"before hold {time_kind['kind']}s; expected one or the other")
         return number, track, time, [_parse_number(get(record, name, number), name, number)
-                                     for name in columns.positions]
+                                     for name in columns.positions], given
 
     warned: dict[str, int] = {}
 
@@ -617,9 +693,9 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
                 error = bad
             rows[:], undated = _dated(rows, columns.time)
             error = undated or error   # an earlier line than the one that stopped the parse
-            results = iter(step([row for row in rows if row[1] is not None]))
-            for number, track, time, _ in rows:
-                if track is None:
+            results = iter(step(rows))
+            for number, track, time, values, _ in rows:
+                if values is None:
                     run.untimed += 1
                     warn("untimed", f"line {number}: no time, row skipped")
                     continue
@@ -636,25 +712,44 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
             raise error
 
     def step(rows) -> list:
-        """Step the rows (line, track, time, positions) and write their predictions, committed together."""
+        """Step the rows with a time (line, track, time, positions, time as given) and write every row's output
+        line in order, committed together: a stepped row's predictions; a row not stepped (no time, a time not
+        after its track's last) with empty ones, unless this run found it done before (at or before its
+        track's time in the state file it resumed from; a row without a time: if the row with a time before
+        it was). The stepped rows' results, in order (None: skipped)."""
         if not rows:
             return []
-        _, tracks, times, values = zip(*rows)
-        values = np.array(values, dtype=np.float64)
+        timed = [row for row in rows if row[3] is not None]
+        values = np.array([row[3] for row in timed], dtype=np.float64).reshape(len(timed), len(columns.positions))
+        tracks = [row[1] for row in timed]
         mark = engine.checkpoint(list(dict.fromkeys(tracks)))
         committed = False
         try:
-            results = engine.step_rows(list(tracks), np.array(times), values)
+            results = (engine.step_rows(tracks, np.array([row[2] for row in timed]), values) if timed else [])
             prefixes = engine._columns()
-            run.sink.write_records([_row_record(result, track, time, columns, prefixes)
-                                    for result, track, time in zip(results, tracks, times) if result is not None])
+            records, answers = [], iter(results)
+            for _, track, time, measured, given in rows:
+                result = None if measured is None else next(answers)
+                if result is not None:
+                    written = True
+                elif measured is not None:
+                    before = done_before.get(_track_key(track))
+                    written = before is None or not time <= before
+                else:
+                    written = previous_written[0]
+                if measured is not None:
+                    previous_written[0] = written
+                if written:
+                    time_out = given if is_json else given_time(given, run.sink.fmt)   # JSON: its own value
+                    records.append(_row_record(result, track, time_out, columns, prefixes))
+            run.sink.write_records(records)
             committed = True
             run.measured += int(np.isfinite(values).all(axis=1).sum())
         except BaseException:
             if not committed:
                 engine.rollback(mark)
             raise
-        run.commit(len(rows))
+        run.commit(len(timed))
         return results
 
     take(rest, [row_of(number, record) for number, record in pending])
@@ -670,17 +765,89 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
 
 
 def _row_record(result, track, time, columns, prefixes):
-    """One output record of a stdin row (``prefixes``: :meth:`TrackPredictor._columns`)."""
+    """One output record of a stdin row (``prefixes``: :meth:`TrackPredictor._columns`; ``result`` None: a row
+    not stepped, its predictions and segment empty)."""
     out = {}
     if columns.track_id is not None:
         out[columns.track_id] = track
     out[columns.time or "row"] = time
-    out["segment"] = result.segment
+    out["segment"] = None if result is None else result.segment
+    if result is None:
+        for prefix in prefixes.values():
+            for name in columns.positions:
+                out[f"{prefix}{name}"] = math.nan
+        return out
     values = {"pred": result.next, "std": result.next_std, "lead": result.ahead, "lead_std": result.ahead_std}
     for key, prefix in prefixes.items():
         for j, name in enumerate(columns.positions):
             out[f"{prefix}{name}"] = float(values[key][j])
     return out
+
+
+def given_time(value, fmt):
+    """A stdin row's time as given, for an output of format ``fmt``: CSV text as written in CSV; in JSON lines,
+    text that holds a number as that number (a whole number as an integer), other text (a date-time) as it
+    is; a JSON value, or a row number, as it is."""
+    if fmt != "jsonl" or not isinstance(value, str):
+        return value
+    text = value.strip()
+    try:
+        number = float(text)
+    except ValueError:
+        return value
+    if not math.isfinite(number):
+        return value
+    return int(text) if text.lstrip("+-").isdigit() else number
+
+
+def _track_key(track):
+    """A stdin track id as the engine keys its trackers."""
+    from ..streaming import _id_to_json
+
+    return _id_to_json(track)
+
+
+class _IdWatch:
+    """On stdin, whose rows are not there to be read ahead: without an id column (none named, detected or
+    taken from its name), an unused column whose first rows show two different words (text that is not a
+    number, a date or true/false) stops the run with the error a file gives, at the line that shows the
+    second word, before it is stepped: the rows before it were all one word's, one track."""
+
+    ROWS = 1_000   # lines watched
+
+    def __init__(self, columns, header, id_column):
+        single = id_column is not None and id_column.strip().lower() == "none" and id_column not in header
+        used = {columns.time, *columns.positions}
+        self.names = [] if columns.track_id is not None or single else [name for name in header if name not in used]
+        self.seen: dict = {}   # column -> the words seen in it
+        self.other: set = set()   # values that are not words
+        self.left = self.ROWS
+
+    def check(self, number, record, get):
+        if not self.names or self.left <= 0:
+            return
+        from ..io.tables import looks_like_a_word
+
+        self.left -= 1
+        for name in self.names:
+            try:
+                value = get(record, name, number)
+            except (ValueError, IndexError):
+                continue
+            if not isinstance(value, str) or value in self.seen.get(name, ()) or value in self.other:
+                continue
+            if not looks_like_a_word(value):
+                if len(self.other) < self.ROWS:
+                    self.other.add(value)   # (each value judged once: a date repeated on every line)
+                continue
+            words = self.seen.setdefault(name, [])
+            words.append(value)
+            if len(words) >= 2:
+                shown = ", ".join(repr(word) for word in words[:3])
+                raise ValueError(f"line {number}: no track id column named or detected, and column {name!r} looks "
+                                 f"like one (different text values: {shown}). Without an id every row is one "
+                                 f"track, the tracks' rows mixed: pass --id {name}, or --id none if the input "
+                                 "holds a single track")
 
 
 def run_predict(guard, engine, settings, unit, input_path, state_path, save_every, output, out_fmt,

@@ -35,7 +35,9 @@ def _column_options(function):
                      help="Position columns, comma-separated or the option repeated, 1 to 3 (default: detected: "
                           "x,y[,z], u,v, lat,lon, ...)."),
         click.option("--id", "id_column", default=None, help="Track id column (default: detected: track_id, id, "
-                     "track, ...; none found = one track)."),
+                     "track, mmsi, ..., else an unused column named like vessel or player, with a note; an unused "
+                     "column whose values look like ids, repeated words say, stops the run, naming it). 'none': the "
+                     "input is one track."),
     )):
         function = option(function)
     return function
@@ -239,14 +241,96 @@ def _input_format(path) -> str:
     return kind
 
 
-def _columns(header, time_column, position_columns, id_column):
+def _columns(header, time_column, position_columns, id_column, sample=None):
+    """The columns to use, told on stderr (see :func:`_guess_id` for an id that is neither named nor detected);
+    ``sample(names, rows)``: the input's first rows of those columns (None: stdin, whose rows are yet to
+    come)."""
+    import dataclasses
+
     from ..io.tables import check_output_names, column_notes, detect_columns
 
-    columns = detect_columns(header, time=time_column, positions=_positions(position_columns), track_id=id_column)
+    single = id_column is not None and id_column.strip().lower() == "none" and id_column not in header
+    columns = detect_columns(header, time=time_column, positions=_positions(position_columns),
+                             track_id=None if single else id_column)
+    if single:
+        columns = dataclasses.replace(columns, track_id=None)
+    elif columns.track_id is None:
+        columns = _guess_id(columns, header, sample)
     check_output_names(columns)
-    for note in column_notes(columns, header):
+    for note in column_notes(columns, header, single_track=single):
         click.echo(f"kalmix: {note}", err=True)
     return columns
+
+
+def _guess_id(columns, header, sample):
+    """``columns`` with the unused column taken as the track id when exactly one is named like one (vessel,
+    player_id, ...; a note says so); a ``ValueError`` naming them when unused columns look like ids otherwise
+    (repeated words, whole numbers that tell apart rows of one time) or when several are named so: without an
+    id every row would be one track, the tracks' rows mixed, and never silently."""
+    from ..io.tables import ID_SAMPLE_ROWS, detect_columns, id_candidates
+
+    unused = [name for name in header if name not in {columns.time, *columns.positions}]
+    if not unused:
+        return columns
+    rows = sample([*unused, *([columns.time] if columns.time else [])], ID_SAMPLE_ROWS) if sample else None
+    found = id_candidates(columns, header, rows)
+    named = [name for name, why in found if why == "its name"]
+    if len(named) == 1:
+        click.echo(f"kalmix: note: no track id column named or detected: taking {named[0]!r} as the track id, from "
+                   "its name (--id COLUMN to choose another, --id none for one track)", err=True)
+        return detect_columns(header, time=columns.time, positions=columns.positions, track_id=named[0])
+    if found:
+        which = "; ".join(f"{name!r} ({why})" for name, why in found[:4]) + ("; ..." if len(found) > 4 else "")
+        looks = "these columns look" if len(found) > 1 else "a column looks"
+        raise ValueError(f"no track id column named or detected, and {looks} like one: {which}. Without an id "
+                         f"every row is one track, the tracks' rows mixed: pass --id {found[0][0]}, or --id none "
+                         "if the input holds a single track")
+    return columns
+
+
+def _dask_id(input_path, time_column, position_columns, id_column):
+    """The --id a Dask run passes on: an archive's first file decides an id that is neither named nor detected
+    as a single file does (:func:`_guess_id`: taken with a note, or an error naming the columns). ``--id
+    none`` where an id column is detected: an error (the Dask engine reads a detected id column)."""
+    from ..dask_predict import archive_files
+    from ..io.tables import detect_columns
+
+    if id_column is not None and id_column.strip().lower() != "none":
+        return id_column
+    files, fmt = archive_files(input_path)
+    header = _header(files[0], fmt)
+    if id_column is not None and id_column in header:
+        return id_column
+    columns = detect_columns(header, time=time_column, positions=_positions(position_columns))
+    if id_column is not None:   # none
+        if columns.track_id is not None:
+            raise ValueError(f"--id none: --engine dask reads the id column it detects ({columns.track_id!r}); "
+                             "run --engine local for one track, or rename that column")
+        return None
+    if columns.track_id is None:
+        columns = _guess_id(columns, header, _sample(files[0], fmt))
+    return columns.track_id
+
+
+def _sample(path, fmt):
+    """``sample(names, rows)``: the first ``rows`` rows of those columns of a track file (a CSV's as text); None
+    where they cannot be read (the reading proper says why)."""
+    import pandas as pd
+
+    def read(names, rows):
+        try:
+            if fmt == "parquet":
+                import pyarrow.parquet as pq
+
+                with pq.ParquetFile(path) as parquet:
+                    batch = next(parquet.iter_batches(batch_size=rows, columns=list(dict.fromkeys(names))), None)
+                return None if batch is None else batch.to_pandas()
+            frame = pd.read_csv(path, nrows=rows, dtype=str, keep_default_na=False, na_values=[""])
+            return frame[[name for name in dict.fromkeys(names) if name in frame.columns]]
+        except (ValueError, UnicodeDecodeError, OSError, pd.errors.ParserError):
+            return None
+
+    return read
 
 
 def _output_columns(frame, columns, names):
@@ -334,10 +418,14 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
             progress, mixture_options, engine_kind, backend, scheduler, workers, partitions):
     """Predict the next position of every track in INPUT (CSV, Parquet, or - for stdin).
 
-    Output: the input's id and time columns, 'segment', pred_<position> and std_<position>:
-    the prediction for the time of the track's next row and its calibrated standard deviation
-    (pred +- 1.96 std is a 95 % interval). In a file the next row's time is known; on stdin,
-    which must answer first, and for a track's last row, it is one reference interval on.
+    Output: one row per input row, in the input's order, with the input's id and time columns
+    as given (text as written, Parquet types kept), then 'segment', pred_<position> and
+    std_<position>: the prediction for the time of the track's next row and its calibrated
+    standard deviation (pred +- 1.96 std is a 95 % interval). A row that is not predicted (no
+    time, an earlier row of a repeated time, a time not after its track's last) has them empty;
+    a resumed --state run leaves out the rows an earlier run did. In a file the next row's time
+    is known; on stdin, which must answer first, and for a track's last row, it is one reference
+    interval on.
     --lead L adds lead_<position> / lead_std_<position> at time + L (--horizon H: pred<H>_ /
     std<H>_ at H time units), the same in files and on stdin. A file is processed in chunks,
     all tracks at once through the batched core; '-' reads CSV rows (header first) or JSON
@@ -349,8 +437,10 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
     128 + the signal number; the same command then continues (-o is continued, not rewritten).
 
     With --engine dask, INPUT is a directory or glob of Parquet (or CSV) files, rows of a track
-    in any of them, and -o a new directory that receives a partitioned Parquet dataset with the
-    same rows and columns (see 'Beyond one machine' in the documentation).
+    in any of them, and -o a new directory that receives a partitioned Parquet dataset of the
+    predicted rows with the same columns and numbers, grouped by track (each partition holds
+    whole tracks, each in time order) and the time column in seconds (see 'Beyond one machine'
+    in the documentation).
     """
     from ..streaming import TrackPredictor
     from ._durable import SignalGuard, StateLock
@@ -420,6 +510,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
             make_params(1, settings["n_experts"], **options)  # a bad option fails before any output
         if engine_kind == "dask":
             from ._predict_dask import run_dask
+            id_column = _dask_id(input_path, time_column, position_columns, id_column)
             return run_dask(input_path, output, settings, unit, time_column, position_columns, id_column,
                             chunk_rows, progress, scheduler, workers, partitions)
         if input_path == "-" and out_fmt == "parquet":
@@ -504,7 +595,8 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
             if os.path.isdir(input_path):
                 raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {input_path!r}")
             fmt = _input_format(input_path)
-            columns = _columns(_header(input_path, fmt), time_column, position_columns, id_column)
+            columns = _columns(_header(input_path, fmt), time_column, position_columns, id_column,
+                               _sample(input_path, fmt))
             table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True)
             label = os.path.basename(input_path)
         if tracks is not None and not tracks.strip(", "):

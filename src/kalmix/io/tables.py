@@ -287,22 +287,120 @@ def _check_roles(track_id, time, positions) -> None:
                              + "; rename that column in the file")
 
 
-def column_notes(columns: TrackColumns, header: Sequence[str]) -> list[str]:
+def column_notes(columns: TrackColumns, header: Sequence[str], single_track: bool = False) -> list[str]:
     """What a user should hear about the columns :func:`detect_columns` found in ``header``: no track id
-    column (every row one track) or no time column (row order), when the file has columns left unused that
-    may be them. Empty when every column is in use."""
+    column (every row one track; not with ``single_track``, which the user chose) or no time column (row
+    order), when the file has columns left unused that may be them. Empty when every column is in use."""
     unused = [str(c) for c in header if str(c) not in {columns.time, columns.track_id, *columns.positions}]
     if not unused:
         return []
     left = ", ".join(repr(c) for c in unused[:8]) + (", ..." if len(unused) > 8 else "")
     notes = []
-    if columns.track_id is None:
+    if columns.track_id is None and not single_track:
         notes.append(f"no track id column found (looked for {', '.join(_ID_NAMES[:4])}, mmsi, icao24, ...): "
                      f"every row is one track; pass --id COLUMN if the file holds several (unused columns: {left})")
     if columns.time is None:
         notes.append(f"no time column found (looked for {', '.join(_TIME_NAMES[:4])}, frame, ...): rows are "
                      f"one time unit apart, in file order; pass --time COLUMN (unused columns: {left})")
     return notes
+
+
+#: First words of column names that name what a track follows (``vessel``, ``VesselName``, ``player_id``):
+#: an unused column so named is taken as the track id when none is named or detected.
+_ID_WORDS = frozenset({"vessel", "ship", "boat", "player", "athlete", "aircraft", "plane", "flight", "callsign",
+                       "icao24", "icao", "mmsi", "drone", "uav", "animal", "individual", "bird", "vehicle", "car",
+                       "truck", "person", "pedestrian", "ped", "agent", "robot", "object", "obj", "target",
+                       "device", "satellite", "storm", "track", "trajectory", "traj"})
+#: The words that may follow one of them in such a name.
+_ID_TAILS = frozenset({"id", "name", "no", "nr", "num", "number", "code", "key", "ref", "identifier", "uid", "label"})
+#: Rows of a file read to tell whether an unused column holds track ids.
+ID_SAMPLE_ROWS = 10_000
+
+
+def id_like_name(name: str) -> bool:
+    """Whether a column's name says it holds track ids: a word of :data:`_ID_WORDS` (``vessel``, ``player``,
+    ``callsign``, ...), alone or followed by id, name, number, ... (``VesselName``, ``player_id``)."""
+    import re
+
+    words = re.findall(r"[a-z]+\d*|\d+", re.sub(r"([a-z])([A-Z])", r"\1 \2", str(name)).lower())
+    return bool(words) and words[0] in _ID_WORDS and all(word in _ID_TAILS for word in words[1:])
+
+
+def _kind_of_values(column: pd.Series) -> str:
+    """``"text"`` (words: not numbers, dates or true/false), ``"integer"``, or ``"other"`` for a column of a
+    sample (CSV text, or a Parquet column's type)."""
+    if isinstance(column.dtype, pd.CategoricalDtype):
+        column = column.astype(object)
+    if pd.api.types.is_bool_dtype(column) or pd.api.types.is_float_dtype(column) \
+            or pd.api.types.is_datetime64_any_dtype(column) or pd.api.types.is_timedelta64_dtype(column):
+        return "other"
+    if pd.api.types.is_integer_dtype(column):
+        return "integer"
+    values = column.dropna()
+    values = values[values.map(lambda v: isinstance(v, str))].str.strip()
+    values = values[~values.str.lower().isin(_MISSING_TEXT)]
+    if values.empty:
+        return "other"
+    numbers = pd.to_numeric(values, errors="coerce")
+    if numbers.notna().all():
+        return "integer" if values.str.fullmatch(r"[+-]?\d+").all() else "other"
+    words = values[numbers.isna()]
+    if words.str.lower().isin(("true", "false")).all() or not np.isnan(iso_seconds(words, errors="coerce")).any():
+        return "other"
+    return "text"
+
+
+def looks_like_a_word(value) -> bool:
+    """Whether one value (a stdin field or a JSON value) is text that is not a number, a date or true/false:
+    two different such values in an unused column mean tracks, not one."""
+    if not isinstance(value, str):
+        return False
+    text = value.strip()
+    if text.lower() in _MISSING_TEXT or text.lower() in ("true", "false"):
+        return False
+    try:
+        float(text)
+        return False
+    except ValueError:
+        pass
+    if text[:1].isdigit() or text[:1] in "+-":   # a date, maybe (a word does not start so: no pandas call)
+        return _kind_of_values(pd.Series([text], dtype=object)) == "text"
+    return True
+
+
+def id_candidates(columns: TrackColumns, header: Sequence[str], sample: pd.DataFrame | None = None
+                  ) -> list[tuple[str, str]]:
+    """The columns of ``header`` that ``columns`` leaves unused and that look like a track id, each with why:
+    its name (:func:`id_like_name`) or, in ``sample`` (the first rows of the file; None: names only), repeated
+    text values (two or more different words, some on several rows) or whole numbers that tell apart rows of
+    one time (the time column repeats, and far less within each of the column's values). Empty when
+    ``columns`` has an id."""
+    if columns.track_id is not None:
+        return []
+    found = []
+    used = {columns.time, *columns.positions}
+    times = None if sample is None or columns.time not in sample.columns else sample[columns.time]
+    for name in map(str, header):
+        if name in used:
+            continue
+        if id_like_name(name):
+            found.append((name, "its name"))
+            continue
+        if sample is None or name not in sample.columns:
+            continue
+        column = sample[name]
+        kind = _kind_of_values(column)
+        values = column.dropna()
+        distinct = values.nunique()
+        if kind == "text" and 2 <= distinct < len(values):
+            shown = ", ".join(repr(v) for v in values.unique()[:3])
+            found.append((name, f"repeated text values: {shown}, ..."))
+        elif kind == "integer" and distinct >= 2 and times is not None:
+            pairs = pd.DataFrame({"id": column, "time": times}).dropna()
+            repeated = int(pairs["time"].duplicated().sum())
+            if repeated and 2 * int(pairs.duplicated().sum()) <= repeated:
+                found.append((name, "whole numbers that tell apart rows of one time"))
+    return found
 
 
 # --------------------------------------------------------------------------- validation
@@ -354,8 +452,11 @@ def _to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.n
         bad = np.isinf(out)
     else:
         out = pd.to_numeric(s.astype(object), errors="coerce").to_numpy(np.float64, na_value=np.nan)
-        text = s.astype(str).str.strip().str.lower()
-        bad = (np.isnan(out) & s.notna().to_numpy() & ~text.isin(_MISSING_TEXT).to_numpy()) | np.isinf(out)
+        bad = np.isinf(out)
+        unread = np.isnan(out) & s.notna().to_numpy()
+        if unread.any():   # (the text only then: most columns are numbers)
+            text = s.astype(str).str.strip().str.lower()
+            bad |= unread & ~text.isin(_MISSING_TEXT).to_numpy()
     if bad.any() and dates and np.isnan(out).all():
         missing = s.isna().to_numpy() | s.astype(str).str.strip().str.lower().isin(_MISSING_TEXT).to_numpy()
         text = s.where(~missing).astype(object)
@@ -381,19 +482,28 @@ def _to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.n
     return out
 
 
-def _csv_options(cols: TrackColumns, ids_as_text: bool) -> dict:
-    """``pd.read_csv`` arguments that read the id column as text exactly as written (empty = missing)."""
-    if not ids_as_text or cols.track_id is None:
+def _csv_options(cols: TrackColumns, ids_as_text: bool, time_as_text: bool = False) -> dict:
+    """``pd.read_csv`` arguments that read the id column as text exactly as written (empty = missing) and, with
+    ``time_as_text``, the time column as text (missing as pandas reads it: empty, ``NA``, ``nan``, ...), which
+    :func:`_to_float` turns into the same numbers as pandas' own reading."""
+    text = [name for name, wanted in ((cols.track_id, ids_as_text), (cols.time, time_as_text))
+            if wanted and name is not None]
+    if not text:
         return {}
     from pandas._libs.parsers import STR_NA_VALUES
 
-    others = {name: sorted(STR_NA_VALUES) for name in cols.names if name != cols.track_id}
-    return {"dtype": {cols.track_id: str}, "keep_default_na": False, "na_values": {**others, cols.track_id: [""]}}
+    missing = {name: sorted(STR_NA_VALUES) for name in cols.names if name != cols.track_id}
+    if cols.track_id is not None:
+        missing[cols.track_id] = [""] if ids_as_text else sorted(STR_NA_VALUES)
+    return {"dtype": {name: str for name in text}, "keep_default_na": False, "na_values": missing}
 
 
 def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
-               counts: dict | None = None, first_appearance: bool = False) -> pd.DataFrame:
-    """Validate one raw table (or chunk) into the canonical sorted long table."""
+               counts: dict | None = None, first_appearance: bool = False, as_given: bool = False,
+               given_time: pd.Series | None = None) -> pd.DataFrame:
+    """Validate one raw table (or chunk) into the canonical sorted long table; ``as_given``: with its rows as
+    the file gave them in ``attrs["as_given"]`` (:class:`AsGiven`; ``given_time``: the time column's values
+    to keep, when not ``raw``'s own)."""
     if len(raw) == 0:
         raise ValueError("The track file has no rows (only a header or nothing at all)")
     n = len(raw)
@@ -422,8 +532,10 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
 
     no_time = np.isnan(out["time"].to_numpy())
     if no_time.any():
-        warnings.warn(f"Dropped {int(no_time.sum())} row(s) with a missing time in column "
-                      f"{cols.time!r}", RuntimeWarning, stacklevel=3)
+        warnings.warn(f"{int(no_time.sum())} row(s) have no time in column {cols.time!r}: not predicted (their "
+                      "output rows have empty predictions)" if as_given else
+                      f"Dropped {int(no_time.sum())} row(s) with a missing time in column {cols.time!r}",
+                      RuntimeWarning, stacklevel=3)
         out = out[~no_time]
     if out.empty:
         raise ValueError("The track file has no rows with a time")
@@ -443,10 +555,16 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
     dup = np.zeros(len(out), dtype=bool)
     dup[:-1] = (codes[:-1] == codes[1:]) & (stamp[:-1] == stamp[1:])
     if dup.any():
-        warnings.warn(f"{int(dup.sum())} row(s) repeat a timestamp within their track; kept the "
-                      "last row of each repeated time", RuntimeWarning, stacklevel=3)
+        warnings.warn(f"{int(dup.sum())} row(s) repeat a timestamp within their track; " + (
+                      "the last row of each repeated time is predicted, the others' output rows have empty "
+                      "predictions" if as_given else "kept the last row of each repeated time"),
+                      RuntimeWarning, stacklevel=3)
+    sorted_places = out.index.to_numpy()
+    if dup.any():
         out = out[~dup]
     out.attrs["file_order"] = _RowOrder(out.index.to_numpy())   # each row's place in the file (read on demand)
+    if as_given:
+        out.attrs["as_given"] = AsGiven.of(raw, cols, sorted_places, dup, no_time, given_time)
     return out.reset_index(drop=True)
 
 
@@ -460,6 +578,52 @@ class _RowOrder:
 
     def __deepcopy__(self, memo):
         return self
+
+
+class AsGiven:
+    """The rows of a chunk as the file gave them (``chunk.attrs["as_given"]`` of a chunk that
+    :func:`iter_track_chunks` read with ``as_given=True``): what ``kalmix predict`` writes its output rows from.
+
+    Attributes
+    ----------
+    rows : int
+        File rows the chunk was made from.
+    ids, times : pandas.Series or None
+        The id and time columns, ``rows`` values in file order, as read: a CSV's text exactly as
+        written (a missing time as NaN), a Parquet column's own type (integers nullable). None
+        for a column the file does not have.
+    places : ndarray of int, shape (len(chunk),)
+        Each chunk row's file row (counted from the chunk's first).
+    owner : ndarray of int, shape (rows,)
+        For each file row, the chunk row whose fate it shares: itself where it is one; for an
+        earlier row of a repeated time, the row kept for that time; for a row without a time,
+        that of the file row before it (or, at the chunk's start, after it). A resumed run
+        writes a file row only if that chunk row was stepped (not skipped as already done).
+    """
+
+    def __init__(self, rows, ids, times, places, owner):
+        self.rows, self.ids, self.times, self.places, self.owner = rows, ids, times, places, owner
+
+    def __deepcopy__(self, memo):   # in attrs, as _RowOrder: shared by the frames pandas derives, not copied
+        return self
+
+    @classmethod
+    def of(cls, raw, cols, sorted_places, dup, no_time, given_time=None) -> AsGiven:
+        """From :func:`_normalise`'s steps: ``sorted_places`` the file rows with a time sorted by track and time,
+        ``dup`` which of them an equal time follows (dropped), ``no_time`` which file rows have no time."""
+        n = len(raw)
+        kept = np.cumsum(~dup)   # chunk row of a kept sorted row + 1; of a dropped one, the next kept
+        owner = np.empty(n, dtype=np.int64)
+        owner[sorted_places] = np.where(dup, kept, kept - 1)
+        if no_time.any():
+            timed = np.flatnonzero(~no_time)
+            after = np.searchsorted(timed, np.flatnonzero(no_time))
+            owner[no_time] = owner[timed[np.where(after > 0, after - 1, 0)]]
+        ids = None if cols.track_id is None else raw[cols.track_id].reset_index(drop=True)
+        if given_time is None and cols.time is not None:
+            given_time = raw[cols.time]
+        times = None if given_time is None else given_time.reset_index(drop=True)
+        return cls(n, ids, times, sorted_places[~dup], owner)
 
 
 def in_file_order(table: pd.DataFrame) -> pd.DataFrame:
@@ -584,8 +748,8 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
 
 
 def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None = None,
-                      chunk_rows: int = 1_000_000, format: str | None = None, ids_as_text: bool = False
-                      ) -> Iterator[pd.DataFrame]:
+                      chunk_rows: int = 1_000_000, format: str | None = None, ids_as_text: bool = False,
+                      as_given: bool = False) -> Iterator[pd.DataFrame]:
     """Read a huge CSV or Parquet track file in bounded memory, chunk by chunk.
 
     Chunks of at most `chunk_rows` file rows come in file order (pandas
@@ -612,6 +776,9 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         Overrides the extension.
     ids_as_text : bool, default False
         Read a CSV id column as text exactly as written (see the module docstring).
+    as_given : bool, default False
+        Also keep each chunk's file rows as the file gave them, in ``chunk.attrs["as_given"]``
+        (:class:`AsGiven`): a CSV time column is then read as text (the same numbers).
 
     Yields
     ------
@@ -631,15 +798,17 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         if fmt == "parquet":
             import pyarrow.parquet as pq
             parquet = stack.enter_context(pq.ParquetFile(path))
-            batches = (b.to_pandas() for b in
+            batches = ((b.to_pandas(), _given_column(b, cols.time) if as_given else None) for b in
                        parquet.iter_batches(batch_size=int(chunk_rows), columns=cols.names))
         else:
-            batches = stack.enter_context(pd.read_csv(path, usecols=cols.names, chunksize=int(chunk_rows),
-                                                      **_csv_options(cols, ids_as_text)))
-        for raw in batches:
+            reader = stack.enter_context(pd.read_csv(path, usecols=cols.names, chunksize=int(chunk_rows),
+                                                     **_csv_options(cols, ids_as_text, as_given)))
+            batches = ((raw, None) for raw in reader)
+        for raw, given_time in batches:
             if len(raw) == 0:
                 continue
-            chunk = _normalise(raw, cols, offset, counts, first_appearance=ids_as_text and fmt == "csv")
+            chunk = _normalise(raw, cols, offset, counts, first_appearance=ids_as_text and fmt == "csv",
+                               as_given=as_given, given_time=given_time)
             firsts = chunk.groupby("track_id", sort=False)["time"].first()
             prev = firsts.index.map(last).to_numpy(np.float64, na_value=np.nan)
             back = prev >= firsts.to_numpy()
@@ -656,6 +825,21 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
             yield chunk
     if offset == 0:
         raise ValueError(f"The track file {os.fspath(path)!r} has no rows (only a header)")
+
+
+def _given_column(batch, name: str | None) -> pd.Series | None:
+    """A Parquet batch's column ``name`` as pandas gives it, but integers with nulls as nullable integers
+    (pandas' default makes them floats: a frame number 7 would come back as 7.0); None where it needs no
+    other reading than the batch's."""
+    import pyarrow as pa
+
+    if name is None:
+        return None
+    column = batch.column(batch.schema.get_field_index(name))
+    if not (pa.types.is_integer(column.type) and column.null_count):
+        return None
+    return pd.Series(column.to_pandas(types_mapper=lambda kind: pd.api.types.pandas_dtype(
+        str(kind).replace("int", "Int").replace("uInt", "UInt")) if pa.types.is_integer(kind) else None))
 
 
 # --------------------------------------------------------------------------- arrays
