@@ -668,6 +668,86 @@ def irregular(results: Results) -> list:
     return tables
 
 
+# -- models with a known optimum ---------------------------------------------------------------------------------
+
+def _times(value) -> str:
+    """A ratio as ``1.016×``, or ``16,899×`` when it is large."""
+    return ratio(value) if value is None or not float(value) >= 10 else f"{num(value, 3)}×"
+
+
+def _zoo_notes(entry: dict) -> list:
+    """What the default gap rule did to a scenario: the track it split most, and the glitches a run reported."""
+    notes = []
+    scored = entry["scores"]["scored"]["predictors"]
+    split = entry["kalmix_runs"]["kalmix"].get("segments_per_track", [])
+    optimum, kalmix = scored["optimum"].get("per_track_rms_euclidean"), scored["kalmix"].get("per_track_rms_euclidean")
+    if split and optimum and kalmix and max(split) > 2:
+        worst = max(range(len(split)), key=split.__getitem__)
+        rest = [k for k in range(len(split)) if k != worst]
+        others = math.sqrt(sum(kalmix[k] ** 2 for k in rest) / sum(optimum[k] ** 2 for k in rest))
+        notes.append(f"{entry['label']}: the default gap rule split one track into {split[worst]} segments (its "
+                     f"reference interval came out short), and kalmix's RMS on it is "
+                     f"{_times(kalmix[worst] / optimum[worst])} the reference's; on the other tracks together "
+                     f"{_times(others)}.")
+    for run, text in entry["kalmix_runs"].items():
+        found = re.search(r"kalmix: (\d+) outlier", text.get("stderr", ""))
+        if found and "silence" in entry["label"]:
+            notes.append(f"{entry['label']}, `{run.replace('kalmix', 'kalmix predict')}`: it reported "
+                         f"{found[1]} outliers, the first rows after the silence, which its glitch screen does not "
+                         "learn from, so their forecasts stay where the track was expected, far off.")
+    return notes
+
+
+def model_zoo(results: Results) -> list:
+    """kalmix against the optimal one-step predictor on tracks drawn from known models."""
+    data = results("model_zoo.json")
+    command = data.get("command", "python -m benchmarks.model_zoo") + " --json benchmarks/results/model_zoo.json"
+    groups = {"scored": "", "after the silence": ": rows after it",
+              "first row after the silence": ": first row after it"}
+    rows, about, notes = [], [], []
+    for entry in data["scenarios"].values():
+        unit = entry.get("unit", "m")
+        for group, suffix in groups.items():
+            if group not in entry["scores"]:
+                continue
+            scored = entry["scores"][group]
+            p = scored["predictors"]
+            rows.append([entry["label"] + suffix, "IMM*" if "IMM" in entry["reference"] else "Kalman filter",
+                         f"{scored['rows']:,}", f"{num(p['optimum']['rms_per_coordinate'])} {unit}",
+                         f"{num(p['kalmix']['rms_per_coordinate'])} {unit}", _times(p["kalmix"]["ratio_to_optimum"]),
+                         _times(p["kalmix --max-gap none"]["ratio_to_optimum"]),
+                         _times(p["no prediction"]["ratio_to_optimum"]), percent(p["kalmix"]["coverage_95"])])
+        segments = entry["kalmix_runs"]["kalmix"]["segments"]
+        notes += _zoo_notes(entry)
+        about.append([entry["label"], entry["about"], f"{entry['tracks']} × {entry['rows_per_track']}",
+                      str(entry["seed"]), f"{segments:,}"])
+    kalmix = data.get("kalmix", {})
+    at = f" kalmix at commit {kalmix['commit'][:10]}." if kalmix.get("commit") and not kalmix.get(
+        "working_tree_changes") else ""
+    first = Table(
+        header=["scenario", "reference", "scored rows", "reference RMS", "kalmix RMS", "kalmix / reference",
+                "--max-gap none / reference", "no prediction / reference", "kalmix coverage"],
+        rows=rows, sources=("model_zoo.json",), command=command,
+        title="One-step RMS against the optimal predictor",
+        notes=[("RMS per coordinate over every row after the first 20 % of each track (the same rows for every "
+                "predictor); the ratios are the same for the Euclidean RMS. The reference is the Kalman filter with "
+                "the true model, noises, time steps and prior: the optimal one-step predictor, so a ratio under 1 "
+                "could only be chance. *For the Markov switching scenario it is an IMM with the true models and "
+                "switching matrix, near-optimal, not optimal. kalmix: `kalmix predict` with its defaults on a CSV "
+                "of the tracks (automatic units, the default gap rule), and with `--max-gap none`. No prediction: "
+                "the last measurement. Coverage: share of the measurements inside kalmix's forecast ± 1.96 std, "
+                "per coordinate (95 % is right). With a 3-day silence the first row after it is "
+                "scored on its own, not in the scenario's main row." + at)] + notes)
+    second = Table(header=["scenario", "true model", "tracks × rows", "seed", "kalmix segments"], rows=about,
+                   sources=("model_zoo.json",), command=command, title="The scenarios",
+                   notes=[("2-D tracks; each track's initial state drawn from the prior the reference starts from "
+                           "(in the file with every parameter). kalmix segments: the tracks' pieces after "
+                           "`kalmix predict`'s default gap rule (a step over 3 times a track's reference interval, "
+                           "the median of its first 16 steps, restarts the experts), one per track when nothing "
+                           "splits.")])
+    return [first, second]
+
+
 # -- speed --------------------------------------------------------------------------------------------------------
 
 SPEED_FILES = (("engine_speed.json", "source checkout"),
@@ -809,6 +889,7 @@ SECTIONS = {
     "clip-variants": clip_variants,
     "hawkeye-bounds": hawkeye_bounds,
     "irregular": irregular,
+    "model-zoo": model_zoo,
     "speed": speed,
     "dask": dask,
     "gpu": gpu,
