@@ -33,7 +33,7 @@ def test_readme_is_a_page_a_person_reads():
     """The README stays short: the details live in docs/, history in CHANGELOG.md."""
     text = README.read_text()
     assert len(text.splitlines()) <= 250
-    assert "<!--" not in text                                   # no placeholder left unfilled
+    assert not re.search(r"<!-- (?!--8<-- \[(start|end):)", text)   # no placeholder left (snippet markers aside)
     assert not re.search(r"\b20\d\d-\d\d-\d\d\b", text)        # no dated prose
 
 
@@ -46,3 +46,16 @@ def test_readme_results_table_is_generated():
 
     table = "\n\n".join(t.markdown() for t in headline(Results()))
     assert table.strip() in README.read_text()
+
+
+def test_readme_predict_output_is_what_predict_prints(tmp_path):
+    """The output the README shows for `kalmix predict examples/boats.csv` is what the command prints."""
+    import subprocess
+    import sys
+
+    shown = re.search(r"\$ kalmix predict examples/boats.csv \| head -(\d+)\n(.*?)```", README.read_text(), flags=re.S)
+    count, lines = int(shown.group(1)), shown.group(2).strip().splitlines()
+    done = subprocess.run([sys.executable, "-m", "kalmix.cli", "predict", str(README.parent / "examples" / "boats.csv")],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=900)
+    assert done.returncode == 0, done.stderr
+    assert lines == done.stdout.splitlines()[:count]
