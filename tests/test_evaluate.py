@@ -135,7 +135,21 @@ def test_cli_evaluate_on_a_shipped_dataset():
     result = CliRunner().invoke(build(), ["evaluate", "--dataset", "cycling", "--max-samples", "150",
                                           "--experts", "4", "--no-peers", "--no-per-track"])
     assert result.exit_code == 0, result.output
-    assert result.stdout.startswith("cycling: 1 track(s), 150 samples")
+    assert result.stdout.startswith("verdict on cycling:\n  one step ahead: kalmix's RMS ")
+    assert "\ncycling: 1 track(s), 150 samples" in result.stdout
+
+
+def _table_rows(text, title="overall"):
+    """``{row: (rank, one-step RMS, mark)}`` of a ranked table of ``kalmix evaluate``'s text."""
+    import re
+
+    block = text.split(f"\n{title}", 1)[1].split("\n\n", 1)[0]
+    rows = {}
+    for line in block.splitlines()[2:]:
+        found = re.match(r"\s+(\d+)  (.+?)\s{2,}(\S+)\s+(\S+)\s+(\S+)(.*?)(?:  <- (.*))?$", line)
+        if found:
+            rows[found.group(2)] = (int(found.group(1)), float(found.group(4)), found.group(7) or "")
+    return rows
 
 
 def _many_tracks(seed=5, n_tracks=12):
@@ -335,7 +349,8 @@ def test_one_wild_value_leaves_the_imm_out_instead_of_failing_the_run(tmp_path, 
     assert result.exit_code == 0, result.output
     assert "IMM (filterpy): left out, it failed on this data" in result.stderr
     assert "note: IMM (filterpy) is not in the table: it failed on this data" in result.stdout
-    assert "\nIMM (filterpy) " not in result.stdout and "\nmixture " in result.stdout
+    rows = _table_rows(result.stdout)
+    assert "IMM (filterpy)" not in rows and "mixture" in rows
     assert "mixture one-step intervals, 80 scored row(s)" in result.stdout and "too few rows to judge the intervals" in result.stdout
 
 
@@ -388,3 +403,130 @@ def test_an_automatic_unit_near_the_top_of_the_range_is_tuned_within_it(tmp_path
     frame.assign(x=frame["x"] * scale, y=frame["y"] * scale).to_csv(tmp_path / "big.csv", index=False)
     big = runner.invoke(build(), ["evaluate", str(tmp_path / "big.csv"), "--no-peers", "--experts", "2"])
     assert big.exit_code == 0, big.output
+
+
+# ---------------------------------------------------------------- the verdict, the ranking and the error measure
+
+def _summaries(**rms):
+    return {name.replace("_", " "): {"one_step": {"rms": value, "count": 100, "mean_abs": value, "max": value,
+                                                  "std": 0.0}} for name, value in rms.items()}
+
+
+def test_the_verdict_names_the_best_tuned_peer_and_the_percentage():
+    """kalmix's row against the best tuned peer: kalmix's own rows (the AKF mixture, the single AKF) and the
+    references (no prediction, the oracle) are not peers, and a peer scored on a subsample is left out."""
+    from kalmix.experiments.evaluate import verdict
+
+    overall = {**_summaries(mixture=1.0, CV_Kalman=1.25, no_prediction=5.0, single_AKF=0.5),
+               "best expert (hindsight)": _summaries(x=0.4)["x"], "AKF mixture (previous default)": _summaries(x=0.3)["x"],
+               "RLS AR (padasip)": _summaries(x=0.8)["x"], "IMM (filterpy, real dt)": _summaries(x=0.1)["x"]}
+    overall["IMM (filterpy, real dt)"]["one_step"]["count"] = 40   # ran on a subsample
+    entry = verdict(overall, {}, 1)["one_step"]
+    assert entry["best_peer"] == "RLS AR (padasip)" and entry["best_peer_rms"] == 0.8
+    assert entry["kalmix_rms"] == 1.0 and entry["percent"] == pytest.approx(25.0) and entry["kalmix_better"] is False
+    assert entry["text"] == "kalmix's RMS 1, the best tuned peer RLS AR (padasip) 0.8: kalmix is 25 % higher (worse)"
+    assert set(entry["peers"]) == {"CV Kalman", "RLS AR (padasip)"}
+    assert "subsample" in entry["left_out"]["IMM (filterpy, real dt)"]
+    better = verdict({**_summaries(mixture=0.6, CA_Kalman=0.8)}, {}, 1)["one_step"]
+    assert better["percent"] == pytest.approx(-25.0) and better["kalmix_better"] is True
+    assert better["text"].endswith("kalmix is 25 % lower (better)")
+    alone = verdict(_summaries(mixture=0.6, no_prediction=2.0), {}, 1)["one_step"]
+    assert alone["best_peer"] is None and "no tuned peer" in alone["text"]
+
+
+def test_evaluate_says_who_wins_in_text_and_json(tmp_path):
+    """The first lines of the text and the JSON's verdict agree with the ranked table: the best tuned peer is the
+    lowest RMS among the peers, the percentage is kalmix's RMS against it, one step and H steps ahead; the table
+    is ranked by one-step RMS with kalmix's and the best peer's rows marked; the JSON keeps its keys."""
+    path = tmp_path / "tracks.csv"
+    _turning_tracks().to_csv(path, index=False)
+    out = CliRunner().invoke(build(), ["evaluate", str(path), "--experts", "4", "-H", "2", "--json",
+                                       str(tmp_path / "r.json")])
+    assert out.exit_code == 0, out.output
+    data = json.loads((tmp_path / "r.json").read_text())
+    assert {"dataset", "horizon", "length_unit", "tuning_fraction", "tuned", "predictors", "overall", "per_track",
+            "tracks"} <= set(data)
+    assert data["errors"] == "euclidean"
+    for which in ("one_step", "horizon"):
+        entry = data["verdict"][which]
+        peers = {name: scores[which]["rms"] for name, scores in data["overall"].items()
+                 if not name.startswith(("mixture", "AKF mixture", "best expert", "no prediction", "single AKF"))
+                 and scores.get(which)}
+        best = min(peers, key=peers.get)
+        assert entry["best_peer"] == best and entry["best_peer_rms"] == peers[best]
+        kalmix = data["overall"]["mixture"][which]["rms"]
+        assert entry["kalmix_rms"] == kalmix
+        assert entry["percent"] == pytest.approx(100 * (kalmix - peers[best]) / peers[best], rel=1e-12)
+        assert entry["kalmix_better"] == (kalmix < peers[best])
+        assert data["ranking"][which][0] == min(data["overall"], key=lambda n: (data["overall"][n].get(which) or
+                                                                                {"rms": float("inf")})["rms"])
+    lines = out.stdout.splitlines()
+    assert lines[0] == f"verdict on {path.name}:"
+    assert lines[1] == f"  one step ahead: {data['verdict']['one_step']['text']}"
+    assert lines[2] == f"  2 rows ahead: {data['verdict']['horizon']['text']}"
+    assert f"{abs(data['verdict']['one_step']['percent']):.3g} %" in lines[1]
+    rows = _table_rows(out.stdout)
+    ranks = sorted(rows.values())
+    assert [rank for rank, _, _ in ranks] == list(range(1, len(rows) + 1))
+    assert [rms for _, rms, _ in ranks] == sorted(rms for _, rms, _ in ranks)
+    assert "kalmix" in rows["mixture"][2] and "best tuned peer" in rows[data["verdict"]["one_step"]["best_peer"]][2]
+    assert set(data["verdict"]["per_track"]) == {"t0", "t1"}
+    assert data["verdict"]["per_track"]["t1"]["one_step"]["text"] in out.stdout
+
+
+def test_errors_are_distances_per_row_by_default_and_per_coordinate_on_request(tmp_path):
+    """Each row's distance |e| (the CLI's default): with no partly measured row, its mean square is the sum of the
+    coordinates' (p times the per-coordinate one) over half as many values; --per-coordinate gives the API's
+    per-coordinate figures; one coordinate is the same either way."""
+    table = _turning_tracks()
+    apart = evaluate_table(table, n_experts=2, peers=False, tune_units=False)
+    together = evaluate_table(table, n_experts=2, peers=False, tune_units=False, metric="euclidean")
+    assert apart.metric == "per-coordinate" and together.metric == "euclidean"
+    for name in apart.overall:
+        one, whole = apart.overall[name]["one_step"], together.overall[name]["one_step"]
+        assert whole["count"] * 2 == one["count"], name
+        assert whole["rms"] ** 2 == pytest.approx(2 * one["rms"] ** 2, rel=1e-12), name
+        assert whole["max"] >= one["max"]
+    path = tmp_path / "t.csv"
+    table.to_csv(path, index=False)
+    out = CliRunner().invoke(build(), ["evaluate", str(path), "--experts", "2", "--no-peers", "--per-coordinate",
+                                       "--json", str(tmp_path / "r.json")])
+    assert out.exit_code == 0, out.output
+    data = json.loads((tmp_path / "r.json").read_text())
+    assert data["errors"] == "per-coordinate" and "errors per coordinate, data units" in out.stdout
+    x = evaluate_table(table.drop(columns="y"), n_experts=2, peers=False, tune_units=False)
+    x_distance = evaluate_table(table.drop(columns="y"), n_experts=2, peers=False, tune_units=False,
+                                metric="euclidean")
+    assert x.overall == x_distance.overall
+    with pytest.raises(ValueError, match="metric: expected one of euclidean, per-coordinate"):
+        evaluate_table(table, metric="manhattan")
+
+
+def test_error_distances_do_not_overflow_and_keep_missing_rows_missing():
+    from kalmix.experiments.evaluate import error_measure
+
+    errors = np.array([[3e300, 4e300], [3.0, 4.0], [np.nan, 1.0]])
+    np.testing.assert_allclose(error_measure(errors, "euclidean")[:, 0], [5e300, 5.0, np.nan], rtol=1e-15)
+
+
+def test_the_error_plot_draws_kalmix_the_best_peer_cv_and_no_prediction_by_default(tmp_path):
+    from kalmix.experiments.evaluate import plot_rows
+
+    result = evaluate_table(_turning_tracks(), n_experts=2, metric="euclidean")
+    best = result.verdict["one_step"]["best_peer"]
+    assert plot_rows(result) == list(dict.fromkeys(["mixture", best, "CV Kalman", "no prediction"]))
+    assert plot_rows(result, "all") == list(result.errors)
+    with pytest.raises(ValueError, match="--plot-row"):
+        plot_rows(result, ["nope"])
+    path = tmp_path / "t.csv"
+    _turning_tracks().to_csv(path, index=False)
+    runner = CliRunner()
+    ok = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--no-peers", "--plot", str(tmp_path / "e.png"),
+                                 "--plot-row", "mixture", "--plot-row", "single AKF"])
+    assert ok.exit_code == 0, ok.output
+    assert (tmp_path / "e.png").read_bytes()[:4] == b"\x89PNG"
+    for args, message in ((["--plot", str(tmp_path / "f.png"), "--plot-row", "nope"], "--plot-row: expected 'all'"),
+                          (["--plot-row", "all"], "--plot-row: picks the rows of --plot")):
+        bad = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--no-peers", *args])
+        assert bad.exit_code == 1 and message in bad.stderr, bad.output
+        assert "kalmix: mixture" not in bad.stderr   # refused before the work

@@ -9,7 +9,7 @@ import numpy as np
 
 from .archive import save_figure
 
-__all__ = ["figure2"]
+__all__ = ["figure2", "evaluate_errors", "readable_time"]
 
 _PHASE_COLOURS = ("#dbe9f6", "#fde2c8", "#e3f1dc")
 
@@ -118,6 +118,102 @@ def figure2(data: dict[str, Any], out: str | os.PathLike, *, top: int = 5, dpi: 
 
     for ax in axes:
         ax.grid(True, which="major", alpha=0.3)
+    path = os.fspath(out)
+    save_figure(fig, path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+def readable_time(span: float) -> tuple[float, str]:
+    """``(divisor, unit)`` to show ``span`` seconds in: s, min, h or days, whichever keeps the numbers short."""
+    for divisor, unit in ((86400.0, "days"), (3600.0, "h"), (60.0, "min")):
+        if span >= 3 * divisor:
+            return divisor, unit
+    return 1.0, "s"
+
+
+#: Line styles of the error figure's default rows (the best tuned peer gets the first colour of the others).
+_EVALUATE_STYLES = {"mixture": dict(color="black", lw=2.0, zorder=4),
+                    "CV Kalman": dict(color="tab:blue", lw=1.1, alpha=0.9),
+                    "no prediction": dict(color="0.55", lw=1.1, ls="--")}
+
+
+def evaluate_errors(result, out: str | os.PathLike, *, track=None, rows=None, dpi: int = 110) -> str:
+    """The figure of ``kalmix evaluate --plot``: each row's one-step error over time on one track.
+
+    ``result`` is a :class:`kalmix.experiments.evaluate.EvaluationResult`; ``track`` the
+    track (default: the first with a scored error); ``rows`` as
+    :func:`kalmix.experiments.evaluate.plot_rows` (default: kalmix, the best tuned peer, CV
+    Kalman and no prediction; ``"all"``; or names). Each line is the rolling median of the
+    error's length ``|e|`` over about 2 % of the track's rows, on the scored rows, against
+    the time since the track's first row (the time column read as seconds; a time gap
+    breaks the lines). The legend gives each row's RMS on the track (the verdict's
+    measure). Returns the path written.
+    """
+    import pandas as pd
+
+    from .experiments.evaluate import KALMIX, plot_rows, track_columns
+
+    plt = _pyplot()
+    streams = result.streams
+    track, columns = track_columns(result, track)
+    names = plot_rows(result, rows)
+    entry = (result.verdict or {}).get("per_track", {}).get(track, {}).get("one_step", {})
+    best = entry.get("best_peer")
+    start = float(np.nanmin(streams.times[:, columns]))
+    span = float(np.nanmax(streams.times[:, columns])) - start
+    divisor, unit = readable_time(span)
+    window = max(1, int(streams.lengths[columns].sum()) // 50)
+    fig, ax = plt.subplots(figsize=(11, 4.8))
+    palette = [c for c in plt.get_cmap("tab10").colors if c != plt.get_cmap("tab10").colors[0]]
+    others = 0
+    summaries = result.per_track.get(track, {})
+    for name in names:
+        errors = result.errors[name]
+        times, norms = [], []
+        for j in columns:   # a segment at a time, a gap (NaN) between them: no line across a time gap
+            n = streams.lengths[j]
+            e = np.sqrt(np.sum(errors[:n, j] ** 2, axis=-1))
+            scored = np.isfinite(e)   # the scored rows only: a missing measurement joins its neighbours
+            e, t = e[scored], streams.times[:n, j][scored]
+            if window > 1:
+                e = pd.Series(e).rolling(window, min_periods=1, center=True).median().to_numpy()
+            times += [(t - start) / divisor, [np.nan]]
+            norms += [e, [np.nan]]
+        t, e = np.concatenate(times), np.concatenate(norms)
+        if name in _EVALUATE_STYLES:
+            style = dict(_EVALUATE_STYLES[name])
+        elif name == best:
+            style = dict(color="tab:orange", lw=1.6, zorder=3)
+        else:
+            style = dict(color=palette[(others + 1) % len(palette)], lw=0.9, alpha=0.8)
+            others += 1
+        if np.isfinite(e).sum() < 50:   # a few errors: their points, which a line would not show alone
+            style["marker"] = "o"
+        rms = ((summaries.get(name) or {}).get("one_step") or {}).get("rms")
+        label = name + (" (kalmix)" if name == KALMIX else " (best tuned peer)" if name == best else "")
+        if rms is not None and np.isfinite(rms):
+            label += f": RMS {rms:.3g}" + (" per coordinate" if result.metric == "per-coordinate" else "")
+        ax.plot(t, e, label=label, **style)
+    first_scored = min((float(streams.times[np.flatnonzero(np.isfinite(result.errors[KALMIX][:, j]).all(axis=-1)), j]
+                                            .min()) for j in columns
+                        if np.isfinite(result.errors[KALMIX][:, j]).all(axis=-1).any()), default=start)
+    if first_scored > start:   # the tuning part: not scored, so no line there
+        ax.axvspan(0.0, (first_scored - start) / divisor, color="0.93", lw=0, zorder=0)
+        ax.text(0.5 * (first_scored - start) / divisor, 0.97, "tuning part\n(not scored)", ha="center", va="top",
+                transform=ax.get_xaxis_transform(), fontsize=8, color="0.4")
+    ax.set_xlim(left=0.0)
+    ax.set_yscale("log")
+    ax.set_xlabel(f"time since the track's first row ({unit})")
+    ax.set_ylabel("one-step error |e| (data units)" + (f"\nrolling median of {window} rows" if window > 1 else ""))
+    title = f"{result.dataset}: track {track}"
+    if entry.get("text"):
+        title += f"\none step ahead: {entry['text']}"
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="major", alpha=0.3)
+    # beside the axes: inside, it hides the errors of some row wherever it sits
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    fig.tight_layout()
     path = os.fspath(out)
     save_figure(fig, path, dpi=dpi)
     plt.close(fig)

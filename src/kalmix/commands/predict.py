@@ -548,25 +548,32 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
                    "bank, river's Holt-Winters, padasip's RLS AR, statsmodels' local linear trend), each tuned on "
                    "the tuning part; --no-peers: the mixture and kalmix's own baselines only.")
 @click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False), help="Write the results as JSON.")
+@click.option("--per-coordinate", is_flag=True, default=False,
+              help="Errors per coordinate (each coordinate's |e| pooled) instead of each row's distance |e|.")
 @click.option("--plot", "plot_path", default=None, type=click.Path(dir_okay=False),
               help="PNG of the one-step error over time for --track.")
+@click.option("--plot-row", "plot_rows", multiple=True,
+              help="A row to draw in --plot, by its name in the table (repeat for several; 'all': every row). "
+                   "Default: kalmix, the best tuned peer, CV Kalman and no prediction.")
 @click.option("--plot-intervals", "intervals_path", default=None, type=click.Path(dir_okay=False),
               help="PNG of --track's positions, the mixture's one-step predictions and their 95 % ellipses.")
 @click.option("--track", "plot_track", default=None, help="Track id to plot (default: the first).")
 @click.option("--per-track/--no-per-track", default=True, show_default=True, help="Print the per-track tables.")
 @click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
 def evaluate(input_path, dataset, time_column, position_columns, id_column, horizon, n_experts, seed, length_unit,
-             tuning_fraction, max_gap, max_gap_factor, reach, max_samples, tracks, peers, json_path, plot_path,
-             intervals_path, plot_track, per_track, mixture_options):
+             tuning_fraction, max_gap, max_gap_factor, reach, max_samples, tracks, peers, json_path, per_coordinate,
+             plot_path, plot_rows, intervals_path, plot_track, per_track, mixture_options):
     """Compare the mixture's prediction errors with the predictors you would use instead.
 
     Every predictor runs online over each track segment; the first --tuning-fraction of each
     track tunes the CV/CA Kalman filters and the IMM (grid search, one-step RMS) and the
-    length unit, and is not scored. Errors are per coordinate, in data units.
+    length unit, and is not scored. The output starts with the verdict, kalmix's RMS against
+    the best tuned peer's, then ranks the rows. Errors are each row's distance between forecast
+    and measurement (--per-coordinate: each coordinate's), in data units.
     """
     import pandas as pd
 
-    from ..experiments.evaluate import evaluate_table
+    from ..experiments.evaluate import PREDICTORS, evaluate_table, format_result
 
     unit = _length_unit(length_unit)
     gap, never = _max_gap(max_gap)
@@ -604,6 +611,13 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
         wanted = _wanted_tracks(tracks, table) if tracks else None
         if plot_track is not None and not (plot_path or intervals_path):
             raise ValueError("--track: picks the track of --plot or --plot-intervals; give one of them")
+        shown = "all" if "all" in plot_rows else list(plot_rows) or None
+        if plot_rows and not plot_path:
+            raise ValueError("--plot-row: picks the rows of --plot; give it")
+        known = (*PREDICTORS, "mixture, one-step weights")
+        unknown = [r for r in plot_rows if r not in (*known, "all")]
+        if unknown:
+            raise ValueError(f"--plot-row: expected 'all' or a row's name ({'; '.join(known)}), got {unknown[0]!r}")
         for flag, path in (("--plot", plot_path), ("--plot-intervals", intervals_path)):   # before the work
             if path:
                 _check_figure_path(flag, path)
@@ -625,6 +639,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
                                 tuning_fraction=tuning_fraction, max_gap=gap,
                                 max_gap_factor=math.inf if never else max_gap_factor, max_samples=max_samples,
                                 tracks=wanted, peers=peers, options=options,
+                                metric="per-coordinate" if per_coordinate else "euclidean",
                                 bank_options={**DEFAULT_BANK, "reach": _reach_setting(reach)},
                                 log=lambda message: click.echo(f"kalmix: {message}", err=True))
         result.dataset = label
@@ -638,29 +653,13 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
             except OSError as error:   # a full disk, a device: name the option and the path, not only the OS error
                 raise ValueError(f"--json: cannot write {json_path!r}: {error.strerror or error}") from None
         if plot_path:
-            plot_errors(result, plot_path, plot_track)
+            from ..plots import evaluate_errors
+
+            evaluate_errors(result, plot_path, track=plot_track, rows=shown)
             click.echo(f"wrote {plot_path}")
         if intervals_path:
             plot_intervals(result, intervals_path, plot_track)
             click.echo(f"wrote {intervals_path}")
-
-
-def _table(title, summaries, horizon):
-    lines = [title]
-    width = max([26] + [len(name) + 2 for name in summaries])
-    head = f"{'predictor':<{width}}{'mean|e|':>10}{'RMS':>10}{'max':>10}"
-    if horizon > 1:
-        head += f"  |{f'mean|e| H={horizon}':>14}{'RMS':>10}{'max':>10}"
-    lines.append(head)
-    for name, entry in summaries.items():
-        one = entry["one_step"]
-        line = f"{name:<{width}}{one['mean_abs']:>10.4g}{one['rms']:>10.4g}{one['max']:>10.4g}"
-        if horizon > 1:
-            later = entry.get("horizon")
-            line += "  |" + (f"{later['mean_abs']:>14.4g}{later['rms']:>10.4g}{later['max']:>10.4g}" if later
-                             else f"{'-':>14}{'-':>10}{'-':>10}")
-        lines.append(line)
-    return lines
 
 
 def _wanted_tracks(tracks: str, table) -> list[str]:
@@ -670,76 +669,11 @@ def _wanted_tracks(tracks: str, table) -> list[str]:
     return [entry if entry in have else entry.strip() for entry in tracks.split(",") if entry.strip()]
 
 
-#: Fewer scored rows than this: the interval line of ``kalmix evaluate`` says they are too few to judge.
-FEW_CALIBRATION_ROWS = 100
-
-
-def format_result(result, per_track=True) -> str:
-    """The text tables printed by ``kalmix evaluate``."""
-    streams = result.streams
-    n_rows = int(streams.lengths.sum())
-    tuning = (f"first {100 * result.tuning_fraction:.3g}% of each track tunes the peers and is not scored"
-              if result.tuning_fraction > 0 else
-              "no tuning part (--tuning-fraction 0): the peers are tuned on the scored rows, in hindsight")
-    bank = result.tuned.get("mixture", {}).get("bank", {})
-    if "length_unit" in bank and "time_unit" in bank:
-        units = (f"the mixture's length unit {bank['length_unit']:.4g} and time unit {bank['time_unit']:.4g}, "
-                 f"the AKF rows' length unit {result.length_unit:.4g}\n(kalmix predict --length-unit "
-                 f"{bank['length_unit']!r} --time-unit {bank['time_unit']!r}, with this command's --experts, --seed, gap "
-                 "flags, --reach and --option but the gate's, runs the same mixture)")
-    else:
-        units = f"length unit {result.length_unit:.4g}"
-    lines = [f"{result.dataset}: {len(streams.track_ids)} track(s), {n_rows} samples in {len(streams.lengths)} "
-             f"segment(s); {units}; {tuning}; errors per coordinate, data units", ""]
-    lines += _table("overall", result.overall, result.horizon)
-    calibration = result.tuned.get("mixture", {}).get("calibration", {})
-    for which, entry in calibration.items():
-        label = "one-step" if which == "one_step" else f"{result.horizon}-step"
-        nees = f", mean NEES {entry['mean_nees']:.3g} (median {entry['median_nees']:.3g}; p = " \
-               f"{len(streams.position_names)} if Gaussian)" if "mean_nees" in entry else ""
-        count = int(entry.get("count", 0))
-        few = ("; too few rows to judge the intervals (a 95 % coverage needs hundreds)"
-               if count < FEW_CALIBRATION_ROWS else "")
-        lines.append(f"mixture {label} intervals, {count} scored row(s): {entry['coverage_95']:.1%} of the scored "
-                     f"values inside pred ± 1.96 std (aim 95 %){nees}{few}")
-    partial = {name: entry for name, entry in result.tuned.items()
-               if isinstance(entry, dict) and "rows_evaluated" in entry and entry["rows_evaluated"] < entry["rows"]}
-    for name, entry in partial.items():
-        lines.append(f"note: {name} ran on a subsample, the first rows of each segment: {entry['rows_evaluated']} of "
-                     f"{entry['rows']} rows (a Python loop; its errors are not on the same pairs as the other rows)")
-    for name, entry in result.tuned.items():   # said on stderr as they happened; the table says it too
-        if isinstance(entry, dict) and "left_out" in entry:
-            lines.append(f"note: {name} is not in the table: it failed on this data ({entry['left_out']})")
-        elif isinstance(entry, dict) and "untuned" in entry:
-            lines.append(f"note: {name} ran with its default settings, not tuned ({entry['untuned']})")
-    if per_track:
-        unscored = []
-        for track, summaries in result.per_track.items():
-            if not summaries.get("mixture", {}).get("one_step", {}).get("count", 1):
-                unscored.append(str(track))   # a table of NaN said nothing
-                continue
-            lines += [""] + _table(f"track {track}", summaries, result.horizon)
-        if unscored:
-            lines += ["", f"no scored error (too few rows after the tuning part, alone in their segments, or no "
-                          f"measurement): track(s) "
-                          f"{', '.join(unscored[:20])}{' ...' if len(unscored) > 20 else ''}"]
-    return "\n".join(lines)
-
-
 def _track_columns(result, track):
     """The plotted track (given, else the first with a scored error) and its segments' columns."""
-    streams = result.streams
-    names = [str(t) for t in streams.track_ids]
-    scored = np.isfinite(result.errors["mixture"]).all(axis=-1).any(axis=0)   # (segments,)
-    if track is None:
-        track = next((name for i, name in enumerate(names) if scored[streams.track_of == i].any()), names[0])
-    if str(track) not in names:
-        raise ValueError(f"--track: expected one of {names[:20]}{' ...' if len(names) > 20 else ''}, got {track!r}")
-    columns = np.flatnonzero(streams.track_of == names.index(str(track)))
-    if not scored[columns].any():
-        raise ValueError(f"--track {track}: no scored error to plot (its rows are in the tuning part, or alone in "
-                         "their segments); pick a longer track")
-    return track, columns
+    from ..experiments.evaluate import track_columns
+
+    return track_columns(result, track)
 
 
 def _check_figure_path(flag, path):
@@ -791,52 +725,6 @@ def plot_intervals(result, path, track=None, rows: int = 30):
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_title(f"{result.dataset}: track {track}, samples {start}-{part.stop - 1} of a segment")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    save_figure(fig, path, dpi=110)
-    plt.close(fig)
-
-
-def plot_errors(result, path, track=None):
-    """PNG of each predictor's one-step error norm over time (rolling median) for one track."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    import pandas as pd
-
-    streams = result.streams
-    track, columns = _track_columns(result, track)
-    fig, ax = plt.subplots(figsize=(12, 4.8))
-    colours = plt.get_cmap("tab20").colors   # 20 distinct colours: the default 10 repeated past 10 predictors
-    window = max(1, int(streams.lengths[columns].sum()) // 100)
-    peers = 0
-    for name, errors in result.errors.items():
-        times, norms = [], []
-        for j in columns:   # a segment at a time, a gap (NaN) between them: no line bridges a time gap
-            n = streams.lengths[j]
-            e = np.sqrt(np.sum(errors[:n, j] ** 2, axis=-1))
-            scored = np.isfinite(e)   # the scored rows only: a missing measurement joins its neighbours
-            e, t = e[scored], streams.times[:n, j][scored]
-            if window > 1:
-                e = pd.Series(e).rolling(window, min_periods=1, center=True).median().to_numpy()
-            times += [t, [np.nan]]
-            norms += [e, [np.nan]]
-        t, e = np.concatenate(times), np.concatenate(norms)
-        if name == "mixture":   # on top of the others
-            style = dict(lw=2.0, color="black", zorder=3)
-        else:   # the strong shades of tab20 first, then the pale ones
-            style = dict(lw=1.0, alpha=0.85, color=colours[(2 * peers) % 20 + (peers // 10) % 2])
-            peers += 1
-        if np.isfinite(e).sum() < 50:   # a few errors: their points, which a line would not show alone
-            style["marker"] = "o"
-        ax.plot(t, e, label=name, **style)
-    ax.set_yscale("log")
-    ax.set_xlabel("time")
-    ax.set_ylabel("one-step error |e| (data units)" + (f", rolling median of {window}" if window > 1 else ""))
-    ax.set_title(f"{result.dataset}: track {track}")
-    # beside the axes: inside, it would hide the errors of some predictor wherever it sat
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
     plt.close(fig)

@@ -48,7 +48,8 @@ from ..core.mixture import init_state, predict, step
 from ..metrics import error_summary
 from ..streaming import GapTracker, StreamConfig, _length_unit_rule, auto_time_unit
 
-__all__ = ["Streams", "EvaluationResult", "split_streams", "evaluate_table", "PREDICTORS"]
+__all__ = ["Streams", "EvaluationResult", "split_streams", "evaluate_table", "PREDICTORS", "ERROR_METRICS",
+           "NOT_PEERS", "error_measure", "verdict", "ranking", "format_result"]
 
 #: Row names in table order.
 PREDICTORS = ("mixture", "AKF mixture (previous default)", "no prediction", "CV Kalman", "CA Kalman",
@@ -420,6 +421,93 @@ def _errors(predictions, values, horizon, scored):
     return errors
 
 
+#: What the error summaries of :func:`evaluate_table` pool (:func:`error_measure`).
+ERROR_METRICS = ("euclidean", "per-coordinate")
+
+
+def error_measure(errors: np.ndarray, metric: str) -> np.ndarray:
+    """The errors the summaries pool, from the differences ``measurement - forecast`` ``(..., p)``.
+
+    ``"per-coordinate"``: the differences themselves (``p`` values a row). ``"euclidean"``:
+    each row's distance ``|e|`` ``(..., 1)``, NaN where a coordinate is (computed without
+    overflow for errors near the float range). Every figure of :func:`evaluate_table` goes
+    through here, so a distance of another kind (on geographic coordinates, say) is a new
+    metric of this function.
+    """
+    if metric == "per-coordinate":
+        return errors
+    if metric == "euclidean":
+        distance = np.hypot.reduce(errors, axis=-1) if errors.shape[-1] > 1 else np.abs(errors[..., 0])
+        return np.where(np.isnan(errors).any(axis=-1), np.nan, distance)[..., None]
+    raise ValueError(f"metric: expected one of {', '.join(ERROR_METRICS)}, got {metric!r}")
+
+
+#: Rows of :func:`evaluate_table` that are not tuned peers (name prefixes): kalmix's own (the mixture and its
+#: parts, the paper's AKF rows) and the references (no prediction, the best expert in hindsight).
+NOT_PEERS = ("mixture", "AKF mixture", "best expert", "no prediction", "single AKF")
+#: kalmix's row: the default bank, as ``kalmix predict`` runs it.
+KALMIX = "mixture"
+_NOT_AHEAD = "no forecast this far ahead"
+
+
+def _compare(summaries: dict, which: str) -> dict:
+    """kalmix against the best tuned peer in ``summaries`` (``{row: {"one_step" | "horizon": summary}}``)."""
+    own = (summaries.get(KALMIX) or {}).get(which) or {}
+    kalmix, count = own.get("rms"), own.get("count")
+    peers, left_out = {}, {}
+    for name, entry in summaries.items():
+        if name.startswith(NOT_PEERS):
+            continue
+        summary = entry.get(which)
+        if summary is None:
+            left_out[name] = _NOT_AHEAD
+        elif summary.get("rms") is None or not math.isfinite(summary["rms"]):
+            left_out[name] = "no finite error"
+        elif summary.get("count") != count:
+            left_out[name] = f"scored on {summary['count']} of the mixture's {count} values (a subsample)"
+        else:
+            peers[name] = summary["rms"]
+    out = {"kalmix_rms": kalmix, "best_peer": None, "best_peer_rms": None, "percent": None, "kalmix_better": None,
+           "peers": peers, "left_out": left_out}
+    if kalmix is None or not math.isfinite(kalmix):
+        return {**out, "text": "kalmix has no scored error to compare"}
+    if not peers:
+        return {**out, "text": f"kalmix's RMS {kalmix:.4g}; no tuned peer to compare it with"}
+    best = min(peers, key=peers.get)   # the first in table order on a tie
+    rms = peers[best]
+    percent = 100.0 * (kalmix - rms) / rms if rms > 0 else (0.0 if kalmix == rms else math.inf)
+    if kalmix == rms:
+        how = "kalmix is level with it"
+    else:
+        how = f"kalmix is {abs(percent):.3g} % {'lower (better)' if kalmix < rms else 'higher (worse)'}"
+    return {**out, "best_peer": best, "best_peer_rms": rms, "percent": percent, "kalmix_better": bool(kalmix < rms),
+            "text": f"kalmix's RMS {kalmix:.4g}, the best tuned peer {best} {rms:.4g}: {how}"}
+
+
+def verdict(overall: dict, per_track: dict, horizon: int) -> dict:
+    """Who wins: kalmix's RMS against the best tuned peer's, one step ahead and (``horizon > 1``) ``horizon`` ahead.
+
+    Each entry (:func:`_compare`) holds ``kalmix_rms``, ``best_peer``, ``best_peer_rms``,
+    ``percent`` (kalmix's RMS relative to the peer's, in %: negative when kalmix is
+    better), ``kalmix_better``, every compared peer's RMS, the peers left out with why
+    (no forecast that far ahead, a subsample), and a sentence. ``per_track`` holds the same per track.
+    """
+    which = ("one_step", "horizon") if horizon > 1 else ("one_step",)
+    return {**{w: _compare(overall, w) for w in which},
+            "per_track": {track: {w: _compare(rows, w) for w in which} for track, rows in per_track.items()}}
+
+
+def ranking(summaries: dict, horizon: int) -> dict:
+    """Row names by RMS, best first (rows without a finite RMS last, in table order), one step and ``horizon`` ahead."""
+    def order(which):
+        def key(name):
+            rms = ((summaries[name] or {}).get(which) or {}).get("rms")
+            return (0, rms) if rms is not None and math.isfinite(rms) else (1, 0.0)
+        return sorted(summaries, key=key)
+
+    return {"one_step": order("one_step"), **({"horizon": order("horizon")} if horizon > 1 else {})}
+
+
 def _fixed_params(order, degree, unit, p):
     return make_params(p, 1, dynamics="fixed", order=order, prior_degree=degree, adapt_noise=False,
                        length_unit=unit, process_noise_range=(1.0, 1.0), measurement_noise_range=(1.0, 1.0))
@@ -493,8 +581,10 @@ def _tune_unit(values, tuning, rule, n_experts, seed, options):
 class EvaluationResult:
     """Error summaries (``{"mean_abs", "std", "max", "rms", "count"}``) per predictor.
 
-    ``overall[name]["one_step" | "horizon"]`` and ``per_track[track][name][...]``;
-    ``errors[name]`` holds the one-step error arrays (T, S, p) for plots.
+    ``overall[name]["one_step" | "horizon"]`` and ``per_track[track][name][...]``, of the
+    errors ``metric`` says (:func:`error_measure`); ``errors[name]`` holds the one-step
+    differences (T, S, p) for plots. ``verdict`` (:func:`verdict`): kalmix against the best
+    tuned peer; ``ranking`` (:func:`ranking`): the rows by RMS, best first.
     """
 
     horizon: int
@@ -508,6 +598,9 @@ class EvaluationResult:
     errors: dict = field(repr=False)
     dataset: str | None = None
     intervals: tuple | None = field(default=None, repr=False)   # mixture's forecasts (T, S, p), covariances
+    metric: str = "per-coordinate"
+    verdict: dict = field(default_factory=dict)
+    ranking: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
         """JSON-serialisable summary (no arrays)."""
@@ -525,7 +618,8 @@ class EvaluationResult:
                       "predictors": list(self.predictors), "overall": self.overall,
                       "per_track": self.per_track,
                       "tracks": {str(t): int(self.streams.lengths[self.streams.track_of == i].sum())
-                                 for i, t in enumerate(self.streams.track_ids)}})
+                                 for i, t in enumerate(self.streams.track_ids)},
+                      "errors": self.metric, "verdict": self.verdict, "ranking": self.ranking})
 
 
 def _require_errors(values, mask, doing, part, track_lengths):
@@ -546,7 +640,7 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
                    max_gap: float | None = None, max_gap_factor: float = 3.0,
                    max_samples: int | None = None, tracks=None, peers: bool = True,
                    options: dict | None = None, tune_units: bool = True, log=None,
-                   bank_options: dict | None = None) -> EvaluationResult:
+                   bank_options: dict | None = None, metric: str = "per-coordinate") -> EvaluationResult:
     """Run every predictor over every track segment and summarise the errors.
 
     Parameters
@@ -584,8 +678,14 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         :data:`kalmix.bank.DEFAULT_BANK`); its length unit is the rule's
         (:func:`~kalmix.streaming.auto_length_unit`) and its time unit
         :func:`~kalmix.streaming.auto_time_unit`, both on the tuning part.
+    metric : {"per-coordinate", "euclidean"}
+        What the summaries pool (:func:`error_measure`): each coordinate's error, or each
+        row's distance between forecast and measurement (``kalmix evaluate``'s default).
+        The result's :attr:`~EvaluationResult.verdict` and ranking use the same.
     """
     horizon = check_horizon(horizon)
+    if metric not in ERROR_METRICS:
+        raise ValueError(f"metric: expected one of {', '.join(ERROR_METRICS)}, got {metric!r}")
     if length_unit is not None:
         length_unit = check_length_unit(length_unit)
     if not 0 <= tuning_fraction < 1:
@@ -708,18 +808,152 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     overall, per_track, errors_one = {}, {}, {}
     for name, (first, later) in predictions.items():
         e1 = _errors(first, values, 1, scored)
-        eh = _errors(later, values, horizon, scored) if later is not None else None
         errors_one[name] = e1
-        summary = {"one_step": error_summary(e1)}
+        m1 = error_measure(e1, metric)
+        mh = error_measure(_errors(later, values, horizon, scored), metric) if later is not None else None
+        summary = {"one_step": error_summary(m1)}
         if horizon > 1:
-            summary["horizon"] = error_summary(eh) if eh is not None else None
+            summary["horizon"] = error_summary(mh) if mh is not None else None
         overall[name] = summary
         for i, track in enumerate(streams.track_ids):
             columns = streams.track_of == i
-            entry = {"one_step": error_summary(e1[:, columns])}
+            entry = {"one_step": error_summary(m1[:, columns])}
             if horizon > 1:
-                entry["horizon"] = error_summary(eh[:, columns]) if eh is not None else None
+                entry["horizon"] = error_summary(mh[:, columns]) if mh is not None else None
             per_track.setdefault(str(track), {})[name] = entry
     return EvaluationResult(horizon=int(horizon), length_unit=unit, tuning_fraction=tuning_fraction,
                             tuned=tuned, predictors=list(predictions), overall=overall, per_track=per_track,
-                            streams=streams, errors=errors_one, intervals=intervals)
+                            streams=streams, errors=errors_one, intervals=intervals, metric=metric,
+                            verdict=verdict(overall, per_track, horizon), ranking=ranking(overall, horizon))
+
+
+#: Fewer scored rows than this: the interval line of ``kalmix evaluate`` says they are too few to judge.
+FEW_CALIBRATION_ROWS = 100
+_METRIC_WORDS = {"euclidean": "errors are distances |e| per row", "per-coordinate": "errors per coordinate"}
+
+
+def _verdict_lines(result, entry, indent=""):
+    """The verdict sentences of one table: one step ahead, and ``horizon`` rows ahead."""
+    lines = [f"{indent}one step ahead: {entry['one_step']['text']}"]
+    if "horizon" in entry:
+        lines.append(f"{indent}{result.horizon} rows ahead: {entry['horizon']['text']}")
+    return lines
+
+
+def _table(title, summaries, result, entry):
+    """A table of ``summaries`` ranked by one-step RMS, kalmix's row and the best tuned peers' marked."""
+    best_peer = entry["one_step"]["best_peer"]
+    best_ahead = entry.get("horizon", {}).get("best_peer")
+    horizon = result.horizon
+    order = ranking(summaries, horizon)["one_step"]
+    width = max([26] + [len(name) + 2 for name in summaries])
+    lines = [title, f"{'rank':>4}  {'predictor':<{width}}{'mean|e|':>10}{'RMS':>10}{'max':>10}"
+             + (f"  |{f'mean|e| H={horizon}':>14}{'RMS':>10}{'max':>10}" if horizon > 1 else "")]
+    for rank, name in enumerate(order, 1):
+        one = summaries[name]["one_step"]
+        line = f"{rank:>4}  {name:<{width}}{one['mean_abs']:>10.4g}{one['rms']:>10.4g}{one['max']:>10.4g}"
+        if horizon > 1:
+            later = summaries[name].get("horizon")
+            line += "  |" + (f"{later['mean_abs']:>14.4g}{later['rms']:>10.4g}{later['max']:>10.4g}" if later
+                             else f"{'-':>14}{'-':>10}{'-':>10}")
+        marks = (["kalmix"] if name == KALMIX else []) + (["best tuned peer"] if name == best_peer else []) \
+            + ([f"best tuned peer {horizon} rows ahead"] if name == best_ahead and best_ahead != best_peer else [])
+        lines.append(line + (f"  <- {', '.join(marks)}" if marks else ""))
+    return lines
+
+
+def format_result(result: EvaluationResult, per_track: bool = True) -> str:
+    """The text ``kalmix evaluate`` prints: the verdict first, then the tables ranked by one-step RMS."""
+    streams = result.streams
+    n_rows = int(streams.lengths.sum())
+    tuning = (f"first {100 * result.tuning_fraction:.3g}% of each track tunes the peers and is not scored"
+              if result.tuning_fraction > 0 else
+              "no tuning part (--tuning-fraction 0): the peers are tuned on the scored rows, in hindsight")
+    bank = result.tuned.get("mixture", {}).get("bank", {})
+    if "length_unit" in bank and "time_unit" in bank:
+        units = (f"the mixture's length unit {bank['length_unit']:.4g} and time unit {bank['time_unit']:.4g}, "
+                 f"the AKF rows' length unit {result.length_unit:.4g}\n(kalmix predict --length-unit "
+                 f"{bank['length_unit']!r} --time-unit {bank['time_unit']!r}, with this command's --experts, --seed, "
+                 "gap flags, --reach and --option but the gate's, runs the same mixture)")
+    else:
+        units = f"length unit {result.length_unit:.4g}"
+    verdict_ = result.verdict or verdict(result.overall, result.per_track, result.horizon)
+    lines = [f"verdict on {result.dataset}:"] + _verdict_lines(result, verdict_, "  ")
+    for which in ("one_step", "horizon"):   # a subsample or no figure; the frame IMM's one-step-only is its row's
+        for name, why in verdict_.get(which, {}).get("left_out", {}).items():
+            if which == "one_step" or why != _NOT_AHEAD:
+                ahead = "" if which == "one_step" else f" {result.horizon} rows ahead"
+                lines.append(f"  ({name} is not compared{ahead}: {why})")
+    lines += ["", f"{result.dataset}: {len(streams.track_ids)} track(s), {n_rows} samples in {len(streams.lengths)} "
+              f"segment(s); {units}; {tuning}; {_METRIC_WORDS[result.metric]}, data units", ""]
+    lines += _table("overall, best one-step RMS first", result.overall, result, verdict_)
+    calibration = result.tuned.get("mixture", {}).get("calibration", {})
+    for which, entry in calibration.items():
+        label = "one-step" if which == "one_step" else f"{result.horizon}-step"
+        nees = f", mean NEES {entry['mean_nees']:.3g} (median {entry['median_nees']:.3g}; p = " \
+               f"{len(streams.position_names)} if Gaussian)" if "mean_nees" in entry else ""
+        count = int(entry.get("count", 0))
+        few = ("; too few rows to judge the intervals (a 95 % coverage needs hundreds)"
+               if count < FEW_CALIBRATION_ROWS else "")
+        lines.append(f"mixture {label} intervals, {count} scored row(s): {entry['coverage_95']:.1%} of the scored "
+                     f"values inside pred ± 1.96 std (aim 95 %){nees}{few}")
+    partial = {name: entry for name, entry in result.tuned.items()
+               if isinstance(entry, dict) and "rows_evaluated" in entry and entry["rows_evaluated"] < entry["rows"]}
+    for name, entry in partial.items():
+        lines.append(f"note: {name} ran on a subsample, the first rows of each segment: {entry['rows_evaluated']} of "
+                     f"{entry['rows']} rows (its errors are not on the same pairs as the other rows)")
+    for name, entry in result.tuned.items():   # said on stderr as they happened; the table says it too
+        if isinstance(entry, dict) and "left_out" in entry:
+            lines.append(f"note: {name} is not in the table: it failed on this data ({entry['left_out']})")
+        elif isinstance(entry, dict) and "untuned" in entry:
+            lines.append(f"note: {name} ran with its default settings, not tuned ({entry['untuned']})")
+    if per_track:
+        unscored = []
+        for track, summaries in result.per_track.items():
+            if not summaries.get("mixture", {}).get("one_step", {}).get("count", 1):
+                unscored.append(str(track))   # a table of NaN said nothing
+                continue
+            entry = verdict_["per_track"][str(track)]
+            lines += ["", *_table(f"track {track}", summaries, result, entry),
+                      *_verdict_lines(result, entry)]
+        if unscored:
+            lines += ["", f"no scored error (too few rows after the tuning part, alone in their segments, or no "
+                          f"measurement): track(s) "
+                          f"{', '.join(unscored[:20])}{' ...' if len(unscored) > 20 else ''}"]
+    return "\n".join(lines)
+
+
+def track_columns(result: EvaluationResult, track=None):
+    """The track a figure shows (``track``, else the first with a scored error) and its segments' columns."""
+    streams = result.streams
+    names = [str(t) for t in streams.track_ids]
+    scored = np.isfinite(result.errors[KALMIX]).all(axis=-1).any(axis=0)   # (segments,)
+    if track is None:
+        track = next((name for i, name in enumerate(names) if scored[streams.track_of == i].any()), names[0])
+    if str(track) not in names:
+        raise ValueError(f"--track: expected one of {names[:20]}{' ...' if len(names) > 20 else ''}, got {track!r}")
+    columns = np.flatnonzero(streams.track_of == names.index(str(track)))
+    if not scored[columns].any():
+        raise ValueError(f"--track {track}: no scored error to plot (its rows are in the tuning part, or alone in "
+                         "their segments); pick a longer track")
+    return str(track), columns
+
+
+#: The rows the error figure shows unless asked for others: kalmix, then the references beside the best tuned peer.
+PLOT_ROWS = (KALMIX, "CV Kalman", "no prediction")
+
+
+def plot_rows(result: EvaluationResult, rows=None) -> list[str]:
+    """The rows of the error figure: ``None`` or ``"default"``: kalmix, the best tuned peer (one step ahead),
+    CV Kalman and no prediction; ``"all"``: every row; else a list of row names (checked)."""
+    if rows is None or rows == "default":
+        best = (result.verdict or {}).get("one_step", {}).get("best_peer")
+        wanted = [KALMIX] + ([best] if best else []) + list(PLOT_ROWS[1:])
+        return [name for name in dict.fromkeys(wanted) if name in result.errors]
+    if rows == "all":
+        return list(result.errors)
+    rows = [rows] if isinstance(rows, str) else list(rows)
+    unknown = [name for name in rows if name not in result.errors]
+    if unknown:
+        raise ValueError(f"--plot-row: {unknown} not among the rows of this run ({'; '.join(result.errors)})")
+    return list(dict.fromkeys(rows))
