@@ -340,7 +340,7 @@ def test_one_wild_value_leaves_the_imm_out_instead_of_failing_the_run(tmp_path, 
     def failing(*args, **kwargs):
         raise np.linalg.LinAlgError("The input matrix must be symmetric positive semidefinite.")
 
-    monkeypatch.setattr(peers, "_imm_many", failing)   # what evaluate runs the IMM with
+    monkeypatch.setattr(peers, "imm_predictions_many", failing)   # what evaluate runs the IMM with
     rows = ["track_id,time,x,y"] + [f"a,{i * 0.1},{1e5 if i == 70 else np.sin(i / 10)},{np.cos(i / 10)}"
                                     for i in range(100)]
     path = tmp_path / "glitch.csv"

@@ -107,7 +107,7 @@ def test_kinematic_equals_filterpy(name, order, horizon):
 @pytest.mark.parametrize("name", ["cv_dt", "ca_dt"])
 def test_predict_many_equals_predict(name):
     pieces = [_smooth(seed, n) for seed, n in ((1, 90), (2, 150), (3, 2), (4, 120), (5, 400))]
-    assert len(list(kinematic._batches([len(t) for _, t in pieces]))) > 1  # padding is bounded
+    assert len(list(kinematic.segment_batches([len(t) for _, t in pieces]))) > 1  # padding is bounded
     batched = PEERS[name].predict_many(pieces, PARAMS[name], horizon=2)
     for (values, times), ours in zip(pieces, batched):
         np.testing.assert_allclose(ours, PEERS[name].predict(values, times, PARAMS[name], 2), rtol=1e-12, atol=1e-12)

@@ -186,7 +186,7 @@ def test_imm_many_equals_one_run_at_a_time():
     pieces = [np.cumsum(rng.normal(size=(n, 2)), axis=0) for n in (40, 7, 120, 1, 65)]
     candidates = [{"cv_process_noise": q, "ca_process_noise": 1.0, "measurement_noise": 0.5,
                    "switch_probability": s} for q in (0.1, 3.0) for s in (0.02, 0.1)]
-    batched = peers._imm_many(pieces, candidates, 2.0)
+    batched = peers.imm_predictions_many(pieces, candidates, 2.0)
     for c, candidate in enumerate(candidates):
         for i, z in enumerate(pieces):
             np.testing.assert_array_equal(batched[c][i], peers.imm_predictions(z, **candidate, length_unit=2.0))

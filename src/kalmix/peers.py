@@ -52,6 +52,7 @@ __all__ = [
     "IMM_GRID",
     "FIXED_GRID",
     "imm_predictions",
+    "imm_predictions_many",
     "tune",
     "tune_fixed",
     "tuning_measurements",
@@ -137,23 +138,39 @@ def _frame_models(dt):
     return np.broadcast_to(_FRAME_F, (count, 2, 3, 3)), np.broadcast_to(_FRAME_Q, (count, 2, 3, 3))
 
 
-def _imm_many(pieces, candidates, length_unit=1.0, initial_variance=(1.0, 100.0, 10.0), modes=False):
-    """:func:`imm_predictions` of each candidate on each piece ``(T, p)``, in batches: ``out[c][i]``.
+def imm_predictions_many(pieces, candidates, length_unit: float = 1.0,
+                         initial_variance: tuple[float, float, float] = (1.0, 100.0, 10.0), modes: bool = False):
+    """:func:`imm_predictions` of each candidate on each piece, all in one batched pass: ``out[c][i]``.
 
-    ``candidates`` are dicts of ``cv_process_noise, ca_process_noise, measurement_noise,
-    switch_probability``, all checked by the caller; with ``modes``, ``out[c][i]`` is
-    ``(predictions, mode probabilities)``.
+    ``pieces`` are measurement arrays ``(T, p)`` (the same ``p``); ``candidates`` dicts of
+    ``cv_process_noise, ca_process_noise, measurement_noise, switch_probability`` (as
+    :func:`imm_predictions` takes them). With ``modes``, ``out[c][i]`` is ``(predictions,
+    mode probabilities)``. The numbers are those of :func:`imm_predictions` run once per pair.
     """
     from .peer_models._batched import imm_run
-    from .peer_models.kinematic import _batches
+    from .peer_models.kinematic import segment_batches
 
+    pieces = [_check_measurements(z) for z in pieces]
+    if len({z.shape[1] for z in pieces}) > 1:
+        raise ValueError("measurements: expected the same number of coordinates in every piece, got several")
+    _check_positive("length_unit", length_unit)
+    for candidate in candidates:
+        for name in ("cv_process_noise", "ca_process_noise", "measurement_noise"):
+            _check_positive(name, candidate[name])
+        if not 0.0 <= float(candidate["switch_probability"]) <= 1.0:
+            raise ValueError(f"switch_probability: expected a number in [0, 1], got "
+                             f"{candidate['switch_probability']!r}")
+    if len(initial_variance) != 3:
+        raise ValueError(f"initial_variance: expected 3 variances (pos, vel, acc), got {initial_variance!r}")
+    for value in initial_variance:
+        _check_positive("initial_variance", value)
     unit2 = float(length_unit) ** 2
     table = np.array([[c["cv_process_noise"] * unit2, c["ca_process_noise"] * unit2,
                        c["measurement_noise"] * unit2, float(c["switch_probability"])] for c in candidates])
     p0 = np.array([v * unit2 for v in initial_variance])
     out = [[None] * len(pieces) for _ in candidates]
     k = len(candidates)
-    for batch in _batches([len(z) for z in pieces]):
+    for batch in segment_batches([len(z) for z in pieces]):
         t_count, s_count = len(pieces[batch[0]]), len(batch)
         z = np.full((t_count, s_count, pieces[batch[0]].shape[1]), np.nan)
         for s, j in enumerate(batch):
@@ -164,9 +181,8 @@ def _imm_many(pieces, candidates, length_unit=1.0, initial_variance=(1.0, 100.0,
                          table[column, 3], np.broadcast_to(p0, (len(column), 3)), last_row=True, return_modes=modes)
         for c in range(k):
             for s, j in enumerate(batch):
-                n = len(pieces[j])
-                column = c * s_count + s
-                out[c][j] = (result[0][:n, column], result[1][:n, column]) if modes else result[:n, column]
+                n, col = len(pieces[j]), c * s_count + s
+                out[c][j] = (result[0][:n, col], result[1][:n, col]) if modes else result[:n, col]
     return out
 
 
@@ -215,20 +231,10 @@ def imm_predictions(
         the predicted mode probabilities :math:`\\bar c = \\mu M`.
     mode_probabilities : ndarray, shape (T, 2), only if requested
     """
-    z = _check_measurements(measurements)
-    for name, value in (("length_unit", length_unit), ("cv_process_noise", cv_process_noise),
-                        ("ca_process_noise", ca_process_noise), ("measurement_noise", measurement_noise)):
-        _check_positive(name, value)
-    s = float(switch_probability)
-    if not 0.0 <= s <= 1.0:
-        raise ValueError(f"switch_probability: expected a number in [0, 1], got {switch_probability!r}")
-    p0 = tuple(_check_positive("initial_variance", v) for v in initial_variance)
-    if len(p0) != 3:
-        raise ValueError(f"initial_variance: expected 3 variances (pos, vel, acc), got {initial_variance!r}")
-    candidate = {"cv_process_noise": float(cv_process_noise), "ca_process_noise": float(ca_process_noise),
-                 "measurement_noise": float(measurement_noise), "switch_probability": s}
-    result = _imm_many([z], [candidate], float(length_unit), p0, modes=return_mode_probabilities)[0][0]
-    return result
+    candidate = {"cv_process_noise": cv_process_noise, "ca_process_noise": ca_process_noise,
+                 "measurement_noise": measurement_noise, "switch_probability": switch_probability}
+    return imm_predictions_many([measurements], [candidate], length_unit, tuple(initial_variance),
+                                modes=return_mode_probabilities)[0][0]
 
 
 def one_step_rms(predictions: np.ndarray, measurements: np.ndarray) -> float:

@@ -132,19 +132,21 @@ def readable_time(span: float) -> tuple[float, str]:
     return 1.0, "s"
 
 
-#: Line styles of the error figure's default rows (the best tuned peer gets the first colour of the others).
-_EVALUATE_STYLES = {"mixture": dict(color="black", lw=2.0, zorder=4),
-                    "CV Kalman": dict(color="tab:blue", lw=1.1, alpha=0.9),
+#: Line styles of the error figure's references (kalmix's row is black, the best tuned peer's orange).
+_EVALUATE_STYLES = {"CV Kalman": dict(color="tab:blue", lw=1.1, alpha=0.9),
                     "no prediction": dict(color="0.55", lw=1.1, ls="--")}
 
 
-def evaluate_errors(result, out: str | os.PathLike, *, track=None, rows=None, dpi: int = 110) -> str:
+def evaluate_errors(result, out: str | os.PathLike, *, track: str, columns, rows, kalmix: str = "mixture",
+                    dpi: int = 110) -> str:
     """The figure of ``kalmix evaluate --plot``: each row's one-step error over time on one track.
 
     ``result`` is a :class:`kalmix.experiments.evaluate.EvaluationResult`; ``track`` the
-    track (default: the first with a scored error); ``rows`` as
-    :func:`kalmix.experiments.evaluate.plot_rows` (default: kalmix, the best tuned peer, CV
-    Kalman and no prediction; ``"all"``; or names). Each line is the rolling median of the
+    track and ``columns`` its segments' columns
+    (:func:`kalmix.experiments.evaluate.track_columns`); ``rows`` the rows to draw
+    (:func:`kalmix.experiments.evaluate.plot_rows`: by default kalmix's, the best tuned
+    peer's, CV Kalman's and no prediction's); ``kalmix`` kalmix's row, drawn on top in
+    black; the track's best tuned peer (the result's verdict) is drawn in orange. Each line is the rolling median of the
     error's length ``|e|`` over about 2 % of the track's rows, on the scored rows, against
     the time since the track's first row (the time column read as seconds; a time gap
     breaks the lines). The legend gives each row's RMS on the track (the verdict's
@@ -152,12 +154,9 @@ def evaluate_errors(result, out: str | os.PathLike, *, track=None, rows=None, dp
     """
     import pandas as pd
 
-    from .experiments.evaluate import KALMIX, plot_rows, track_columns
-
     plt = _pyplot()
     streams = result.streams
-    track, columns = track_columns(result, track)
-    names = plot_rows(result, rows)
+    track, names, columns = str(track), list(rows), np.asarray(columns)
     entry = (result.verdict or {}).get("per_track", {}).get(track, {}).get("one_step", {})
     best = entry.get("best_peer")
     start = float(np.nanmin(streams.times[:, columns]))
@@ -181,7 +180,9 @@ def evaluate_errors(result, out: str | os.PathLike, *, track=None, rows=None, dp
             times += [(t - start) / divisor, [np.nan]]
             norms += [e, [np.nan]]
         t, e = np.concatenate(times), np.concatenate(norms)
-        if name in _EVALUATE_STYLES:
+        if name == kalmix:
+            style = dict(color="black", lw=2.0, zorder=4)
+        elif name in _EVALUATE_STYLES:
             style = dict(_EVALUATE_STYLES[name])
         elif name == best:
             style = dict(color="tab:orange", lw=1.6, zorder=3)
@@ -191,13 +192,12 @@ def evaluate_errors(result, out: str | os.PathLike, *, track=None, rows=None, dp
         if np.isfinite(e).sum() < 50:   # a few errors: their points, which a line would not show alone
             style["marker"] = "o"
         rms = ((summaries.get(name) or {}).get("one_step") or {}).get("rms")
-        label = name + (" (kalmix)" if name == KALMIX else " (best tuned peer)" if name == best else "")
+        label = name + (" (kalmix)" if name == kalmix else " (best tuned peer)" if name == best else "")
         if rms is not None and np.isfinite(rms):
             label += f": RMS {rms:.3g}" + (" per coordinate" if result.metric == "per-coordinate" else "")
         ax.plot(t, e, label=label, **style)
-    first_scored = min((float(streams.times[np.flatnonzero(np.isfinite(result.errors[KALMIX][:, j]).all(axis=-1)), j]
-                                            .min()) for j in columns
-                        if np.isfinite(result.errors[KALMIX][:, j]).all(axis=-1).any()), default=start)
+    scored = np.isfinite(result.errors[kalmix][:, columns]).all(axis=-1)
+    first_scored = float(np.min(streams.times[:, columns][scored])) if scored.any() else start
     if first_scored > start:   # the tuning part: not scored, so no line there
         ax.axvspan(0.0, (first_scored - start) / divisor, color="0.93", lw=0, zorder=0)
         ax.text(0.5 * (first_scored - start) / divisor, 0.97, "tuning part\n(not scored)", ha="center", va="top",

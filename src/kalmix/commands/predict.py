@@ -653,9 +653,11 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
             except OSError as error:   # a full disk, a device: name the option and the path, not only the OS error
                 raise ValueError(f"--json: cannot write {json_path!r}: {error.strerror or error}") from None
         if plot_path:
+            from ..experiments.evaluate import plot_rows, track_columns
             from ..plots import evaluate_errors
 
-            evaluate_errors(result, plot_path, track=plot_track, rows=shown)
+            track, columns = track_columns(result, plot_track)
+            evaluate_errors(result, plot_path, track=track, columns=columns, rows=plot_rows(result, shown))
             click.echo(f"wrote {plot_path}")
         if intervals_path:
             plot_intervals(result, intervals_path, plot_track)

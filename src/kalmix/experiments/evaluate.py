@@ -536,7 +536,7 @@ def _tune_fixed(order, degree, unit, values, tuning):
 
 
 def _tune_imm(streams, tuning, unit, measurement_noise):
-    from ..peers import _imm_many
+    from ..peers import imm_predictions_many
 
     order = np.argsort(-streams.lengths)[:3]
     pieces = []
@@ -550,7 +550,7 @@ def _tune_imm(streams, tuning, unit, measurement_noise):
     candidates = [dict(zip(_IMM_GRID, candidate), measurement_noise=measurement_noise / unit**2)
                   for candidate in itertools.product(*_IMM_GRID.values())]
     best, best_rms = None, math.inf
-    for options, predictions in zip(candidates, _imm_many(pieces, candidates, unit)):   # all in one batched run
+    for options, predictions in zip(candidates, imm_predictions_many(pieces, candidates, unit)):   # in one pass
         squared, count = 0.0, 0
         for z, prediction in zip(pieces, predictions):
             e = z[1:] - prediction[:-1]
@@ -773,7 +773,7 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         predictions[name] = _run(params, values, horizon, lengths=streams.lengths)[:2]
 
     if peers:
-        from ..peers import _imm_many
+        from ..peers import imm_predictions_many
 
         if importlib.util.find_spec("filterpy") is not None:   # the row of a user who has filterpy's IMM
             log("IMM (filterpy): tuning")
@@ -786,7 +786,8 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
                     log(f"IMM (filterpy): not tuned ({note})")
                 log("IMM (filterpy): running")
                 imm = np.full_like(values, np.nan)
-                runs = _imm_many([values[:n, j] for j, n in enumerate(streams.lengths)], [best], peer_unit)[0]
+                runs = imm_predictions_many([values[:n, j] for j, n in enumerate(streams.lengths)], [best],
+                                            peer_unit)[0]
                 for j, n in enumerate(streams.lengths):
                     imm[:n, j] = runs[j]
             except Exception as error:   # noqa: BLE001 - as the other peers: one wild value can make filterpy's

@@ -30,7 +30,7 @@ import sys
 import numpy as np
 
 from ._common import grid_search, one_step_rms
-from .kinematic import _batches
+from .kinematic import segment_batches
 
 __all__ = ["block_diagonal", "log_likelihood", "likelihood", "imm_run", "mmae_run", "over_candidates", "batched_search",
            "steps"]
@@ -289,7 +289,7 @@ def over_candidates(segments, candidates, run):
     if len({z.shape[1] for z, _ in segments}) > 1:
         raise ValueError("segments: expected the same number of coordinates in every segment, got several")
     k = len(candidates)
-    for batch in _batches([len(t) for _, t in segments]):
+    for batch in segment_batches([len(t) for _, t in segments]):
         t_count, s_count = len(segments[batch[0]][1]), len(batch)
         z = np.full((t_count, s_count, segments[batch[0]][0].shape[1]), np.nan)
         times = np.full((t_count, s_count), np.nan)

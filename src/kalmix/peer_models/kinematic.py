@@ -30,7 +30,7 @@ import numpy as np
 from ._common import check_horizon, check_positive, check_segment, check_segments, tuning_rows
 
 __all__ = ["INITIAL_VARIANCE_RATIO", "PROCESS_GRID", "MEASUREMENT_GRID", "tune_cv", "tune_ca", "predict_cv",
-           "predict_ca", "predict_many_cv", "predict_many_ca", "transition", "process_noise_shape"]
+           "predict_ca", "predict_many_cv", "predict_many_ca", "transition", "process_noise_shape", "segment_batches"]
 
 #: Initial velocity (and acceleration) variance as a multiple of the measurement noise ``r``.
 INITIAL_VARIANCE_RATIO = 1e4
@@ -63,7 +63,7 @@ def process_noise_shape(dt, order: int) -> np.ndarray:
     return np.concatenate([np.concatenate(row, -1) for row in rows], -2)
 
 
-def _batches(lengths):
+def segment_batches(lengths):
     """Segment indices, longest first, in batches padded to at most twice their rows."""
     order = np.argsort(-np.asarray(lengths), kind="stable")
     batch, rows = [], 0
@@ -163,7 +163,7 @@ def _tune(segments, unit, time_unit, order):
     grid = [(qq * unit**2, rr * unit**2) for qq in PROCESS_GRID for rr in MEASUREMENT_GRID]
     q, r = np.array(grid).T
     sse, nis, count = np.zeros(len(grid)), np.zeros(len(grid)), 0
-    for batch in _batches([len(piece[1]) for piece in pieces]):
+    for batch in segment_batches([len(piece[1]) for piece in pieces]):
         z, dt, lengths, mask, _ = _pad(pieces, batch, time_unit)
         more = _run(z, dt, lengths, q, r, order, score=mask)
         sse, nis, count = sse + more[0], nis + more[1], count + more[2]
@@ -200,7 +200,7 @@ def _predict_many(segments, params, horizon, order, single=False):
     out = [np.full(z.shape, np.nan) for z, _ in pieces]
     if len({z.shape[1] for z, _ in pieces}) > 1:
         raise ValueError("segments: expected the same number of coordinates in every segment, got several")
-    for batch in _batches([len(t) for _, t in pieces]):
+    for batch in segment_batches([len(t) for _, t in pieces]):
         z, dt, lengths, _, tau = _pad(pieces, batch, time_unit, horizon)
         predictions = _run(z, dt, lengths, [q], [r], order, tau=tau)[:, 0]
         for s, j in enumerate(batch):
