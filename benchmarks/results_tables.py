@@ -174,7 +174,7 @@ def evaluate_file(dataset: str) -> str:
     return f"evaluate_{dataset}.json"
 
 
-EVALUATE_COMMAND = "kalmix evaluate --dataset NAME --json benchmarks/results/evaluate_NAME.json"
+EVALUATE_COMMAND = "kalmix evaluate --dataset NAME --per-coordinate --json benchmarks/results/evaluate_NAME.json"
 
 
 def _is_peer(name: str) -> bool:

@@ -250,7 +250,7 @@ def test_experts_and_family_options_reach_the_bank_as_in_predict():
     assert base.tuned["mixture"]["n_experts"] + 2 == more.tuned["mixture"]["n_experts"]
     assert rms(family, "mixture") != rms(base, "mixture")
     assert rms(gate, "mixture") == rms(base, "mixture")
-    assert rms(gate, "AKF mixture (previous default)") != rms(base, "AKF mixture (previous default)")
+    assert rms(gate, "AKF mixture (paper)") != rms(base, "AKF mixture (paper)")
 
 
 def test_cli_evaluate_refuses_up_front_what_it_cannot_do(tmp_path):
@@ -418,7 +418,7 @@ def test_the_verdict_names_the_best_tuned_peer_and_the_percentage():
     from kalmix.experiments.evaluate import verdict
 
     overall = {**_summaries(mixture=1.0, CV_Kalman=1.25, no_prediction=5.0, single_AKF=0.5),
-               "best expert (hindsight)": _summaries(x=0.4)["x"], "AKF mixture (previous default)": _summaries(x=0.3)["x"],
+               "best expert (hindsight)": _summaries(x=0.4)["x"], "AKF mixture (paper)": _summaries(x=0.3)["x"],
                "RLS AR (padasip)": _summaries(x=0.8)["x"], "IMM (filterpy, real dt)": _summaries(x=0.1)["x"]}
     overall["IMM (filterpy, real dt)"]["one_step"]["count"] = 40   # ran on a subsample
     entry = verdict(overall, {}, 1)["one_step"]

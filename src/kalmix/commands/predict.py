@@ -83,7 +83,7 @@ def _option_names(bank: bool = False) -> list[str]:
 
 
 _OPTION_HELP = ("A kalmix.bank.make_params argument, KEY=VALUE (JSON value), repeatable: of the bank's AKF family "
-                "(as predict's --option) and of the 'AKF mixture (previous default)' and 'single AKF' rows; the "
+                "(as predict's --option) and of the 'AKF mixture (paper)' and 'single AKF' rows; the "
                 "gate's (e.g. --option temperature=4 --option gating=paper) reach only those rows.")
 _BANK_OPTION_HELP = ("A kalmix.bank.make_params argument of the bank's AKF family, KEY=VALUE (JSON value), "
                      "repeatable, e.g. --option dynamics=literal --option order=3 (the gate's arguments are refused: "
@@ -242,49 +242,25 @@ def _input_format(path) -> str:
 
 
 def _columns(header, time_column, position_columns, id_column, sample=None):
-    """The columns to use, told on stderr (see :func:`_guess_id` for an id that is neither named nor detected);
-    ``sample(names, rows)``: the input's first rows of those columns (None: stdin, whose rows are yet to
-    come)."""
-    import dataclasses
+    """The columns to use (:func:`kalmix.streaming.find_columns`, the Python API's too), its notes told on
+    stderr; ``sample(names, rows)``: the input's first rows of those columns (None: stdin, whose rows are yet
+    to come)."""
+    from ..streaming import find_columns
 
-    from ..io.tables import check_output_names, column_notes, detect_columns
-
-    single = id_column is not None and id_column.strip().lower() == "none" and id_column not in header
-    columns = detect_columns(header, time=time_column, positions=_positions(position_columns),
-                             track_id=None if single else id_column)
-    if single:
-        columns = dataclasses.replace(columns, track_id=None)
-    elif columns.track_id is None:
-        columns = _guess_id(columns, header, sample)
-    check_output_names(columns)
-    for note in column_notes(columns, header, single_track=single):
+    columns, notes = find_columns(header, time=time_column, positions=_positions(position_columns),
+                                  track_id=id_column, sample=sample)
+    for note in notes:
         click.echo(f"kalmix: {note}", err=True)
     return columns
 
 
 def _guess_id(columns, header, sample):
-    """``columns`` with the unused column taken as the track id when exactly one is named like one (vessel,
-    player_id, ...; a note says so); a ``ValueError`` naming them when unused columns look like ids otherwise
-    (repeated words, whole numbers that tell apart rows of one time) or when several are named so: without an
-    id every row would be one track, the tracks' rows mixed, and never silently."""
-    from ..io.tables import ID_SAMPLE_ROWS, detect_columns, id_candidates
+    """:func:`kalmix.streaming.guess_id`, its note told on stderr."""
+    from ..streaming import guess_id
 
-    unused = [name for name in header if name not in {columns.time, *columns.positions}]
-    if not unused:
-        return columns
-    rows = sample([*unused, *([columns.time] if columns.time else [])], ID_SAMPLE_ROWS) if sample else None
-    found = id_candidates(columns, header, rows)
-    named = [name for name, why in found if why == "its name"]
-    if len(named) == 1:
-        click.echo(f"kalmix: note: no track id column named or detected: taking {named[0]!r} as the track id, from "
-                   "its name (--id COLUMN to choose another, --id none for one track)", err=True)
-        return detect_columns(header, time=columns.time, positions=columns.positions, track_id=named[0])
-    if found:
-        which = "; ".join(f"{name!r} ({why})" for name, why in found[:4]) + ("; ..." if len(found) > 4 else "")
-        looks = "these columns look" if len(found) > 1 else "a column looks"
-        raise ValueError(f"no track id column named or detected, and {looks} like one: {which}. Without an id "
-                         f"every row is one track, the tracks' rows mixed: pass --id {found[0][0]}, or --id none "
-                         "if the input holds a single track")
+    columns, notes = guess_id(columns, header, sample)
+    for note in notes:
+        click.echo(f"kalmix: {note}", err=True)
     return columns
 
 
@@ -398,6 +374,14 @@ def _local_only(given, output):
               help="Rows read at a time from a file (bounded memory); --engine dask: the first chunk "
                    "(the units) and the cells of one engine call.")
 @click.option("--progress/--no-progress", default=None, help="Progress bar on stderr [default: when a terminal].")
+@click.option("--on-bad-row", default="skip", show_default=True, type=click.Choice(["skip", "fail"]),
+              help="A bad row (a field count not the header's, a JSON line without a used key, an empty id, a time "
+                   "or position that is not a finite number): skip it (its output row keeps its place with empty "
+                   "predictions; the bad rows are counted on stderr at the end, with their lines) or fail: stop at "
+                   "it, naming its line.")
+@click.option("--rejects", default=None, type=click.Path(dir_okay=False),
+              help="Write the skipped bad rows to this CSV file: their line (a Parquet file: row), why, and the row "
+                   "as given (a resumed --state run adds to it).")
 @click.option("--option", "mixture_options", multiple=True, help=_BANK_OPTION_HELP)
 @click.option("--engine", "engine_kind", default="local", show_default=True, type=click.Choice(["local", "dask"]),
               help="local: this process, a file chunk by chunk or stdin; dask: INPUT a directory or glob of "
@@ -415,7 +399,7 @@ def _local_only(given, output):
                    "4 per worker thread].")
 def predict(input_path, time_column, position_columns, id_column, horizon, lead, output, bank_kind, rule, time_unit,
             n_experts, seed, length_unit, max_gap, max_gap_factor, reach, state_path, save_every, chunk_rows,
-            progress, mixture_options, engine_kind, backend, scheduler, workers, partitions):
+            progress, on_bad_row, rejects, mixture_options, engine_kind, backend, scheduler, workers, partitions):
     """Predict the next position of every track in INPUT (CSV, Parquet, or - for stdin).
 
     Output: one row per input row, in the input's order, with the input's id and time columns
@@ -423,7 +407,8 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
     std_<position>: the prediction for the time of the track's next row and its calibrated
     standard deviation (pred +- 1.96 std is a 95 % interval). A row that is not predicted (no
     time, an earlier row of a repeated time, a time not after its track's last) has them empty;
-    a resumed --state run leaves out the rows an earlier run did. In a file the next row's time
+    a resumed --state run leaves out the rows an earlier run did. A bad row (see --on-bad-row)
+    is skipped the same way, and the run says at the end how many and on which lines. In a file the next row's time
     is known; on stdin, which must answer first, and for a track's last row, it is one reference
     interval on.
     --lead L adds lead_<position> / lead_std_<position> at time + L (--horizon H: pred<H>_ /
@@ -452,11 +437,15 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
     options = _mixture_options(mixture_options, bank=True)
     output = None if output == "-" else output   # stdout, as '-' for INPUT is stdin
     out_fmt = _file_format(output) if output else "csv"
-    given = _given(("save_every", "scheduler", "workers", "partitions"))
+    given = _given(("save_every", "scheduler", "workers", "partitions", "on_bad_row", "rejects"))
     with _user_errors():
         if engine_kind == "dask":
             from ._predict_dask import check_options
             check_options(input_path, output, state_path, given)
+            for name in ("on_bad_row", "rejects"):
+                if name in given:
+                    raise click.BadParameter("runs with --engine local (the Dask engine stops at a bad value, "
+                                             "naming its file)", param_hint=f"--{name.replace('_', '-')}")
             if backend != "cpu":
                 raise ValueError(f"--backend {backend}: runs with --engine local (each Dask worker runs the CPU "
                                  "engine)")
@@ -467,7 +456,11 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
         if backend == "gpu":
             click.echo("kalmix: --backend gpu compiles its kernels once in each run, at the first rows (about 4 "
                        "minutes for the default bank on an H100)", err=True)
-        _distinct_files(("INPUT", input_path), ("--output", output), ("--state", state_path))
+        if rejects is not None and on_bad_row == "fail":
+            raise click.BadParameter("lists the bad rows skipped, and --on-bad-row fail skips none",
+                                     param_hint="--rejects")
+        _distinct_files(("INPUT", input_path), ("--output", output), ("--state", state_path), ("--rejects", rejects))
+        _directory_exists("--rejects", rejects)
     with _user_errors(), SignalGuard() as guard, \
             (StateLock(state_path) if state_path else contextlib.nullcontext()):
         engine = None
@@ -516,7 +509,8 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
         if input_path == "-" and out_fmt == "parquet":
             raise ValueError("--output: streaming from stdin writes CSV or JSON lines, got a .parquet name")
         run_predict(guard, engine, settings, unit, input_path, state_path, save_every, output, out_fmt,
-                    time_column, position_columns, id_column, chunk_rows, progress, backend)
+                    time_column, position_columns, id_column, chunk_rows, progress, backend,
+                    on_bad_row=on_bad_row, rejects=rejects)
 
 
 # -------------------------------------------------------------------------------------- evaluate

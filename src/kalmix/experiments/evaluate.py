@@ -52,7 +52,7 @@ __all__ = ["Streams", "EvaluationResult", "split_streams", "evaluate_table", "PR
            "NOT_PEERS", "error_measure", "verdict", "ranking", "format_result"]
 
 #: Row names in table order.
-PREDICTORS = ("mixture", "AKF mixture (previous default)", "no prediction", "CV Kalman", "CA Kalman",
+PREDICTORS = ("mixture", "AKF mixture (paper)", "no prediction", "CV Kalman", "CA Kalman",
               "IMM (filterpy)", "CV Kalman (real dt)", "CA Kalman (real dt)", "IMM (filterpy, real dt)",
               "MMAE bank (filterpy, real dt)", "Holt-Winters (river)", "RLS AR (padasip)",
               "local linear trend (statsmodels ML)", "single AKF", "best expert (hindsight)")
@@ -751,9 +751,9 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     tuned["mixture"]["calibration"] = calibration
     if horizon > 1:
         predictions["mixture, one-step weights"] = plain
-    log(f"AKF mixture (previous default: K={n_experts}, fixed share, length unit {unit:.4g})")
+    log(f"AKF mixture (the paper's: K={n_experts}, fixed share, length unit {unit:.4g})")
     mix_params = make_params(p, n_experts, seed=seed, length_unit=unit, **options)
-    predictions["AKF mixture (previous default)"] = _run(mix_params, values, horizon, lengths=streams.lengths)[:2]
+    predictions["AKF mixture (paper)"] = _run(mix_params, values, horizon, lengths=streams.lengths)[:2]
 
     log("no prediction")
     carried = np.empty_like(values)
