@@ -274,18 +274,25 @@ def test_line_batches_take_a_lone_carriage_return_as_a_line_end():
 
 
 def test_stdin_bad_line_after_rows_on_a_pipe(tmp_path):
-    """On a pipe (rows stepped in batches), the rows before a bad line are written, then a clear error: a JSON
-    integer beyond any float, a CSV line the csv module refuses."""
+    """On a pipe (rows stepped in batches), with --on-bad-row fail the rows before a bad line are written, then a
+    clear error: a JSON integer beyond any float, a CSV line the csv module refuses. By default the bad line is
+    skipped: its output line is there, empty, and the feed goes on."""
     import subprocess
     import sys
 
     good = "".join(json.dumps({"t": k, "x": 0.1 * k}) + "\n" for k in range(3))
-    for feed, message in ((good + '{"t": 1' + "0" * 400 + ', "x": 1}\n' + good, "must be finite, got an integer of 401"),
-                          ("t,x\n0,1\n1,2\n2,3\n3,4\r5\n4,5\n", "line 5: not a CSV row")):
-        done = subprocess.run([sys.executable, "-m", "kalmix.cli", "predict", "-", *FAST], input=feed.encode(),
-                              capture_output=True)
+    later = "".join(json.dumps({"t": k, "x": 0.1 * k}) + "\n" for k in range(3, 6))
+    for feed, message, lines in ((good + '{"t": 1' + "0" * 400 + ', "x": 1}\n' + later,
+                                  "must be finite, got an integer of 401", 7),
+                                 ("t,x\n0,1\n1,2\n2,3\n3,4\r5\n4,5\n", "line 5: not a CSV row", 1 + 5)):
+        done = subprocess.run([sys.executable, "-m", "kalmix.cli", "predict", "-", *FAST, "--on-bad-row", "fail"],
+                              input=feed.encode(), capture_output=True)
         assert done.returncode != 0 and message in done.stderr.decode(), done.stderr.decode()
         assert len(done.stdout.decode().strip().splitlines()) == 3 + (not feed.startswith("{"))
+        skipped = subprocess.run([sys.executable, "-m", "kalmix.cli", "predict", "-", *FAST], input=feed.encode(),
+                                 capture_output=True)
+        assert skipped.returncode == 0 and "kalmix: error: 1 bad row(s) skipped" in skipped.stderr.decode()
+        assert len(skipped.stdout.decode().strip().splitlines()) == lines   # (a header, then) one per row
 
 
 @pytest.mark.parametrize("extra", [[], ["--lead", "0.1"]])
@@ -450,7 +457,7 @@ def test_explicit_column_names(cli, tmp_path):
      "column 'track_id' is used as --position, but a track table names its id column 'track_id' (here 'obj')"),
     ("time,x,y\n0,1,2\n1,2,3\n", ["--position", "x,y,time"], "a track table names its time column 'time'"),
     ("t,x,y\n0,1,2\n1,2,3\n", ["--time", "x"], "column 'x' is given both as --time and as --position"),
-    ("t,x,y\n0,1,2\n1,abc,3\n", [], "Column 'x' must hold finite numbers; row 1"),
+    ("t,x,y\n0,1,2\n1,abc,3\n", ["--on-bad-row", "fail"], "line 3: column 'x' must hold a number, got 'abc'"),
     ("", [], "empty"),
     ("t,x,y\n", [], "no rows"),
 ])
@@ -473,7 +480,7 @@ def test_bad_files_give_clear_messages(cli, tmp_path, content, args, message):
     ('{"t": 0, "x": 1}\nnot json\n', "line 2: not valid JSON"),
 ])
 def test_bad_stdin_gives_clear_messages(cli, content, message):
-    result = _run(cli, ["predict", "-", *FAST], input=content)
+    result = _run(cli, ["predict", "-", *FAST, "--on-bad-row", "fail"], input=content)
     assert result.exit_code == 1
     assert message in result.stderr
 
@@ -735,11 +742,17 @@ def test_iso_8601_times_are_seconds_since_1970_in_files_on_stdin_and_as_parquet_
     bad = text.copy()
     bad.loc[3, "t"] = "yesterday"
     bad.to_csv(tmp_path / "bad.csv", index=False)
-    result = _run(cli, ["predict", str(tmp_path / "bad.csv"), *FAST])
-    assert result.exit_code == 1 and "ISO 8601 date-times" in result.stderr and "'yesterday'" in result.stderr
-    piped_bad = _run(cli, ["predict", "-", *FAST], input=(tmp_path / "bad.csv").read_text())
+    result = _run(cli, ["predict", str(tmp_path / "bad.csv"), *FAST, "--on-bad-row", "fail"])
+    assert result.exit_code == 1 and "line 5: column 't' must hold a number or an ISO 8601" in result.stderr \
+        and "'yesterday'" in result.stderr
+    piped_bad = _run(cli, ["predict", "-", *FAST, "--on-bad-row", "fail"], input=(tmp_path / "bad.csv").read_text())
     assert piped_bad.exit_code == 1 and "line 5: column 't' must hold a number or an ISO 8601" in piped_bad.stderr
     assert len(_read(piped_bad.stdout)) == 3                     # the rows before it are written
+    for given in (["predict", str(tmp_path / "bad.csv")], ["predict", "-"]):   # by default: skipped, in its place
+        skipped = _run(cli, [*given, *FAST], input=(tmp_path / "bad.csv").read_text())
+        assert skipped.exit_code == 0 and "1 bad row(s) skipped (line 5: column 't'" in skipped.stderr
+        out = _read(skipped.stdout)
+        assert len(out) == len(bad) and out["segment"].isna().tolist() == [k == 3 for k in range(len(bad))]
 
 
 @pytest.mark.parametrize("chunk_rows", ["200000", "7"])
@@ -810,19 +823,24 @@ def test_iso_times_outside_the_clock_or_mixed_with_numbers_are_named(cli, tmp_pa
     numbers and dates was refused naming a valid date (or taken, on stdin); NaT was missing in a file and an
     error on stdin."""
     rows = "id,time,x\na,2024-05-01T00:00:00Z,1\na,2024-05-01T00:00:01Z,2\na,{},3\n"
-    for value, file_message, stdin_message in (
-            ("1600-01-01T00:00:02Z", "row 2 (counted from 0 after the header) holds '1600-01-01T00:00:02Z'",
-             "line 4: column 'time' must hold a number or an ISO 8601 date-time"),
-            ("now", "holds 'now'", "line 4: column 'time' must hold a number or an ISO 8601 date-time"),
-            ("1714521602.5", "mixes numbers (row 2: '1714521602.5') and ISO 8601 date-times (row 0",
-             "line 4: column 'time' holds a number (1714521602.5) where the lines before hold date-times")):
+    for value, message in (
+            ("1600-01-01T00:00:02Z", "line 4: column 'time' must hold a number or an ISO 8601 date-time (like "
+                                     "2024-05-01T12:00:00.5Z), got '1600-01-01T00:00:02Z'"),
+            ("now", "line 4: column 'time' must hold a number or an ISO 8601 date-time (like 2024-05-01T12:00:00.5Z), "
+                    "got 'now'"),
+            ("1714521602.5", "line 4: column 'time' holds a number ('1714521602.5') where its first time is a "
+                             "date-time; expected one or the other")):
         path = tmp_path / "t.csv"
         path.write_text(rows.format(value))
-        result = _run(cli, ["predict", str(path), "--length-unit", "1"])
-        assert result.exit_code == 1 and file_message in result.stderr, result.stderr
-        piped = _run(cli, ["predict", "-", "--length-unit", "1"], input=rows.format(value))
-        assert piped.exit_code == 1 and stdin_message in piped.stderr, piped.stderr
+        result = _run(cli, ["predict", str(path), "--length-unit", "1", "--on-bad-row", "fail"])
+        assert result.exit_code == 1 and message in result.stderr, result.stderr
+        piped = _run(cli, ["predict", "-", "--length-unit", "1", "--on-bad-row", "fail"], input=rows.format(value))
+        assert piped.exit_code == 1 and message in piped.stderr, piped.stderr
         assert len(_read(piped.stdout)) == 2                      # the rows before it are written
+        for given in (["predict", str(path)], ["predict", "-"]):   # by default: the same words, the row skipped
+            skipped = _run(cli, [*given, "--length-unit", "1"], input=rows.format(value))
+            assert skipped.exit_code == 0 and message.replace("line 4: ", "(line 4: ") in skipped.stderr
+            assert _read(skipped.stdout)["segment"].isna().tolist() == [False, False, True]
     path.write_text(rows.format("NaT"))
     out = _read(_run(cli, ["predict", str(path), "--length-unit", "1"]).stdout)
     assert len(out) == 3 and out["pred_x"].isna().tolist() == [False, False, True]   # the row as given, unpredicted
@@ -840,8 +858,8 @@ def test_a_run_that_fails_before_its_first_row_leaves_the_output_as_it_was(cli, 
     old.write_text("earlier results\n")
     for extra in ([], ["--state", str(tmp_path / "s.npz")]):
         for out in (new, old):
-            result = CliRunner().invoke(cli, ["predict", str(bad), "-o", str(out), *FAST, *extra])
-            assert result.exit_code != 0 and "must hold finite numbers" in str(result.output) + str(result.exception)
+            result = CliRunner().invoke(cli, ["predict", str(bad), "-o", str(out), *FAST, *extra, "--on-bad-row", "fail"])
+            assert result.exit_code != 0 and "must hold a number" in str(result.output) + str(result.exception)
         assert not new.exists()
         assert old.read_text() == "earlier results\n"
     good = tmp_path / "good.csv"
@@ -861,13 +879,15 @@ def test_position_repeated_is_the_comma_list(cli, tmp_path):
     assert repeated.stdout == listed.stdout and repeated.stdout.startswith("time,segment,pred_a,pred_c,")
 
 
-def test_a_file_in_several_chunks_warns_once_per_chunk(cli, tmp_path):
-    """The first pass over a file of several chunks (the next rows' times) reads each chunk too; what reading
-    it warns of is said once, by the pass that steps it."""
+def test_a_file_in_several_chunks_counts_its_dropped_rows_once(cli, tmp_path):
+    """The first pass over a file of several chunks (the next rows' times) reads each chunk too; the rows
+    reading drops (here repeated timestamps) are counted once, by the pass that steps them, and said once, at
+    the end, on an error line with the total."""
     rows = ["track_id,time,x,y"] + [f"{track},{i // 2 if i < 4 else i},{0.1 * i},{0.2 * i}"
                                     for track in range(2) for i in range(30)]
     path = tmp_path / "dup.csv"
     path.write_text("\n".join(rows) + "\n")
     result = _run(cli, ["predict", str(path), "--chunk-rows", "20", *FAST])
     assert result.exit_code == 0
-    assert result.stderr.count("repeat a timestamp") == 2   # one per chunk that has repeats (of 3 chunks)
+    assert result.stderr.count("repeat a timestamp") == 1   # (two of the 3 chunks have repeats)
+    assert "kalmix: error: 4 row(s) repeat a timestamp" in result.stderr

@@ -168,10 +168,12 @@ def test_unknown_options_are_named_with_the_known_ones(cli, tracks_csv, option, 
 def test_an_empty_track_id_is_reported_in_a_whole_sentence(cli, tmp_path):
     path = tmp_path / "ids.csv"
     path.write_text("track_id,time,x,y\n,0,1,2\na,1,2,3\n")
-    result = _run(cli, ["predict", str(path), *FAST])
+    result = _run(cli, ["predict", str(path), *FAST, "--on-bad-row", "fail"])
     assert result.exit_code == 1
-    assert "Column 'track_id' (track id) must not be empty; row 0 (counted from 0 after the header) has no id" \
-        in result.output
+    assert "line 2: column 'track_id' (track id) is empty" in result.output
+    result = _run(cli, ["predict", str(path), *FAST])   # by default a bad row, skipped in its place
+    assert result.exit_code == 0 and "1 bad row(s) skipped (line 2: column 'track_id' (track id) is empty" \
+        in result.stderr
 
 
 @pytest.mark.parametrize("args, message", [

@@ -182,11 +182,14 @@ def test_missing_column_lists_available(tmp_path):
 
 def test_non_numeric_names_column_row_value(tmp_path):
     path = write(tmp_path, "t,x,y\n0,1,2\n1,2,3\n2,oops,4\n")
-    with pytest.raises(ValueError, match=r"Column 'x' must hold finite numbers; row 2 .* holds 'oops'"):
+    with pytest.raises(ValueError, match=r"^line 4: column 'x' must hold a number, got 'oops'$"):
         read_tracks(path)
     path = write(tmp_path, "t,x\n0,1\nnoon,2\n")
-    with pytest.raises(ValueError, match=r"Column 't' .* row 1 .* holds 'noon'"):
+    with pytest.raises(ValueError, match=r"^line 3: column 't' must hold a number or an ISO 8601 date-time .*got "
+                                         r"'noon'$"):
         read_tracks(path)
+    with pytest.raises(ValueError, match=r"^row 1 \(counted from 0 after the header\): column 't' .* 'noon'$"):
+        read_tracks(io.StringIO("t,x\n0,1\nnoon,2\n"))
 
 
 def test_empty_cells_and_nan_are_missing(tmp_path):
@@ -274,7 +277,7 @@ def test_chunks_time_back_across_chunks(tmp_path):
 
 def test_chunks_bad_value_row_counts_from_file_start(tmp_path):
     path = write(tmp_path, "t,x\n0,0\n1,1\n2,2\n3,bad\n")
-    with pytest.raises(ValueError, match=r"Column 'x' .* row 3 .* holds 'bad'"):
+    with pytest.raises(ValueError, match=r"^line 5: column 'x' must hold a number, got 'bad'"):
         list(iter_track_chunks(path, chunk_rows=2))
 
 

@@ -118,13 +118,40 @@ def archive_files(source: str) -> tuple[list[str], str]:
     return files, formats.pop()
 
 
+def _type_kind(kind, is_id: bool) -> str:
+    """The kind of a Parquet column's type that files of one archive must share: any integer or float for a time
+    or position (each read as float64); for a track id, integers of any width (read as int64), floats (float64)
+    or text (string, large_string); a timestamp's zone, not its unit; other types as they are."""
+    import pyarrow as pa
+
+    if pa.types.is_integer(kind) or pa.types.is_floating(kind):
+        return ("integer" if pa.types.is_integer(kind) else "float") if is_id else "number"
+    if pa.types.is_string(kind) or pa.types.is_large_string(kind):
+        return "text"
+    if pa.types.is_timestamp(kind):
+        return f"timestamp (zone {kind.tz})"
+    if pa.types.is_duration(kind):
+        return "duration"
+    return str(kind)
+
+
+def _unreadable(path, error) -> ValueError:
+    """A file that cannot be read, named (pyarrow's error alone does not name it)."""
+    return ValueError(f"INPUT: {path!r} cannot be read as {'Parquet' if _format_of(path) == 'parquet' else 'CSV'} "
+                      f"(a corrupt or truncated file?): {error}")
+
+
 def _check_files(files, fmt, columns):
-    """``ValueError`` naming the first file that lacks a column in use or, in Parquet, types it differently."""
+    """``ValueError`` naming the first file that cannot be read, lacks a column in use or, in Parquet, types it
+    with another kind (:func:`_type_kind`: a float32 beside a float64 column is read as float64 too)."""
     reference = None
     for path in files:
         if fmt == "csv" and os.path.getsize(path) == 0:
             raise ValueError(f"INPUT: {path!r} is empty (no header, no rows)")
-        header = _header(path, fmt)
+        try:
+            header = _header(path, fmt)
+        except (OSError, ValueError) as error:   # (pyarrow's ArrowInvalid is a ValueError)
+            raise _unreadable(path, error) from None
         missing = [name for name in columns.names if name not in header]
         if missing:
             raise ValueError(f"INPUT: {path!r} has no column {missing[0]!r}: expected the columns "
@@ -134,16 +161,20 @@ def _check_files(files, fmt, columns):
             import pyarrow.parquet as pq
 
             schema = pq.read_schema(path)
-            types = {name: str(schema.field(name).type) for name in columns.names}
+            types = {name: schema.field(name).type for name in columns.names}
+            kinds = {name: _type_kind(types[name], name == columns.track_id) for name in columns.names}
             if reference is None:
-                reference = types
+                reference = types, kinds
             for name in columns.names:
-                if types[name] != reference[name]:
+                if kinds[name] != reference[1][name]:
                     raise ValueError(f"INPUT: column {name!r} of {path!r} is {types[name]}; expected "
-                                     f"{reference[name]} as in {files[0]!r}")
+                                     f"{reference[0][name]} as in {files[0]!r}"
+                                     + (" (an id column of integers and one of floats would split tracks: 1 is "
+                                        "not 1.0 when rows are shuffled by id)" if {kinds[name], reference[1][name]}
+                                        == {"integer", "float"} else ""))
 
 
-def _pieces(files, fmt, piece_rows):
+def _pieces(files, fmt, partition_rows):
     """``(index, path, row groups or None, first row)``: whole files (CSV) or runs of row groups (Parquet)."""
     pieces = []
     for path in files:
@@ -152,7 +183,10 @@ def _pieces(files, fmt, piece_rows):
             continue
         import pyarrow.parquet as pq
 
-        meta = pq.read_metadata(path)
+        try:
+            meta = pq.read_metadata(path)
+        except (OSError, ValueError) as error:
+            raise _unreadable(path, error) from None
         groups, rows, start = [], 0, 0
         for g in range(meta.num_row_groups):
             n = meta.row_group(g).num_rows
@@ -167,14 +201,30 @@ def _pieces(files, fmt, piece_rows):
 
 
 def _read_raw(path, fmt, columns, groups=None, nrows=None):
-    if fmt == "parquet":
-        import pyarrow.parquet as pq
+    try:
+        if fmt == "parquet":
+            import pyarrow.parquet as pq
 
-        with pq.ParquetFile(path) as parquet:
-            if nrows == 0:
-                return parquet.schema_arrow.empty_table().select(columns.names).to_pandas()
-            return parquet.read_row_groups(groups, columns=columns.names).to_pandas()
-    return pd.read_csv(path, usecols=columns.names, nrows=nrows, **_csv_options(columns, True))
+            with pq.ParquetFile(path) as parquet:
+                if nrows == 0:
+                    raw = parquet.schema_arrow.empty_table().select(columns.names).to_pandas()
+                else:
+                    raw = parquet.read_row_groups(groups, columns=columns.names).to_pandas()
+        else:
+            raw = pd.read_csv(path, usecols=columns.names, nrows=nrows, **_csv_options(columns, True))
+    except (OSError, EOFError, pd.errors.ParserError, UnicodeDecodeError) as error:
+        raise _unreadable(path, error) from None
+    except ValueError as error:   # pyarrow's ArrowInvalid: a corrupt page, a bad footer
+        if type(error).__module__.startswith("pyarrow"):
+            raise _unreadable(path, error) from None
+        raise
+    if columns.track_id is not None and fmt == "parquet":   # one id type over the archive's files (see _type_kind)
+        ids = raw[columns.track_id]
+        if pd.api.types.is_integer_dtype(ids) and isinstance(ids.dtype, np.dtype):
+            raw[columns.track_id] = ids.astype(np.int64)
+        elif pd.api.types.is_float_dtype(ids):
+            raw[columns.track_id] = ids.astype(np.float64)
+    return raw
 
 
 def _canonical(raw, columns: TrackColumns, base: int, where: str, offset: int = 0) -> pd.DataFrame:

@@ -556,6 +556,9 @@ def _track_key(value, where: str):
         missing = False
     if missing:
         raise ValueError(f"{where}: expected a track id (text or a number), got {value!r}")
+    if isinstance(value, (bool, np.bool_)):   # True == 1 as a key: it would continue track 1
+        raise TypeError(f"{where}: expected a track id (text or a number), got {value!r}: a bool is not one (True "
+                        "and 1 would be the same track)")
     key = id_to_json(value)
     if not _keyable(key):
         raise TypeError(f"{where}: expected a track id (text, a number, or a date), got {type(value).__name__} "
@@ -990,6 +993,11 @@ class TrackPredictor:
             self.warn_skipped = False
             track, index, seconds, last = late
             shown = np.asarray(given, dtype=object).reshape(-1)[index]
+            if last is None:   # a time that is None or NaN
+                warnings.warn(f"track {track!r}: a row without a time ({shown!r}) was skipped (nothing to place it "
+                              "by); TrackPredictor.skipped counts skipped rows; this is said once",
+                              SkippedRowWarning, stacklevel=3)
+                return
             if isinstance(shown, numbers.Real) and not isinstance(shown, bool):
                 said = f"time {seconds!r} is not after the track's last time {last!r}"
             else:
@@ -1098,6 +1106,8 @@ class TrackPredictor:
             if new is None:
                 if self._late is None and last is not None and math.isfinite(times[i]):
                     self._late = (track, first + i, float(times[i]), last)   # said once the step succeeded
+                elif self._late is None and not math.isfinite(times[i]):
+                    self._late = (track, first + i, float(times[i]), None)   # no time
                 continue
             if self.config.time_unit is None and gaps.intervals:
                 self._learn_time_unit(gaps.intervals[0], track)

@@ -11,11 +11,15 @@ same command run again continues exactly where the first stopped.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
 import os
 import sys
+import warnings
+
+from typing import Any, NamedTuple
 
 import click
 import numpy as np
@@ -58,12 +62,145 @@ def _gap_splits(engine) -> int:
     return 0 if engine is None else sum(max(gaps.segment, 0) for gaps in engine.gaps.values())
 
 
+class BadRowLog:
+    """The bad rows a run skipped (``--on-bad-row skip``): counted, the first few places kept for the summary,
+    each written to the ``--rejects`` file (its place, why, and the row as given) as its output row is."""
+
+    SHOWN = 10   # places named in the summary
+
+    def __init__(self, path: str | None = None):
+        self.path, self.handle, self.writer = path, None, None
+        self.count = 0
+        self.places: list[str] = []
+        self.first: str | None = None
+
+    def open(self, kind: str, append: bool) -> None:
+        """Open the rejects file (``kind``: ``line`` or ``row``, the name of its first column); ``append``: a
+        resumed run adds to the file an earlier run wrote."""
+        if self.path is None or self.handle is not None:
+            return
+        append = append and os.path.exists(self.path) and os.path.getsize(self.path) > 0
+        try:
+            self.handle = open(self.path, "a" if append else "w", newline="", encoding="utf-8",
+                               errors="backslashreplace")   # (a line of stdin's that is not UTF-8)
+        except OSError as error:
+            raise ValueError(f"--rejects: cannot write {self.path!r}: {error.strerror or error}") from None
+        self.writer = csv.writer(self.handle)
+        if not append:
+            self.writer.writerow([kind, "reason", "input"])
+            self.handle.flush()
+
+    def add(self, places, reasons, texts) -> None:
+        """Rows skipped, each with its place (``line 12``, ``row 5``), reason and text."""
+        if not len(places):
+            return
+        if self.first is None:
+            self.first = reasons[0]
+        self.count += len(places)
+        self.places.extend(places[:max(0, self.SHOWN - len(self.places))])
+        if self.writer is not None:
+            self.writer.writerows([place.split(" ", 1)[1].split(" ", 1)[0], reason, text]
+                                  for place, reason, text in zip(places, reasons, texts))
+
+    def flush(self) -> None:
+        if self.handle is not None:
+            self.handle.flush()
+
+    def close(self) -> None:
+        if self.handle is not None:
+            self.handle.close()
+
+    def summary(self) -> str | None:
+        """The run's line: ``N bad row(s) skipped (lines 12, 599; ...)``; None when there were none."""
+        if not self.count:
+            return None
+        kind = self.places[0].split(" ", 1)[0]
+        numbers = ", ".join(place.split(" ", 1)[1].split(" ", 1)[0] for place in self.places)
+        more = ", ..." if self.count > len(self.places) else ""
+        where = f"{kind}{'s' if self.count > 1 else ''} {numbers}{more}"
+        if kind == "row" and " after the header" in self.places[0]:
+            where += ", counted from 0 after the header"
+        elif kind == "row":
+            where += ", counted from 0"
+        if self.path is not None:
+            where += f"; see --rejects {self.path}"
+        elif self.count == 1:
+            where += f": {self.first}; --rejects FILE keeps such rows"
+        else:
+            where += f"; the first: {self.first}; --rejects FILE lists each with its reason"
+        return f"{self.count} bad row(s) skipped ({where}): their output rows have empty predictions"
+
+
+class IdWatch:
+    """Says once (on stderr) when two track ids are written differently but would be read as one by eye: ids
+    that differ only by the spaces around them (``' 7'`` and ``'7'``) or in how a number is written
+    (``'1.0'`` and ``'1'``, ``'007'`` and ``'7'``): ids are read as written, so they are two tracks; and ids
+    equal as numbers but of different types (``1`` and ``1.0`` in JSON lines, an integer and a float column
+    of two Parquet files of a resumed run), which continue one track. ``known``: the ids of a resumed
+    state file's tracks."""
+
+    def __init__(self, known=()):
+        self.seen: set = set()
+        self.forms: dict = {}
+        self.warned: set = set()
+        for track in known:
+            self.see(track, warn=False)
+
+    @staticmethod
+    def _form(value):
+        if isinstance(value, bool):
+            return None
+        if isinstance(value, (int, float, np.integer, np.floating)):
+            return ("number", float(value))
+        if not isinstance(value, str):
+            return None
+        text = value.strip()
+        try:
+            number = float(text)
+        except ValueError:
+            return ("text", text)
+        return ("number", number) if math.isfinite(number) else ("text", text)
+
+    def see_many(self, values) -> None:
+        for value in values:
+            self.see(value)
+
+    def see(self, value, warn: bool = True) -> None:
+        key = (type(value).__name__, value)
+        if key in self.seen:
+            return
+        self.seen.add(key)
+        form = self._form(value)
+        if form is None:
+            return
+        other = self.forms.setdefault(form, value)
+        if other is value or not warn:
+            return
+        if isinstance(other, str) and isinstance(value, str) and other.strip() == value.strip():
+            kind, text = "spaces", (f"track ids {other!r} and {value!r} differ only by the spaces around them: they "
+                                    "are two tracks (ids are read as written); remove the spaces in the input if "
+                                    "they are one")
+        elif other == value:
+            kind, text = "types", (f"track ids {other!r} ({type(other).__name__}) and {value!r} "
+                                   f"({type(value).__name__}) are equal numbers of two types: they continue one track")
+        else:
+            kind, text = "numbers", (f"track ids {other!r} and {value!r} differ only in how a number is written: "
+                                     "they are two tracks (ids are read as written)")
+        if kind not in self.warned:
+            self.warned.add(kind)
+            click.echo(f"kalmix: warning: {text}; this is said once", err=True)
+
+
 class Run:
     """One ``kalmix predict`` run: the engine, its output and its state file, committed together."""
 
-    def __init__(self, guard, engine, state_path, save_every, output, out_fmt):
+    def __init__(self, guard, engine, state_path, save_every, output, out_fmt, on_bad_row="skip", rejects=None):
         self.guard, self.engine, self.state_path, self.save_every = guard, engine, state_path, save_every
         self.output, self.out_fmt = output, out_fmt
+        self.on_bad_row = on_bad_row
+        self.bad = BadRowLog(rejects)
+        self.ids = IdWatch(engine.gaps if engine is not None else ())
+        self.dropped = {"untimed": 0, "repeated": 0}   # a file's rows not predicted, by why
         self.resuming = engine is not None  # a state file was loaded
         self.sink: Output | None = None
         self.rows = self.since_save = 0
@@ -86,6 +223,7 @@ class Run:
 
     def commit(self, rows: int) -> None:
         """``rows`` input rows are written; save the state when due (called inside a deferred section)."""
+        self.bad.flush()
         self.rows += rows
         self.since_save += rows
         if self.since_save >= self.save_every:
@@ -105,17 +243,30 @@ class Run:
         try:
             self.save()
         finally:
+            self.bad.close()
             if self.sink is not None:
                 self.sink.discard_if_empty() if failed else self.sink.close()
 
     def report(self) -> None:
         """Summary warnings; on a stop signal or a closed stdout, one line and a non-zero exit."""
         engine = self.engine
+        bad = self.bad.summary()
+        if bad is not None:
+            click.echo(f"kalmix: error: {bad}", err=True)
         if engine is not None and engine.skipped > self.skipped0:
-            click.echo(f"kalmix: warning: skipped {engine.skipped - self.skipped0} row(s) at or before their "
-                       "track's last time (already processed or out of order)", err=True)
+            click.echo(f"kalmix: error: skipped {engine.skipped - self.skipped0} row(s) at or before their "
+                       "track's last time (already processed or out of order); their output rows have empty "
+                       "predictions", err=True)
         if self.untimed:
-            click.echo(f"kalmix: warning: skipped {self.untimed} row(s) without a time", err=True)
+            click.echo(f"kalmix: error: skipped {self.untimed} row(s) without a time; their output rows have empty "
+                       "predictions", err=True)
+        if self.dropped["untimed"]:
+            click.echo(f"kalmix: error: {self.dropped['untimed']} row(s) have no time: not predicted (their output "
+                       "rows have empty predictions)", err=True)
+        if self.dropped["repeated"]:
+            click.echo(f"kalmix: error: {self.dropped['repeated']} row(s) repeat a timestamp within their track: "
+                       "the last row of each repeated time is predicted, the others' output rows have empty "
+                       "predictions", err=True)
         if engine is not None and engine.time_glitches > self.glitches0:
             click.echo(f"kalmix: warning: {engine.time_glitches - self.glitches0} row(s) came back in time after "
                        "a jump ahead: the jump's timestamp was taken as wrong and the track went on", err=True)
@@ -221,13 +372,13 @@ def merge(frames, chunk):
     return out.iloc[np.lexsort((out["time"].to_numpy(), codes))].reset_index(drop=True)
 
 
-def given_rows(frame, chunk, columns, fmt):
+def given_rows(frame, chunk, columns, fmt, kept: list | None = None):
     """A chunk's output: ``frame``, the predictions of the chunk rows the engine stepped (in chunk order, as
     :func:`merge` gives them), laid out on the chunk's file rows in file order, each with its id and time as
     the file gave them (:class:`kalmix.io.tables.AsGiven`; the time as :func:`given_times` writes it in
     ``fmt``). A file row not stepped (no time, an earlier row of a repeated time) has empty predictions and
     segment; one a resumed run skips as done before, or that shares such a row's fate, is left out (its run
-    wrote it)."""
+    wrote it). ``kept``: given a list, receives which file rows are written (a boolean array)."""
     import pandas as pd
 
     given = chunk.attrs["as_given"]
@@ -241,7 +392,12 @@ def given_rows(frame, chunk, columns, fmt):
             len(frame))
     source = np.full(given.rows, -1, dtype=np.int64)   # each file row's prediction row (-1: none)
     source[given.places] = frame_row
-    written = frame_row[given.owner] >= 0
+    # a row with no chunk row to share the fate of (a chunk without one: every row bad or without a time) is
+    # this run's
+    written = np.where(given.owner >= 0, frame_row[np.maximum(given.owner, 0)] >= 0, True) if n else np.ones(
+        given.rows, dtype=bool)
+    if kept is not None:
+        kept.append(written)
     every = bool(written.all())
     if not every:
         source = source[written]
@@ -249,10 +405,14 @@ def given_rows(frame, chunk, columns, fmt):
     if columns.track_id is not None:
         ids = given.ids if every else given.ids[written]
         out[columns.track_id] = ids.reset_index(drop=True)
-    if columns.time is None:   # each track's row number: every file row is a chunk row
-        number = np.empty(given.rows, dtype=np.float64)
+    if columns.time is None:   # each track's row number (none for a bad row, which is no chunk row)
+        number = np.full(given.rows, np.nan)
         number[given.places] = chunk["time"].to_numpy()
-        out["row"] = (number if every else number[written]).astype(np.int64)
+        number = number if every else number[written]
+        out["row"] = (number.astype(np.int64) if not np.isnan(number).any()
+                      else pd.array(np.where(np.isnan(number), 0, number).astype(np.int64), dtype="Int64"))
+        if isinstance(out["row"], pd.arrays.IntegerArray):
+            out["row"][np.isnan(number)] = pd.NA
     else:
         times = given.times if every else given.times[written]
         out[columns.time] = given_times(times.reset_index(drop=True), fmt)
@@ -294,6 +454,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     from tqdm import tqdm
 
     from ..io import iter_track_chunks, to_arrays
+    from ..io.tables import DroppedRowWarning
     from ..streaming import _length_unit_rule, next_row_times
 
     if not os.path.exists(path):
@@ -316,12 +477,23 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
         total_rows = count_rows(path)
     else:
         total_rows = total
+    run.bad.open("row" if in_fmt == "parquet" else "line", append=run.resuming)
     ahead = (_lookahead(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
-                                          ids_as_text=True)) if total_rows > chunk_rows else [])
+                                          ids_as_text=True, on_bad_row=run.on_bad_row))
+             if total_rows > chunk_rows else [])
     with tqdm(total=total, unit="rows", file=sys.stderr, disable=not show,
-              desc="kalmix predict", smoothing=0.1) as bar:
+              desc="kalmix predict", smoothing=0.1) as bar, warnings.catch_warnings():
+        warnings.simplefilter("ignore", DroppedRowWarning)   # counted here and said at the end (Run.report)
         for index, chunk in enumerate(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
-                                                        ids_as_text=True, as_given=True)):
+                                                        ids_as_text=True, as_given=True, on_bad_row=run.on_bad_row,
+                                                        bad_texts=run.bad.path is not None)):
+            for why, count in chunk.attrs.get("dropped", {}).items():
+                run.dropped[why] += count
+            run.ids.see_many(pd.unique(chunk["track_id"]).tolist())
+            if not len(chunk):   # every row bad or without a time: their output rows, nothing to step
+                _write_unstepped(run, chunk, columns, settings)
+                bar.update(chunk.attrs.get("file_rows", 0))
+                continue
             if run.engine is None:
                 chosen, why = (unit, None) if unit is not None else _length_unit_rule(to_arrays(chunk).values)
                 if unit is None and why is None:
@@ -344,9 +516,11 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                     bar.update(len(piece))
                     if k >= (unit_at or 0):   # the rows before the time unit's step go with the next part
                         run.guard.tick()
-                frame = given_rows(merge(frames, chunk), chunk, columns, run.sink.fmt)
+                written: list = []
+                frame = given_rows(merge(frames, chunk), chunk, columns, run.sink.fmt, written)
                 with run.guard.deferred():
                     run.sink.write_frame(frame)
+                    _log_bad_rows(run, chunk, written[0])
                     committed = True
                     run.commit(len(chunk))
                     run.measured += int(np.isfinite(chunk[names].to_numpy(np.float64)).all(axis=1).sum())
@@ -356,6 +530,37 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                         engine.rollback(mark)
                 raise
             bar.update(chunk.attrs.get("file_rows", len(chunk)) - len(chunk))
+
+
+def _log_bad_rows(run, chunk, written) -> None:
+    """Count a chunk's bad rows, and write them to --rejects: those whose output rows are written (a resumed run
+    leaves out the rows an earlier run wrote, bad ones included)."""
+    bad = chunk.attrs.get("bad_rows")
+    if bad is None:
+        return
+    keep = written[bad.local]
+    run.bad.add([p for p, k in zip(bad.places, keep) if k], [r for r, k in zip(bad.reasons, keep) if k],
+                [t for t, k in zip(bad.texts, keep) if k])
+
+
+def _write_unstepped(run, chunk, columns, settings) -> None:
+    """Write the output rows of a chunk without a row to step (every row bad or without a time): the id and time
+    as given, empty predictions."""
+    import pandas as pd
+
+    from ..streaming import StreamConfig, TrackPredictor
+
+    engine = run.engine if run.engine is not None else TrackPredictor(StreamConfig(length_unit=1.0, **settings))
+    frame = pd.DataFrame({"track_id": pd.Series(dtype=object), "time": pd.Series(dtype=np.float64),
+                          "segment": pd.Series(dtype=np.int64), **{
+                              f"{prefix}{name}": pd.Series(dtype=np.float64)
+                              for prefix in engine._columns().values() for name in columns.positions}})
+    written: list = []
+    out = given_rows(frame, chunk, columns, run.sink.fmt, written)
+    with run.guard.deferred():
+        run.sink.write_frame(out)
+        _log_bad_rows(run, chunk, written[0])
+        run.commit(0)
 
 
 def _unit_parts(engine, chunk):
@@ -435,10 +640,10 @@ def _parse_time(text, column, line_number):
     return text.strip()
 
 
-def _dated(rows, column):
+def _dated(rows, column, bad=None):
     """``rows`` (line, track, time, positions, time as given) with their ISO 8601 time text as seconds since
     1970 UTC, all in one conversion (as in a file: the same bits); cut before the first that is not a
-    date-time, with its error."""
+    date-time, with its error, or with ``bad(row, reason)`` each such row replaced by what it gives."""
     from ..io.tables import iso_seconds
 
     at = [k for k, row in enumerate(rows) if isinstance(row[2], str)]
@@ -447,19 +652,23 @@ def _dated(rows, column):
     seconds = iso_seconds([rows[k][2] for k in at], errors="coerce")
     out = list(rows)
     for k, value in zip(at, seconds):
-        number, track, text, values, given = rows[k]
+        number, track, text, values, given = rows[k][:5]
         if math.isnan(value):
-            return out[:k], ValueError(f"line {number}: column {column!r} must hold a number or an ISO 8601 "
-                                       f"date-time (like 2024-05-01T12:00:00.5Z), got {text!r}")
+            reason = (f"column {column!r} must hold a number or an ISO 8601 date-time (like "
+                      f"2024-05-01T12:00:00.5Z), got {text!r}")
+            if bad is not None:
+                out[k] = bad(rows[k], reason)
+                continue
+            return out[:k], ValueError(f"line {number}: {reason}")
         out[k] = (number, track, float(value), values, given)
     return out, None
 
 
 def _parse_id(value, column, line_number):
     """A track id as written: CSV text unchanged (``01`` is not ``1``, as in a file), a JSON value as parsed."""
-    if value is None or value == "" or isinstance(value, (dict, list)):
+    if value is None or value == "" or isinstance(value, (dict, list, bool)):   # (true would be track 1)
         raise ValueError(f"line {line_number}: column {column!r} (track id) must hold an id (text or a number), "
-                         f"got {value!r}")
+                         f"got {json.dumps(value) if isinstance(value, bool) else repr(value)}")
     return value
 
 
@@ -494,7 +703,7 @@ def _line_ending(partial: list, data: bytes):
     return None if end + 1 == len(data) else data[end + 1:end + 2] != b"\n"
 
 
-def _line_batches(stream, limit: int = BATCH_LINES):
+def _line_batches(stream, limit: int = BATCH_LINES, undecodable: bool = False):
     """Lists of the lines of ``stream`` that have arrived: waits for one, then takes those already there.
 
     A live stream (rows a while apart) gives batches of one line, as before; a pipe that is
@@ -504,8 +713,10 @@ def _line_batches(stream, limit: int = BATCH_LINES):
     descriptor, read directly (the text layer would hide what it buffered), in the stream's
     encoding when that keeps a newline one byte (UTF-8, ASCII, Latin-1: the bytes are split
     at newlines, then each line is decoded, so a line that does not decode ends its batch and
-    raises only after the lines before it). A stream without a descriptor (a test's in-memory
-    text, or where ``select`` cannot wait on it) is read a line at a time.
+    raises only after the lines before it; with ``undecodable``, it is given as an
+    :class:`_Undecodable` line instead, decoded with replacement characters). A stream without a
+    descriptor (a test's in-memory text, or where ``select`` cannot wait on it) is read a line
+    at a time.
     """
     import codecs
 
@@ -559,10 +770,15 @@ def _line_batches(stream, limit: int = BATCH_LINES):
                 try:
                     texts.append(line.decode(encoding, errors))
                 except UnicodeDecodeError as error:
+                    why = f"not valid {encoding} ({error.reason} at its byte {error.start})"
+                    if undecodable:
+                        text = _Undecodable(line.decode(encoding, "replace"))
+                        text.reason = f"the line is {why}"
+                        texts.append(text)
+                        continue
                     if texts:
                         yield texts
-                    raise ValueError(f"stdin: a line is not valid {encoding} ({error.reason} at its byte "
-                                     f"{error.start}): {line[:80]!r}") from None
+                    raise ValueError(f"stdin: a line is {why}: {line[:80]!r}") from None
             yield texts
 
 
@@ -582,7 +798,8 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
     if stdin is None:   # the process was started with its standard input closed
         raise ValueError("stdin: closed (INPUT '-' reads the tracks from standard input; give a file name)")
     warm_up_meanwhile(run, settings, unit)
-    batches = _line_batches(stdin)
+    skip = run.on_bad_row == "skip"
+    batches = _line_batches(stdin, undecodable=skip)
     line_number = 0
     first = None
     rest: list[str] = []
@@ -622,11 +839,14 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
     done_before = {track: gaps.last_time for track, gaps in engine.gaps.items()}   # by the runs before this one
     previous_written = [True]   # the last row with a time was written (a row without one shares its fate)
     run.open_output(run.out_fmt if run.output else ("jsonl" if is_json else "csv"))
+    run.bad.open("line", append=run.resuming)
     index = {name: i for i, name in enumerate(header)}
     counts: dict = {}
     time_kind: dict = {}   # "kind": numbers or date-times, fixed by the first time
 
     def parse(raw, number):
+        if isinstance(raw, _Undecodable):
+            raise ValueError(f"line {number}: {raw.reason}")
         if is_json:
             return _json_line(raw, number)
         try:
@@ -646,25 +866,67 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
 
     def row_of(number, record):
         """(line, track, time, positions, time as given) of a record; positions None for a row without a time
-        (not stepped)."""
-        words.check(number, record, get)
+        (not stepped). A ``ValueError`` for a bad row (which takes no row number, and does not fix the time
+        column's kind)."""
         track = _parse_id(get(record, columns.track_id, number), columns.track_id, number) if columns.track_id else 0
+        run.ids.see(track)
         if columns.time is None:
+            values = [_parse_number(get(record, name, number), name, number) for name in columns.positions]
             time = float(counts.get(track, engine.gaps[track].last_time + 1 if track in engine.gaps else 0))
             counts[track] = time + 1
-            given = int(time)
-        else:
-            given = get(record, columns.time, number)
-            time = _parse_time(given, columns.time, number)
-            if not isinstance(time, str) and math.isnan(time):   # text: a date-time, see _dated
-                return number, track, time, None, given
-            kind = "date-time" if isinstance(time, str) else "number"
-            if time_kind.setdefault("kind", kind) != kind:   # one or the other, as in a file
-                raise ValueError(f"line {number}: column {columns.time!r} holds a {kind} ({time!r}) where the lines "
-                                 f"before hold {time_kind['kind']}s; expected one or the other")
-        return number, track, time, [_parse_number(get(record, name, number), name, number)
-                                     for name in columns.positions], given
+            return number, track, time, values, int(time)
+        given = get(record, columns.time, number)
+        time = _parse_time(given, columns.time, number)
+        if not isinstance(time, str) and math.isnan(time):   # text: a date-time, see _dated
+            return number, track, time, None, given
+        kind = "date-time" if isinstance(time, str) else "number"
+        if time_kind.get("kind", kind) != kind:   # one or the other, as in a file
+            raise ValueError(f"line {number}: column {columns.time!r} holds a {kind} ({given!r}) where its first "
+                             f"time is a {time_kind['kind']}; expected one or the other")
+        if kind == "date-time" and "kind" not in time_kind and not _is_date(time):   # (later ones: _dated)
+            raise ValueError(f"line {number}: column {columns.time!r} must hold a number or an ISO 8601 date-time "
+                             f"(like 2024-05-01T12:00:00.5Z), got {time!r}")
+        values = [_parse_number(get(record, name, number), name, number) for name in columns.positions]
+        time_kind.setdefault("kind", kind)
+        if kind == "date-time" and skip:
+            dated_texts[number] = record   # for a rejects file, should _dated find it is no date
+        return number, track, time, values, given
 
+    dated_texts: dict = {}
+
+    def undated_row(row, reason) -> _BadLine:
+        record = dated_texts.get(row[0])
+        text = "" if record is None else json.dumps(record) if is_json else _csv_line(record)
+        return _BadLine(row[0], row[1], math.nan, None, row[4], reason, text)
+
+    def read(number, raw, record=None):
+        """A line's row (:func:`row_of`), or with --on-bad-row skip its :class:`_BadLine`; ``record``: the line
+        parsed already."""
+        try:
+            if record is None:
+                record = parse(raw, number)
+            words.check(number, record, get)   # (a column that looks like ids: not a bad row, the input's columns)
+            return row_of(number, record)
+        except ValueError as bad:
+            if not skip or isinstance(bad, _IdError):
+                raise
+            return bad_row(number, raw, record, bad)
+
+    def bad_row(number, raw, record, error) -> _BadLine:
+        """A bad line's row: not stepped, its id and time as given where they can be read (else empty)."""
+        track = given = None
+        if record is not None:
+            with contextlib.suppress(ValueError, IndexError, KeyError, TypeError):
+                track = _parse_id(get(record, columns.track_id, number), columns.track_id, number) \
+                    if columns.track_id else 0
+            with contextlib.suppress(ValueError, IndexError, KeyError, TypeError):
+                given = get(record, columns.time, number) if columns.time else None
+        reason = str(error)
+        prefix = f"line {number}: "
+        return _BadLine(number, track, math.nan, None, given, reason[len(prefix):] if reason.startswith(prefix)
+                        else reason, str(raw).rstrip("\r\n"))
+
+    empties = _EmptyWatch(columns.positions if position_columns is None else ())
     warned: dict[str, int] = {}
 
     def warn(kind, text):
@@ -678,9 +940,11 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
                        err=True)
 
     def take(lines, rows):
-        """Parse ``lines`` after ``rows``, step and write them, then warn line by line; on a bad line the
-        rows before it are stepped, written and warned about, then it raises. Lines read are finished,
-        warnings included, whatever signal comes (the signal is raised after them)."""
+        """Parse ``lines`` after ``rows``, step and write them, then warn line by line. A bad line (one that
+        does not parse, or whose values are not an id, a time and positions) is, with ``--on-bad-row skip``,
+        a row not stepped, warned of and counted; with ``fail``, the rows before it are stepped, written and
+        warned about, then it raises. Lines read are finished, warnings included, whatever signal comes (the
+        signal is raised after them)."""
         nonlocal line_number
         error = None
         with run.guard.deferred():
@@ -688,13 +952,18 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
                 for raw in lines:
                     line_number += 1
                     if raw.strip():
-                        rows.append(row_of(line_number, parse(raw, line_number)))
+                        rows.append(read(line_number, raw))
             except Exception as bad:   # noqa: BLE001 - raised below, once the rows before it are done
                 error = bad
-            rows[:], undated = _dated(rows, columns.time)
+            rows[:], undated = _dated(rows, columns.time, undated_row if skip else None)
+            dated_texts.clear()
             error = undated or error   # an earlier line than the one that stopped the parse
             results = iter(step(rows))
-            for number, track, time, values, _ in rows:
+            for row in rows:
+                number, track, time, values = row[:4]
+                if isinstance(row, _BadLine):
+                    warn("bad", f"line {number}: bad row skipped: {row.reason}")
+                    continue
                 if values is None:
                     run.untimed += 1
                     warn("untimed", f"line {number}: no time, row skipped")
@@ -719,7 +988,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         it was). The stepped rows' results, in order (None: skipped)."""
         if not rows:
             return []
-        timed = [row for row in rows if row[3] is not None]
+        timed = [row for row in rows if row[3] is not None]   # (not a bad row, nor one without a time)
         values = np.array([row[3] for row in timed], dtype=np.float64).reshape(len(timed), len(columns.positions))
         tracks = [row[1] for row in timed]
         mark = engine.checkpoint(list(dict.fromkeys(tracks)))
@@ -727,24 +996,30 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         try:
             results = (engine.step_rows(tracks, np.array([row[2] for row in timed]), values) if timed else [])
             prefixes = engine._columns()
-            records, answers = [], iter(results)
-            for _, track, time, measured, given in rows:
+            records, answers, rejected = [], iter(results), []
+            for row in rows:
+                _, track, time, measured, given = row[:5]
                 result = None if measured is None else next(answers)
                 if result is not None:
                     written = True
                 elif measured is not None:
                     before = done_before.get(_track_key(track))
                     written = before is None or not time <= before
-                else:
+                else:   # a row without a time, or a bad row: shares the fate of the last row with a time
                     written = previous_written[0]
                 if measured is not None:
                     previous_written[0] = written
                 if written:
                     time_out = given if is_json else given_time(given, run.sink.fmt)   # JSON: its own value
                     records.append(_row_record(result, track, time_out, columns, prefixes))
+                    if isinstance(row, _BadLine):
+                        rejected.append(row)
             run.sink.write_records(records)
+            run.bad.add([f"line {row.line}" for row in rejected], [row.reason for row in rejected],
+                        [row.text for row in rejected])
             committed = True
             run.measured += int(np.isfinite(values).all(axis=1).sum())
+            empties.see(values)
         except BaseException:
             if not committed:
                 engine.rollback(mark)
@@ -752,7 +1027,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         run.commit(len(timed))
         return results
 
-    take(rest, [row_of(number, record) for number, record in pending])
+    take(rest, [read(number, first, record) for number, record in pending])
     for batch in batches:
         take(batch, [])
     if run.sink.fmt == "csv" and not run.sink.header_written:   # every row skipped: the header all the same,
@@ -762,6 +1037,45 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
             f"{prefix}{name}" for prefix in engine._columns().values() for name in columns.positions)])
         with run.guard.deferred():
             run.sink.write_header(list(_output_columns(empty, columns, columns.positions).columns))
+
+
+class _BadLine(NamedTuple):
+    """A stdin line skipped as bad (``--on-bad-row skip``): its row's first five fields as :func:`row_of`'s
+    (positions None: not stepped; track and time as given, where they could be read), why, and its text."""
+
+    line: int
+    track: Any
+    time: float
+    values: None
+    given: Any
+    reason: str
+    text: str
+
+
+class _Undecodable(str):
+    """A stdin line that is not text in the stream's encoding (decoded with replacement characters), with why."""
+
+    reason = ""
+
+
+class _IdError(ValueError):
+    """The input has a column that looks like track ids but none is named: the run stops (not a bad row)."""
+
+
+def _csv_line(fields) -> str:
+    """CSV fields as one line (without its end)."""
+    import io
+
+    buffer = io.StringIO()
+    csv.writer(buffer, lineterminator="").writerow(fields)
+    return buffer.getvalue()
+
+
+def _is_date(text) -> bool:
+    """Whether a stdin time's text is an ISO 8601 date-time (:func:`kalmix.io.tables.iso_seconds`)."""
+    from ..io.tables import iso_seconds
+
+    return not math.isnan(iso_seconds([text], errors="coerce")[0])
 
 
 def _row_record(result, track, time, columns, prefixes):
@@ -807,6 +1121,31 @@ def _track_key(track):
     return _id_to_json(track)
 
 
+class _EmptyWatch:
+    """On stdin, whose rows are not there to be sampled: a detected position column empty on each of the first
+    :attr:`ROWS` rows while another has values (an exported ``z`` of 2-D tracks) makes every row a missing
+    measurement and every prediction empty; said once, with the --position that leaves it out."""
+
+    ROWS = 100
+
+    def __init__(self, positions):
+        self.positions = list(positions)
+        self.rows = 0
+        self.filled = np.zeros(len(self.positions), dtype=bool)
+
+    def see(self, values) -> None:
+        if len(self.positions) < 2 or self.rows >= self.ROWS or not len(values):
+            return
+        self.filled |= np.isfinite(values[:self.ROWS - self.rows]).any(axis=0)
+        self.rows += min(len(values), self.ROWS - self.rows)
+        if self.rows >= self.ROWS and self.filled.any() and not self.filled.all():
+            empty = [name for name, filled in zip(self.positions, self.filled) if not filled]
+            kept = [name for name, filled in zip(self.positions, self.filled) if filled]
+            click.echo(f"kalmix: warning: the position column(s) {', '.join(map(repr, empty))} have been empty on each "
+                       f"of the first {self.ROWS} rows: every row is a missing measurement and every prediction "
+                       f"empty; --position {','.join(kept)} predicts from the others", err=True)
+
+
 class _IdWatch:
     """On stdin, whose rows are not there to be read ahead: without an id column (none named, detected or
     taken from its name), an unused column whose first rows show two different words (text that is not a
@@ -844,16 +1183,17 @@ class _IdWatch:
             words.append(value)
             if len(words) >= 2:
                 shown = ", ".join(repr(word) for word in words[:3])
-                raise ValueError(f"line {number}: no track id column named or detected, and column {name!r} looks "
+                raise _IdError(f"line {number}: no track id column named or detected, and column {name!r} looks "
                                  f"like one (different text values: {shown}). Without an id every row is one "
                                  f"track, the tracks' rows mixed: pass --id {name}, or --id none if the input "
                                  "holds a single track")
 
 
 def run_predict(guard, engine, settings, unit, input_path, state_path, save_every, output, out_fmt,
-                time_column, position_columns, id_column, chunk_rows, progress, backend="cpu"):
+                time_column, position_columns, id_column, chunk_rows, progress, backend="cpu", *,
+                on_bad_row="skip", rejects=None):
     """Run, commit, and on any exit save what was committed; then report."""
-    run = Run(guard, engine, state_path, save_every, output, out_fmt)
+    run = Run(guard, engine, state_path, save_every, output, out_fmt, on_bad_row, rejects)
     run.backend = backend
     failed = False
     try:

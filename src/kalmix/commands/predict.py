@@ -251,7 +251,35 @@ def _columns(header, time_column, position_columns, id_column, sample=None):
                                   track_id=id_column, sample=sample)
     for note in notes:
         click.echo(f"kalmix: {note}", err=True)
+    if position_columns is None and sample is not None:
+        columns = _without_empty_positions(columns, sample)
     return columns
+
+
+def _without_empty_positions(columns, sample):
+    """``columns`` without the detected position columns that are empty in every row of the input's first rows
+    (an exported ``z`` of 2-D tracks), with a note naming them: each row would be a missing measurement and
+    every prediction empty. Unchanged when none is empty, or all are (said at the end of the run)."""
+    import dataclasses
+
+    from ..io.tables import ID_SAMPLE_ROWS, _MISSING_TEXT
+
+    if len(columns.positions) < 2:
+        return columns
+    rows = sample(list(columns.positions), ID_SAMPLE_ROWS)
+    if rows is None or not len(rows) or any(name not in rows.columns for name in columns.positions):
+        return columns
+    empty = [name for name in columns.positions
+             if (rows[name].isna() | rows[name].astype(str).str.strip().str.lower().isin(_MISSING_TEXT)).all()]
+    if not empty or len(empty) == len(columns.positions):
+        return columns
+    kept = tuple(name for name in columns.positions if name not in empty)
+    which = ", ".join(repr(name) for name in empty)
+    click.echo(f"kalmix: note: the position column{'s' if len(empty) > 1 else ''} {which} "
+               f"{'are' if len(empty) > 1 else 'is'} empty in the first {len(rows):,} rows: predicting "
+               f"{', '.join(kept)} only (--position {','.join(columns.positions)} keeps "
+               f"{'them' if len(empty) > 1 else 'it'})", err=True)
+    return dataclasses.replace(columns, positions=kept)
 
 
 def _guess_id(columns, header, sample):

@@ -48,6 +48,10 @@ import pandas as pd
 __all__ = [
     "TrackColumns",
     "TrackArrays",
+    "BadRows",
+    "BadRowWarning",
+    "DroppedRowWarning",
+    "ON_BAD_ROW",
     "detect_columns",
     "check_output_names",
     "read_tracks",
@@ -439,6 +443,76 @@ def _seconds_of(delta: pd.Series) -> np.ndarray:
     return np.where(missing, np.nan, seconds)
 
 
+def _read_floats(s: pd.Series, dates: bool = False, kind: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """A column as float64 (NaN where missing or bad) and which of its rows hold a bad value: text that is
+    not a number, an infinity; in a time column (``dates``), text that is neither a number nor an ISO 8601
+    date-time (read as seconds since 1970 UTC, :func:`iso_seconds`), or a value of the other kind than the
+    column's: numbers and date-times do not mix, and the column's first time decides which it holds (kept in
+    ``kind["kind"]``, so that a file's later chunks, or a stream's later rows, follow its first)."""
+    kind = {} if kind is None else kind
+    if pd.api.types.is_datetime64_any_dtype(s):
+        epoch = pd.Timestamp(0, tz=getattr(s.dt, "tz", None))
+        return _seconds_of(s - epoch), np.zeros(len(s), dtype=bool)
+    if pd.api.types.is_timedelta64_dtype(s):
+        return _seconds_of(s), np.zeros(len(s), dtype=bool)
+    if pd.api.types.is_numeric_dtype(s) and not pd.api.types.is_bool_dtype(s):
+        out = s.to_numpy(np.float64, na_value=np.nan)
+        bad = np.isinf(out)
+        if dates and "kind" not in kind and (~np.isnan(out)).any():
+            kind["kind"] = "number"
+        if bad.any():
+            out = np.where(bad, np.nan, out)
+        return out, bad
+    out = pd.to_numeric(s.astype(object), errors="coerce").to_numpy(np.float64, na_value=np.nan)
+    bad = np.isinf(out)
+    unread = np.isnan(out) & s.notna().to_numpy()
+    if unread.any():   # (the text only then: most columns are numbers)
+        text = s.astype(str).str.strip().str.lower()
+        unread &= ~text.isin(_MISSING_TEXT).to_numpy()
+    if dates:
+        numbers = ~np.isnan(out) & ~bad
+        seconds = np.full(len(s), np.nan)
+        if unread.any():
+            seconds[unread] = iso_seconds(s[unread].astype(object), errors="coerce")
+        dated = ~np.isnan(seconds)
+        if "kind" not in kind and (numbers | dated).any():
+            first = int(np.argmax(numbers | dated))
+            kind["kind"] = "number" if numbers[first] else "date-time"
+        if kind.get("kind") == "date-time":
+            bad |= numbers | (unread & ~dated)
+            out = seconds
+        else:
+            bad |= unread
+    else:
+        bad |= unread
+    if bad.any():
+        out = np.where(bad, np.nan, out)
+    return out, bad
+
+
+def _bad_value(s: pd.Series, i: int, name: str, dates: bool = False, kind: dict | None = None) -> str:
+    """Why row ``i`` of a column is bad (:func:`_read_floats`), in a few words that name the column and the value."""
+    value = s.iloc[i:i + 1].tolist()[0]
+    try:
+        number = float(str(value).strip())
+    except ValueError:
+        number = None
+    if dates:
+        column = (kind or {}).get("kind")
+        if column == "date-time" and number is not None and np.isfinite(number):
+            return (f"column {name!r} holds a number ({value!r}) where its first time is a date-time; expected one "
+                    "or the other")
+        if column == "number" and isinstance(value, str) and not np.isnan(iso_seconds([value], errors="coerce")[0]):
+            return (f"column {name!r} holds a date-time ({value!r}) where its first time is a number; expected one "
+                    "or the other")
+        if number is None or column == "date-time":
+            return (f"column {name!r} must hold a number or an ISO 8601 date-time (like 2024-05-01T12:00:00.5Z), "
+                    f"got {value!r}")
+    if number is not None:
+        return f"column {name!r} must be finite, got {value!r}"
+    return f"column {name!r} must hold a number, got {value!r}"
+
+
 def _to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.ndarray:
     """Column to float64; ValueError at the first value that is not a number. ``dates``: a text column of
     ISO 8601 date-times is read as seconds since 1970 UTC (:func:`iso_seconds`), as a datetime column is."""
@@ -500,45 +574,76 @@ def _csv_options(cols: TrackColumns, ids_as_text: bool, time_as_text: bool = Fal
 
 def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
                counts: dict | None = None, first_appearance: bool = False, as_given: bool = False,
-               given_time: pd.Series | None = None) -> pd.DataFrame:
+               given_time: pd.Series | None = None, *, on_bad_row: str = "fail", lines: _ChunkLines | None = None,
+               time_kind: dict | None = None, where: str = "row") -> pd.DataFrame:
     """Validate one raw table (or chunk) into the canonical sorted long table; ``as_given``: with its rows as
     the file gave them in ``attrs["as_given"]`` (:class:`AsGiven`; ``given_time``: the time column's values
-    to keep, when not ``raw``'s own)."""
+    to keep, when not ``raw``'s own).
+
+    A bad row (:data:`ON_BAD_ROW`: a field count not the header's, given in ``lines``; no track id; a time or
+    position that is not a finite number, or a date-time for a time) raises a ``ValueError`` naming its line
+    (``lines``) or row with ``on_bad_row="fail"``; with ``"skip"`` it is left out of the table, keeps its
+    place in ``as_given`` as a row not stepped, and is listed in ``attrs["bad_rows"]`` (:class:`BadRows`).
+    ``time_kind``: the time column's kind (numbers or date-times) across a file's chunks."""
     if len(raw) == 0:
         raise ValueError("The track file has no rows (only a header or nothing at all)")
+    if on_bad_row not in ON_BAD_ROW:
+        raise ValueError(f"on_bad_row: expected one of {list(ON_BAD_ROW)}, got {on_bad_row!r}")
     n = len(raw)
+    bad = np.zeros(n, dtype=bool)
+    why: dict[int, str] = {}
+
+    def mark(rows: np.ndarray, reason) -> None:
+        for i in np.flatnonzero(rows & ~bad):
+            why[int(i)] = reason(int(i))
+        bad[rows] = True
+
+    if lines is not None and lines.fields is not None:
+        mark(lines.fields != lines.width,
+             lambda i: f"expected {lines.width} fields like the header, got {lines.fields[i]}")
     if cols.track_id is None:
         ids = pd.Series(np.zeros(n, dtype=np.int64))
     else:
         ids = raw[cols.track_id].reset_index(drop=True)
         if ids.dtype == np.float16:   # pandas cannot group or index float16: the same values in float32
             ids = ids.astype(np.float32)
-        if ids.isna().any():
-            i = int(np.argmax(ids.isna().to_numpy()))
-            raise ValueError(f"Column {cols.track_id!r} (track id) must not be empty; row {offset + i} (counted from "
-                             "0 after the header) has no id")
+        mark(ids.isna().to_numpy(), lambda i: f"column {cols.track_id!r} (track id) is empty")
     out = pd.DataFrame({"track_id": ids})
     if cols.time is None:
-        k = out.groupby("track_id", sort=False).cumcount().to_numpy(np.float64)
-        if counts is not None:  # continue each track's row count across chunks
-            k += out["track_id"].map(counts).fillna(0).to_numpy(np.float64)
-            for tid, c in out["track_id"].value_counts().items():
-                counts[tid] = counts.get(tid, 0) + int(c)
-        out["time"] = k
+        out["time"] = np.nan   # numbered below, once the bad rows are known
     else:
-        out["time"] = _to_float(raw[cols.time].reset_index(drop=True), cols.time, offset, dates=True)
+        column = raw[cols.time].reset_index(drop=True)
+        kind = {} if time_kind is None else time_kind
+        out["time"], wrong = _read_floats(column, dates=True, kind=kind)
+        mark(wrong, lambda i: _bad_value(column, i, cols.time, True, kind))
     for p in cols.positions:
-        out[p] = _to_float(raw[p].reset_index(drop=True), p, offset)
+        column = raw[p].reset_index(drop=True)
+        out[p], wrong = _read_floats(column)
+        mark(wrong, lambda i, column=column, p=p: _bad_value(column, i, p))
+    named = (lambda i: f"line {lines.lines[i]}") if lines is not None and lines.lines is not None else (
+        lambda i: f"row {offset + i} (counted from 0{' after the header' if where == 'row' else ''})")
+    if bad.any() and on_bad_row == "fail":
+        i = int(np.argmax(bad))
+        raise ValueError(f"{named(i)}: {why[i]}")
+    if cols.time is None:   # each track's row number, continued across chunks; a bad row takes none
+        kept = out[~bad]
+        k = kept.groupby("track_id", sort=False).cumcount().to_numpy(np.float64)
+        if counts is not None:  # continue each track's row count across chunks
+            k += kept["track_id"].map(counts).fillna(0).to_numpy(np.float64)
+            for tid, c in kept["track_id"].value_counts().items():
+                counts[tid] = counts.get(tid, 0) + int(c)
+        times = np.full(n, np.nan)
+        times[~bad] = k
+        out["time"] = times
 
-    no_time = np.isnan(out["time"].to_numpy())
+    no_time = np.isnan(out["time"].to_numpy()) & ~bad
     if no_time.any():
         warnings.warn(f"{int(no_time.sum())} row(s) have no time in column {cols.time!r}: not predicted (their "
                       "output rows have empty predictions)" if as_given else
                       f"Dropped {int(no_time.sum())} row(s) with a missing time in column {cols.time!r}",
-                      RuntimeWarning, stacklevel=3)
-        out = out[~no_time]
-    if out.empty:
-        raise ValueError("The track file has no rows with a time")
+                      DroppedRowWarning, stacklevel=3)
+    if no_time.any() or bad.any():
+        out = out[~(no_time | bad)]
     back = int((out.groupby("track_id", sort=False)["time"].diff() < 0).sum())
     if back:
         warnings.warn(f"Times decrease at {back} row(s) within tracks; sorted each track's rows "
@@ -558,13 +663,16 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
         warnings.warn(f"{int(dup.sum())} row(s) repeat a timestamp within their track; " + (
                       "the last row of each repeated time is predicted, the others' output rows have empty "
                       "predictions" if as_given else "kept the last row of each repeated time"),
-                      RuntimeWarning, stacklevel=3)
+                      DroppedRowWarning, stacklevel=3)
     sorted_places = out.index.to_numpy()
     if dup.any():
         out = out[~dup]
     out.attrs["file_order"] = _RowOrder(out.index.to_numpy())   # each row's place in the file (read on demand)
+    out.attrs["dropped"] = {"untimed": int(no_time.sum()), "repeated": int(dup.sum())}
     if as_given:
-        out.attrs["as_given"] = AsGiven.of(raw, cols, sorted_places, dup, no_time, given_time)
+        out.attrs["as_given"] = AsGiven.of(raw, cols, sorted_places, dup, no_time | bad, given_time)
+    if bad.any():
+        out.attrs["bad_rows"] = BadRows.of(raw, cols, np.flatnonzero(bad), why, offset, lines, named)
     return out.reset_index(drop=True)
 
 
@@ -596,9 +704,10 @@ class AsGiven:
         Each chunk row's file row (counted from the chunk's first).
     owner : ndarray of int, shape (rows,)
         For each file row, the chunk row whose fate it shares: itself where it is one; for an
-        earlier row of a repeated time, the row kept for that time; for a row without a time,
-        that of the file row before it (or, at the chunk's start, after it). A resumed run
-        writes a file row only if that chunk row was stepped (not skipped as already done).
+        earlier row of a repeated time, the row kept for that time; for a row without a time
+        or a bad row, that of the file row before it (or, at the chunk's start, after it); -1
+        in a chunk without a row to step. A resumed run writes a file row only if that chunk
+        row was stepped (not skipped as already done).
     """
 
     def __init__(self, rows, ids, times, places, owner):
@@ -615,7 +724,9 @@ class AsGiven:
         kept = np.cumsum(~dup)   # chunk row of a kept sorted row + 1; of a dropped one, the next kept
         owner = np.empty(n, dtype=np.int64)
         owner[sorted_places] = np.where(dup, kept, kept - 1)
-        if no_time.any():
+        if no_time.all():   # no row stepped (every row bad or without a time): each its own, none stepped
+            owner[:] = -1
+        elif no_time.any():
             timed = np.flatnonzero(~no_time)
             after = np.searchsorted(timed, np.flatnonzero(no_time))
             owner[no_time] = owner[timed[np.where(after > 0, after - 1, 0)]]
@@ -624,6 +735,179 @@ class AsGiven:
             given_time = raw[cols.time]
         times = None if given_time is None else given_time.reset_index(drop=True)
         return cls(n, ids, times, sorted_places[~dup], owner)
+
+
+#: What a reader does with a bad row: ``"skip"`` it (left out of the table, listed in ``attrs["bad_rows"]``
+#: and warned of with a :class:`BadRowWarning`), or ``"fail"``: a ``ValueError`` that names its line.
+#: A bad row is one whose field count is not the header's (CSV), whose track id is empty, or whose time or a
+#: position is not a finite number (a time may be an ISO 8601 date-time, if the column's first time is one).
+#: An empty cell or ``nan`` is not bad: it is a missing measurement (a missing time: a row not predicted).
+ON_BAD_ROW = ("skip", "fail")
+
+
+class DroppedRowWarning(RuntimeWarning):
+    """Rows of a file are not in the table read: rows without a time, the earlier rows of a repeated time, and
+    (:class:`BadRowWarning`) bad rows; the message counts them."""
+
+
+class BadRowWarning(DroppedRowWarning):
+    """Bad rows were skipped by a reader (``on_bad_row="skip"``): the message counts them and names the first."""
+
+
+class BadRows:
+    """The bad rows a reader skipped in a table or chunk (``attrs["bad_rows"]``).
+
+    Attributes
+    ----------
+    rows : ndarray of int
+        File rows, counted from 0 after the header.
+    local : ndarray of int
+        The same rows counted from the chunk's first.
+    places : list of str
+        Where each is: ``line N`` (the CSV file's line, counted from 1 with the header) or ``row N``.
+    reasons : list of str
+        Why each is bad.
+    texts : list of str
+        Each row as the file gave it: a CSV line as written (without its line end; "" when the
+        lines were not kept), a Parquet row's used columns as a JSON object.
+    """
+
+    def __init__(self, rows, places, reasons, texts, local=None):
+        self.rows, self.places, self.reasons, self.texts = rows, places, reasons, texts
+        self.local = rows if local is None else local
+
+    def __deepcopy__(self, memo):   # in attrs, as _RowOrder
+        return self
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    @classmethod
+    def of(cls, raw, cols, rows, why, offset, lines, named) -> BadRows:
+        if lines is not None and lines.texts is not None:
+            texts = [lines.texts[i] for i in rows]
+        elif lines is not None:
+            texts = [""] * len(rows)
+        else:
+            import json
+
+            used = raw[cols.names].iloc[rows]
+            texts = [json.dumps({str(k): (None if v is None or (isinstance(v, float) and np.isnan(v)) else
+                                          v if isinstance(v, (int, float, str, bool)) else str(v))
+                                 for k, v in record.items()}) for record in used.to_dict("records")]
+        return cls(offset + rows, [named(int(i)) for i in rows], [why[int(i)] for i in rows], texts, rows)
+
+    @classmethod
+    def concat(cls, parts) -> BadRows | None:
+        parts = [part for part in parts if part is not None and len(part)]
+        if not parts:
+            return None
+        return cls(np.concatenate([part.rows for part in parts]), [p for part in parts for p in part.places],
+                   [r for part in parts for r in part.reasons], [t for part in parts for t in part.texts])
+
+    def summary(self, shown: int = 10) -> str:
+        """``N bad row(s) skipped (line 12: why; line 599, ...)``: the count, the first's reason, the first places."""
+        places = ", ".join(self.places[:shown]) + (", ..." if len(self) > shown else "")
+        return f"{len(self)} bad row(s) skipped ({places}; the first: {self.reasons[0]})"
+
+
+class _ChunkLines(NamedTuple):
+    """A CSV chunk's rows as :class:`_CsvLines` read them: each row's line (counted from 1 with the header),
+    field count and, when kept, text; ``width``: the header's field count. ``lines`` and ``fields`` are None
+    where the two readers did not agree (rows are then named by their number)."""
+
+    lines: np.ndarray | None
+    fields: np.ndarray | None
+    width: int
+    texts: list | None
+
+
+class _CsvLines:
+    """The physical line, field count and (``texts``) text of each data row of a CSV file, read alongside
+    pandas' reader with Python's csv module: pandas gives the values, but pads a short row with missing
+    values and, reading some columns, takes a long one as it is, and does not say where a row's line is.
+
+    Blank lines are skipped as pandas skips them. Should the two readers ever disagree on the rows (a
+    chunk's last row not the same id, or the file ending early here), the lines are dropped from there
+    on: rows are then named by their number, and field counts not checked."""
+
+    def __init__(self, path, texts: bool = False, check: int | None = None):
+        import csv
+        import gzip
+
+        opener = gzip.open if os.fspath(path).lower().endswith(".gz") else open
+        self.handle = opener(path, "rt", encoding="utf-8-sig", errors="replace", newline="")
+        self.keep = texts
+        self.pending: list[str] = []
+        self.limit = csv.field_size_limit()
+        self.reader = csv.reader(self._lines() if texts else self.handle)
+        self.check = check   # the column compared with pandas' at each chunk's last row
+        self.ok = True
+        self.width = 0
+        with self._no_field_limit():
+            for record in self.reader:
+                if not _blank(record):
+                    self.width = len(record)
+                    break
+        self.pending.clear()
+
+    def _lines(self):
+        for line in self.handle:
+            self.pending.append(line)
+            yield line
+
+    @contextlib.contextmanager
+    def _no_field_limit(self):
+        import csv
+
+        csv.field_size_limit(max(self.limit, 2**31 - 1))   # a long field is pandas' to read (or an unused one)
+        try:
+            yield
+        finally:
+            csv.field_size_limit(self.limit)
+
+    def take(self, n: int, checked: pd.Series | None = None) -> _ChunkLines:
+        """The next ``n`` rows; ``checked``: pandas' values of column :attr:`check` for them (text)."""
+        if not self.ok:
+            return _ChunkLines(None, None, self.width, None)
+        lines = np.empty(n, dtype=np.int64)
+        fields = np.empty(n, dtype=np.int64)
+        texts: list | None = [] if self.keep else None
+        reader, pending, i = self.reader, self.pending, 0
+        last = None
+        with self._no_field_limit():
+            while i < n:
+                before = reader.line_num
+                try:
+                    record = next(reader)
+                except (StopIteration, Exception):   # noqa: BLE001 - pandas reads the file; here only lines
+                    self.ok = False
+                    break
+                if _blank(record):
+                    pending.clear()
+                    continue
+                lines[i], fields[i], last = before + 1, len(record), record
+                if texts is not None:
+                    texts.append("".join(pending).rstrip("\r\n"))
+                    pending.clear()
+                i += 1
+        if self.ok and checked is not None and self.check is not None and n:
+            value = checked.iloc[-1]
+            mine = last[self.check] if self.check < len(last) else None
+            if isinstance(value, str) and mine is not None and mine != value:
+                self.ok = False
+        if not self.ok:
+            self.close()
+            return _ChunkLines(None, None, self.width, None)
+        return _ChunkLines(lines, fields, self.width, texts)
+
+    def close(self) -> None:
+        self.handle.close()
+
+
+def _blank(record) -> bool:
+    """A csv record of a line pandas skips (empty, or spaces and tabs only)."""
+    return not record or (len(record) == 1 and not record[0].strip(" \t"))
 
 
 def in_file_order(table: pd.DataFrame) -> pd.DataFrame:
@@ -696,7 +980,7 @@ def _resolve(header: list[str], columns: TrackColumns | None) -> TrackColumns:
 
 
 def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: TrackColumns | None = None,
-                format: str | None = None, ids_as_text: bool = False) -> pd.DataFrame:
+                format: str | None = None, ids_as_text: bool = False, on_bad_row: str = "fail") -> pd.DataFrame:
     """Read a CSV (optionally ``.gz``) or Parquet track file into a track table.
 
     Parameters
@@ -711,6 +995,11 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
         Overrides the extension.
     ids_as_text : bool, default False
         Read a CSV id column as text exactly as written (see the module docstring).
+    on_bad_row : {'fail', 'skip'}, default 'fail'
+        A bad row (a CSV row whose field count is not the header's, an empty track id, a time or
+        position that is not a finite number; see :data:`ON_BAD_ROW`): ``'fail'`` raises a
+        ``ValueError`` naming its line (CSV file) or row; ``'skip'`` leaves it out, with a
+        :class:`BadRowWarning`, and lists it in ``attrs["bad_rows"]`` (:class:`BadRows`).
 
     Returns
     -------
@@ -727,6 +1016,7 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
     """
     fmt = _format_of(path_or_buffer, format)
     is_path = isinstance(path_or_buffer, (str, os.PathLike))
+    lines = None
     if is_path:
         cols = _resolve(_header(path_or_buffer, fmt), columns)
         _check_unique(path_or_buffer, fmt, cols)
@@ -735,6 +1025,12 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
             raw = pq.read_table(path_or_buffer, columns=cols.names).to_pandas()
         else:
             raw = pd.read_csv(path_or_buffer, usecols=cols.names, **_csv_options(cols, ids_as_text))
+            if len(raw):
+                reader = _CsvLines(path_or_buffer, check=_checked_column(path_or_buffer, cols, ids_as_text))
+                try:
+                    lines = reader.take(len(raw), raw[cols.track_id] if reader.check is not None else None)
+                finally:
+                    reader.close()
     else:
         if fmt == "parquet":
             raw = pd.read_parquet(path_or_buffer)
@@ -744,12 +1040,30 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
             except pd.errors.EmptyDataError:
                 raise ValueError("The track file has no rows (it is empty)") from None
         cols = _resolve([str(c) for c in raw.columns], columns)
-    return _normalise(raw, cols, first_appearance=ids_as_text and fmt == "csv" and is_path)
+    table = _normalise(raw, cols, first_appearance=ids_as_text and fmt == "csv" and is_path,
+                       on_bad_row=on_bad_row, lines=lines, where="parquet" if fmt == "parquet" else "row")
+    bad = table.attrs.get("bad_rows")
+    if table.empty:
+        raise ValueError("The track file has no rows with a time" if bad is None else
+                         f"The track file has no row to read: {bad.summary()}")
+    if bad is not None:
+        warnings.warn(bad.summary(), BadRowWarning, stacklevel=2)
+    return table
+
+
+def _checked_column(path, cols: TrackColumns, ids_as_text: bool) -> int | None:
+    """The header position of the id column, when pandas reads it as text (:class:`_CsvLines` compares the
+    two readers' rows on it); None otherwise."""
+    if not ids_as_text or cols.track_id is None:
+        return None
+    header = _header(path, "csv")
+    return header.index(cols.track_id) if header.count(cols.track_id) == 1 else None
 
 
 def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None = None,
                       chunk_rows: int = 1_000_000, format: str | None = None, ids_as_text: bool = False,
-                      as_given: bool = False) -> Iterator[pd.DataFrame]:
+                      as_given: bool = False, on_bad_row: str = "fail", bad_texts: bool = False
+                      ) -> Iterator[pd.DataFrame]:
     """Read a huge CSV or Parquet track file in bounded memory, chunk by chunk.
 
     Chunks of at most `chunk_rows` file rows come in file order (pandas
@@ -779,6 +1093,12 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
     as_given : bool, default False
         Also keep each chunk's file rows as the file gave them, in ``chunk.attrs["as_given"]``
         (:class:`AsGiven`): a CSV time column is then read as text (the same numbers).
+    on_bad_row : {'fail', 'skip'}, default 'fail'
+        As in :func:`read_tracks`: ``'skip'`` leaves a bad row out of its chunk, lists it in
+        ``chunk.attrs["bad_rows"]`` (:class:`BadRows`) and warns (:class:`BadRowWarning`) once a
+        chunk; a chunk may then be empty.
+    bad_texts : bool, default False
+        Keep a skipped CSV row's line as written (:attr:`BadRows.texts`), for a file of rejects.
 
     Yields
     ------
@@ -793,7 +1113,9 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
     _check_unique(path, fmt, cols)
     last: dict = {}
     counts: dict | None = {} if cols.time is None else None
-    offset = 0
+    time_kind: dict = {}
+    offset = kept = skipped = 0
+    lines = None
     with contextlib.ExitStack() as stack:
         if fmt == "parquet":
             import pyarrow.parquet as pq
@@ -804,11 +1126,21 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
             reader = stack.enter_context(pd.read_csv(path, usecols=cols.names, chunksize=int(chunk_rows),
                                                      **_csv_options(cols, ids_as_text, as_given)))
             batches = ((raw, None) for raw in reader)
+            lines = _CsvLines(path, texts=bad_texts, check=_checked_column(path, cols, ids_as_text))
+            stack.callback(lines.close)
         for raw, given_time in batches:
             if len(raw) == 0:
                 continue
+            where = None if lines is None else lines.take(
+                len(raw), raw[cols.track_id] if lines.check is not None else None)
             chunk = _normalise(raw, cols, offset, counts, first_appearance=ids_as_text and fmt == "csv",
-                               as_given=as_given, given_time=given_time)
+                               as_given=as_given, given_time=given_time, on_bad_row=on_bad_row, lines=where,
+                               time_kind=time_kind, where="parquet" if fmt == "parquet" else "row")
+            bad = chunk.attrs.get("bad_rows")
+            if bad is not None:
+                skipped += len(bad)
+                warnings.warn(bad.summary(), BadRowWarning, stacklevel=2)
+            kept += len(chunk)
             firsts = chunk.groupby("track_id", sort=False)["time"].first()
             prev = firsts.index.map(last).to_numpy(np.float64, na_value=np.nan)
             back = prev >= firsts.to_numpy()
@@ -825,6 +1157,9 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
             yield chunk
     if offset == 0:
         raise ValueError(f"The track file {os.fspath(path)!r} has no rows (only a header)")
+    if kept == 0:
+        raise ValueError(f"The track file {os.fspath(path)!r} has no rows with a time" + (
+            f" ({skipped} bad row(s) skipped)" if skipped else ""))
 
 
 def _given_column(batch, name: str | None) -> pd.Series | None:
