@@ -117,11 +117,14 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     version-``version`` file (without the archive ``members`` and the ``settings``), loaded and run over the
     rest: ``(whole, resumed, loaded predictor, the saved archive)``. Both run as such a file ran: before
     version 9, the lead head learned at the one-step rate (``lead_delay`` 1, a setting those files lack);
-    before version 10, BOA did not clip (``clip`` inf, and no error scale in the state)."""
+    before version 10, BOA did not clip (``clip`` inf, and no error scale in the state); before version 11 there was
+    no ``geographic`` setting (positions were flat)."""
     import json
 
     if version < 9:
         config, settings = {**config, "lead_delay": 1.0}, (*settings, "lead_delay")
+    if version < 11:
+        settings = (*settings, "geographic")
     if version < 10:
         config = {**config, "rule_options": {"clip": float("inf"), **config.get("rule_options", {})}}
         members = (*members, *CLIP_MEMBERS)
@@ -132,7 +135,7 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     first.save(tmp_path / "s.npz")
     saved = dict(np.load(tmp_path / "s.npz"))
     meta = json.loads(str(saved["meta"]))
-    assert meta["format_version"] == STATE_FORMAT_VERSION == 10
+    assert meta["format_version"] == STATE_FORMAT_VERSION == 11
     meta["format_version"] = version
     for name in settings:
         del meta["config"][name]
@@ -343,7 +346,8 @@ def test_table_gap_rule_equals_rows():
 
 @pytest.mark.parametrize("missing", [None, np.nan, pd.NA])
 def test_a_row_without_a_track_id_is_refused_and_changes_nothing(missing):
-    table = pd.DataFrame({"track_id": ["a", "a", missing, "a"], "time": [0.0, 1.0, 2.0, 3.0], "x": [0.0, 1.0, 2.0, 3.0]})
+    table = pd.DataFrame({"track_id": ["a", "a", missing, "a"], "time": [0.0, 1.0, 2.0, 3.0],
+                          "x": [0.0, 1.0, 2.0, 3.0]})
     engine = TrackPredictor(StreamConfig(n_experts=2, bank="kinematic"))
     engine.process_table(table.iloc[:2])
     before = {k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, engine.config.time_unit
@@ -468,9 +472,9 @@ def test_step_rows_equal_stream_rows_by_definition(time_unit, lead):
 
 
 def _leaves_of(state):
-    from kalmix.streaming import _leaves
+    from kalmix.core.engine import tree_leaves
 
-    return [array for _, array in _leaves(state)]
+    return [array for _, array in tree_leaves(state)]
 
 
 def test_step_rows_is_all_or_nothing():
@@ -490,8 +494,6 @@ def test_step_rows_is_all_or_nothing():
 def test_python_api_review_fixes():
     """From a hostile review of the Python API: each of these went wrong silently."""
     import warnings
-
-    import pandas as pd
 
     # the predictor learns its time unit into its own copy of the settings, not into the caller's
     config = StreamConfig(length_unit=0.05)
@@ -569,7 +571,8 @@ def test_settings_and_rows_that_were_taken_silently_or_failed_late(tmp_path):
     engine.save(tmp_path / "s.npz")
     loaded = TrackPredictor.load(tmp_path / "s.npz")
     assert loaded.config.n_experts == 4 and loaded.config.options == {"forgetting_levels": [0.9, 0.99]}
-    np.testing.assert_array_equal(loaded.step_row("a", 3.0, [3.0, 0.0]).next, engine.step_row("a", 3.0, [3.0, 0.0]).next)
+    np.testing.assert_array_equal(loaded.step_row("a", 3.0, [3.0, 0.0]).next,
+                                  engine.step_row("a", 3.0, [3.0, 0.0]).next)
     mixture = MixturePredictor(4, seed=np.int64(1))
     mixture.step(np.array([1.0, 2.0, 3.0]))
     mixture.save(tmp_path / "m.npz")
@@ -588,7 +591,7 @@ def test_settings_and_rows_that_were_taken_silently_or_failed_late(tmp_path):
     assert engine.step_row("a", 4.0, np.ones((1, 2))) is not None
     with pytest.raises(ValueError, match="table: position column 'name' must hold numbers, got"):
         TrackPredictor(StreamConfig(length_unit=0.5)).process_table(
-            pd.DataFrame({"track_id": ["a"], "time": [0.0], "x": [1.0], "name": ["car"]}))
+            pd.DataFrame({"track_id": ["a"], "time": [0.0], "x": [1.0], "name": ["car"]}), ["x", "name"])
 
 
 def test_ids_that_are_missing_values_and_datetime_helpers():
@@ -625,7 +628,8 @@ def _arrival_tables():
         settings = ({"lead": 0.7}, {"horizon": 2}, {"lead": 0.7, "max_gap": 0.5}, {"horizon": 3, "max_gap": 1.0})
         out.append((table.reset_index(drop=True), settings[seed]))
     glitch = pd.DataFrame({"track_id": list("aabbabab"), "time": [10.0, 5.0, 0.0, 2.0, 5.5, 4.0, 6.0, 6.0],
-                           "x": [0.0, 1.0, 2.0, 3.0, 1.5, 2.5, 1.0, 3.0], "y": [0.0, 0.5, 1.0, 0.0, 1.0, 2.0, 0.3, 1.0]})
+                           "x": [0.0, 1.0, 2.0, 3.0, 1.5, 2.5, 1.0, 3.0],
+                           "y": [0.0, 0.5, 1.0, 0.0, 1.0, 2.0, 0.3, 1.0]})
     out.append((glitch, {"horizon": 2}))
     one = pd.DataFrame({"track_id": [0] * 4, "time": [0.0, 10.0, 10.3, 10.6], "x": [-0.96, -0.07, -1.26, -1.0],
                         "y": [6.43, 3.43, 0.95, 0.5]})

@@ -89,14 +89,15 @@ from .bank import (DEFAULT_BANK, DEFAULT_REACH, LENGTH_UNIT_RANGE, check_horizon
 from .core.engine import Bank, BankState, init_bank_state, tree_leaves, tree_map
 
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "SkippedRowWarning", "Checkpoint",
-           "auto_length_unit", "length_unit_rule", "auto_time_unit", "learned_time_unit", "next_row_times",
+           "LengthUnitWarning", "ColumnNoteWarning", "estimate_length_unit", "length_unit_fallback", "find_columns",
+           "guess_id", "auto_length_unit", "length_unit_rule", "auto_time_unit", "learned_time_unit", "next_row_times",
            "id_to_json", "with_input_names", "STATE_FORMAT_VERSION"]
 
 #: Format version of the state files :meth:`TrackPredictor.save` writes. :meth:`TrackPredictor.load` reads
-#: versions 3 to 10 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
+#: versions 3 to 11 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
 #: versions", says what each version adds).
-STATE_FORMAT_VERSION = 10
-_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10)
+STATE_FORMAT_VERSION = 11
+_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11)
 _MAGIC = "kalmix-track-predictor"
 #: Number of first non-gap time steps whose median is a track's reference interval.
 REFERENCE_INTERVALS = 16
@@ -179,6 +180,121 @@ def auto_time_unit(times) -> float:
     return float(np.median(steps)) if steps.size else 1.0
 
 
+class LengthUnitWarning(UserWarning):
+    """``length_unit="auto"`` fell back to 1: nothing to estimate it from (the text says why, as ``kalmix predict``'s
+    note does); pass a ``length_unit``."""
+
+
+class ColumnNoteWarning(UserWarning):
+    """What :meth:`TrackPredictor.process_table` found, or did not find, among a table's columns (the notes
+    ``kalmix predict`` prints: no track id column, no time column, an id taken from a column's name)."""
+
+
+def length_unit_fallback(why: str | None, where: str, option: str, unit: str = "") -> str:
+    """The note (``kalmix predict``'s) and warning text (the Python API's) of a length unit that fell back to 1:
+    ``why`` the rule could not estimate it from ``where`` (None: ``where`` has no sample at all); ``option``
+    the setting to pass; ``unit`` the unit's name after the 1 (`` m`` for geographic data)."""
+    if why is None:
+        return f"length unit 1{unit} ({where} has no sample to estimate it from; pass {option})"
+    return f"length unit 1{unit} (auto could not estimate it: {where} has {why}; pass {option})"
+
+
+def estimate_length_unit(table, position_names=None, *, geographic: bool | None = None) -> tuple[float, str | None]:
+    """The length unit ``auto`` takes from a track table: ``kalmix predict``'s (on a file's first chunk) and
+    :meth:`TrackPredictor.process_table`'s (on its first table), one function for both.
+
+    :func:`length_unit_rule` on the table's tracks: for geographic positions (``geographic``, as
+    :class:`StreamConfig`'s) in metres, each track in the frame of its first fix
+    (:func:`kalmix.io.geo.local_table`).
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        ``track_id``, ``time`` and the positions, each track's rows in time order.
+    position_names : sequence of str, optional
+        Default: every column but ``track_id`` and ``time``.
+
+    Returns
+    -------
+    (float, str or None)
+        The unit, and why it is the fallback 1 (None when it was estimated).
+    """
+    from .io.geo import local_table, resolve_axes, std_names
+    from .io.tables import to_arrays
+
+    names = ([c for c in table.columns if c not in ("track_id", "time")] if position_names is None
+             else list(position_names))
+    axes = resolve_axes(names, geographic)
+    if axes is not None:
+        table, names = local_table(table[["track_id", "time", *names]], names, axes), list(std_names(axes))
+    return length_unit_rule(to_arrays(table, names).values)
+
+
+def find_columns(header, *, time: str | None = None, positions=None, track_id: str | None = None,
+                 sample=None):
+    """The id, time and position columns of a table with the column names ``header``: how ``kalmix predict``
+    finds them, and :meth:`TrackPredictor.process_table` when a table does not name them ``track_id`` and
+    ``time``.
+
+    :func:`kalmix.io.detect_columns` (names given win); ``track_id="none"`` (not a column):
+    one track; with no id column named or detected, :func:`guess_id`; then
+    :func:`kalmix.io.tables.check_output_names`.
+
+    Parameters
+    ----------
+    sample : callable, optional
+        ``sample(names, rows)``: the first ``rows`` rows of those columns (a DataFrame), to tell
+        whether an unused column holds track ids; None: by names only.
+
+    Returns
+    -------
+    (TrackColumns, list of str)
+        The columns and the notes a user should hear (``kalmix predict`` prints them on stderr,
+        ``process_table`` warns them as :class:`ColumnNoteWarning`).
+    """
+    import dataclasses
+
+    from .io.tables import check_output_names, column_notes, detect_columns
+
+    header = [str(c) for c in header]
+    single = track_id is not None and track_id.strip().lower() == "none" and track_id not in header
+    columns = detect_columns(header, time=time, positions=positions, track_id=None if single else track_id)
+    notes = []
+    if single:
+        columns = dataclasses.replace(columns, track_id=None)
+    elif columns.track_id is None:
+        columns, notes = guess_id(columns, header, sample)
+    check_output_names(columns)
+    return columns, notes + column_notes(columns, header, single_track=single)
+
+
+def guess_id(columns, header, sample=None):
+    """``columns`` with the unused column taken as the track id when exactly one is named like one (vessel,
+    player_id, ...; a note says so); a ``ValueError`` naming them when unused columns look like ids otherwise
+    (repeated words, whole numbers that tell apart rows of one time) or when several are named so: without an
+    id every row would be one track, the tracks' rows mixed, and never silently. Returns the columns and the
+    notes."""
+    from .io.tables import ID_SAMPLE_ROWS, detect_columns, id_candidates
+
+    unused = [name for name in header if name not in {columns.time, *columns.positions}]
+    if not unused:
+        return columns, []
+    rows = sample([*unused, *([columns.time] if columns.time else [])], ID_SAMPLE_ROWS) if sample else None
+    found = id_candidates(columns, header, rows)
+    named = [name for name, why in found if why == "its name"]
+    if len(named) == 1:
+        note = (f"note: no track id column named or detected: taking {named[0]!r} as the track id, from its name "
+                "(--id COLUMN to choose another, --id none for one track)")
+        return detect_columns(header, time=columns.time, positions=columns.positions, track_id=named[0]), [note]
+    if found:
+        which = "; ".join(f"{name!r} ({why})" for name, why in found[:4]) + ("; ..." if len(found) > 4 else "")
+        looks = "these columns look" if len(found) > 1 else "a column looks"
+        raise ValueError(f"no track id column named or detected, and {looks} like one: {which}. Without an id "
+                         f"every row is one track, the tracks' rows mixed: pass --id {found[0][0]}, or --id none "
+                         "if the input holds a single track")
+    return columns, []
+
+
 @dataclass
 class StreamConfig:
     """Settings of a :class:`TrackPredictor`, saved with its state.
@@ -190,8 +306,15 @@ class StreamConfig:
         sizes (the default bank: 119 experts in all; ``n_experts=5`` gives 84).
     seed : int
         Seed of the bank.
-    length_unit : float
-        Measurement-noise size in data units (see :func:`auto_length_unit`).
+    length_unit : float or "auto"
+        Measurement-noise size in data units (metres for geographic data; see
+        :func:`auto_length_unit`). ``"auto"`` (the default): estimated as ``kalmix predict`` does,
+        by :func:`estimate_length_unit` on the first table :meth:`TrackPredictor.process_table`
+        gets; a predictor whose first rows come through :meth:`~TrackPredictor.step_row` or
+        :meth:`~TrackPredictor.step_rows` (a live stream, with no sample to estimate from at its
+        first row) takes 1, as ``kalmix predict -`` does. Either fallback to 1 gives a
+        :class:`LengthUnitWarning`. The predictor keeps the unit it chose in its own copy of the
+        settings (``predictor.config.length_unit``), and the state file saves it.
     horizon : int
         Besides the next row, also predict ``horizon`` time units ahead (``horizon`` frames
         for frame-based experts; 1 = only the next row), with its own weights (a lead head).
@@ -226,11 +349,19 @@ class StreamConfig:
     lead_delay : float or None
         ``lead_delay`` of :func:`kalmix.bank.make_bank` (None: the lead's rows); checked always, used
         only with a lead.
+    geographic : bool or None
+        Whether the positions are latitude and longitude in degrees (and an altitude in metres):
+        then each track is predicted in metres east and north of its first fix
+        (:mod:`kalmix.io.geo`), latitudes beyond ±90° or longitudes beyond ±180° are refused, the
+        forecasts come back in degrees and their standard deviations in metres (``std_east_m``,
+        ``std_north_m``). None (the default): when the position names say so (``lat``/``lon``,
+        ``latitude``/``longitude``, ...); True: the positions in the order latitude,
+        longitude[, altitude] whatever their names; False: flat numbers.
     """
 
     n_experts: int = 40
     seed: int = 0
-    length_unit: float = 1.0
+    length_unit: float | str = "auto"
     horizon: int = 1
     max_gap: float | None = None
     max_gap_factor: float = 3.0
@@ -242,6 +373,7 @@ class StreamConfig:
     lead: float | None = None
     reach: float | None = DEFAULT_REACH
     lead_delay: float | None = None
+    geographic: bool | None = None
 
     def __post_init__(self):
         from .bank import BANK_KINDS
@@ -266,7 +398,17 @@ class StreamConfig:
             raise ValueError(f"max_gap: expected a time step > 0, got {self.max_gap!r}")
         if not self.max_gap_factor > 1:
             raise ValueError(f"max_gap_factor: expected a number > 1, got {self.max_gap_factor!r}")
-        self.length_unit = check_length_unit(self.length_unit)
+        if isinstance(self.length_unit, str) and self.length_unit.strip().lower() == "auto":
+            self.length_unit = "auto"
+        elif isinstance(self.length_unit, str):
+            raise ValueError(f"length_unit: expected a number or 'auto', got {self.length_unit!r}")
+        else:
+            self.length_unit = check_length_unit(self.length_unit)
+        if self.geographic is not None and not isinstance(self.geographic, (bool, np.bool_)):
+            raise TypeError(f"geographic: expected True, False or None (detected from the position names), got "
+                            f"{type(self.geographic).__name__} {self.geographic!r:.80}")
+        if self.geographic is not None:
+            self.geographic = bool(self.geographic)
         if self.time_unit is not None and not (math.isfinite(self.time_unit) and self.time_unit > 0):
             raise ValueError(f"time_unit: expected a finite number > 0, got {self.time_unit!r}")
         if not isinstance(self.options, dict):
@@ -275,14 +417,19 @@ class StreamConfig:
             raise TypeError(f"rule_options: expected a dict of the rule's parameters, got {self.rule_options!r}")
         # every bank argument is checked now, not at the first row (a lead against a time unit still to be
         # learned is checked when it is learned: here as one unit)
-        make_params(1, self.n_experts, seed=self.seed, length_unit=self.length_unit, **self.options)
+        length = self.numeric_length_unit()
+        make_params(1, self.n_experts, seed=self.seed, length_unit=length, **self.options)
         why = short_lead(self.lead, self.time_unit)   # (a learned unit comes here too: replace(config, time_unit=))
         if why is not None:
             warnings.warn(why, RuntimeWarning, stacklevel=3)
         unit = self.time_unit if self.time_unit is not None else (self.lead if self.lead is not None else 1.0)
-        make_bank(1, self.bank, rule=self.rule, length_unit=self.length_unit, time_unit=unit,
+        make_bank(1, self.bank, rule=self.rule, length_unit=length, time_unit=unit,
                   seed=self.seed, n_akf=self.n_experts, akf_options=self.options, lead=self.lead_time(),
                   rule_options=self.rule_options, reach=self.reach, lead_delay=self.lead_delay)
+
+    def numeric_length_unit(self) -> float:
+        """``length_unit``, or 1 while it is ``"auto"`` (not chosen yet)."""
+        return 1.0 if self.length_unit == "auto" else float(self.length_unit)
 
     def lead_time(self) -> float | None:
         """The lead head's lead in time-column units: ``lead``, or ``horizon`` time units, or None."""
@@ -307,10 +454,11 @@ class SkippedRowWarning(RuntimeWarning):
 class GapTracker:
     """Causal gap detection for one track (see the module docstring)."""
 
-    __slots__ = ("last_time", "intervals", "segment", "jumped_from", "jump_counted", "glitches")
+    __slots__ = ("last_time", "intervals", "segment", "jumped_from", "jump_counted", "glitches", "origin")
 
     def __init__(self, last_time: float | None = None, intervals=(), segment: int = -1,
-                 jumped_from: float | None = None, jump_counted: bool = False, glitches: int = 0):
+                 jumped_from: float | None = None, jump_counted: bool = False, glitches: int = 0,
+                 origin=None):
         self.last_time = last_time
         self.intervals = list(intervals)
         self.segment = segment
@@ -321,10 +469,13 @@ class GapTracker:
         self.jump_counted = jump_counted
         #: rows that came back before a jump (the jump's timestamp was wrong)
         self.glitches = glitches
+        #: geographic data: the origin (latitude, longitude, height) of the track's current frame
+        #: (:func:`kalmix.io.geo.assign_frames`), None before its first fix
+        self.origin = None if origin is None else tuple(float(v) for v in origin)
 
     def copy(self) -> "GapTracker":
         return GapTracker(self.last_time, self.intervals, self.segment, self.jumped_from, self.jump_counted,
-                          self.glitches)
+                          self.glitches, self.origin)
 
     def threshold(self, config: StreamConfig) -> float:
         if config.max_gap is not None:
@@ -408,8 +559,11 @@ class GapTracker:
         return codes, segments
 
     def to_json(self) -> dict:
-        return {"last_time": self.last_time, "intervals": self.intervals, "segment": self.segment,
-                "jumped_from": self.jumped_from, "jump_counted": self.jump_counted, "glitches": self.glitches}
+        out = {"last_time": self.last_time, "intervals": self.intervals, "segment": self.segment,
+               "jumped_from": self.jumped_from, "jump_counted": self.jump_counted, "glitches": self.glitches}
+        if self.origin is not None:
+            out["origin"] = list(self.origin)
+        return out
 
 
 class RowPrediction(NamedTuple):
@@ -673,9 +827,51 @@ class TrackPredictor:
         self.output: dict | None = None
         self.loaded_version: int | None = None  # format version of the file :meth:`load` read
         self._plain: tuple | None = None   # (bank, the bank without its lead head), see _without_lead
+        self._far: tuple | None = None   # (bank, the bank that forecasts across a gap), see _far_bank
+        #: the positions' latitude, longitude and altitude (:class:`kalmix.io.geo.GeoAxes`) when they are
+        #: geographic (``config.geographic``), else None
+        self.axes = None
+        self._geo_decided = False
+        self._decide_geographic(self.position_names)
         self._unit_source: tuple | None = None   # (track, unit) the time unit was learned from, until judged
 
     # -- set-up ---------------------------------------------------------------------
+    def _decide_geographic(self, names, dim: int | None = None) -> None:
+        """Settle whether the positions are geographic (:attr:`axes`; ``config.geographic`` None: from the
+        position ``names``) once the names or the number of coordinates ``dim`` are known (the state file keeps
+        the names, so a resumed predictor settles it the same way)."""
+        from .io.geo import resolve_axes
+
+        geographic = self.config.geographic
+        if self._geo_decided or names is None and dim is None:
+            return
+        self.axes = resolve_axes(None if names is None else list(names), geographic, dim)
+        self._geo_decided = self.axes is not None or names is not None or geographic is not True
+
+    def _resolve_length_unit(self, table, names, where: str) -> None:
+        """Fix ``length_unit="auto"`` from ``table`` (:func:`estimate_length_unit`, as ``kalmix predict`` on its
+        first chunk; None: a stream's first rows, 1); a fallback to 1 warns (:class:`LengthUnitWarning`)."""
+        if self.config.length_unit != "auto":
+            return
+        from .bank import check_automatic_length_unit
+
+        metres = " m" if self.axes is not None else ""
+        if table is None:
+            unit, why = 1.0, None
+            text = length_unit_fallback(None, where, "length_unit", metres)
+        else:
+            unit, why = estimate_length_unit(table[["track_id", *names]].assign(time=0.0), names,
+                                             geographic=self.axes is not None)
+            text = None if why is None else length_unit_fallback(why, where, "length_unit", metres)
+        try:
+            self.config.length_unit = check_automatic_length_unit(unit)
+        except ValueError as error:
+            raise ValueError(str(error).replace("--length-unit", "length_unit")) from None
+        if self.params is not None:
+            self.params = self._build(self.params.measurement_dim)
+        if text is not None:
+            warnings.warn(text, LengthUnitWarning, stacklevel=4)
+
     def use_backend(self, backend: str) -> None:
         """Run on ``backend`` from now on; ``ValueError`` if it cannot run here or cannot run this bank."""
         check_backend(backend)
@@ -840,7 +1036,8 @@ class TrackPredictor:
 
         if measurement_dim is not None and (isinstance(measurement_dim, bool) or not isinstance(
                 measurement_dim, numbers.Integral) or measurement_dim < 1):
-            raise ValueError(f"measurement_dim: expected an integer >= 1 (coordinates per row), got {measurement_dim!r}")
+            raise ValueError(f"measurement_dim: expected an integer >= 1 (coordinates per row), "
+                             f"got {measurement_dim!r}")
         if self.backend != "cpu" or not numba_available():
             return
         names = list(self.position_names or ())
@@ -849,6 +1046,8 @@ class TrackPredictor:
             raise ValueError("warm_up: the number of coordinates is not known yet; pass measurement_dim")
         names = names if len(names) == p else [f"x{j}" for j in range(p)]
         config = self.config
+        if config.length_unit == "auto":   # (a made-up table: not one to estimate the unit from)
+            config = replace(config, length_unit=1.0)
         if config.time_unit is None:   # the made-up rows are 1 apart: not a unit to learn (nor to warn of a lead by)
             config = replace(config, time_unit=config.lead if config.lead is not None else 1.0)
         twin = TrackPredictor(config, names)
@@ -870,12 +1069,21 @@ class TrackPredictor:
         """
         ids = list(self.gaps) if track_ids is None else [id_to_json(t) for t in track_ids]
         tracks = {t: (self.gaps[t].copy() if t in self.gaps else None, self.states.get(t)) for t in ids}
-        return Checkpoint(self.rows, self.skipped, self.position_names, tracks, self.config.time_unit, self.outliers)
+        return Checkpoint(self.rows, self.skipped, self.position_names, tracks, self.config.time_unit, self.outliers,
+                          (self.config.length_unit, self.axes, self._geo_decided))
 
     def rollback(self, checkpoint: "Checkpoint") -> None:
         """Undo everything done since ``checkpoint`` was taken."""
         self.rows, self.skipped, self.position_names = checkpoint.rows, checkpoint.skipped, checkpoint.position_names
         self.outliers = checkpoint.outliers
+        if checkpoint.settings is not None:   # a length unit or geographic setting chosen since
+            length_unit, self.axes, self._geo_decided = checkpoint.settings
+            if self.config.length_unit != length_unit:
+                self.config.length_unit = length_unit
+                if length_unit == "auto":
+                    self.params = None   # (no track has a state yet: the unit is chosen at the first rows)
+                elif self.params is not None:
+                    self.params = self._build(self.params.measurement_dim)
         if self.config.time_unit != checkpoint.time_unit:  # a unit learned from rows now undone
             self.config.time_unit = checkpoint.time_unit
             if self.params is not None:
@@ -919,7 +1127,8 @@ class TrackPredictor:
         except (TypeError, ValueError, OverflowError):
             raise ValueError(f"time: expected a number, a date and time (datetime, ISO text) or a duration, "
                              f"got {time!r:.80}") from None
-        out = self._step_checked([_track_key(track_id, "track_id")], np.array([time]), z[None, :])[0]
+        out = self._step_checked([_track_key(track_id, "track_id")], np.array([time]), z[None, :], names,
+                                 lambda i: "z")[0]
         self._committed(names, [asked])
         return out
 
@@ -1057,12 +1266,15 @@ class TrackPredictor:
         if np.isinf(values).any():
             i = int(np.flatnonzero(np.isinf(values).any(axis=-1))[0])
             raise ValueError(f"values[{i}]: expected finite numbers (NaN for a missing measurement), got {values[i]!r}")
-        out = self._step_checked([_track_key(track, f"track_ids[{i}]") for i, track in enumerate(ids)], times, values)
+        out = self._step_checked([_track_key(track, f"track_ids[{i}]") for i, track in enumerate(ids)], times, values,
+                                 names, lambda i: f"values[{i}]")
         self._committed(names, asked)
         return out
 
-    def _step_checked(self, ids, times, values) -> list[RowPrediction | None]:
-        """:meth:`step_rows` on arguments already checked: all or nothing, row by row until the time unit is known."""
+    def _step_checked(self, ids, times, values, names=None, where=None) -> list[RowPrediction | None]:
+        """:meth:`step_rows` on arguments already checked: all or nothing, row by row until the time unit is known.
+        ``names``: the position names the rows come by (adopted when the predictor has none); ``where(i)``: how
+        an error names row ``i``."""
         self._late = None
         if not ids:
             return []
@@ -1070,6 +1282,13 @@ class TrackPredictor:
         try:
             out = []
             start = 0
+            self._decide_geographic(names if names is not None else self.position_names, values.shape[1])
+            if self.axes is not None:
+                from .io.geo import check_degrees
+
+                check_degrees(values, self.axes, names if names is not None else self.position_names,
+                              where or (lambda i: f"values[{i}]"))
+            self._resolve_length_unit(None, None, "a stream's first row")
             self._ensure_params(values.shape[1])
             while start < len(ids) and self.config.time_unit is None:   # one row at a time until it is known
                 out.extend(self._step_batch(ids[start:start + 1], times[start:start + 1], values[start:start + 1],
@@ -1118,6 +1337,26 @@ class TrackPredictor:
             outcome[i] = (gaps.segment, gaps.glitches > glitches)
         results: list[RowPrediction | None] = [None] * n_rows
         tracks = list(runs)
+        origins = None
+        if self.axes is not None and tracks:   # each row in its track's frame (kalmix.io.geo), metres
+            from .io.geo import assign_frames, to_local
+
+            origins = np.full((n_rows, 3), np.nan)
+            local = np.full((n_rows, self.axes.dim), np.nan)
+            for track in tracks:
+                rows = np.array([r for r, _, _ in runs[track]], dtype=np.int64)
+                gaps = trackers[track]
+                origins[rows], anchored, gaps.origin = assign_frames(values[rows], gaps.origin, self.axes)
+                for k in np.flatnonzero(anchored):   # a fix far from its frame: a new segment, in a new frame
+                    r, restarts, when = runs[track][k]
+                    if restarts:   # (a gap's row restarts already)
+                        continue
+                    runs[track][k] = (r, True, when)
+                    gaps.segment += 1
+                    for m in rows[k:]:
+                        outcome[m] = (outcome[m][0] + 1, outcome[m][1])
+                local[rows] = to_local(values[rows], origins[rows], self.axes)
+            values = local
         if tracks:
             lengths = np.array([len(runs[t]) for t in tracks], dtype=np.int64)
             shape = (int(lengths.max()), len(tracks))
@@ -1138,15 +1377,27 @@ class TrackPredictor:
                 result = self._run(dense, dense_times, lengths, state, restart)
                 nxt = self._run(dense, dense_times, lengths, state._replace(lead=None), restart, ahead_times,
                                 bank=self._without_lead())
+            nexts = np.full((n_rows, p), np.nan)
+            leads = np.full((n_rows, p), np.nan) if result.lead is not None else None
+            for c, track in enumerate(tracks):
+                for j, (r, _, _) in enumerate(runs[track]):
+                    nexts[r] = nxt.ahead[j, c]
+                    if leads is not None and not (j == 0 and track not in self.states):
+                        leads[r] = result.lead[j, c]   # none from a track's first row (a single position)
+            if origins is not None:   # back to degrees, each in the frame of its row
+                from .io.geo import from_local
+
+                nexts = from_local(nexts, origins, self.axes, p)
+                leads = None if leads is None else from_local(leads, origins, self.axes, p)
             for c, track in enumerate(tracks):
                 for j, (r, _, _) in enumerate(runs[track]):
                     segment, glitch = outcome[r]
                     ahead = ahead_std = None
-                    if result.lead is not None:   # none from a track's first row (a single position)
+                    if result.lead is not None:
                         first = j == 0 and track not in self.states
-                        ahead = np.full(p, np.nan) if first else result.lead[j, c]
+                        ahead = leads[r]
                         ahead_std = np.full(p, np.nan) if first else result.lead_std[j, c]
-                    results[r] = RowPrediction(track, float(times[r]), segment, nxt.ahead[j, c], ahead,
+                    results[r] = RowPrediction(track, float(times[r]), segment, nexts[r], ahead,
                                                nxt.ahead_std[j, c], ahead_std, glitch)
             for c, track in enumerate(tracks):
                 self.gaps[track] = trackers[track]
@@ -1160,16 +1411,28 @@ class TrackPredictor:
     def process_table(self, table, position_names=None, next_times=None):
         """Step every track of a track table through the batched core.
 
+        The columns are found as ``kalmix predict`` finds them in a file: a table with columns
+        named ``track_id`` and ``time`` is taken as it is (the positions: ``position_names``, else
+        those :func:`kalmix.io.detect_columns` detects among the other columns, else all of
+        them); any other table goes through :func:`find_columns`, the command's detection (an
+        id column such as ``mmsi`` or ``icao24``, a time column of numbers, datetimes or ISO 8601
+        text such as ``BaseDateTime``, positions such as ``lat``/``lon``; no id column: one
+        track; no time column: row order), whose notes come as :class:`ColumnNoteWarning`.
+        With ``length_unit="auto"`` the first table also fixes the length unit
+        (:func:`estimate_length_unit`, as the command on a file's first chunk). Geographic
+        positions (:class:`StreamConfig`'s ``geographic``) are predicted in metres and come back
+        in degrees, their standard deviations in metres (``std_east_m``, ``std_north_m``).
+
         All or nothing: an exception in the middle leaves the predictor as it was.
 
         Parameters
         ----------
         table : pandas.DataFrame
-            ``track_id``, ``time`` and position columns, each track's rows in time order
-            (as :func:`kalmix.io.read_tracks` / :func:`~kalmix.io.iter_track_chunks` give).
-            Rows continue the tracks already seen (a chunk of a big file).
+            Track rows, each track's rows in time order (as :func:`kalmix.io.read_tracks` /
+            :func:`~kalmix.io.iter_track_chunks` give, or as a feed delivers them, tracks
+            interleaved). Rows continue the tracks already seen (a chunk of a big file).
         position_names : sequence of str, optional
-            Position columns; default all but ``track_id`` and ``time``.
+            Position columns; default: detected (see above), or those of the tables before.
         next_times : mapping, optional
             Track id -> time of the track's next row after this table (a later chunk). A
             track's last row in the table is forecast for that time; without one, one
@@ -1180,13 +1443,16 @@ class TrackPredictor:
         pandas.DataFrame
             ``track_id, time, segment, pred_<pos>..., std_<pos>...`` (and ``pred<H>_<pos>``,
             ``std<H>_<pos>`` for a horizon H > 1, or ``lead_<pos>``, ``lead_std_<pos>`` with a
-            lead), one row per input row that was not skipped, in table order.
+            lead), one row per input row that was not skipped, in table order. A table whose
+            columns were detected keeps its id and time columns' names and values as given
+            (no id column: none; no time column: ``row``, each track's row number).
         """
         import pandas as pd
 
         if not isinstance(table, pd.DataFrame):
             raise TypeError(f"table: expected a pandas DataFrame (track_id, time and position columns), got "
                             f"{type(table).__name__}")
+        source, table, position_names, columns = table, *self._front_door(table, position_names)
         if next_times is not None:
             try:
                 next_times = {track: float(when) for track, when in dict(next_times).items()}
@@ -1205,11 +1471,75 @@ class TrackPredictor:
             raise ValueError(f"table: expected each of the columns track_id, time and the positions once, got {twice} "
                              f"more than once (columns: {list(table.columns)})")
         saved = self.checkpoint(pd.unique(table["track_id"]))
+        kept: list = []
         try:
-            return self._process_table(table, position_names, next_times or {})
+            names = list(position_names)
+            if self.position_names is not None and set(names) == set(self.position_names):
+                names = list(self.position_names)
+            self._decide_geographic(names)
+            if self.axes is not None:
+                from .io.geo import check_degrees
+
+                check_degrees(table[names].to_numpy(np.float64), self.axes, names,
+                              lambda i: f"table: row {i} (counted from 0)")
+            self._resolve_length_unit(table, names, "the table")
+            frame = self._process_table(table, position_names, next_times or {}, kept=kept)
         except BaseException:
             self.rollback(saved)
             raise
+        if columns is None:
+            return frame
+        rows = np.concatenate(kept) if kept else np.zeros(0, dtype=np.int64)
+        if columns.time is not None:   # the time as given (the frame's is in seconds)
+            frame["time"] = source[columns.time].iloc[rows].to_numpy()
+        if columns.track_id is not None:
+            frame["track_id"] = source[columns.track_id].iloc[rows].to_numpy()
+        return with_input_names(frame, columns)
+
+    def _front_door(self, table, position_names):
+        """``(table, positions, columns)``: a table as :meth:`_process_table` takes it (``track_id``, ``time`` in
+        seconds, the positions) and the :class:`kalmix.io.TrackColumns` found (None for a table already in that
+        form)."""
+        import pandas as pd
+
+        from .io.tables import _to_float, detect_columns
+
+        given = list(position_names) if position_names else None
+        if "track_id" in table.columns and "time" in table.columns:
+            if given is not None:
+                return table, given, None
+            if self.position_names is not None and all(name in table.columns for name in self.position_names):
+                return table, list(self.position_names), None
+            others = [c for c in table.columns if c not in ("track_id", "time")]
+            try:
+                return table, list(detect_columns([str(c) for c in others]).positions), None
+            except ValueError:
+                return table, others, None
+        if not all(isinstance(c, str) for c in table.columns):
+            raise ValueError(f"table: expected column names (text) to detect the id, time and position columns in, "
+                             f"got {list(table.columns)[:8]}; or name them track_id and time")
+        if given is None and self.position_names is not None and all(n in table.columns for n in self.position_names):
+            given = list(self.position_names)
+        columns, notes = find_columns(list(table.columns), positions=given,
+                                      sample=lambda names, rows: table[list(names)].head(rows))
+        for note in notes:
+            warnings.warn(note, ColumnNoteWarning, stacklevel=4)
+        n = len(table)
+        if columns.track_id is None:
+            ids = np.zeros(n, dtype=np.int64)
+        else:
+            ids = table[columns.track_id].to_numpy()
+        if columns.time is None:   # each track's rows in order: 0, 1, 2, ... continuing the rows seen before
+            codes, uniques = _factorize(ids)
+            count = pd.Series(codes).groupby(codes).cumcount().to_numpy(np.float64)
+            start = np.array([self.gaps[key].last_time + 1 if key in self.gaps and self.gaps[key].last_time
+                              is not None else 0.0 for key in (id_to_json(u) for u in uniques)])
+            times = count + (start[codes] if len(start) else 0.0)
+        else:
+            times = _to_float(table[columns.time].reset_index(drop=True), columns.time, 0, dates=True)
+        canonical = pd.DataFrame({"track_id": ids, "time": times,
+                                  **{name: table[name].to_numpy() for name in columns.positions}})
+        return canonical, list(columns.positions), columns
 
     def _first_step(self, ids, times) -> tuple | None:
         """``(row, track, step)``: the row of these rows, in this order, at which the time unit would be learned,
@@ -1267,8 +1597,9 @@ class TrackPredictor:
             self._learn_time_unit(found[2], found[1])
         return self.config.time_unit
 
-    def _process_table(self, table, position_names, next_times, first_row=0):
-        """``first_row``: the table's first row in the caller's table (the rows that errors name)."""
+    def _process_table(self, table, position_names, next_times, first_row=0, kept=None):
+        """``first_row``: the table's first row in the caller's table (the rows that errors name); ``kept``: a list
+        that receives the caller's rows that were stepped (arrays, in order)."""
         import pandas as pd
 
         if not pd.api.types.is_numeric_dtype(table["time"]):   # dates and durations: seconds, as files are read
@@ -1280,9 +1611,9 @@ class TrackPredictor:
             if split:
                 head, tail = table.iloc[:split], table.iloc[split:]
                 later = {**next_times, **tail.groupby("track_id", sort=False)["time"].first().to_dict()}
-                first = self._process_table(head, position_names, later, first_row)
-                return pd.concat([first, self._process_table(tail, position_names, next_times, first_row + split)],
-                                 ignore_index=True)
+                first = self._process_table(head, position_names, later, first_row, kept)
+                return pd.concat([first, self._process_table(tail, position_names, next_times, first_row + split,
+                                                             kept)], ignore_index=True)
         names = list(position_names)   # (process_table gave the default: every other column)
         if self.position_names is None:
             self.position_names = tuple(names)
@@ -1291,6 +1622,7 @@ class TrackPredictor:
         else:
             raise ValueError(f"table: expected the position columns {list(self.position_names)} (as before), got "
                              f"{names}")
+        self._decide_geographic(names, len(names))
         try:
             values = table[names].to_numpy(np.float64)
         except (TypeError, ValueError):
@@ -1304,6 +1636,11 @@ class TrackPredictor:
             i = int(np.flatnonzero(np.isinf(values).any(axis=-1))[0])
             raise ValueError(f"table: expected finite positions (NaN for a missing measurement), got {values[i]!r} "
                              f"in row {first_row + i} (counted from 0)")
+        axes = self.axes
+        if axes is not None:
+            from .io.geo import check_degrees
+
+            check_degrees(values, axes, names, lambda i: f"table: row {first_row + i} (counted from 0)")
         times = table["time"].to_numpy(np.float64)
         ids = table["track_id"].to_numpy()
         self._ensure_params(values.shape[1])
@@ -1311,6 +1648,11 @@ class TrackPredictor:
         self.rows += n_rows
 
         tracks, runs, segments, gap_rows, keep = self._gap_rule(ids, times, first_row)
+        if kept is not None:
+            kept.append(first_row + np.flatnonzero(keep))
+        restart, origins = gap_rows, None
+        if axes is not None:   # each track's rows in its frame: metres east, north (and up)
+            values, origins, restart = self._to_frames(tracks, runs, values, segments, gap_rows)
 
         shape = (n_rows, p)
         out = {"pred": np.full(shape, np.nan), "std": np.full(shape, np.nan)}
@@ -1318,40 +1660,146 @@ class TrackPredictor:
         if lead:
             out["lead"], out["lead_std"] = np.full(shape, np.nan), np.full(shape, np.nan)
         if runs:
-            lengths = np.array([len(run) for run in runs])
-            state = _stack(self._states_or_fresh(tracks))
-            rows = np.zeros((int(lengths.max()), len(tracks)), dtype=np.int64)
-            active = np.zeros(rows.shape, dtype=bool)
-            for c, run in enumerate(runs):
-                rows[:lengths[c], c] = run
-                active[:lengths[c], c] = True
-            dense = np.where(active[..., None], values[rows], np.nan)
-            dense_times = np.where(active, times[rows], np.nan)
-            result = self._run(dense, dense_times, lengths, state, active & gap_rows[rows])
-            self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
-            # a row's next-row forecast is the forecast of the next row, made before it
-            inner = active.copy()
-            inner[lengths - 1, np.arange(len(tracks))] = False
-            out["pred"][rows[inner]] = result.forecasts[1:][inner[:-1]]
-            out["std"][rows[inner]] = result.std[1:][inner[:-1]]
-            # each track's last row: for the time of its next row (later), or one reference interval on
-            last = rows[lengths - 1, np.arange(len(tracks))]
-            when = np.array([next_times.get(t, np.nan) for t in tracks], dtype=np.float64)
-            guess = times[last] + np.array([self._interval(self.gaps[t]) for t in tracks])
-            when = np.where(np.isfinite(when) & (when > times[last]), when, guess)
-            out["pred"][last], out["std"][last] = self._forecast_next(result.state, when)
-            if lead:   # none from a track's first row (a single position)
-                out["lead"][rows[active]] = result.lead[active]
-                out["lead_std"][rows[active]] = result.lead_std[active]
-                first = rows[0, [c for c, track in enumerate(tracks) if track not in self.states]]
-                out["lead"][first] = out["lead_std"][first] = np.nan
+            new_tracks = [track not in self.states for track in tracks]
+            stacked = _stack(self._states_or_fresh(tracks))
+            where = [(stacked, c) for c in range(len(tracks))]   # each track's state: (a stacked state, its column)
+            # a track's rows are stepped in pieces that end before a time gap: the forecast across the gap is made
+            # by _forecast_far (only the constant-velocity experts extrapolate so far), the rest as in one run
+            pieces = [np.split(run, np.flatnonzero(gap_rows[run[1:]]) + 1) for run in runs]
+            for wave in range(max(len(piece) for piece in pieces)):
+                columns = [c for c in range(len(tracks)) if len(pieces[c]) > wave]
+                wave_runs = [pieces[c][wave] for c in columns]
+                lengths = np.array([len(run) for run in wave_runs])
+                held = [where[c] for c in columns]
+                if all(h[0] is held[0][0] for h in held) and [h[1] for h in held] == list(
+                        range(len(held[0][0].screen.time))):
+                    state = held[0][0]   # every track of one state, in order (the first piece, or the only one)
+                else:
+                    state = _stack([_take(h[0], slice(h[1], h[1] + 1)) for h in held])
+                rows = np.zeros((int(lengths.max()), len(columns)), dtype=np.int64)
+                active = np.zeros(rows.shape, dtype=bool)
+                for k, run in enumerate(wave_runs):
+                    rows[:lengths[k], k] = run
+                    active[:lengths[k], k] = True
+                dense = np.where(active[..., None], values[rows], np.nan)
+                dense_times = np.where(active, times[rows], np.nan)
+                result = self._run(dense, dense_times, lengths, state, active & restart[rows])
+                self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
+                # a row's next-row forecast is the forecast of the next row, made before it
+                inner = active.copy()
+                inner[lengths - 1, np.arange(len(columns))] = False
+                out["pred"][rows[inner]] = result.forecasts[1:][inner[:-1]]
+                out["std"][rows[inner]] = result.std[1:][inner[:-1]]
+                # each piece's last row: for the time of its next row (after a gap, a later table), or one
+                # reference interval on
+                last = rows[lengths - 1, np.arange(len(columns))]
+                when = np.array([next_times.get(tracks[c], np.nan) if len(pieces[c]) == wave + 1
+                                 else times[pieces[c][wave + 1][0]] for c in columns], dtype=np.float64)
+                guess = times[last] + np.array([self._interval(self.gaps[tracks[c]]) for c in columns])
+                when = np.where(np.isfinite(when) & (when > times[last]), when, guess)
+                out["pred"][last], out["std"][last] = self._forecast_next(result.state, when)
+                far = np.array([len(pieces[c]) > wave + 1 or when[k] - times[last[k]] > self.gaps[tracks[c]].threshold(
+                    self.config) for k, c in enumerate(columns)], dtype=bool)
+                if far.any():   # the next row comes after a gap
+                    index = np.flatnonzero(far)
+                    out["pred"][last[index]], out["std"][last[index]] = self._forecast_far(
+                        _take(result.state, index), when[index])
+                if lead:   # none from a track's first row (a single position)
+                    out["lead"][rows[active]] = result.lead[active]
+                    out["lead_std"][rows[active]] = result.lead_std[active]
+                    if wave == 0:
+                        first = rows[0, [k for k, c in enumerate(columns) if new_tracks[c]]]
+                        out["lead"][first] = out["lead_std"][first] = np.nan
+                for k, c in enumerate(columns):
+                    where[c] = (result.state, k)
             for c, track in enumerate(tracks):
-                self.states[track] = _take(result.state, slice(c, c + 1))
+                held, k = where[c]
+                self.states[track] = _take(held, slice(k, k + 1))
+        if origins is not None:   # the forecasts back to degrees, each in the frame of the row it was made after
+            from .io.geo import from_local
+
+            for key in ("pred", "lead"):
+                if key in out:
+                    out[key] = from_local(out[key], origins, axes, p)
         frame = pd.DataFrame({"track_id": ids[keep], "time": times[keep], "segment": segments[keep]})
-        for key, prefix in self._columns().items():
-            for j, name in enumerate(names):
-                frame[f"{prefix}{name}"] = out[key][keep, j]
+        for key, column_names in self.output_columns().items():
+            for j, name in enumerate(column_names):
+                frame[name] = out[key][keep, j]
         return frame
+
+    def _to_frames(self, tracks, runs, values, segments, gap_rows):
+        """Geographic rows in their tracks' frames (:func:`kalmix.io.geo.assign_frames`): the values in metres
+        (east, north[, up]), each row's frame origin ``(n, 3)`` (NaN for rows not stepped or before their
+        track's first fix), and the rows that restart their track (the gap rule's and those that start a new
+        frame; ``segments`` and the trackers count the latter as new segments)."""
+        from .io.geo import REANCHOR_M, assign_frames, chord, origin_of, to_local
+
+        axes = self.axes
+        n = len(values)
+        origins = np.full((n, 3), np.nan)
+        restart = gap_rows.copy()
+        lengths = np.array([len(run) for run in runs])
+        rows = np.concatenate(runs)
+        owner = np.repeat(np.arange(len(tracks)), lengths)
+        valid = np.isfinite(values[rows]).all(axis=1)
+        known = np.full((len(tracks), 3), np.nan)
+        for c, track in enumerate(tracks):
+            if self.gaps[track].origin is not None:
+                known[c] = self.gaps[track].origin
+        # a track without a frame yet: its first fix here (the rows before it have none)
+        fresh = np.isnan(known[:, 0])
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+        position = np.arange(len(rows)) - starts[owner]
+        first = np.full(len(tracks), np.iinfo(np.int64).max)
+        if valid.any():
+            ids, at = np.unique(owner[valid], return_index=True)
+            first[ids] = position[np.flatnonzero(valid)[at]]
+        for c in np.flatnonzero(fresh & (first < np.iinfo(np.int64).max)):
+            known[c] = origin_of(values[runs[c][first[c]]], axes)
+        per_row = np.where((fresh[owner] & (position < first[owner]))[:, None], np.nan, known[owner])
+        with np.errstate(invalid="ignore"):
+            far = valid & (chord(values[rows], per_row, axes) > REANCHOR_M)
+        for c in np.flatnonzero(fresh & (first < np.iinfo(np.int64).max)):
+            self.gaps[tracks[c]].origin = tuple(float(v) for v in known[c])
+        for c in np.unique(owner[far]):   # a track that goes far from its frame: frame by frame, in order
+            gaps = self.gaps[tracks[c]]
+            run = runs[c]
+            block = slice(starts[c], starts[c] + lengths[c])
+            start = None if fresh[c] else gaps.origin
+            per_row[block], anchored, gaps.origin = assign_frames(values[run], start, axes)
+            for k in np.flatnonzero(anchored & ~restart[run]):   # (a gap's row restarts already)
+                restart[run[k]] = True
+                segments[run[k:]] += 1
+                gaps.segment += 1
+        origins[rows] = per_row
+        local = np.full((n, axes.dim), np.nan)
+        local[rows] = to_local(values[rows], per_row, axes)
+        return local, origins, restart
+
+    def _far_bank(self) -> Bank | None:
+        """The bank that forecasts across a time gap: only the constant-velocity experts (a reach of 0), the
+        bank itself when it has only those or only frame-based ones, None (no forecast) when it has neither."""
+        if self._far is None or self._far[0] is not self.params:
+            kinds = {family.kind for family in self.params.families}
+            if "cv" in kinds:
+                far = replace(self.params, reach=0.0) if kinds != {"cv"} else self.params
+            else:
+                far = self.params if kinds <= {"akf"} else None
+            self._far = (self.params, far)
+        return self._far[1]
+
+    def _forecast_far(self, state: BankState, times) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_forecast_next` across a time gap: the constant-velocity experts' extrapolation (weighted as
+        the rule weighs them) and its interval, which grows with the step; NaN for a bank without them (whose
+        other time-based experts extrapolate fits made on the usual steps)."""
+        bank = self._far_bank()
+        if bank is None:
+            shape = (len(np.atleast_1d(times)), self.params.measurement_dim)
+            return np.full(shape, np.nan), np.full(shape, np.nan)
+        times = np.asarray(times, dtype=np.float64)
+        blank = np.full((1, len(times), self.params.measurement_dim), np.nan)
+        result = self._run(blank, times[None, :], None, state, None, bank=bank)
+        return result.forecasts[0], result.std[0]
 
     def _gap_rule(self, ids, times, first_row=0):
         """The gap rule over a table's rows, in row order as :meth:`_advance` row by row.
@@ -1398,6 +1846,20 @@ class TrackPredictor:
         gap_rows = codes == 1
         gap_rows[first_kept] &= had_state[index[first_kept]]
         return [keys[u] for u in present], [runs[u] for u in present], segments, gap_rows, keep
+
+    def output_columns(self) -> dict:
+        """Output key (``pred``, ``std``, ``lead``, ``lead_std``) -> its columns' names: ``pred_<pos>``,
+        ``std_<pos>``, ...; for geographic positions the standard deviations are in metres east, north (and
+        up): ``std_east_m``, ``std_north_m`` (``lead_std_east_m``, ``std<H>_east_m``)."""
+        names = list(self.position_names or ())
+        if self.axes is not None:
+            from .io.geo import std_names
+
+            spread = list(std_names(self.axes))
+        else:
+            spread = names
+        return {key: [f"{prefix}{name}" for name in (spread if key.endswith("std") else names)]
+                for key, prefix in self._columns().items()}
 
     def _columns(self) -> dict:
         """Output key -> column prefix."""
@@ -1450,6 +1912,8 @@ class TrackPredictor:
                     config["rule_options"] = {"bound_forgetting": 1.0, **(config.get("rule_options") or {})}
                 if meta["format_version"] < 10 and config.get("rule") == "boa":
                     config["rule_options"] = {"clip": math.inf, **(config.get("rule_options") or {})}
+                if meta["format_version"] < 11:
+                    config.setdefault("geographic", False)   # files before version 11 took positions as flat
                 engine = cls(StreamConfig(**config), meta.get("position_names"))
                 engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
                 engine.outliers = int(meta.get("outliers", 0))
@@ -1561,3 +2025,4 @@ class Checkpoint(NamedTuple):
     tracks: dict   # track id -> (GapTracker copy or None, BankState or None)
     time_unit: float | None = None
     outliers: int = 0
+    settings: tuple | None = None   # (length_unit, axes, whether the axes are settled)

@@ -311,6 +311,37 @@ def _check_resumed(engine, columns):
                          f"{list(columns.positions)} (pass --position to name them, or use a new --state file)")
 
 
+def _geographic(engine, settings, columns):
+    """The positions' :class:`kalmix.io.geo.GeoAxes` when they are geographic (a resumed state's setting, else
+    --geographic / --no-geographic, else their names), told on stderr; None when they are flat."""
+    from ..io.geo import resolve_axes, std_names
+
+    if engine is not None:
+        axes = engine.axes
+    else:
+        axes = resolve_axes(list(columns.positions), settings.get("geographic"))
+    if axes is not None:
+        lat, lon = columns.positions[axes.lat], columns.positions[axes.lon]
+        spread = ", ".join(f"std_{name}" for name in std_names(axes))
+        click.echo(f"kalmix: geographic coordinates ({lat!r} latitude, {lon!r} longitude"
+                   + (f", {columns.positions[axes.alt]!r} altitude in metres" if axes.alt is not None else "")
+                   + f"): predicted in metres in each track's local frame; pred_ columns in degrees, {spread} in "
+                   "metres (--no-geographic: flat numbers)", err=True)
+    return axes
+
+
+def _check_degrees(chunk, names, axes, offset) -> None:
+    """A ``ValueError`` naming the first file row of a chunk (``offset``: the file rows before it) whose latitude is
+    beyond ±90° or longitude beyond ±180°."""
+    from ..io.geo import check_degrees
+
+    given = chunk.attrs.get("as_given")
+    places = np.asarray(given.places) if given is not None else np.arange(len(chunk))
+    order = np.argsort(places, kind="stable")   # file order: the first such row of the file is named
+    check_degrees(chunk[names].to_numpy(np.float64)[order], axes, names,
+                  lambda i: f"row {offset + int(places[order[i]])} (counted from 0 after the header)")
+
+
 def _new_engine(settings, unit, positions, backend="cpu"):
     from ..bank import check_automatic_length_unit
     from ..streaming import StreamConfig, TrackPredictor
@@ -453,9 +484,9 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     import pandas as pd
     from tqdm import tqdm
 
-    from ..io import iter_track_chunks, to_arrays
+    from ..io import iter_track_chunks
     from ..io.tables import DroppedRowWarning
-    from ..streaming import _length_unit_rule, next_row_times
+    from ..streaming import estimate_length_unit, length_unit_fallback, next_row_times
 
     if not os.path.exists(path):
         raise FileNotFoundError(f"INPUT: no such file {path!r}")
@@ -478,6 +509,8 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     else:
         total_rows = total
     run.bad.open("row" if in_fmt == "parquet" else "line", append=run.resuming)
+    axes = _geographic(run.engine, settings, columns)
+    offset = 0   # file rows before the chunk
     ahead = (_lookahead(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
                                           ids_as_text=True, on_bad_row=run.on_bad_row))
              if total_rows > chunk_rows else [])
@@ -490,17 +523,23 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
             for why, count in chunk.attrs.get("dropped", {}).items():
                 run.dropped[why] += count
             run.ids.see_many(pd.unique(chunk["track_id"]).tolist())
+            offset += chunk.attrs.get("file_rows", len(chunk))
+            if axes is not None:
+                _check_degrees(chunk, names, axes, offset - chunk.attrs.get("file_rows", len(chunk)))
             if not len(chunk):   # every row bad or without a time: their output rows, nothing to step
                 _write_unstepped(run, chunk, columns, settings)
                 bar.update(chunk.attrs.get("file_rows", 0))
                 continue
             if run.engine is None:
-                chosen, why = (unit, None) if unit is not None else _length_unit_rule(to_arrays(chunk).values)
+                chosen, why = (unit, None) if unit is not None else estimate_length_unit(
+                    chunk, names, geographic=axes is not None)
+                metres = " m" if axes is not None else ""
                 if unit is None and why is None:
-                    click.echo(f"kalmix: length unit {chosen:.6g} (auto; pass --length-unit to override)", err=True)
+                    click.echo(f"kalmix: length unit {chosen:.6g}{metres} (auto; pass --length-unit to override)",
+                               err=True)
                 elif unit is None:
-                    click.echo(f"kalmix: length unit 1 (auto could not estimate it: the first chunk has {why}; "
-                               "pass --length-unit)", err=True)
+                    click.echo(f"kalmix: {length_unit_fallback(why, 'the first chunk', '--length-unit', metres)}",
+                               err=True)
                 run.engine = _new_engine(settings, chosen, columns.positions, run.backend)
             engine = run.engine
             mark = engine.checkpoint(pd.unique(chunk["track_id"]))
@@ -550,11 +589,12 @@ def _write_unstepped(run, chunk, columns, settings) -> None:
 
     from ..streaming import StreamConfig, TrackPredictor
 
-    engine = run.engine if run.engine is not None else TrackPredictor(StreamConfig(length_unit=1.0, **settings))
+    engine = run.engine if run.engine is not None else TrackPredictor(StreamConfig(length_unit=1.0, **settings),
+                                                                      columns.positions)
     frame = pd.DataFrame({"track_id": pd.Series(dtype=object), "time": pd.Series(dtype=np.float64),
                           "segment": pd.Series(dtype=np.int64), **{
-                              f"{prefix}{name}": pd.Series(dtype=np.float64)
-                              for prefix in engine._columns().values() for name in columns.positions}})
+                              name: pd.Series(dtype=np.float64)
+                              for names in engine.output_columns().values() for name in names}})
     written: list = []
     out = given_rows(frame, chunk, columns, run.sink.fmt, written)
     with run.guard.deferred():
@@ -829,9 +869,14 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
     columns = _columns(header, time_column, position_columns, id_column)
     _check_resumed(run.engine, columns)
     words = _IdWatch(columns, header, id_column)
+    from ..io.geo import check_degrees
+
+    axes = _geographic(run.engine, settings, columns)
     if run.engine is None:
         if unit is None:
-            click.echo("kalmix: length unit 1 (stdin has no sample to estimate it from; pass --length-unit)",
+            from ..streaming import length_unit_fallback
+
+            click.echo(f"kalmix: {length_unit_fallback(None, 'stdin', '--length-unit', ' m' if axes else '')}",
                        err=True)
         run.engine = _new_engine(settings, 1.0 if unit is None else unit, columns.positions, run.backend)
     engine = run.engine
@@ -872,6 +917,8 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         run.ids.see(track)
         if columns.time is None:
             values = [_parse_number(get(record, name, number), name, number) for name in columns.positions]
+            if axes is not None:
+                check_degrees(np.array([values]), axes, columns.positions, lambda i: f"line {number}")
             time = float(counts.get(track, engine.gaps[track].last_time + 1 if track in engine.gaps else 0))
             counts[track] = time + 1
             return number, track, time, values, int(time)
@@ -887,6 +934,8 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
             raise ValueError(f"line {number}: column {columns.time!r} must hold a number or an ISO 8601 date-time "
                              f"(like 2024-05-01T12:00:00.5Z), got {time!r}")
         values = [_parse_number(get(record, name, number), name, number) for name in columns.positions]
+        if axes is not None:
+            check_degrees(np.array([values]), axes, columns.positions, lambda i: f"line {number}")
         time_kind.setdefault("kind", kind)
         if kind == "date-time" and skip:
             dated_texts[number] = record   # for a rejects file, should _dated find it is no date
@@ -995,7 +1044,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         committed = False
         try:
             results = (engine.step_rows(tracks, np.array([row[2] for row in timed]), values) if timed else [])
-            prefixes = engine._columns()
+            prefixes = engine.output_columns()
             records, answers, rejected = [], iter(results), []
             for row in rows:
                 _, track, time, measured, given = row[:5]
@@ -1034,7 +1083,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         import pandas as pd   # named as a file's run names its columns
 
         empty = pd.DataFrame(columns=["track_id", "time", "segment", *(
-            f"{prefix}{name}" for prefix in engine._columns().values() for name in columns.positions)])
+            name for names in engine.output_columns().values() for name in names)])
         with run.guard.deferred():
             run.sink.write_header(list(_output_columns(empty, columns, columns.positions).columns))
 
@@ -1079,22 +1128,22 @@ def _is_date(text) -> bool:
 
 
 def _row_record(result, track, time, columns, prefixes):
-    """One output record of a stdin row (``prefixes``: :meth:`TrackPredictor._columns`; ``result`` None: a row
-    not stepped, its predictions and segment empty)."""
+    """One output record of a stdin row (``prefixes``: :meth:`TrackPredictor.output_columns`, each output's column
+    names; ``result`` None: a row not stepped, its predictions and segment empty)."""
     out = {}
     if columns.track_id is not None:
         out[columns.track_id] = track
     out[columns.time or "row"] = time
     out["segment"] = None if result is None else result.segment
     if result is None:
-        for prefix in prefixes.values():
-            for name in columns.positions:
-                out[f"{prefix}{name}"] = math.nan
+        for names in prefixes.values():
+            for name in names:
+                out[name] = math.nan
         return out
     values = {"pred": result.next, "std": result.next_std, "lead": result.ahead, "lead_std": result.ahead_std}
-    for key, prefix in prefixes.items():
-        for j, name in enumerate(columns.positions):
-            out[f"{prefix}{name}"] = float(values[key][j])
+    for key, names in prefixes.items():
+        for j, name in enumerate(names):
+            out[name] = float(values[key][j])
     return out
 
 

@@ -19,11 +19,18 @@ from ..archive import save_figure
 from ..bank import BANK_KINDS, DEFAULT_BANK, DEFAULT_REACH, GATE_OPTIONS, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED, recipe_parts
 from ._common import figure_format_problem, missing_directory, user_errors as _user_errors
 
-_LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres). "
+_LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres; metres for "
+                     "geographic coordinates). "
                      "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
                      "(files) or 1 (stdin, unless a --state file holds one).")
 _GAP_HELP = ("A time step larger than this (in the time column's units) starts a new segment: the track's predictor restarts. "
              "Default: --max-gap-factor times the track's reference interval.")
+
+
+_GEOGRAPHIC_HELP = ("Positions are latitude and longitude in degrees (and altitude in metres), predicted in metres "
+                    "in each track's local frame: latitudes beyond +-90 or longitudes beyond +-180 are errors, "
+                    "std_east_m / std_north_m in metres [default: when the position columns are named so: lat, "
+                    "lon, latitude, longitude, lng, alt, altitude]. --no-geographic: flat numbers.")
 
 
 def _column_options(function):
@@ -38,6 +45,7 @@ def _column_options(function):
                      "track, mmsi, ..., else an unused column named like vessel or player, with a note; an unused "
                      "column whose values look like ids, repeated words say, stops the run, naming it). 'none': the "
                      "input is one track."),
+        click.option("--geographic/--no-geographic", default=None, help=_GEOGRAPHIC_HELP),
     )):
         function = option(function)
     return function
@@ -316,6 +324,23 @@ def _dask_id(input_path, time_column, position_columns, id_column):
     return columns.track_id
 
 
+def _dask_flat(input_path, time_column, position_columns, geographic):
+    """``ValueError`` when an archive's positions are geographic (--geographic, or named so): the Dask engine
+    takes positions as flat numbers (--engine local predicts them in metres)."""
+    if geographic is False:
+        return
+    from ..dask_predict import archive_files
+    from ..io.geo import resolve_axes
+    from ..io.tables import detect_columns
+
+    files, fmt = archive_files(input_path)
+    columns = detect_columns(_header(files[0], fmt), time=time_column, positions=_positions(position_columns))
+    if resolve_axes(list(columns.positions), geographic) is not None:
+        raise ValueError(f"--engine dask: takes positions as flat numbers, and {list(columns.positions)} are "
+                         "geographic coordinates; use --engine local (which predicts them in metres), or "
+                         "--no-geographic to take them as flat numbers")
+
+
 def _sample(path, fmt):
     """``sample(names, rows)``: the first ``rows`` rows of those columns of a track file (a CSV's as text); None
     where they cannot be read (the reading proper says why)."""
@@ -425,7 +450,7 @@ def _local_only(given, output):
 @click.option("--partitions", default=None, type=click.IntRange(min=1),
               help="--engine dask: partitions of the shuffle by track [default: the input's, at least "
                    "4 per worker thread].")
-def predict(input_path, time_column, position_columns, id_column, horizon, lead, output, bank_kind, rule, time_unit,
+def predict(input_path, time_column, position_columns, id_column, geographic, horizon, lead, output, bank_kind, rule, time_unit,
             n_experts, seed, length_unit, max_gap, max_gap_factor, reach, state_path, save_every, chunk_rows,
             progress, on_bad_row, rejects, mixture_options, engine_kind, backend, scheduler, workers, partitions):
     """Predict the next position of every track in INPUT (CSV, Parquet, or - for stdin).
@@ -501,11 +526,15 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
                                       ("--lead", lead, stored.lead),
                                       ("--bank", bank_kind, stored.bank), ("--rule", rule, stored.rule),
                                       ("--time-unit", time_unit, stored.time_unit),
+                                      ("--geographic" if geographic else "--no-geographic", geographic,
+                                       engine.axes is not None),
                                       ("--reach", reach, math.inf if stored.reach is None else stored.reach),
                                       ("--option", options or None, stored.options)):
                 if given is not None and given != have:
                     if name == "--reach":
                         have, given = (("none" if math.isinf(v) else v) for v in (have, given))
+                    if name in ("--geographic", "--no-geographic"):
+                        have, given = (("geographic positions" if v else "flat positions") for v in (have, given))
                     raise ValueError(f"{name}: the state file {state_path} was made with {have}, got {given}; "
                                      "use a new --state file to change it")
             _check_gap_rule(stored, state_path, gap, never, max_gap_factor, _given(("max_gap", "max_gap_factor")))
@@ -521,7 +550,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
                              f"got --lead {lead:g} and --horizon {horizon}")
         settings = dict(n_experts=40 if n_experts is None else n_experts, seed=0 if seed is None else seed,
                         horizon=horizon, lead=lead, max_gap=gap, max_gap_factor=math.inf if never else max_gap_factor,
-                        options=options, time_unit=time_unit, reach=_reach_setting(reach))
+                        options=options, time_unit=time_unit, reach=_reach_setting(reach), geographic=geographic)
         if bank_kind is not None:
             settings["bank"] = bank_kind
         if rule is not None:
@@ -531,6 +560,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
             make_params(1, settings["n_experts"], **options)  # a bad option fails before any output
         if engine_kind == "dask":
             from ._predict_dask import run_dask
+            _dask_flat(input_path, time_column, position_columns, geographic)
             id_column = _dask_id(input_path, time_column, position_columns, id_column)
             return run_dask(input_path, output, settings, unit, time_column, position_columns, id_column,
                             chunk_rows, progress, scheduler, workers, partitions)
@@ -582,7 +612,7 @@ def predict(input_path, time_column, position_columns, id_column, horizon, lead,
 @click.option("--track", "plot_track", default=None, help="Track id to plot (default: the first).")
 @click.option("--per-track/--no-per-track", default=True, show_default=True, help="Print the per-track tables.")
 @click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
-def evaluate(input_path, dataset, time_column, position_columns, id_column, horizon, n_experts, seed, length_unit,
+def evaluate(input_path, dataset, time_column, position_columns, id_column, geographic, horizon, n_experts, seed, length_unit,
              tuning_fraction, max_gap, max_gap_factor, reach, max_samples, tracks, peers, json_path, per_coordinate,
              plot_path, plot_rows, intervals_path, plot_track, per_track, mixture_options):
     """Compare the mixture's prediction errors with the predictors you would use instead.
@@ -628,6 +658,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
                                _sample(input_path, fmt))
             table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True)
             label = os.path.basename(input_path)
+            _check_file_degrees(table, list(columns.positions), geographic)
         if tracks is not None and not tracks.strip(", "):
             raise ValueError(f"--tracks: expected comma-separated track ids, got {tracks!r}")
         wanted = _wanted_tracks(tracks, table) if tracks else None
@@ -660,7 +691,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
         result = evaluate_table(table, horizon=horizon, n_experts=n_experts, seed=seed, length_unit=unit,
                                 tuning_fraction=tuning_fraction, max_gap=gap,
                                 max_gap_factor=math.inf if never else max_gap_factor, max_samples=max_samples,
-                                tracks=wanted, peers=peers, options=options,
+                                tracks=wanted, peers=peers, options=options, geographic=geographic,
                                 metric="per-coordinate" if per_coordinate else "euclidean",
                                 bank_options={**DEFAULT_BANK, "reach": _reach_setting(reach)},
                                 log=lambda message: click.echo(f"kalmix: {message}", err=True))
@@ -684,6 +715,23 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, hori
         if intervals_path:
             plot_intervals(result, intervals_path, plot_track)
             click.echo(f"wrote {intervals_path}")
+
+
+def _check_file_degrees(table, names, geographic) -> None:
+    """A ``ValueError`` naming the first file row (counted from 0 after the header) whose latitude is beyond ±90° or
+    longitude beyond ±180°, when the positions are geographic."""
+    from ..io.geo import check_degrees, resolve_axes
+
+    axes = resolve_axes(names, geographic)
+    if axes is None:
+        return
+    order = table.attrs.get("file_order")
+    places = np.asarray(getattr(order, "places", np.arange(len(table))))
+    if len(places) != len(table):
+        places = np.arange(len(table))
+    rank = np.argsort(places, kind="stable")
+    check_degrees(table[names].to_numpy(np.float64)[rank], axes, names,
+                  lambda i: f"row {int(places[rank[i]])} (counted from 0 after the header)")
 
 
 def _wanted_tracks(tracks: str, table) -> list[str]:

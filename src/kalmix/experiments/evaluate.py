@@ -45,6 +45,7 @@ import numpy as np
 from ..bank import (DEFAULT_BANK, GATE_OPTIONS, LENGTH_UNIT_RANGE, check_automatic_length_unit, check_horizon,
                     check_length_unit, make_bank, make_params)
 from ..core.mixture import init_state, predict, step
+from ..io.geo import local_table, resolve_axes, std_names
 from ..metrics import error_summary
 from ..streaming import GapTracker, StreamConfig, _length_unit_rule, auto_time_unit
 
@@ -601,6 +602,7 @@ class EvaluationResult:
     metric: str = "per-coordinate"
     verdict: dict = field(default_factory=dict)
     ranking: dict = field(default_factory=dict)
+    units: str = "data units"   # of the positions, errors and length unit: "metres" for geographic data
 
     def to_json(self) -> dict:
         """JSON-serialisable summary (no arrays)."""
@@ -619,7 +621,8 @@ class EvaluationResult:
                       "per_track": self.per_track,
                       "tracks": {str(t): int(self.streams.lengths[self.streams.track_of == i].sum())
                                  for i, t in enumerate(self.streams.track_ids)},
-                      "errors": self.metric, "verdict": self.verdict, "ranking": self.ranking})
+                      "errors": self.metric, "verdict": self.verdict, "ranking": self.ranking,
+                      "units": self.units})
 
 
 def _require_errors(values, mask, doing, part, track_lengths):
@@ -640,7 +643,8 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
                    max_gap: float | None = None, max_gap_factor: float = 3.0,
                    max_samples: int | None = None, tracks=None, peers: bool = True,
                    options: dict | None = None, tune_units: bool = True, log=None,
-                   bank_options: dict | None = None, metric: str = "per-coordinate") -> EvaluationResult:
+                   bank_options: dict | None = None, metric: str = "per-coordinate",
+                   geographic: bool | None = None) -> EvaluationResult:
     """Run every predictor over every track segment and summarise the errors.
 
     Parameters
@@ -682,8 +686,21 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         What the summaries pool (:func:`error_measure`): each coordinate's error, or each
         row's distance between forecast and measurement (``kalmix evaluate``'s default).
         The result's :attr:`~EvaluationResult.verdict` and ranking use the same.
+    geographic : bool or None
+        Whether the positions are latitude and longitude in degrees (and an altitude in metres):
+        then every predictor runs on metres east and north (and up) of each track's first fix
+        (:func:`kalmix.io.geo.local_table`), and the errors, summaries and length unit are in
+        metres (:attr:`EvaluationResult.units`). None: when the position names say so (as
+        :class:`~kalmix.streaming.StreamConfig`'s ``geographic``).
     """
     horizon = check_horizon(horizon)
+    positions = [c for c in table.columns if c not in ("track_id", "time")]
+    axes = resolve_axes(positions, geographic)
+    if axes is not None:   # errors in metres: every predictor on each track's local frame
+        table = local_table(table, positions, axes)
+        log_geo = (f"geographic coordinates ({', '.join(positions)}): every predictor runs on "
+                   f"{', '.join(std_names(axes))} of each track's first fix; errors in metres")
+    units = "metres" if axes is not None else "data units"
     if metric not in ERROR_METRICS:
         raise ValueError(f"metric: expected one of {', '.join(ERROR_METRICS)}, got {metric!r}")
     if length_unit is not None:
@@ -691,6 +708,8 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     if not 0 <= tuning_fraction < 1:
         raise ValueError(f"tuning_fraction: expected a number in [0, 1), got {tuning_fraction!r}")
     log = log or (lambda message: None)
+    if axes is not None:
+        log(log_geo)
     if tracks is not None:
         wanted = {str(t) for t in tracks}
         ids = table["track_id"].astype(str)
@@ -825,7 +844,8 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     return EvaluationResult(horizon=int(horizon), length_unit=unit, tuning_fraction=tuning_fraction,
                             tuned=tuned, predictors=list(predictions), overall=overall, per_track=per_track,
                             streams=streams, errors=errors_one, intervals=intervals, metric=metric,
-                            verdict=verdict(overall, per_track, horizon), ranking=ranking(overall, horizon))
+                            verdict=verdict(overall, per_track, horizon), ranking=ranking(overall, horizon),
+                            units=units)
 
 
 #: Fewer scored rows than this: the interval line of ``kalmix evaluate`` says they are too few to judge.
@@ -886,7 +906,7 @@ def format_result(result: EvaluationResult, per_track: bool = True) -> str:
                 ahead = "" if which == "one_step" else f" {result.horizon} rows ahead"
                 lines.append(f"  ({name} is not compared{ahead}: {why})")
     lines += ["", f"{result.dataset}: {len(streams.track_ids)} track(s), {n_rows} samples in {len(streams.lengths)} "
-              f"segment(s); {units}; {tuning}; {_METRIC_WORDS[result.metric]}, data units", ""]
+              f"segment(s); {units}; {tuning}; {_METRIC_WORDS[result.metric]}, {result.units}", ""]
     lines += _table("overall, best one-step RMS first", result.overall, result, verdict_)
     calibration = result.tuned.get("mixture", {}).get("calibration", {})
     for which, entry in calibration.items():
