@@ -451,6 +451,8 @@ def given_rows(frame, chunk, columns, fmt, kept: list | None = None):
     whole = bool(stepped.all())
     for name in frame.columns[2:]:
         values = frame[name].to_numpy()
+        if not len(values):   # no row stepped (a chunk of bad rows): any place will do, each is masked
+            values = np.zeros(1, dtype=np.int64 if name == "segment" else np.float64)
         if whole:
             out[name] = values[source]
         elif name == "segment":

@@ -1,0 +1,330 @@
+"""One bad row never ends a run (issue 41, point 7): each finding of a hostile pass, as a repro.
+
+A bad row (a field count not the header's, an empty id, a time or position that is not a finite number, a
+stdin line that does not parse) is skipped, keeps its place in the output with empty predictions, and is
+counted on an error line at the end with its line; ``--on-bad-row fail`` stops at it; ``--rejects`` lists it.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from kalmix.cli import build
+from kalmix.io.tables import BadRowWarning, iter_track_chunks, read_tracks
+from kalmix.streaming import SkippedRowWarning, StreamConfig, TrackPredictor
+
+FAST = ["--experts", "2", "--seed", "1", "--no-progress", "--length-unit", "0.5"]
+
+
+@pytest.fixture(scope="module")
+def cli():
+    return build()
+
+
+def _run(cli, args, input=None):
+    return CliRunner().invoke(cli, args, input=input, catch_exceptions=False)
+
+
+def _lines(n=600):
+    """A header and ``n`` rows of two tracks, a and b, 0.1 apart."""
+    rng = np.random.default_rng(0)
+    xy = np.cumsum(rng.normal(size=(n, 2)), axis=0)
+    half = n // 2
+    return ["track_id,time,x,y"] + [f"{'ab'[i // half]},{0.1 * (i % half):.1f},{xy[i, 0]:.4f},{xy[i, 1]:.4f}"
+                                    for i in range(n)]
+
+
+def _write(path, lines):
+    path.write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+def _with(lines, line, text):
+    """``lines`` with file line ``line`` (counted from 1, the header's) replaced by ``text``."""
+    out = list(lines)
+    out[line - 1] = text
+    return out
+
+
+def _read(text):
+    import io
+
+    return pd.read_csv(io.StringIO(text), dtype={"track_id": str, "time": str})
+
+
+# ---------------------------------------------------------------------------------------- files
+@pytest.mark.parametrize("cell, said", [("inf", "be finite, got inf"), ("abc", "hold a number, got 'abc'"),
+                                        ("-Infinity", "be finite, got -inf")])
+@pytest.mark.parametrize("chunk_rows", ["200000", "100"])
+def test_one_bad_cell_near_the_end_of_a_file_skips_that_row_only(cli, tmp_path, cell, said, chunk_rows):
+    """Before: one 'inf' or 'abc' cell in row 599 of 600 ended the run with no output at all."""
+    lines = _lines()
+    row = lines[599].split(",")
+    path = _write(tmp_path / "t.csv", _with(lines, 600, ",".join([*row[:3], cell])))
+    result = _run(cli, ["predict", path, *FAST, "--chunk-rows", chunk_rows])
+    assert result.exit_code == 0, result.stderr
+    out = _read(result.stdout)
+    assert len(out) == 600 and out["time"].tolist() == [line.split(",")[1] for line in lines[1:]]
+    assert out["segment"].isna().tolist() == [i == 598 for i in range(600)]   # the bad row, in its place
+    assert out["pred_x"].notna().sum() == 599
+    assert f"kalmix: error: 1 bad row(s) skipped (line 600: column 'y' must {said}" in result.stderr
+    good = _run(cli, ["predict", _write(tmp_path / "good.csv", lines[:-2] + lines[-1:]), *FAST])
+    np.testing.assert_array_equal(_read(good.stdout)["pred_x"].to_numpy()[:598], out["pred_x"].to_numpy()[:598])
+
+
+def test_on_bad_row_fail_stops_at_the_row_naming_its_line(cli, tmp_path):
+    lines = _lines(40)
+    path = _write(tmp_path / "t.csv", _with(lines, 30, "b,0.8,abc,1.0"))
+    result = _run(cli, ["predict", path, *FAST, "--on-bad-row", "fail"])
+    assert result.exit_code == 1 and "line 30: column 'x' must hold a number, got 'abc'" in result.stderr
+    assert "Traceback" not in result.stderr
+    refused = _run(cli, ["predict", path, *FAST, "--on-bad-row", "fail", "--rejects", str(tmp_path / "r.csv")])
+    assert refused.exit_code == 2 and "--rejects" in refused.output
+
+
+def test_field_counts_are_checked_in_a_file_as_on_stdin(cli, tmp_path):
+    """Before: the file reader took a 6-field row silently and a 3-field row as a missing coordinate, while
+    stdin refused both (and stopped)."""
+    lines = _lines(40)
+    lines = _with(_with(lines, 5, lines[4] + ",7"), 9, lines[8].rsplit(",", 1)[0])
+    path = _write(tmp_path / "t.csv", lines)
+    rejects = tmp_path / "rejects.csv"
+    for given, feed in ((path, None), ("-", "\n".join(lines) + "\n")):
+        result = _run(cli, ["predict", given, *FAST, "--rejects", str(rejects)], input=feed)
+        assert result.exit_code == 0, result.stderr
+        out = _read(result.stdout)
+        assert len(out) == 40 and out["segment"].isna().tolist() == [i in (3, 7) for i in range(40)]
+        assert f"2 bad row(s) skipped (lines 5, 9; see --rejects {rejects})" in result.stderr
+        listed = pd.read_csv(rejects, dtype=str)
+        assert listed.columns.tolist() == ["line", "reason", "input"]
+        assert listed["line"].tolist() == ["5", "9"]
+        assert listed["reason"].tolist() == ["expected 4 fields like the header, got 5",
+                                             "expected 4 fields like the header, got 3"]
+        assert listed["input"].tolist() == [lines[4], lines[8]]
+
+
+def test_lines_are_the_files_own_with_blank_lines_and_quoted_line_breaks(tmp_path):
+    """A bad row is named by its line in the file, counted as an editor counts, past blank lines and a quoted
+    field that holds a line break."""
+    text = 'id,t,x,y\n"a\nb",0,1,2\n\n"a\nb",1,2,3\n"a\nb",2,oops,4\n'
+    path = tmp_path / "t.csv"
+    path.write_text(text)
+    with pytest.raises(ValueError, match="^line 7: column 'x' must hold a number, got 'oops'$"):
+        read_tracks(path, ids_as_text=True)
+    with pytest.warns(BadRowWarning, match=r"1 bad row\(s\) skipped \(line 7;"):
+        table = read_tracks(path, ids_as_text=True, on_bad_row="skip")
+    assert len(table) == 2 and table.attrs["bad_rows"].places == ["line 7"]
+
+
+def test_a_parquet_file_names_the_bad_rows_by_their_index(cli, tmp_path):
+    frame = pd.read_csv(_write(tmp_path / "t.csv", _lines(40)))
+    frame["x"] = frame["x"].astype(str)   # (a text column of numbers, as some exports write them)
+    frame.loc[7, "x"] = "n/a?"
+    frame.loc[20, "y"] = np.inf
+    frame.to_parquet(tmp_path / "t.parquet", index=False)
+    rejects = tmp_path / "rejects.csv"
+    result = _run(cli, ["predict", str(tmp_path / "t.parquet"), *FAST, "--rejects", str(rejects)])
+    assert result.exit_code == 0, result.stderr
+    assert "2 bad row(s) skipped (rows 7, 20, counted from 0; see --rejects" in result.stderr
+    listed = pd.read_csv(rejects)
+    assert listed["row"].tolist() == [7, 20] and json.loads(listed["input"][0])["x"] == "n/a?"
+    failed = _run(cli, ["predict", str(tmp_path / "t.parquet"), *FAST, "--on-bad-row", "fail"])
+    assert failed.exit_code == 1 and "row 7 (counted from 0): column 'x' must hold a number, got 'n/a?'" \
+        in failed.stderr
+
+
+def test_a_chunk_of_bad_rows_only_keeps_its_places(cli, tmp_path):
+    """A chunk whose every row is bad (here the whole first chunk) is written as empty rows, and the run goes on."""
+    lines = _lines(60)
+    for line in range(2, 12):
+        lines[line - 1] = lines[line - 1].rsplit(",", 1)[0] + ",bad"
+    result = _run(cli, ["predict", _write(tmp_path / "t.csv", lines), *FAST, "--chunk-rows", "10"])
+    assert result.exit_code == 0, result.stderr
+    out = _read(result.stdout)
+    assert len(out) == 60 and out["segment"].isna().sum() == 10 and out["pred_x"].iloc[10:].notna().all()
+    assert "10 bad row(s) skipped (lines 2, 3, 4, 5, 6, 7, 8, 9, 10, 11;" in result.stderr
+
+
+def test_a_resumed_run_reports_and_rejects_a_bad_row_once(cli, tmp_path):
+    """The rows an earlier run wrote are left out of a resumed run's output, its bad rows with them."""
+    lines = _with(_lines(60), 11, "a,0.9,oops,1")
+    state, rejects, out = str(tmp_path / "s.npz"), str(tmp_path / "r.csv"), str(tmp_path / "o.csv")
+    args = [*FAST, "--state", state, "--rejects", rejects, "-o", out]
+    first = _run(cli, ["predict", _write(tmp_path / "first.csv", lines[:31]), *args])
+    assert first.exit_code == 0 and "1 bad row(s) skipped (line 11" in first.stderr
+    second = _run(cli, ["predict", _write(tmp_path / "all.csv", lines), *args])
+    assert second.exit_code == 0 and "bad row" not in second.stderr
+    assert pd.read_csv(rejects)["line"].tolist() == [11]
+    whole = _run(cli, ["predict", str(tmp_path / "all.csv"), *FAST])
+    assert (tmp_path / "o.csv").read_text() == whole.stdout
+
+
+def test_rows_dropped_for_any_reason_are_an_error_line_with_a_count(cli, tmp_path):
+    """Rows not predicted for want of a time, or as the earlier rows of a repeated time, were warnings among the
+    notes (one per chunk): now one error line each at the end, with the run's count."""
+    lines = _lines(40)
+    lines = _with(_with(lines, 4, lines[2]), 8, "a,,1,2")
+    result = _run(cli, ["predict", _write(tmp_path / "t.csv", lines), *FAST, "--chunk-rows", "5"])
+    assert result.exit_code == 0
+    assert "kalmix: error: 1 row(s) have no time: not predicted" in result.stderr
+    assert "kalmix: error: 1 row(s) repeat a timestamp within their track" in result.stderr
+    assert "kalmix: warning:" not in result.stderr
+
+
+# ---------------------------------------------------------------------------------------- stdin
+@pytest.mark.parametrize("bad, why", [
+    ("0.5,1", "expected 3 fields like the header, got 2"),
+    ("0.5,1,2,3", "expected 3 fields like the header, got 4"),
+    ("0.5," + "9" * 140_000 + ",1", "not a CSV row: field larger than field limit"),
+    ("0.5,abc,1", "column 'x' must hold a number, got 'abc'"),
+])
+def test_a_bad_csv_line_does_not_end_a_live_stream(cli, bad, why):
+    """Before: any one bad line ended the stream (the rows after it were never read)."""
+    feed = "t,x,y\n" + "".join(f"{0.1 * k:.1f},{k},{2 * k}\n" for k in range(5)) + bad + "\n" + "".join(
+        f"{0.1 * k:.1f},{k},{2 * k}\n" for k in range(6, 12))
+    result = _run(cli, ["predict", "-", *FAST], input=feed)
+    assert result.exit_code == 0, result.stderr
+    out = _read(result.stdout)
+    assert len(out) == 12 and out["segment"].isna().tolist() == [k == 5 for k in range(12)]
+    assert f"line 7: bad row skipped: {why}" in result.stderr
+    assert "kalmix: error: 1 bad row(s) skipped (line 7" in result.stderr
+
+
+@pytest.mark.parametrize("bad, why", [
+    ({"t": 0.5, "x": 1}, "key 'y' missing"),
+    ({"t": 0.5, "x": {"a": 1}, "y": 2}, "column 'x' must hold a number, got {'a': 1}"),
+    ({"t": 0.5, "x": [1], "y": 2}, "column 'x' must hold a number, got [1]"),
+    ("{not json", "not valid JSON"),
+    ({"id": True, "t": 0.5, "x": 1, "y": 2}, "column 'id' (track id) must hold an id (text or a number), got true"),
+])
+def test_a_bad_json_line_does_not_end_a_live_stream(cli, tmp_path, bad, why):
+    rows = [{"id": 1, "t": 0.1 * k, "x": k, "y": 2 * k} for k in range(12)]
+    text = [json.dumps(row) for row in rows]
+    text[5] = bad if isinstance(bad, str) else json.dumps({"id": 1, **bad})
+    rejects = tmp_path / "r.csv"
+    result = _run(cli, ["predict", "-", *FAST, "--rejects", str(rejects)], input="\n".join(text) + "\n")
+    assert result.exit_code == 0, result.stderr
+    out = [json.loads(line) for line in result.stdout.splitlines()]
+    assert len(out) == 12 and [row["segment"] is None for row in out] == [k == 5 for k in range(12)]
+    assert f"line 6: bad row skipped: {why}" in result.stderr
+    listed = pd.read_csv(rejects, dtype=str, keep_default_na=False)
+    assert listed["line"].tolist() == ["6"] and listed["input"].tolist() == [text[5]]
+
+
+def test_a_line_that_is_not_utf8_is_a_bad_row_on_a_pipe():
+    feed = b"t,x,y\n0,1,2\n1,\xff\xfe,3\n2,3,4\n"
+    done = subprocess.run([sys.executable, "-m", "kalmix.cli", "predict", "-", *FAST], input=feed,
+                          capture_output=True, env={**os.environ, "PYTHONIOENCODING": "utf-8"})
+    assert done.returncode == 0, done.stderr.decode()
+    assert len(done.stdout.decode().splitlines()) == 4 and "1 bad row(s) skipped (line 3" in done.stderr.decode()
+
+
+# ---------------------------------------------------------------------------------------- columns
+@pytest.mark.parametrize("empty, kept", [("z", "x, y"), ("y", "x")])
+def test_an_empty_detected_position_column_is_dropped_with_a_note(cli, tmp_path, empty, kept):
+    """Before: an exported all-empty z (or y) was taken as a coordinate: every prediction empty, exit 0."""
+    frame = pd.read_csv(_write(tmp_path / "t.csv", _lines(60)))
+    frame[empty] = np.nan
+    frame.to_csv(tmp_path / "t.csv", index=False)
+    result = _run(cli, ["predict", str(tmp_path / "t.csv"), *FAST])
+    assert result.exit_code == 0
+    assert f"the position column '{empty}' is empty in the first 60 rows: predicting {kept} only" in result.stderr
+    out = _read(result.stdout)
+    assert f"pred_{empty}" not in out.columns and out["pred_x"].notna().all()
+    named = _run(cli, ["predict", str(tmp_path / "t.csv"), *FAST, "--position", "x,y,z" if empty == "z" else "x,y"])
+    assert "every prediction is empty" in named.stderr   # named: kept, and said at the end
+    piped = _run(cli, ["predict", "-", *FAST], input=(tmp_path / "t.csv").read_text())
+    assert f"the position column(s) '{empty}' have been empty on each of the first 100 rows" not in piped.stderr
+    long = pd.concat([frame] * 2, ignore_index=True)
+    long["time"] = np.arange(len(long)) * 0.1
+    piped = _run(cli, ["predict", "-", *FAST], input=long.to_csv(index=False))
+    assert f"the position column(s) '{empty}' have been empty on each of the first 100 rows" in piped.stderr
+
+
+# ---------------------------------------------------------------------------------------- ids
+def test_ids_that_differ_only_in_how_they_are_written_are_two_tracks_and_said_so(cli, tmp_path):
+    """Before: ' 0' and '0' became two interleaved half-tracks without a word (ids are read as written: kept,
+    now said once); a resumed file writing '1.0' started a new track beside the state file's '1'."""
+    lines = ["id,t,x,y"] + [f"{' 0' if k % 2 else '0'},{k // 2},{k},{k}" for k in range(20)]
+    result = _run(cli, ["predict", _write(tmp_path / "t.csv", lines), *FAST])
+    assert result.exit_code == 0
+    assert result.stderr.count("track ids '0' and ' 0' differ only by the spaces around them: they are two "
+                               "tracks") == 1
+    state = str(tmp_path / "s.npz")
+    _run(cli, ["predict", _write(tmp_path / "a.csv", ["id,t,x,y", *(f"1,{k},{k},0" for k in range(10))]), *FAST,
+               "--state", state, "-o", str(tmp_path / "a_out.csv")])
+    resumed = _run(cli, ["predict", _write(tmp_path / "b.csv", ["id,t,x,y", *(f"1.0,{k},{k},0" for k in range(10, 20))]),
+                         "--state", state, "--no-progress", "-o", str(tmp_path / "b_out.csv")])
+    assert "track ids '1' and '1.0' differ only in how a number is written: they are two tracks" in resumed.stderr
+
+
+def test_equal_numbers_of_two_types_are_one_track_said_once_and_a_bool_is_no_id(cli):
+    """In JSON lines 1 and 1.0 are one track (as a number is one value): said once. ``true`` was track 1 (True ==
+    1 as a key): on stdin now a bad row, in Python a TypeError."""
+    feed = "".join(json.dumps({"id": 1.0 if k % 2 else 1, "t": k, "x": k, "y": 0}) + "\n" for k in range(6))
+    result = _run(cli, ["predict", "-", *FAST], input=feed)
+    assert result.exit_code == 0 and result.stderr.count("are equal numbers of two types: they continue one "
+                                                         "track") == 1
+    assert [json.loads(line)["segment"] for line in result.stdout.splitlines()] == [0] * 6
+    predictor = TrackPredictor(StreamConfig(length_unit=1.0, n_experts=2))
+    predictor.step_row(1, 0.0, [0.0, 0.0])
+    with pytest.raises(TypeError, match="a bool is not one"):
+        predictor.step_row(True, 1.0, [1.0, 0.0])
+    with pytest.raises(TypeError, match="a bool is not one"):
+        predictor.step_rows([np.True_], [1.0], [[1.0, 0.0]])
+
+
+# ---------------------------------------------------------------------------------------- API
+@pytest.mark.parametrize("time", [None, float("nan")])
+def test_step_row_warns_of_a_row_without_a_time(time):
+    """Before: a time of None or NaN was skipped without the SkippedRowWarning the documentation promises."""
+    predictor = TrackPredictor(StreamConfig(length_unit=1.0, n_experts=2))
+    predictor.step_row("a", 0.0, [0.0, 0.0])
+    with pytest.warns(SkippedRowWarning, match=r"track 'a': a row without a time \((None|nan)\) was skipped"):
+        assert predictor.step_row("a", time, [1.0, 0.0]) is None
+    assert predictor.skipped == 1
+
+
+def test_iter_track_chunks_skips_with_one_warning_per_chunk(tmp_path):
+    lines = _with(_with(_lines(40), 3, "a,0.1,1,inf"), 30, ",0.8,1,2")
+    path = _write(tmp_path / "t.csv", lines)
+    with pytest.raises(ValueError, match="^line 3: column 'y' must be finite, got inf$"):
+        list(iter_track_chunks(path, chunk_rows=10, ids_as_text=True))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        chunks = list(iter_track_chunks(path, chunk_rows=10, ids_as_text=True, on_bad_row="skip"))
+    said = [str(w.message) for w in caught if issubclass(w.category, BadRowWarning)]
+    assert said == ["1 bad row(s) skipped (line 3; the first: column 'y' must be finite, got inf)",
+                    "1 bad row(s) skipped (line 30; the first: column 'track_id' (track id) is empty)"]
+    assert sum(len(chunk) for chunk in chunks) == 38
+
+
+# ---------------------------------------------------------------------------------------- dask
+def test_dask_names_a_corrupt_file_and_reads_float32_beside_float64(tmp_path):
+    pytest.importorskip("dask.dataframe")
+    from kalmix.dask_predict import read_archive
+
+    archive = tmp_path / "archive"
+    archive.mkdir()
+    frame = pd.read_csv(_write(tmp_path / "t.csv", _lines(40)))
+    frame.iloc[:20].to_parquet(archive / "part-0.parquet", index=False)
+    frame.iloc[20:].astype({"x": np.float32}).to_parquet(archive / "part-1.parquet", index=False)
+    rows, _, _ = read_archive(str(archive))
+    got = rows.compute(scheduler="sync")
+    assert len(got) == 40 and got["x"].dtype == np.float64
+    np.testing.assert_allclose(got["x"].to_numpy(), frame["x"].to_numpy(), rtol=1e-6)
+    (archive / "part-2.parquet").write_bytes((archive / "part-0.parquet").read_bytes()[:200])
+    with pytest.raises(ValueError, match=r"part-2.parquet' cannot be read as Parquet \(a corrupt or truncated"):
+        read_archive(str(archive))
+    (archive / "part-2.parquet").unlink()
+    frame.iloc[20:].assign(track_id=1.0).to_parquet(archive / "part-1.parquet", index=False)
+    frame.iloc[:20].assign(track_id=1).to_parquet(archive / "part-0.parquet", index=False)
+    with pytest.raises(ValueError, match="an id column of integers and one of floats would split tracks"):
+        read_archive(str(archive))
