@@ -93,7 +93,8 @@ def test_a_banks_akf_family_runs_without_a_gate():
 @pytest.mark.parametrize("gating_input", ["bias", "position"])
 def test_other_gate_inputs_orders_and_dimensions(gating_input, n_experts):
     z = _data(8, targets=2)[..., :2]
-    params = make_params(2, n_experts, gating="paper", gating_input=gating_input, order=3, seed=1, noise_reinflation=0.01)
+    params = make_params(2, n_experts, gating="paper", gating_input=gating_input, order=3, seed=1,
+                         noise_reinflation=0.01)
     _compare(run_core(params, z, backend="numpy"), run_core(params, z, backend="numba"))
 
 
@@ -385,8 +386,8 @@ def test_experts_of_one_fit_share_it_only_while_their_statistics_are_the_same():
     together = run_core(params, z[60:], first, backend="numba", **options)
     moved = np.abs(reference.expert_predictions[:, :, k] - together.expert_predictions[:, :, k]).max()
     assert moved > 1e-3 * np.abs(together.expert_predictions[:, :, k]).max()   # the parted twin went its own way
-    np.testing.assert_array_equal(together.expert_predictions[:, :, twin],
-                                  run_core(params, z[60:], parted, backend="numba", **options).expert_predictions[:, :, twin])
+    resumed = run_core(params, z[60:], parted, backend="numba", **options)
+    np.testing.assert_array_equal(together.expert_predictions[:, :, twin], resumed.expert_predictions[:, :, twin])
 
 
 def _same_bytes(a, b, name):

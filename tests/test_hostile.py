@@ -396,7 +396,8 @@ def test_times_empty_masked_or_boolean_in_a_list():
     times = np.ma.masked_array([3.0, 4.0], mask=[1, 0])
     got = predictor.step_rows(["a", "a"], times, [[3.0, 3.0], [4.0, 4.0]])
     assert got[0] is None and got[1].time == 4.0
-    with pytest.raises(ValueError, match=r"times: expected numbers, dates and times \(datetime, ISO text\) or durations, got \[5.0, True\]"):
+    with pytest.raises(ValueError, match=r"times: expected numbers, dates and times \(datetime, ISO text\) or "
+                                         r"durations, got \[5.0, True\]"):
         predictor.step_rows(["a", "a"], [5.0, True], [[5.0, 5.0], [6.0, 6.0]])
 
 
@@ -535,12 +536,14 @@ def test_lengths_beyond_the_rows_are_every_row_in_both_engines(lengths):
      "measurement_dim: expected an integer >= 1"),
     (lambda: TrackPredictor(StreamConfig(length_unit=0.1)).warm_up(-1), ValueError,
      "measurement_dim: expected an integer >= 1"),
-    (lambda: __import__("kalmix.streaming").streaming.auto_length_unit(5.0), ValueError, r"values: expected shape \(T, p\)"),
+    (lambda: __import__("kalmix.streaming").streaming.auto_length_unit(5.0), ValueError,
+     r"values: expected shape \(T, p\)"),
     (lambda: engine.run(make_bank(2, "kinematic", length_unit=0.1), np.zeros((3, 1, 2)), "a"), ValueError,
      "times: expected numbers"),
     (lambda: TrackPredictor(StreamConfig(length_unit=0.1), ["x", "y", "z"]).step_row(1, 0.0, [1.0, 2.0]), ValueError,
      r"expected 3 coordinates per row \(the position names"),
-    (lambda: TrackPredictor(StreamConfig(length_unit=0.1), ["x", "x"]), ValueError, "position_names: expected distinct"),
+    (lambda: TrackPredictor(StreamConfig(length_unit=0.1), ["x", "x"]), ValueError,
+     "position_names: expected distinct"),
 ])
 def test_more_bad_calls_are_named(call, error, message):
     """Each raised AttributeError / IndexError / a numpy message, or (three names, two coordinates) was taken."""
@@ -603,7 +606,8 @@ def test_labelled_coordinates_are_taken_by_name():
     rows = _walked().step_rows([0, 0], [20.0, 21.0], pd.DataFrame({"y": [100.0, 100.0], "x": [20.0, 21.0]}))
     plain_rows = _walked().step_rows([0, 0], [20.0, 21.0], [[20.0, 100.0], [21.0, 100.0]])
     assert all(np.array_equal(a.next, b.next) for a, b in zip(rows, plain_rows))
-    with pytest.raises(ValueError, match=r"z: expected the coordinates \['x', 'y'\] \(position_names\), got \['a', 'x'\]"):
+    with pytest.raises(ValueError,
+                       match=r"z: expected the coordinates \['x', 'y'\] \(position_names\), got \['a', 'x'\]"):
         _walked().step_row(0, 20.0, pd.Series({"a": 1.0, "x": 2.0}))
     with pytest.raises(ValueError, match="need distinct text labels, or the predictor's position_names"):
         TrackPredictor(StreamConfig(length_unit=0.01)).step_row(0, 0.0, {"x": 1.0, 2: 2.0})

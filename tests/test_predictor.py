@@ -64,8 +64,10 @@ def test_loading_a_corrupt_foreign_or_mismatched_file_gives_a_clear_error(tmp_pa
     ({"n_experts": 2.5}, TypeError, r"n_experts: expected an integer >= 1, got float 2.5"),
     ({"temperature": 0.0}, ValueError, r"temperature: expected a finite number > 0, got 0.0"),
     ({"temperature": -1}, ValueError, r"temperature: expected a finite number > 0, got -1"),
-    ({"process_noise_range": (-1.0, 1.0)}, ValueError, r"process_noise_range\[0\]: expected a finite number > 0, got -1.0"),
-    ({"measurement_noise_range": (0.0, 1.0)}, ValueError, r"measurement_noise_range\[0\]: expected a finite number > 0, got 0.0"),
+    ({"process_noise_range": (-1.0, 1.0)}, ValueError,
+     r"process_noise_range\[0\]: expected a finite number > 0, got -1.0"),
+    ({"measurement_noise_range": (0.0, 1.0)}, ValueError,
+     r"measurement_noise_range\[0\]: expected a finite number > 0, got 0.0"),
     ({"expert_scale": float("inf")}, ValueError, r"expert_scale: expected a finite number > 0, got inf"),
     ({"gating": "magic"}, ValueError, r"gating: expected one of 'fixed_share', 'paper', 'random', 'none', got 'magic'"),
     ({"dynamics": "kalman"}, ValueError, r"dynamics: expected one of 'rls', 'literal', 'fixed', got 'kalman'"),
@@ -89,9 +91,11 @@ def test_bad_measurements_are_named_with_expected_and_received():
         predictor.step([1.0, np.inf, 3.0])
     with pytest.raises(TypeError, match=r"z: expected numbers \(NaN for a missing measurement\)"):
         predictor.step(["a", "b", "c"])
-    with pytest.raises(ValueError, match=r"z: expected shape \(p,\) for one stream or \(N, p\) for N streams, got \(2, 2, 2\)"):
+    with pytest.raises(ValueError,
+                       match=r"z: expected shape \(p,\) for one stream or \(N, p\) for N streams, got \(2, 2, 2\)"):
         MixturePredictor(3).step(np.zeros((2, 2, 2)))
-    with pytest.raises(ValueError, match=r"measurements: expected shape \(T, p\) or \(T, N, p\) with T >= 1, got \(5,\)"):
+    with pytest.raises(ValueError,
+                       match=r"measurements: expected shape \(T, p\) or \(T, N, p\) with T >= 1, got \(5,\)"):
         MixturePredictor(3).run(np.zeros(5))
     with pytest.raises(ValueError, match=r"horizon: expected an integer in \[1, 10000\], got 0"):
         predictor.predict(0)

@@ -7,10 +7,10 @@ import pandas as pd
 import pytest
 
 from kalmix.bank import DEFAULT_BANK, DEFAULT_REACH, make_bank
-
-REACH = 8.0   # what the README advises on tracks sampled at irregular intervals
 from kalmix.core import engine
 from kalmix.core.compiled import engine as ce
+
+REACH = 8.0   # what the README advises on tracks sampled at irregular intervals
 
 
 def _sparse_track(seed=0, rows=120):

@@ -55,7 +55,8 @@ def test_readme_predict_output_is_what_predict_prints(tmp_path):
 
     shown = re.search(r"\$ kalmix predict examples/boats.csv \| head -(\d+)\n(.*?)```", README.read_text(), flags=re.S)
     count, lines = int(shown.group(1)), shown.group(2).strip().splitlines()
-    done = subprocess.run([sys.executable, "-m", "kalmix.cli", "predict", str(README.parent / "examples" / "boats.csv")],
+    boats = str(README.parent / "examples" / "boats.csv")
+    done = subprocess.run([sys.executable, "-m", "kalmix.cli", "predict", boats],
                           capture_output=True, text=True, cwd=tmp_path, timeout=900)
     assert done.returncode == 0, done.stderr
     assert lines == done.stdout.splitlines()[:count]

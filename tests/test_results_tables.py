@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from benchmarks import results_tables as rt
+from benchmarks import results_tables as rt  # noqa: E402 (after the path is set)
 
 
 def _tables(markdown: str):

@@ -75,7 +75,8 @@ def flops_per_expert_step(p: int, order: int, dynamics: str = "rls") -> float:
     predict = 2 * (2 * p * n * n + n * n) + 2 * n * n
     total = update + predict + 10 * p
     if dynamics == "rls":
-        total += 4 * (d * d + p * d) + 2 * (d**3 / 3 + 2 * p * d * d) + 2 * (p**3 * (order + 1) ** 2 + n * n) + 4 * p * d
+        total += (4 * (d * d + p * d) + 2 * (d**3 / 3 + 2 * p * d * d) + 2 * (p**3 * (order + 1) ** 2 + n * n)
+                  + 4 * p * d)
     return float(total)
 
 
@@ -143,7 +144,8 @@ def bench_single_stream(steps: int, imm_steps: int, numpy_steps: int, repeats: i
                   kalmix_steps_per_s=steps / numba_s, kalmix_numpy_steps_per_s=numpy_steps / numpy_s)
     try:
         imm = _filterpy_imm(params, z[:imm_steps])
-        result["filterpy_imm40_steps_per_s"] = imm_steps / median_seconds(imm, max(1, repeats // 2), warmup=lambda: None)
+        imm_seconds = median_seconds(imm, max(1, repeats // 2), warmup=lambda: None)
+        result["filterpy_imm40_steps_per_s"] = imm_steps / imm_seconds
         result["ratio_vs_filterpy"] = result["kalmix_steps_per_s"] / result["filterpy_imm40_steps_per_s"]
     except ImportError:
         result["filterpy_imm40_steps_per_s"] = None
@@ -304,7 +306,8 @@ def markdown_table(results: dict) -> str:
         lines.append(f"| (b) N={n:,} x K=40 ({steps} steps): target-steps/s; expert-steps/s; peak MB/target | "
                      f"{_fmt(ts)}; {_fmt(es)}; {mb:.3f} | | | {target} |")
     lines.append(f"| (c) plain KF, {c['series']:,} series x {c['steps']:,} steps: series-steps/s | "
-                 f"{_fmt(c['kalmix_series_steps_per_s'])} | simdkalman: {_fmt(c.get('simdkalman_series_steps_per_s'))} | "
+                 f"{_fmt(c['kalmix_series_steps_per_s'])} | "
+                 f"simdkalman: {_fmt(c.get('simdkalman_series_steps_per_s'))} | "
                  f"{_fmt(c.get('ratio_vs_simdkalman'))}x | >= 1.0x |")
     if "max_rel_difference" in c:
         lines.append(f"| (c) same predictions as simdkalman: max relative difference | "
@@ -314,8 +317,8 @@ def markdown_table(results: dict) -> str:
     lines.append("| (d) ns per expert-step vs state size n (" + ", ".join(map(str, d["state_dims"])) + "), K=40 | "
                  + ", ".join(f"{v:.0f}" for v in d["ns_per_expert_step_vs_order"]) + " | | | |")
     lines.append("")
-    lines.append(f"Machine: {machine['cores']} cores at {machine['ghz']:.2f} GHz, {machine['simd_doubles']} doubles per "
-                 f"vector; peak {machine['peak_flops'] / 1e9:.0f} GFLOP/s (vector FMA), "
+    lines.append(f"Machine: {machine['cores']} cores at {machine['ghz']:.2f} GHz, {machine['simd_doubles']} doubles "
+                 f"per vector; peak {machine['peak_flops'] / 1e9:.0f} GFLOP/s (vector FMA), "
                  f"{machine['scalar_peak_flops'] / 1e9:.0f} GFLOP/s (scalar FMA).")
     lines.append(f"Physical estimate: one expert-step (rls, p=3, n=6) ~ {phys['flops_per_expert_step_rls_p3_o2']:.0f} "
                  f"flops; (a) runs at {phys['single_stream_gflops']:.2f} GFLOP/s = "

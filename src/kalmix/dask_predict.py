@@ -55,10 +55,11 @@ import pandas as pd
 from .io.tables import (TrackColumns, _check_unique, _csv_options, _header, _normalise, _to_float, check_output_names,
                         detect_columns)
 
-__all__ = ["predict_dask", "read_archive", "archive_files", "prepare", "data_units", "PIECE_ROWS", "BATCH_TRACKS"]
+__all__ = ["predict_dask", "read_archive", "archive_files", "prepare", "data_units", "PARTITION_ROWS",
+           "BATCH_TRACKS"]
 
 #: Rows of a Parquet archive read as one input partition (whole row groups; a CSV file is one partition).
-PIECE_ROWS = 1_000_000
+PARTITION_ROWS = 1_000_000
 #: Tracks stepped together in one batch of a partition (their states are dropped after it).
 BATCH_TRACKS = 1_024
 #: Row number inside an input partition; the partition's number goes above it (file order of every row).
@@ -190,7 +191,7 @@ def _pieces(files, fmt, partition_rows):
         groups, rows, start = [], 0, 0
         for g in range(meta.num_row_groups):
             n = meta.row_group(g).num_rows
-            if groups and rows + n > piece_rows:
+            if groups and rows + n > partition_rows:
                 pieces.append((len(pieces), path, groups, start))
                 groups, start, rows = [], start + rows, 0
             groups.append(g)
@@ -266,7 +267,8 @@ def _read_piece(piece, fmt, track_columns):
     return _canonical(_read_raw(path, fmt, columns, groups), columns, index, path, start)
 
 
-def read_archive(source, *, time=None, positions=None, track_id=None, piece_rows: int = PIECE_ROWS):
+def read_archive(source, *, time=None, positions=None, track_id=None,
+                 partition_rows: int = PARTITION_ROWS):
     """A partitioned archive as a dask DataFrame ready for :func:`predict_dask`.
 
     Parameters
@@ -280,7 +282,7 @@ def read_archive(source, *, time=None, positions=None, track_id=None, piece_rows
         The position columns' names, detected when omitted.
     track_id : str, optional
         The track id column's name, detected when omitted.
-    piece_rows : int
+    partition_rows : int
         Rows of Parquet row groups read as one partition (a CSV file is one partition).
 
     Returns
@@ -296,7 +298,7 @@ def read_archive(source, *, time=None, positions=None, track_id=None, piece_rows
     check_output_names(columns)
     _check_files(files, fmt, columns)
     meta = _canonical(_read_raw(files[0], fmt, columns, nrows=0), columns, 0, files[0])
-    pieces = _pieces(files, fmt, piece_rows)
+    pieces = _pieces(files, fmt, partition_rows)
     _check_partitions(len(pieces))
     frame = dd.from_map(_read_piece, pieces, fmt=fmt, track_columns=columns, meta=meta,
                         label="kalmix-read", enforce_metadata=False)

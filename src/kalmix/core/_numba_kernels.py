@@ -23,8 +23,8 @@ import numba as nb
 import numpy as np
 
 from . import _numba_linalg as la
+from .compiled._cache import JIT as _JIT
 
-_JIT = la._JIT
 jit = la.jit
 
 #: :data:`kalmix.core.gating.LOG_FLOOR` and :data:`kalmix.core.gating.ERROR_CAP` (a test checks
@@ -386,7 +386,7 @@ def _reanchor_target(j, k_count, n, p, order, z, delta, prior, origin, history, 
         for i in range(p):
             history[j, lag, i] = history[j, lag, i] - delta[i]
     for u in range(gm.shape[2]):
-        _translate_statistics(gm[:, :, u], cr[:, :, u], n, p, delta)
+        translate_statistics(gm[:, :, u], cr[:, :, u], n, p, delta)
     for i in range(p):   # drift u + (sum_j A_j - I) delta
         for k in range(k_count):
             acc = off[i, k]
@@ -396,7 +396,7 @@ def _reanchor_target(j, k_count, n, p, order, z, delta, prior, origin, history, 
 
 
 @jit
-def _stepped_on(j, p, delta, history, miss_limit):
+def stepped_on(j, p, delta, history, miss_limit):
     """Target j's step from its last learned features to ``delta`` is within ``miss_limit`` (it moved on)."""
     for i in range(p):
         if not abs(delta[i] - history[j, 0, i]) <= miss_limit:
@@ -405,7 +405,7 @@ def _stepped_on(j, p, delta, history, miss_limit):
 
 
 @jit
-def _held_near(gm, n, p, delta, feature_limit):
+def held_near(gm, n, p, delta, feature_limit):
     """One fit's statistics ``gm (d, d)`` hold their data (the weighted mean regressor) within
     ``feature_limit`` of the new origin ``delta`` (no data: True)."""
     weight = gm[n, n]
@@ -419,16 +419,16 @@ def _held_near(gm, n, p, delta, feature_limit):
 @jit
 def _moves_on(j, n, p, delta, history, gm, miss_limit, feature_limit):
     """:func:`kalmix.core.mixture.translates` of target j (rls), its fits' statistics ``gm (d, d, fits)``."""
-    if not _stepped_on(j, p, delta, history, miss_limit):
+    if not stepped_on(j, p, delta, history, miss_limit):
         return False
     for u in range(gm.shape[2]):
-        if not _held_near(gm[:, :, u], n, p, delta, feature_limit):
+        if not held_near(gm[:, :, u], n, p, delta, feature_limit):
             return False
     return True
 
 
 @jit
-def _translate_statistics(gm, cr, n, p, delta):
+def translate_statistics(gm, cr, n, p, delta):
     """One fit's statistics ``gm (d, d)``, ``cr (p, d)`` for features moved by ``-delta``, in place, each entry
     from the old values in the spec's order: ``S <- M S M^T``, ``M_xy <- (M_xy - delta r) M^T``
     (:func:`kalmix.core.mixture._translated`; the scalar kernel moves each expert's with it)."""
@@ -610,7 +610,7 @@ def _add_process_noise(cv, q, kappa, state_jitter, max_variance, acc, mu, before
 
 # ---------------------------------------------------------------- gate
 @jit
-def _posterior(j, log_lik, weights, old_weights, log_weights, joint, resp):
+def posterior(j, log_lik, weights, old_weights, log_weights, joint, resp):
     """Eq. 10: responsibilities ``h`` from the prior weights and the log-likelihoods.
 
     Keeps the prior weights and their logs (the fixed-share gate reuses them) and
@@ -629,15 +629,15 @@ def _posterior(j, log_lik, weights, old_weights, log_weights, joint, resp):
 
 
 @jit
-def _learning_rate(valid_steps, dominant_error, eta_initial, eta_minimum, eta_decay, eta_sensitivity):
+def learning_rate(valid_steps, dominant_error, eta_initial, eta_minimum, eta_decay, eta_sensitivity):
     """Adaptive rate ``eta_k = eta(t) (1 - exp(-alpha e^2))`` from the dominant expert's squared error."""
     base = eta_minimum + (eta_initial - eta_minimum) * math.exp(-float(valid_steps) / eta_decay)
     return base * -math.expm1(-eta_sensitivity * min(dominant_error, ERROR_CAP))
 
 
 @jit
-def _learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik, temperature, share,
-                gate_weights, gate_input, weights, joint, logits):
+def learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik, temperature, share,
+               gate_weights, gate_input, weights, joint, logits):
     """Eq. 9 (paper gate: gradient step on the gate weights) or the fixed-share update of the weights."""
     k_count = log_lik.shape[0]
     if gating == 1:
@@ -654,9 +654,9 @@ def _learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik,
 
 
 @jit
-def _next_gate(j, valid, learn, features, resp, eta_now, gating, gating_input, velocity_scale, temperature,
-               seed, history, gate_input, gate_weights, weights, stream_ids, steps, valid_steps,
-               responsibilities, eta, velocity, logits, rw):
+def next_gate(j, valid, learn, features, resp, eta_now, gating, gating_input, velocity_scale, temperature,
+              seed, history, gate_input, gate_weights, weights, stream_ids, steps, valid_steps,
+              responsibilities, eta, velocity, logits, rw):
     """Gate weights for the next prediction (eq. 8 or the random gate), then the step's bookkeeping:
     the measurement history shifts, the counters advance, and the scores are kept."""
     p, order = features.shape[0], history.shape[1]
@@ -755,7 +755,7 @@ def _take(buffer, position, shape):
 
 @jit
 def scratch_size(k_count, p, order):
-    """Sizes of the float, int and bool buffers :func:`_advance_target` takes its scratch from (one target;
+    """Sizes of the float, int and bool buffers :func:`advance_target` takes its scratch from (one target;
     an undersized buffer makes ``reshape`` fail, so the AKF tests check these sums)."""
     n = order * p
     d = n + 1
@@ -768,7 +768,7 @@ def scratch_size(k_count, p, order):
 
 
 @nb.njit(inline="always", **_JIT)
-def _advance_target(j, measurements, lengths, horizon, params, state, records, out_one, fbuf, ibuf, bbuf):
+def advance_target(j, measurements, lengths, horizon, params, state, records, out_one, fbuf, ibuf, bbuf):
     """Target ``j`` through its steps; ``params``, ``state`` (mutated in place) and ``records`` are the
     tuples of :func:`kalmix.core.fast.run_fast` (unpacked here: one call with three tuples compiles much
     faster than one with ~60 arguments). ``out_one (T, N, K, p)``, if not empty, receives every expert's
@@ -930,15 +930,15 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records, o
                     acc[k] += e * e
             for k in range(k_count):
                 log_lik[k] = -log_scale[k] - acc[k] / (2.0 * expert_scale[k] ** 2)
-            dominant = _posterior(j, log_lik, weights, old_weights, log_weights, joint, resp)
+            dominant = posterior(j, log_lik, weights, old_weights, log_weights, joint, resp)
             dom_err = 0.0
             for i in range(p):
                 dom_err += errors[i, dominant] ** 2
-            eta_now = _learning_rate(valid_steps[j], dom_err, eta_initial, eta_minimum, eta_decay, eta_sensitivity)
+            eta_now = learning_rate(valid_steps[j], dom_err, eta_initial, eta_minimum, eta_decay, eta_sensitivity)
             rate = eta_now if learn else 0.0
 
-            _learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik, temperature, share,
-                        gate_weights, gate_input, weights, joint, logits)
+            learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik, temperature, share,
+                       gate_weights, gate_input, weights, joint, logits)
         if adapt and learn:
             _adapt_noise(q, q_init, q_shrink * rate, resp, floor, reinflation, acc)
             _adapt_noise(r, r_init, r_shrink * rate, resp, floor, reinflation, acc)
@@ -1014,9 +1014,9 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records, o
                     ep[i, k] = origin[j, i] + kappa * mu[i, k]
 
         # 5. gate for the new prediction, bookkeeping
-        _next_gate(j, valid, learn, features, resp, eta_now, gating, gating_input, velocity_scale, temperature,
-                   seed, history, gate_input, gate_weights, weights, stream_ids, steps, valid_steps,
-                   responsibilities, eta, velocity, logits, rw)
+        next_gate(j, valid, learn, features, resp, eta_now, gating, gating_input, velocity_scale, temperature,
+                  seed, history, gate_input, gate_weights, weights, stream_ids, steps, valid_steps,
+                  responsibilities, eta, velocity, logits, rw)
 
         # outputs
         if horizon > 1:
@@ -1084,4 +1084,4 @@ def run_targets(lo, hi, measurements, lengths, horizon, params, state, records):
     bbuf = np.empty(bools, dtype=np.bool_)
     out_one = np.empty((0, 0, 0, 0))
     for j in range(lo, hi):
-        _advance_target(j, measurements, lengths, horizon, params, state, records, out_one, fbuf, ibuf, bbuf)
+        advance_target(j, measurements, lengths, horizon, params, state, records, out_one, fbuf, ibuf, bbuf)

@@ -18,11 +18,11 @@ import numba as nb
 import numpy as np
 from numba.core.extending import overload
 
+from .compiled._cache import JIT as _JIT
 from .compiled._cache import configure_cache
 
 configure_cache()  # before any decorator below: the cache is keyed on every compiled source
 
-_JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 jit = nb.njit(**_JIT)
 
 # Half-width of the band around the guard's bound in which the Schur-Cohn test defers

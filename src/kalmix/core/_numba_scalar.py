@@ -16,10 +16,10 @@ import numba as nb
 import numpy as np
 
 from . import _numba_linalg as la
-from ._numba_kernels import (_held_near, _learn_gate, _learning_rate, _next_gate, _posterior, _stepped_on,
-                             _translate_statistics)
+from .compiled._cache import JIT as _JIT
+from ._numba_kernels import (held_near, learn_gate, learning_rate, next_gate, posterior, stepped_on,
+                             translate_statistics)
 
-_JIT = la._JIT
 jit = la.jit
 jit_inline = nb.njit(inline="always", **_JIT)
 
@@ -296,15 +296,15 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records):
                     errors[k, i] = e
                     squared += e * e
                 log_lik[k] = -log_scale[k] - squared / (2.0 * expert_scale[k] ** 2)
-            dominant = _posterior(j, log_lik, weights, old_weights, log_weights, joint, resp)
+            dominant = posterior(j, log_lik, weights, old_weights, log_weights, joint, resp)
             dom_err = 0.0
             for i in range(p):
                 dom_err += errors[dominant, i] ** 2
-            eta_now = _learning_rate(valid_steps[j], dom_err, eta_initial, eta_minimum, eta_decay, eta_sensitivity)
+            eta_now = learning_rate(valid_steps[j], dom_err, eta_initial, eta_minimum, eta_decay, eta_sensitivity)
             rate = eta_now if learn else 0.0
 
-            _learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik, temperature, share,
-                        gate_weights, gate_input, weights, joint, logits)
+            learn_gate(j, gating, learn, rate, resp, old_weights, log_weights, log_lik, temperature, share,
+                       gate_weights, gate_input, weights, joint, logits)
         if adapt and learn:
             for k in range(k_count):
                 factor = max(1.0 - q_shrink * rate * resp[k], 0.0)
@@ -525,9 +525,9 @@ def _advance_target(j, measurements, lengths, horizon, params, state, records):
                     expert_predictions[j, k, i] = origin[j, i] + kappa * mean[j, k, i]
 
         # 5. gate for the new prediction, bookkeeping
-        _next_gate(j, valid, learn, features, resp, eta_now, gating, gating_input, velocity_scale, temperature,
-                   seed, history, gate_input, gate_weights, weights, stream_ids, steps, valid_steps,
-                   responsibilities, eta, velocity, logits, rw)
+        next_gate(j, valid, learn, features, resp, eta_now, gating, gating_input, velocity_scale, temperature,
+                  seed, history, gate_input, gate_weights, weights, stream_ids, steps, valid_steps,
+                  responsibilities, eta, velocity, logits, rw)
 
         # outputs
         for i in range(p):
@@ -595,7 +595,7 @@ def _reanchor_target(j, n, p, order, z, delta, prior, origin, history, mean, gra
         for i in range(p):
             history[j, lag, i] = history[j, lag, i] - delta[i]
     for k in range(mean.shape[1]):
-        _translate_statistics(gram[j, k], cross[j, k], n, p, delta)
+        translate_statistics(gram[j, k], cross[j, k], n, p, delta)
         for i in range(p):   # drift u + (sum_j A_j - I) delta
             acc = offset[j, k, i]
             for column in range(n):
@@ -606,10 +606,10 @@ def _reanchor_target(j, n, p, order, z, delta, prior, origin, history, mean, gra
 @jit
 def _moves_on(j, n, p, delta, history, gram, miss_limit, feature_limit):
     """:func:`kalmix.core.mixture.translates` of target j (rls), its experts' statistics ``gram (N, K, d, d)``."""
-    if not _stepped_on(j, p, delta, history, miss_limit):
+    if not stepped_on(j, p, delta, history, miss_limit):
         return False
     for k in range(gram.shape[1]):
-        if not _held_near(gram[j, k], n, p, delta, feature_limit):
+        if not held_near(gram[j, k], n, p, delta, feature_limit):
             return False
     return True
 

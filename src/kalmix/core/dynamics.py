@@ -40,7 +40,9 @@ __all__ = [
     "literal_transition",
 ]
 
-_GUARD_SHRINK = np.array([1.0, 0.8, 0.6, 0.4, 0.2, 0.0])
+#: The shrink factors gamma that :func:`guard_theta` tries, largest first (the compiled loop gets them
+#: packed with its parameters, :func:`kalmix.core.fast.pack_params`).
+GUARD_SHRINK = np.array([1.0, 0.8, 0.6, 0.4, 0.2, 0.0])
 
 
 def polynomial_prior(measurement_dim: int, order: int, degree: int | None = None) -> np.ndarray:
@@ -163,7 +165,7 @@ def guard_theta(theta, prior, order: int, bound: float):
     The unshrunk candidate is checked first; the eigenvalues of the shrunk ones are
     computed only for the thetas that fail it (same result, far fewer eigenvalues).
     """
-    gammas = _GUARD_SHRINK.reshape((-1,) + (1,) * theta.ndim)
+    gammas = GUARD_SHRINK.reshape((-1,) + (1,) * theta.ndim)
     candidates = prior + gammas * (theta - prior)
     first, _ = companion_from_theta(candidates[0], order)
     failing = ~(spectral_radius(first) <= bound)

@@ -74,7 +74,7 @@ def pack_params(params: MixtureParams) -> tuple:
         float(params.eta_initial), float(params.eta_minimum), float(params.eta_decay_steps),
         float(params.eta_sensitivity), bool(params.adapt_noise), float(params.process_noise_shrink),
         float(params.measurement_noise_shrink), float(params.noise_floor), float(params.noise_reinflation),
-        int(params.random_seed), float(params.state_jitter), dyn._GUARD_SHRINK.astype(np.float64),
+        int(params.random_seed), float(params.state_jitter), dyn.GUARD_SHRINK.astype(np.float64),
         float(params.max_variance), fast_guard(params),
         float(params.feature_limit), float(params.miss_limit),
     )
@@ -148,7 +148,9 @@ def run_fast(
         fill = np.empty
     else:
         lengths = np.minimum(np.asarray(lengths, dtype=np.int64), t_count)
-        fill = (lambda shape: np.full(shape, np.nan))
+
+        def fill(shape):
+            return np.full(shape, np.nan)
     predictions = fill((t_count, n, p))
     if diagnostics:
         weights, eta = fill((t_count, n, k)), fill((t_count, n))

@@ -45,7 +45,8 @@ from . import gating as gate
 from ._libm import first_max, ordered_matmul, ordered_sum
 from .kalman import cholesky_inverse
 
-__all__ = ["MixtureParams", "MixtureState", "StepOutput", "RunResult", "init_state", "step", "predict", "observation_matrix"]
+__all__ = ["MixtureParams", "MixtureState", "StepOutput", "RunResult", "init_state", "step", "predict",
+           "observation_matrix"]
 
 DYNAMICS = ("rls", "literal", "fixed")
 GATINGS = ("fixed_share", "paper", "random", "none")
@@ -250,7 +251,8 @@ def _filter_update(mean: np.ndarray, cov: np.ndarray, features: np.ndarray, meas
     w = (cov[..., :, :p] - ordered_matmul(gain, cov[..., :p, :p])) - gain * r_diagonal[..., None, :]
     correction = np.zeros_like(cov)
     for l in range(p):
-        correction = correction + (gain[..., :, l:l + 1] * cov[..., l:l + 1, :] + w[..., :, l:l + 1] * gain[..., None, :, l])
+        correction = correction + (gain[..., :, l:l + 1] * cov[..., l:l + 1, :]
+                                   + w[..., :, l:l + 1] * gain[..., None, :, l])
     return new_mean, _mirror_upper(cov - correction)
 
 
@@ -377,7 +379,8 @@ def _translated(gram, cross, transition, offset, delta, p, order):
     col = gram[..., :, n]                      # (N, K, d): S_{a, d}
     corner = gram[..., n, n]                   # (N, K)
     bar_a, bar_b = bar[..., :, None], bar[..., None, :]
-    new_gram = ((gram - bar_a * row[..., None, :]) - col[..., :, None] * bar_b) + (bar_a * bar_b) * corner[..., None, None]
+    new_gram = (((gram - bar_a * row[..., None, :]) - col[..., :, None] * bar_b)
+                + (bar_a * bar_b) * corner[..., None, None])
     moved = cross - delta[:, None, :, None] * row[..., None, :]          # (N, K, p, d)
     new_cross = moved - moved[..., :, n][..., None] * bar_b
     drift = offset[..., :p]

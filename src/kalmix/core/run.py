@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fast import numba_available, run_fast
+from . import fast
 from .mixture import MixtureParams, MixtureState, RunResult, init_state, predict, step
 
 __all__ = ["RunResult", "run_core", "BACKENDS"]
@@ -50,9 +50,9 @@ def run_core(
     if backend not in BACKENDS:
         raise ValueError(f"backend: expected one of {', '.join(map(repr, BACKENDS))}, got {backend!r}")
     if backend != "numpy":
-        if numba_available():
-            return run_fast(params, measurements, state, horizon=horizon, diagnostics=diagnostics,
-                            expert_predictions=expert_predictions, progress=progress)
+        if fast.numba_available():
+            return fast.run_fast(params, measurements, state, horizon=horizon, diagnostics=diagnostics,
+                                 expert_predictions=expert_predictions, progress=progress)
         if backend == "numba":
             raise ImportError("backend='numba' needs numba (the 'fast' extra): pip install 'kalmix[fast]'")
     t_count, n = measurements.shape[:2]

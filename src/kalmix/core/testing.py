@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .engine import Bank, init_bank_state, run, tree_leaves
+from .engine import Bank, run, tree_leaves
 
 __all__ = ["check_bank", "adversarial_tracks", "benign_tracks"]
 

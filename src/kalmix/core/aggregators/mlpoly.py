@@ -60,5 +60,6 @@ def update(params: Params, state: State, experts, measurement, awake, learn) -> 
     regret = np.where(go, rho * state.regret + r, state.regret)
     variance = np.where(go, rho * state.variance + squared, state.variance)
     scored_rows = learn & finite & awake.any(axis=-1)
-    bound = np.where(scored_rows, np.maximum(rho * state.bound, np.where(np.isfinite(squared), squared, 0).max(axis=-1)), state.bound)
+    largest = np.where(np.isfinite(squared), squared, 0).max(axis=-1)
+    bound = np.where(scored_rows, np.maximum(rho * state.bound, largest), state.bound)
     return State(regret, variance, bound)

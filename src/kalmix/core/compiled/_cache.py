@@ -17,8 +17,8 @@ KERNEL_JIT = dict(JIT, _nrt=False)
 #: Every file whose code ends up in a compiled kernel.
 KERNEL_SOURCES = (
     "_numba_linalg.py", "_numba_kernels.py", "_numba_scalar.py",
-    "compiled/kinematic.py", "compiled/ar.py", "compiled/turn.py", "compiled/rules.py", "compiled/screen.py", "compiled/_cache.py",
-    "compiled/calibration.py", "compiled/lead.py", "compiled/akf.py",
+    "compiled/kinematic.py", "compiled/ar.py", "compiled/turn.py", "compiled/rules.py", "compiled/screen.py",
+    "compiled/_cache.py", "compiled/calibration.py", "compiled/lead.py", "compiled/akf.py",
 )
 #: The GPU engine's modules: their CPU-side numba functions are cached too. What they import from the spec
 #: modules (state classes) is used on the host only, so the import check leaves them out.

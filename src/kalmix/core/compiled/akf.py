@@ -1,6 +1,6 @@
 """The bank engine's AKF family (:mod:`kalmix.core.families.akf`) over a block of rows, target by target.
 
-Each target runs through :func:`kalmix.core._numba_kernels._advance_target` (the paper mixture's
+Each target runs through :func:`kalmix.core._numba_kernels.advance_target` (the paper mixture's
 compiled kernel) in pieces cut at its own restart rows, and its experts' predictions are written
 into the bank's buffer one row later (the forecast of row t is the prediction made after row
 t - 1). The same driver runs on the CPU engine (targets in ranges on threads) and on the GPU
@@ -111,8 +111,8 @@ def _run_block(lo, hi, params, state, fresh, z, learn, restart, lengths, out, of
             piece[n] = end - begin
             records = (predictions[begin:end], False, predictions[begin:begin], z[begin:begin, :, 0],
                        recorded[begin:begin], recorded[begin:begin], record_later, later[begin:end])
-            kernels._advance_target(n, fed[begin:end], piece, horizon, params, state, records, recorded[begin:end],
-                                    fbuf, ibuf, bbuf)
+            kernels.advance_target(n, fed[begin:end], piece, horizon, params, state, records, recorded[begin:end],
+                                   fbuf, ibuf, bbuf)
             for t in range(begin, end):
                 started = started or learn[t, n]
                 if not started:

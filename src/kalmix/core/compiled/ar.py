@@ -16,13 +16,13 @@ import numpy as np
 
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
-from .kinematic import _delta   # the same clipped step in time units
+from .kinematic import step_delta   # the same clipped step in time units
 
 configure_cache()
 
 
 @nb.njit(**_JIT)
-def _clip(value, bound):
+def bounded(value, bound):
     if math.isnan(value):
         return 0.0
     return min(max(value, -bound), bound)
@@ -42,7 +42,7 @@ def _velocity(m, weights_kc, x, max_velocity):
     acc = weights_kc[0] * x[0]
     for j in range(1, m):
         acc = acc + weights_kc[j] * x[j]
-    return _clip(acc, max_velocity)
+    return bounded(acc, max_velocity)
 
 
 #: Most rows of an iterated forecast (the spec's ``ITERATED_STEPS``; a test keeps them equal).
@@ -266,7 +266,7 @@ def _drive(lo, hi, order, bias, constants, state, rows, work):
         for t in range(lengths[n]):
             # every expert's forecast of this row, then its learning (a restart row starts it again)
             started = initialised[n]
-            delta = _delta(times[t, n], last_time[n], time_unit, max_step)
+            delta = step_delta(times[t, n], last_time[n], time_unit, max_step)
             span = delta * length_unit
             for k in range(k_count):
                 if started:
@@ -284,7 +284,7 @@ def _drive(lo, hi, order, bias, constants, state, rows, work):
                                history[n, k], scale, weight, error, count, jumps, n, k)
                 elif delta > 0:
                     for c in range(p):
-                        v[c] = _clip((z[t, n, c] - position[n, c]) / delta / length_unit, max_velocity)
+                        v[c] = bounded((z[t, n, c] - position[n, c]) / delta / length_unit, max_velocity)
                     _learn(order, bias, m, forgetting, ridge, persistence, jump_threshold, window, max_velocity, v,
                            weights[n], info[n], target[n], history[n], scale, weight, error, count, jumps, n, x, a, rhs,
                            low, y, sol, acc, go, new_scale, informative)
@@ -296,7 +296,7 @@ def _drive(lo, hi, order, bias, constants, state, rows, work):
                 initialised[n] = False
             # forecast made after this row, for a later time
             if want_ahead:
-                ahead_delta = _delta(ahead_times[t, n], last_time[n], time_unit, max_step)
+                ahead_delta = step_delta(ahead_times[t, n], last_time[n], time_unit, max_step)
                 for k in range(k_count):
                     if initialised[n]:
                         _forecast(order, bias, m, ahead_delta, length_unit, max_velocity, weights[n, k],

@@ -77,7 +77,7 @@ def unpack_rule(bank: Bank, a, b, c, d, e):
     return module.State(a, d, e)
 
 
-def _rule_scalars(bank: Bank, params=None):
+def rule_scalars(bank: Bank, params=None):
     """The rule's scalars as the kernels take them: code, forgetting, share, scale, scale_factor, bound_forgetting,
     delay, clip (of ``params``, default the bank's one-step rule's)."""
     params = bank.rule_params if params is None else params
@@ -186,13 +186,13 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
             families.append(type(fstate)(*(np.array(a, copy=True, order="C") for a in fstate)))
     horizon = ahead_frames if with_ahead else 1
     a, b, c, d, e = pack_rule(bank, state.rule, n)
-    rule_args = _rule_scalars(bank)
+    rule_args = rule_scalars(bank)
     cal_args = pack_calibration(bank.calibration_params)
     initial_variance = float(bank.calibration_params.initial_variance)
     cal = _copy(state.calibration)
     if lead is not None:
         lead_rule = pack_rule(bank, state.lead.rule, n)
-        lead_args = _rule_scalars(bank, bank.lead_rule_params)
+        lead_args = rule_scalars(bank, bank.lead_rule_params)
         lead_cal = _copy(state.lead.calibration)
         due = np.array(state.lead.due, dtype=np.float64, copy=True, order="C")
         pending = np.array(state.lead.pending, dtype=np.float64, copy=True, order="C")

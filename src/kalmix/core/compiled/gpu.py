@@ -23,19 +23,19 @@ from __future__ import annotations
 import math
 import os
 
-import numba as nb
 import numpy as np
 
 from ..calibration import CalibrationState
 from ..engine import Bank, BankState, EngineResult
 from ..families.kinematic import KinematicState
 from ..screen import ScreenState
+from . import gpu_staged
 from . import kinematic as ckin
 from . import rules as crules
 from . import screen as cscreen
-from ._cache import JIT as _JIT
 from .calibration import calibrate_row
 from .calibration import pack_params as pack_calibration
+from .gpu_staged import MAX_AKF_STATE, sleep_beyond   # (the reach's sleep, shared with the staged engine)
 
 if not hasattr(np, "row_stack"):  # numba-cuda 0.30 registers an overload of np.row_stack, gone from numpy 2.4+
     np.row_stack = np.vstack
@@ -46,34 +46,12 @@ except ImportError:  # pragma: no cover - depends on the install
 
 __all__ = ["run", "gpu_available", "MAX_EXPERTS", "THREADS_PER_BLOCK"]
 
-#: Largest AKF state (order x coordinates) the GPU's guard takes (its scratch is fixed-size there).
-MAX_AKF_STATE = 32
-_GUARD_ROWS = MAX_AKF_STATE + 1
-
-if cuda is not None:
-    from numba.core.extending import overload
-
-    from .. import _numba_linalg as la
-
-    @overload(la.radius_le_eig, target="cuda")
-    def _radius_le_on_gpu(theta, transition, p, n, bound, scratch, coef):
-        """The guard's last word on a candidate whose roots lie within its band of the bound: no eigenvalues on
-        a GPU, so the Schur-Cohn test on its characteristic polynomial ``coef`` at exactly the bound."""
-        def impl(theta, transition, p, n, bound, scratch, coef):
-            work = cuda.local.array((_GUARD_ROWS, 1), float64)
-            saved = cuda.local.array((_GUARD_ROWS, 1), float64)
-            norm = cuda.local.array(1, float64)
-            inside = cuda.local.array(1, boolean)
-            la.schur_cohn(coef, n, bound, work, saved, norm, inside, 1)
-            return inside[0]
-        return impl
-
 MAX_EXPERTS = 64
 THREADS_PER_BLOCK = 128
 _kernel_cache = {}
-forecast_expert, step_expert, delta_of = ckin.forecast_expert, ckin.step_expert, ckin._delta
+forecast_expert, step_expert, delta_of = ckin.forecast_expert, ckin.step_expert, ckin.step_delta
 screen_row = cscreen.screen_row
-forecast_row, write_row, learn_rule, cold_row = crules.forecast_row, crules.write_row, crules._learn, crules.cold_row
+forecast_row, write_row, learn_rule, cold_row = crules.forecast_row, crules.write_row, crules.learn_row, crules.cold_row
 restart_row = crules.restart_row
 
 
@@ -82,27 +60,6 @@ def gpu_available() -> bool:
     if cuda is None:
         return False
     return bool(os.environ.get("NUMBA_ENABLE_CUDASIM") == "1" or cuda.is_available())
-
-
-@nb.njit(inline="always", **_JIT)
-def sleep_beyond(far, x, span, reach):
-    """The spec's :func:`kalmix.core.engine.within_reach` on one target's row ``x (K, p)``: across a ``span`` over
-    ``reach`` the ``far`` experts sleep (NaN) if an expert not far has a forecast."""
-    if not span > reach:
-        return
-    k_count, p = x.shape
-    near = False
-    for k in range(k_count):
-        if not far[k]:
-            finite = True
-            for ci in range(p):
-                finite = finite and math.isfinite(x[k, ci])
-            near = near or finite
-    if near:
-        for k in range(k_count):
-            if far[k]:
-                for ci in range(p):
-                    x[k, ci] = math.nan
 
 
 def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, mean, cov, last_time, initialised,
@@ -195,7 +152,7 @@ def check_bank(bank: Bank) -> None:
     """Raise ``ValueError`` unless the GPU engine can run ``bank``: every family and rule runs there, except
     AKF families whose guard needs eigenvalues (a prior with more than ``MAX_CLUSTER`` roots at 1) or whose
     state is over :data:`MAX_AKF_STATE`."""
-    from ..fast import _fast_guard
+    from ..fast import fast_guard
 
     for family in bank.families:
         if family.kind != "akf":
@@ -204,7 +161,7 @@ def check_bank(bank: Bank) -> None:
         if fp.state_dim > MAX_AKF_STATE:
             raise ValueError(f"backend 'gpu': an AKF family's state (order x coordinates) is at most {MAX_AKF_STATE} "
                              f"there, got {fp.state_dim}; use the CPU engine")
-        if fp.dynamics == "rls" and not _fast_guard(fp):
+        if fp.dynamics == "rls" and not fast_guard(fp):
             raise ValueError("backend 'gpu': this AKF family's guard needs eigenvalues (its prior puts more than "
                              "6 roots at 1), which the GPU has not; use the CPU engine or a lower AKF order")
 
@@ -231,8 +188,6 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     if fused(bank, restart):
         return run_fused(bank, measurements, times, state, lengths=lengths, learn=learn, ahead_times=ahead_times,
                          ahead_frames=ahead_frames, timings=timings)
-    from . import gpu_staged
-
     return gpu_staged.run(bank, measurements, times, state, lengths=lengths, learn=learn, ahead_times=ahead_times,
                           ahead_frames=ahead_frames, restart=restart, timings=timings)
 
@@ -270,7 +225,7 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
     import time
 
     start = time.perf_counter()
-    from .engine import _rule_scalars, pack_rule, prepare, unpack_rule
+    from .engine import rule_scalars, pack_rule, prepare, unpack_rule
 
     if not fused(bank):
         raise ValueError("run_fused: kinematic banks of at most 64 experts, 1 to 3 coordinates, no lead head")
@@ -302,9 +257,9 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
     cuda.synchronize()
     launched = time.perf_counter()
     kernel[blocks, threads_per_block](
-        device["orders"], device["far"], device["q"], device["r"], device["initial"], device["tu"], max_step, max_variance,
-        float(bank.reach), device["mean"], device["cov"], device["last_time"], device["initialised"],
-        *_rule_scalars(bank), device["a"], device["b"], device["c"], device["d"], device["e"],
+        device["orders"], device["far"], device["q"], device["r"], device["initial"], device["tu"], max_step,
+        max_variance, float(bank.reach), device["mean"], device["cov"], device["last_time"], device["initialised"],
+        *rule_scalars(bank), device["a"], device["b"], device["c"], device["d"], device["e"],
         float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window), *screen_dev,
         *pack_calibration(bank.calibration_params), float(bank.calibration_params.initial_variance),
         device["variance"], device["n_errors"], device["log_scale"],

@@ -24,7 +24,6 @@ from ..lead import LeadState
 from ..mixture import MixtureState
 from ..screen import ScreenState
 from . import akf as cakf
-from . import gpu as _gpu  # also registers the guard's GPU version
 from . import ar as car
 from . import kinematic as ckin
 from . import lead as clead
@@ -33,15 +32,37 @@ from . import screen as cscreen
 from . import turn as cturn
 from ._cache import JIT as _JIT
 from .calibration import pack_params as pack_calibration
-from .engine import (_rule_scalars, akf_work, family_constants, family_module, pack_akf, pack_rule, prepare,
-                     unpack_rule, with_lead)
+from ._akf_pack import akf_work, pack_akf
+from .engine import family_constants, family_module, pack_rule, prepare, rule_scalars, unpack_rule, with_lead
 
 try:  # numba-cuda is optional (the 'gpu' extra)
-    from numba import cuda
+    from numba import boolean, cuda, float64
 except ImportError:  # pragma: no cover - depends on the install
     cuda = None
 
 __all__ = ["run", "THREADS_PER_BLOCK", "BUFFER_BYTES", "CHUNK_BYTES"]
+
+#: Largest AKF state (order x coordinates) the GPU's guard takes (its scratch is fixed-size there).
+MAX_AKF_STATE = 32
+_GUARD_ROWS = MAX_AKF_STATE + 1
+
+if cuda is not None:
+    from numba.core.extending import overload
+
+    from .. import _numba_linalg as la
+
+    @overload(la.radius_le_eig, target="cuda")
+    def _radius_le_on_gpu(theta, transition, p, n, bound, scratch, coef):
+        """The guard's last word on a candidate whose roots lie within its band of the bound: no eigenvalues on
+        a GPU, so the Schur-Cohn test on its characteristic polynomial ``coef`` at exactly the bound."""
+        def impl(theta, transition, p, n, bound, scratch, coef):
+            work = cuda.local.array((_GUARD_ROWS, 1), float64)
+            saved = cuda.local.array((_GUARD_ROWS, 1), float64)
+            norm = cuda.local.array(1, float64)
+            inside = cuda.local.array(1, boolean)
+            la.schur_cohn(coef, n, bound, work, saved, norm, inside, 1)
+            return inside[0]
+        return impl
 
 THREADS_PER_BLOCK = 64
 #: Upper bound of a block's expert forecasts on the device (rows x targets x experts x coordinates).
@@ -110,16 +131,37 @@ def _both(lo, hi, a, b, lengths, out):
             out[t, j] = a[t, j] and b[t, j]
 
 
+@nb.njit(inline="always", **_JIT)
+def sleep_beyond(far, x, span, reach):
+    """The spec's :func:`kalmix.core.engine.within_reach` on one target's row ``x (K, p)``: across a ``span`` over
+    ``reach`` the ``far`` experts sleep (NaN) if an expert not far has a forecast."""
+    if not span > reach:
+        return
+    k_count, p = x.shape
+    near = False
+    for k in range(k_count):
+        if not far[k]:
+            finite = True
+            for ci in range(p):
+                finite = finite and math.isfinite(x[k, ci])
+            near = near or finite
+    if near:
+        for k in range(k_count):
+            if far[k]:
+                for ci in range(p):
+                    x[k, ci] = math.nan
+
+
 @nb.njit(**_JIT)
 def _reach(lo, hi, far, reach, experts, times, last, lengths, out):
     """:func:`kalmix.core.engine.within_reach`: ``out`` is ``experts`` with the ``far`` experts asleep on the rows
-    whose span ``times - last`` is over the reach (:func:`.gpu.sleep_beyond`, the fused kernel's)."""
+    whose span ``times - last`` is over the reach (:func:`sleep_beyond`, as the fused kernel of :mod:`.gpu`)."""
     for j in range(lo, hi):
         for t in range(lengths[j]):
             for k in range(experts.shape[2]):
                 for ci in range(experts.shape[3]):
                     out[t, j, k, ci] = experts[t, j, k, ci]
-            _gpu.sleep_beyond(far, out[t, j], times[t, j] - last[t, j], reach)
+            sleep_beyond(far, out[t, j], times[t, j] - last[t, j], reach)
 
 
 @nb.njit(**_JIT)
@@ -256,14 +298,14 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
             else:
                 scratch.append(_per_target(ckin.scratch(fp.order, p), n))
     rule = _dev(pack_rule(bank, state.rule, n))
-    rule_args = _rule_scalars(bank)
+    rule_args = rule_scalars(bank)
     rule_scratch = _per_target(crules.scratch(k, p), n)
     cal_args = pack_calibration(bank.calibration_params)
     initial_variance = float(bank.calibration_params.initial_variance)
     cal = _dev(state.calibration)
     if lead is not None:
         lead_rule = _dev(pack_rule(bank, state.lead.rule, n))
-        lead_args = _rule_scalars(bank, bank.lead_rule_params)
+        lead_args = rule_scalars(bank, bank.lead_rule_params)
         lead_cal = _dev(state.lead.calibration)
         slots = _dev((state.lead.due, state.lead.pending, state.lead.issued))
     scr = _dev(state.screen)

@@ -2,8 +2,8 @@
 
 :func:`run_block` advances every target through its rows of a block: at each row it
 writes every expert's forecast of the row (and its variance) into the bank's shared
-buffers at the family's column ``offset``, then learns the row (a ``restart`` row starts the filters again from it); with ``ahead_times`` it
-also writes the forecast made after the row for that time.
+buffers at the family's column ``offset``, then learns the row (a ``restart`` row starts the filters
+again from it); with ``ahead_times`` it also writes the forecast made after the row for that time.
 """
 
 from __future__ import annotations
@@ -76,7 +76,7 @@ def _extrapolate(order, delta, q, mean, cov, m_out, c_out, f, work):
 
 
 @nb.njit(inline="always", **_JIT)
-def _delta(time, last, time_unit, max_step):
+def step_delta(time, last, time_unit, max_step):
     delta = (time - last) / time_unit
     if not math.isfinite(delta):
         return 0.0
@@ -218,7 +218,7 @@ def _drive(lo, hi, order, args):
             # every expert's forecast of this row, then its learning (a restart row starts it again)
             learning = learn[t, n]
             fresh = restart[t, n] or not initialised[n]
-            delta = _delta(times[t, n], last_time[n], time_unit, max_step)
+            delta = step_delta(times[t, n], last_time[n], time_unit, max_step)
             for k in range(k_count):
                 v = step_expert(order, delta, q[k], r[k], initial[k], max_variance, initialised[n], learning, fresh,
                                 z[t, n], mean[n, k], cov[n, k], out[t, n, offset + k], m_pred, c_pred, f, work,
@@ -233,7 +233,7 @@ def _drive(lo, hi, order, args):
             # forecast made after this row, for a later time
             if want_ahead:
                 if initialised[n]:
-                    delta = _delta(ahead_times[t, n], last_time[n], time_unit, max_step)
+                    delta = step_delta(ahead_times[t, n], last_time[n], time_unit, max_step)
                     for k in range(k_count):
                         forecast_expert(order, delta, q[k], r[k], max_variance, mean[n, k], cov[n, k],
                                         out_ahead[t, n, offset + k], m_pred, c_pred, f, work)

@@ -7,10 +7,9 @@ import math
 import numba as nb
 import numpy as np
 
-from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
 from .calibration import calibrate_issued_row
-from .rules import _copy_matrix, _learn, cold_row, forecast_row, scratch, write_row
+from .rules import cold_row, copy_matrix, forecast_row, learn_row, scratch, write_row
 
 configure_cache()
 
@@ -38,7 +37,6 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
                window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
                due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep, restart,
                out, out_std, out_cov, cold, initial_variance, awake, w, logw, r, mix, cov):
-    k_count = ahead_experts.shape[2]
     p = z.shape[2]
     slots = due.shape[1]
     want_cov = out_cov.shape[0] > 0
@@ -62,15 +60,15 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
                             calibrate_issued_row(x, y, awake, count, mix, cov, issued[n, s], variance[n],
                                                  n_errors[n], ls, window, rate, level, z_level, max_variance,
                                                  max_log_scale)
-                            _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a[n],
-                                   b[n], c[n], dn, en, x, y, awake, count, w, mix, r)
+                            learn_row(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a[n],
+                                      b[n], c[n], dn, en, x, y, awake, count, w, mix, r)
                 kept = 0
                 for s in range(slots):
                     if not due[n, s] <= now + tolerance:
                         if kept != s:
                             due[n, kept] = due[n, s]
-                            _copy_matrix(pending[n, s], pending[n, kept])
-                            _copy_matrix(issued[n, s], issued[n, kept])
+                            copy_matrix(pending[n, s], pending[n, kept])
+                            copy_matrix(issued[n, s], issued[n, kept])
                         kept += 1
                 for s in range(kept, slots):
                     due[n, s] = np.nan
@@ -81,7 +79,7 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
                                  variance[n], ls[0], max_variance, cov)
             write_row(count, mix, cov, out[t, n], out_std[t, n])
             if want_cov:
-                _copy_matrix(cov, out_cov[t, n])
+                copy_matrix(cov, out_cov[t, n])
             if restart[t, n]:
                 for s in range(slots):
                     due[n, s] = np.nan
@@ -91,7 +89,7 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
                 for s in range(slots):
                     if math.isnan(due[n, s]):
                         due[n, s] = due_times[t, n]
-                        _copy_matrix(xa, pending[n, s])
+                        copy_matrix(xa, pending[n, s])
                         for ci in range(p):
                             issued[n, s, 0, ci] = out[t, n, ci]
                             issued[n, s, 1, ci] = out_std[t, n, ci]

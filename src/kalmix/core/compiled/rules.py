@@ -122,8 +122,8 @@ def _mix(x, w, awake, out):
 
 
 @nb.njit(**_JIT)
-def _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e, x, y, awake,
-           count, w, mix, r):
+def learn_row(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e, x, y, awake,
+              count, w, mix, r):
     k_count = w.shape[0]
     p = x.shape[1]
     if rule == 0 or rule == 1:
@@ -221,7 +221,7 @@ def forecast_row(rule, forgetting, share, delay, a, b, c, d, x, awake, w, logw, 
 
 
 @nb.njit(inline="always", **_JIT)
-def _copy_matrix(source, out):
+def copy_matrix(source, out):
     """``out[:] = source`` without a temporary (the drivers run without the runtime that allocates one)."""
     for i in range(source.shape[0]):
         for j in range(source.shape[1]):
@@ -237,7 +237,7 @@ def write_row(count, mix, cov, out, out_std):
 
 
 def scratch(k_count: int, p: int):
-    """A target's scratch of :func:`forecast_row` and :func:`_learn`: awake, w, logw, r, mix, cov."""
+    """A target's scratch of :func:`forecast_row` and :func:`learn_row`: awake, w, logw, r, mix, cov."""
     return (np.empty(k_count, dtype=np.bool_), np.empty(k_count), np.empty(k_count), np.empty(k_count),
             np.empty(p), np.empty((p, p)))
 
@@ -286,7 +286,6 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
                experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
                out_ahead_std, cold, restart, initial_variance, awake, w, logw, r, mix, cov):
     k_count = experts.shape[2]
-    p = z.shape[2]
     want_weights = out_weights.shape[0] > 0
     want_ahead = out_ahead.shape[0] > 0
     want_cov = out_cov.shape[0] > 0
@@ -300,15 +299,15 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
                                  variance[n], ls[0], max_variance, cov)
             write_row(count, mix, cov, out[t, n], out_std[t, n])
             if want_cov:
-                _copy_matrix(cov, out_cov[t, n])
+                copy_matrix(cov, out_cov[t, n])
             if want_weights:
                 for k in range(k_count):
                     out_weights[t, n, k] = w[k]
             if learn[t, n] and count > 0:
                 calibrate_row(x, z[t, n], awake, count, mix, cov, variance[n], n_errors[n], ls, window, rate,
                               level, z_level, max_variance, max_log_scale)
-                _learn(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a[n], b[n], c[n],
-                       dn, en, x, z[t, n], awake, count, w, mix, r)
+                learn_row(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a[n], b[n], c[n],
+                          dn, en, x, z[t, n], awake, count, w, mix, r)
             if restart[t, n]:
                 restart_row(rule, dn, en)
             if cold[t, n]:

@@ -16,8 +16,8 @@ import numpy as np
 
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
-from .ar import _clip   # NaN -> 0, then clipped to +-bound
-from .kinematic import _delta   # the same clipped step in time units
+from .ar import bounded   # NaN -> 0, then clipped to +-bound
+from .kinematic import step_delta   # the same clipped step in time units
 
 configure_cache()
 
@@ -101,7 +101,7 @@ def _run_block(lo, hi, gain, length_unit, time_unit, window, max_step, max_veloc
         for t in range(lengths[n]):
             # every expert's forecast of this row, then its learning (a restart row starts it again)
             started = initialised[n]
-            delta = _delta(times[t, n], last_time[n], time_unit, max_step)
+            delta = step_delta(times[t, n], last_time[n], time_unit, max_step)
             speed, omega = geometry(velocity[n], previous[n], span[n], previous_span[n], known[n], b, c)
             for k in range(k_count):
                 if started:
@@ -128,12 +128,12 @@ def _run_block(lo, hi, gain, length_unit, time_unit, window, max_step, max_veloc
                     for k in range(k_count):   # the velocity error of the forecast just written
                         squared = 0.0
                         for i in range(p):
-                            e = _clip((z[t, n, i] - out[t, n, offset + k, i]) / delta, bound)
+                            e = bounded((z[t, n, i] - out[t, n, offset + k, i]) / delta, bound)
                             squared = e * e if i == 0 else squared + e * e
                         error[n, k] = error[n, k] + (squared / p - error[n, k]) / new_count
                     count[n] = new_count
                     for i in range(p):
-                        v[i] = _clip((z[t, n, i] - position[n, i]) / delta, bound)
+                        v[i] = bounded((z[t, n, i] - position[n, i]) / delta, bound)
                         previous[n, i] = velocity[n, i]
                         velocity[n, i] = v[i]
                     previous_span[n] = span[n]
@@ -147,7 +147,7 @@ def _run_block(lo, hi, gain, length_unit, time_unit, window, max_step, max_veloc
                 initialised[n] = False
             # forecast made after this row, for a later time
             if want_ahead:
-                ahead = _delta(ahead_times[t, n], last_time[n], time_unit, max_step)
+                ahead = step_delta(ahead_times[t, n], last_time[n], time_unit, max_step)
                 if initialised[n]:
                     speed, omega = geometry(velocity[n], previous[n], span[n], previous_span[n], known[n], b, c)
                 for k in range(k_count):

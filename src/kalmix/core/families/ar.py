@@ -51,7 +51,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._libm import ordered_sum
-from .kinematic import _step   # the same clipped step in time units (params.time_unit, max_step; state.last_time)
+from .kinematic import step_delta   # the same clipped step in time units (params.time_unit, max_step; state.last_time)
 
 __all__ = ["ARParams", "ARState", "init_state", "forecast", "update", "ITERATED_STEPS"]
 
@@ -131,14 +131,14 @@ def _regressor(params: ARParams, state: ARState) -> np.ndarray:
     return np.concatenate([state.history, np.ones(state.history.shape[:-1] + (1,))], axis=-1)
 
 
-def _dot(a, b):
+def ordered_dot(a, b):
     """Sum of ``a * b`` over the last axis, term by term in order from the first (the kernels' order)."""
     return ordered_sum(a * b, from_zero=False)
 
 
 def _velocity_forecast(params: ARParams, state: ARState) -> np.ndarray:
     """:math:`\\hat v`, ``(N, K, p)``, clipped to ``max_velocity``."""
-    v = _dot(state.weights, _regressor(params, state))
+    v = ordered_dot(state.weights, _regressor(params, state))
     return np.clip(np.where(np.isnan(v), 0.0, v), -params.max_velocity, params.max_velocity)
 
 
@@ -150,7 +150,7 @@ def forecast(params: ARParams, state: ARState, time) -> tuple[np.ndarray, np.nda
     means : ndarray (N, K, p)
     variances : ndarray (N, K) — the running mean squared velocity error times :math:`(\\Delta u)^2`.
     """
-    delta = _step(params, state, time)
+    delta = step_delta(params, state, time)
     u = params.length_unit
     v = _velocity_forecast(params, state)                                            # (N, K, p)
     rows = np.clip(np.floor(delta + 0.5), 1.0, ITERATED_STEPS)                       # (N,)
@@ -158,7 +158,7 @@ def forecast(params: ARParams, state: ARState, time) -> tuple[np.ndarray, np.nda
     means = state.position[:, None, :] + v * step
     if (rows > 1).any():
         # the regressor as a list of columns, most recent velocity first (then 1 with a bias); the sum in
-        # _dot's order, then NaN -> 0 and one clip: to max_velocity then to the largest velocity seen is
+        # ordered_dot's order, then NaN -> 0 and one clip: to max_velocity then to the largest velocity seen is
         # the clip to the smaller of the two (the largest velocity seen is inside max_velocity anyway)
         # (fmax: a NaN in a hand-made history is skipped, as the kernel's max does; the engines store none)
         bound = np.minimum(np.fmax(np.abs(v), np.fmax.reduce(np.abs(state.history), axis=-1)), params.max_velocity)
@@ -217,7 +217,7 @@ def _fit(params: ARParams, state: ARState, x, v):
     info = lam[..., None, None, None] * state.info + x[..., :, None] * x[..., None, :]
     target = lam[..., None, None] * state.target + x * v[..., None]
     weight = lam * state.weight + 1.0
-    scale = state.scale + (_dot(v, v) / v.shape[-1] - state.scale) / weight
+    scale = state.scale + (ordered_dot(v, v) / v.shape[-1] - state.scale) / weight
     largest = np.max(np.diagonal(info, axis1=-2, axis2=-1), axis=-1)                # (N, K, p)
     ridge = rho * scale[..., None] + 1e-9 * largest + 1e-12
     weights = _solve(info + ridge[..., None, None] * np.eye(m), target + ridge[..., None] * prior_weights(params))
@@ -235,7 +235,7 @@ def update(params: ARParams, state: ARState, measurement: np.ndarray, time, lear
     """
     time = np.asarray(time, dtype=np.float64)
     z = np.where(learn[:, None], measurement, 0.0)
-    delta = _step(params, state, time)
+    delta = step_delta(params, state, time)
     moved = delta > 0                                                               # (N,)
     with np.errstate(over="ignore", invalid="ignore"):
         v = (z - state.position) / np.where(moved, delta, 1.0)[:, None] / params.length_unit
@@ -243,7 +243,7 @@ def update(params: ARParams, state: ARState, measurement: np.ndarray, time, lear
     x = _regressor(params, state)
     v_k = np.broadcast_to(v[:, None, :], state.history.shape[:-1])                 # (N, K, p)
     err = v_k - _velocity_forecast(params, state)
-    squared = _dot(err, err) / err.shape[-1]                                        # (N, K)
+    squared = ordered_dot(err, err) / err.shape[-1]                                 # (N, K)
     with np.errstate(invalid="ignore"):
         wild = squared > params.jump_threshold**2 * state.error   # inf x 0 (no test, no error yet): not wild
     jump = wild & (state.jumps < 1)

@@ -88,7 +88,7 @@ def init_state(params: KinematicParams, n_targets: int, measurement_dim: int) ->
     )
 
 
-def _step(params: KinematicParams, state: KinematicState, time) -> np.ndarray:
+def step_delta(params: KinematicParams, state: KinematicState, time) -> np.ndarray:
     """Steps from the last measurement to ``time`` in time units, ``(N,)``, clipped to [0, max_step]."""
     delta = (np.asarray(time, dtype=np.float64) - state.last_time) / params.time_unit
     return np.clip(np.where(np.isfinite(delta), delta, 0.0), 0.0, params.max_step)
@@ -166,7 +166,7 @@ def forecast(params: KinematicParams, state: KinematicState, time) -> tuple[np.n
     means : ndarray (N, K, p)
     variances : ndarray (N, K) — :math:`P_{00} + r`, the same for every coordinate.
     """
-    mean, cov = _predict(params, state, _step(params, state, time))
+    mean, cov = _predict(params, state, step_delta(params, state, time))
     variance = np.minimum(cov[..., 0, 0], params.max_variance) + params.measurement_noise
     return mean[..., 0, :], variance
 
@@ -180,7 +180,7 @@ def update(params: KinematicParams, state: KinematicState, measurement: np.ndarr
     """
     time = np.asarray(time, dtype=np.float64)
     z = np.where(learn[:, None], measurement, 0.0)
-    mean, cov = _predict(params, state, _step(params, state, time))
+    mean, cov = _predict(params, state, step_delta(params, state, time))
     r = params.measurement_noise[None, :]                                          # (1, K)
     s = cov[..., 0, 0] + r                                                         # (N, K)
     gain = cov[..., :, 0] / s[..., None]                                           # (N, K, d)

@@ -46,8 +46,8 @@ from typing import NamedTuple
 import numpy as np
 
 from .._libm import atan2, cos, sin
-from .ar import _dot   # a sum over the last axis in the kernel's order
-from .kinematic import _step   # the same clipped step in time units (params.time_unit, max_step; state.last_time)
+from .ar import ordered_dot   # a sum over the last axis in the kernel's order
+from .kinematic import step_delta   # the same clipped step in time units (params.time_unit, max_step; state.last_time)
 
 __all__ = ["TurnParams", "TurnState", "init_state", "forecast", "update", "turn_geometry"]
 
@@ -103,15 +103,15 @@ def turn_geometry(state: TurnState):
     The speed is the last chord's length per time over :math:`\\operatorname{sinc}(\\omega\\Delta_2/2)`
     (at most :math:`\\pi/2` times it), so that a circle at constant speed is forecast exactly
     whatever the sampling."""
-    s1 = np.sqrt(_dot(state.previous, state.previous))
-    s2 = np.sqrt(_dot(state.velocity, state.velocity))
+    s1 = np.sqrt(ordered_dot(state.previous, state.previous))
+    s2 = np.sqrt(ordered_dot(state.velocity, state.velocity))
     both = (state.known >= 2) & (s1 > 0) & (s2 > 0)
     with np.errstate(divide="ignore", invalid="ignore"):
         a = state.previous / np.where(both, s1, 1.0)[:, None]
         b = state.velocity / np.where(s2 > 0, s2, 1.0)[:, None]
-    cosine = np.clip(_dot(a, b), -1.0, 1.0)
+    cosine = np.clip(ordered_dot(a, b), -1.0, 1.0)
     perp = b * cosine[:, None] - a
-    sine = np.sqrt(_dot(perp, perp))
+    sine = np.sqrt(ordered_dot(perp, perp))
     turning = both & (sine > 0)
     c = np.where(turning[:, None], perp / np.where(turning, sine, 1.0)[:, None], 0.0)
     mid = 0.5 * (state.previous_span + state.span)
@@ -145,7 +145,7 @@ def forecast(params: TurnParams, state: TurnState, time) -> tuple[np.ndarray, np
     means : ndarray (N, K, p)
     variances : ndarray (N, K) — the running mean squared velocity error times :math:`\\Delta^2`.
     """
-    delta = _step(params, state, time)
+    delta = step_delta(params, state, time)
     return _means(params, state, delta), state.error * (delta * delta)[:, None]
 
 
@@ -157,7 +157,7 @@ def update(params: TurnParams, state: TurnState, measurement: np.ndarray, time, 
     """
     time = np.asarray(time, dtype=np.float64)
     z = np.where(learn[:, None], measurement, 0.0)
-    delta = _step(params, state, time)
+    delta = step_delta(params, state, time)
     moved = delta > 0
     bound = params.max_velocity * params.length_unit
     with np.errstate(over="ignore", invalid="ignore"):
@@ -167,7 +167,7 @@ def update(params: TurnParams, state: TurnState, measurement: np.ndarray, time, 
     with np.errstate(over="ignore", invalid="ignore"):
         err = (z[:, None, :] - _means(params, state, delta)) / np.where(moved, delta, 1.0)[:, None, None]
     err = np.clip(np.where(np.isnan(err), 0.0, err), -bound, bound)
-    squared = _dot(err, err) / err.shape[-1]                                        # (N, K)
+    squared = ordered_dot(err, err) / err.shape[-1]                                 # (N, K)
     count = np.minimum(state.count + 1.0, params.window)
     error = state.error + (squared - state.error) / count[:, None]
 
