@@ -25,7 +25,6 @@ PRIVATE_IMPORTS_LEFT = {
     ("kalmix.commands._predict_run", "kalmix.commands.predict", "_input_format"),
     ("kalmix.commands._predict_run", "kalmix.commands.predict", "_output_columns"),
     ("kalmix.commands._predict_run", "kalmix.commands.predict", "_sample"),
-    ("kalmix.commands._predict_run", "kalmix.streaming", "_length_unit_rule"),
     ("kalmix.commands._predict_run", "kalmix.streaming", "_id_to_json"),
     ("kalmix.dask_predict", "kalmix.io.tables", "_check_unique"),
     ("kalmix.dask_predict", "kalmix.io.tables", "_csv_options"),
@@ -33,9 +32,6 @@ PRIVATE_IMPORTS_LEFT = {
     ("kalmix.dask_predict", "kalmix.io.tables", "_normalise"),
     ("kalmix.dask_predict", "kalmix.io.tables", "_to_float"),
     ("kalmix.experiments.evaluate", "kalmix.streaming", "_length_unit_rule"),
-    ("kalmix.experiments.evaluate", "kalmix.peers", "_imm_many"),
-    ("kalmix.peer_models._batched", "kalmix.peer_models.kinematic", "_batches"),
-    ("kalmix.peers", "kalmix.peer_models.kinematic", "_batches"),
     ("kalmix.streaming", "kalmix.io.tables", "_to_float"),
 }
 
