@@ -328,3 +328,52 @@ def test_dask_names_a_corrupt_file_and_reads_float32_beside_float64(tmp_path):
     frame.iloc[:20].assign(track_id=1).to_parquet(archive / "part-0.parquet", index=False)
     with pytest.raises(ValueError, match="an id column of integers and one of floats would split tracks"):
         read_archive(str(archive))
+
+
+# ---------------------------------------------------------------------------------------- clocks
+def _restarted(tmp_path):
+    """Track a's clock restarts at line 52 (times 0..49, then 0..49), the target moving on; track b is regular."""
+    rows = ["id,t,x,y"]
+    for k in range(100):
+        rows.append(f"a,{k % 50},{k * 1.0},{0.5 * k}")
+        rows.append(f"b,{k},{-k * 1.0},{k * 0.25}")
+    return _write(tmp_path / "reset.csv", rows)
+
+
+@pytest.mark.parametrize("chunk_rows", ["200000", "45"])
+def test_a_clock_that_restarts_starts_a_new_segment_instead_of_losing_half_the_track(cli, tmp_path, chunk_rows):
+    """Before: times 0..49 then 0..49 were sorted together, and half the track went as repeated timestamps."""
+    result = _run(cli, ["predict", _restarted(tmp_path), *FAST, "--chunk-rows", chunk_rows])
+    assert result.exit_code == 0
+    assert "track 'a': its time goes back from 49 to 0 at line 102 and goes on from there" in result.stderr
+    assert "repeat a timestamp" not in result.stderr
+    out = _read(result.stdout)
+    a = out[out["id"] == "a"]
+    assert len(a) == 100 and a["t"].tolist() == [k % 50 for k in range(100)]   # as given
+    assert a["segment"].tolist() == [0] * 50 + [1] * 50 and a["pred_x"].notna().all()
+    assert (out.loc[out["id"] == "b", "segment"] == 0).all()
+
+
+def test_a_clock_that_restarts_on_stdin_costs_one_row(cli, tmp_path):
+    path = _restarted(tmp_path)
+    result = _run(cli, ["predict", "-", *FAST], input=open(path).read())
+    assert result.exit_code == 0
+    assert "track 'a': its time goes back from 49 to 0 at line 102 (that line skipped)" in result.stderr
+    out = _read(result.stdout)
+    a = out[out["id"] == "a"]
+    assert a["segment"].isna().tolist() == [k == 50 for k in range(100)]   # only the row that went back
+    assert a["segment"].dropna().tolist() == [0] * 50 + [1] * 49
+    assert "skipped 1 row(s) at or before their track's last time" in result.stderr
+
+
+def test_rows_that_come_late_are_still_sorted_into_place(cli, tmp_path):
+    """A block of earlier rows after later ones (halves swapped), or one late row, is disorder, not a restart."""
+    swapped = ["id,t,x,y"] + [f"a,{k},{k},0" for k in range(50, 100)] + [f"a,{k},{k},0" for k in range(50)]
+    late = ["id,t,x,y"] + [f"a,{k},{k},0" for k in range(30)] + ["a,5.5,5.5,0"] + [f"a,{k},{k},0" for k in range(30, 60)]
+    for name, rows in (("swapped", swapped), ("late", late)):
+        result = _run(cli, ["predict", _write(tmp_path / f"{name}.csv", rows), *FAST])
+        assert result.exit_code == 0 and "goes back" not in result.stderr and "Times decrease" in result.stderr
+        assert (_read(result.stdout)["segment"] == 0).all()
+    twice = ["id,t,x,y"] + [f"a,{k},{k},0" for k in range(50)] * 2   # a block given twice: repeated rows
+    result = _run(cli, ["predict", _write(tmp_path / "twice.csv", twice), *FAST])
+    assert "goes back" not in result.stderr and "kalmix: error: 50 row(s) repeat a timestamp" in result.stderr

@@ -191,6 +191,43 @@ class IdWatch:
             click.echo(f"kalmix: warning: {text}; this is said once", err=True)
 
 
+class UnitWatch:
+    """Says once (on stderr) when the learned time unit, the first step of the first track to have one, is far
+    from that track's usual step (the median of its first :data:`~kalmix.streaming.REFERENCE_INTERVALS` steps,
+    or of those it has at the end): a 1 ms first step among 1 s steps made the unit 1 ms, the experts' noise
+    scaled with it, and the first forecasts wild. The unit stays (it is fixed at that step, so that a file and
+    a stream of its rows give the same numbers); the line gives the --time-unit to pass."""
+
+    FACTOR = 3.0   # "far": more than this many times larger or smaller
+
+    def __init__(self):
+        self.done = False
+
+    def check(self, engine, final: bool = False) -> None:
+        if self.done or engine is None or engine.config.time_unit is None:
+            return
+        from ..streaming import REFERENCE_INTERVALS, _median
+
+        source = getattr(engine, "_unit_source", None)
+        if source is None:   # given, resumed from a state file, or taken back as a wrong timestamp (warned)
+            self.done = True
+            return
+        track, unit = source
+        gaps = engine.gaps.get(track)
+        steps = [] if gaps is None else list(gaps.intervals)
+        if len(steps) < REFERENCE_INTERVALS and not final:
+            return
+        self.done = True
+        if len(steps) < 3:
+            return
+        usual = _median(steps)
+        if usual > self.FACTOR * unit or unit > self.FACTOR * usual:
+            click.echo(f"kalmix: warning: the time unit, {unit:.6g} time-column units, was learned from the first "
+                       f"step of track {track!r}, whose usual step is {usual:.6g} (the median of its first "
+                       f"{len(steps)}): the experts' noise, --horizon and --reach scale with the unit, and the first "
+                       f"forecasts suffer; pass --time-unit {usual:.6g}", err=True)
+
+
 class Run:
     """One ``kalmix predict`` run: the engine, its output and its state file, committed together."""
 
@@ -200,6 +237,8 @@ class Run:
         self.on_bad_row = on_bad_row
         self.bad = BadRowLog(rejects)
         self.ids = IdWatch(engine.gaps if engine is not None else ())
+        self.units = UnitWatch()
+        self.resets = 0   # tracks' clocks that restarted
         self.dropped = {"untimed": 0, "repeated": 0}   # a file's rows not predicted, by why
         self.resuming = engine is not None  # a state file was loaded
         self.sink: Output | None = None
@@ -220,6 +259,16 @@ class Run:
         self.sink = Output(self.output, fmt or self.out_fmt, previous=self.engine.output if self.resuming else None,
                            resuming=self.resuming, state_path=self.state_path,
                            note=lambda text: click.echo(f"kalmix: {text}", err=True))
+
+    def clock_reset(self, place, track, before, after) -> None:
+        """Say (the first :data:`STDIN_WARNINGS`) that a track's clock restarted at ``place``, and count it."""
+        self.resets += 1
+        if self.resets <= STDIN_WARNINGS:
+            click.echo(f"kalmix: note: track {track!r}: its time goes back from {before:g} to {after:g} at {place} and "
+                       "goes on from there (a clock that restarted?): a new segment starts there, the rows before "
+                       "and after it kept (the output gives their times as given)", err=True)
+        if self.resets == STDIN_WARNINGS:
+            click.echo("kalmix: (further clock restarts are only counted: the total comes at the end)", err=True)
 
     def commit(self, rows: int) -> None:
         """``rows`` input rows are written; save the state when due (called inside a deferred section)."""
@@ -250,6 +299,8 @@ class Run:
     def report(self) -> None:
         """Summary warnings; on a stop signal or a closed stdout, one line and a non-zero exit."""
         engine = self.engine
+        if self.stopped is None:
+            self.units.check(engine, final=True)
         bad = self.bad.summary()
         if bad is not None:
             click.echo(f"kalmix: error: {bad}", err=True)
@@ -263,6 +314,8 @@ class Run:
         if self.dropped["untimed"]:
             click.echo(f"kalmix: error: {self.dropped['untimed']} row(s) have no time: not predicted (their output "
                        "rows have empty predictions)", err=True)
+        if self.resets > STDIN_WARNINGS:
+            click.echo(f"kalmix: note: {self.resets} clock restart(s) started a new segment of their track", err=True)
         if self.dropped["repeated"]:
             click.echo(f"kalmix: error: {self.dropped['repeated']} row(s) repeat a timestamp within their track: "
                        "the last row of each repeated time is predicted, the others' output rows have empty "
@@ -514,17 +567,21 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     axes = _geographic(run.engine, settings, columns)
     offset = 0   # file rows before the chunk
     ahead = (_lookahead(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
-                                          ids_as_text=True, on_bad_row=run.on_bad_row))
+                                          ids_as_text=True, on_bad_row=run.on_bad_row,
+                                          clock_resets=reset_step(settings)))
              if total_rows > chunk_rows else [])
     with tqdm(total=total, unit="rows", file=sys.stderr, disable=not show,
               desc="kalmix predict", smoothing=0.1) as bar, warnings.catch_warnings():
         warnings.simplefilter("ignore", DroppedRowWarning)   # counted here and said at the end (Run.report)
         for index, chunk in enumerate(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
                                                         ids_as_text=True, as_given=True, on_bad_row=run.on_bad_row,
-                                                        bad_texts=run.bad.path is not None)):
+                                                        bad_texts=run.bad.path is not None,
+                                                        clock_resets=reset_step(settings))):
             for why, count in chunk.attrs.get("dropped", {}).items():
                 run.dropped[why] += count
             run.ids.see_many(pd.unique(chunk["track_id"]).tolist())
+            for place, track, before, after in chunk.attrs.get("clock_resets", ()):
+                run.clock_reset(place, track, before, after)
             offset += chunk.attrs.get("file_rows", len(chunk))
             if axes is not None:
                 _check_degrees(chunk, names, axes, offset - chunk.attrs.get("file_rows", len(chunk)))
@@ -571,6 +628,19 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                         engine.rollback(mark)
                 raise
             bar.update(chunk.attrs.get("file_rows", len(chunk)) - len(chunk))
+            run.units.check(run.engine)
+
+
+def reset_step(settings):
+    """``step(usual)``: the step a track's clock that restarts is taken to make (:class:`kalmix.io.tables.ClockResets`):
+    twice the gap threshold, so that the gap rule starts a new segment there (with ``--max-gap none``, which never
+    splits, one usual step: the track goes on)."""
+    gap, factor = settings.get("max_gap"), settings.get("max_gap_factor", 3.0)
+    if gap is not None:
+        return lambda usual: 2.0 * gap
+    if math.isinf(factor):
+        return lambda usual: usual
+    return lambda usual: 2.0 * factor * usual
 
 
 def _log_bad_rows(run, chunk, written) -> None:
@@ -978,6 +1048,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
                         else reason, str(raw).rstrip("\r\n"))
 
     empties = _EmptyWatch(columns.positions if position_columns is None else ())
+    clocks = _StreamClocks(engine, reset_step(settings), run.clock_reset)
     warned: dict[str, int] = {}
 
     def warn(kind, text):
@@ -1009,6 +1080,8 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
             rows[:], undated = _dated(rows, columns.time, undated_row if skip else None)
             dated_texts.clear()
             error = undated or error   # an earlier line than the one that stopped the parse
+            if columns.time is not None:
+                rows[:] = clocks.adjust(rows)
             results = iter(step(rows))
             for row in rows:
                 number, track, time, values = row[:4]
@@ -1026,6 +1099,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
                 elif result.time_glitch:
                     warn("glitch", f"line {number}: time {time!r} comes back before the jump ahead of track {track!r}; "
                                    "that jump's timestamp was taken as wrong and the track goes on")
+        run.units.check(engine)
         if rows:
             run.guard.tick()
         if error is not None:
@@ -1170,6 +1244,57 @@ def _track_key(track):
     from ..streaming import _id_to_json
 
     return _id_to_json(track)
+
+
+class _StreamClocks:
+    """On stdin, a track's clock that restarts (times 0 .. 49, then 0 .. 49 again; see
+    :class:`kalmix.io.tables.ClockResets` for a file's): a row that goes back by more than
+    :attr:`FACTOR` usual steps, to a time inside the track's clock so far, is skipped as any row not after its
+    track's last; if the track's next row goes on from it (forward by at most :attr:`FACTOR` usual steps),
+    the clock restarted there: that row and the track's later ones are moved past the rows before, by
+    ``step(usual)`` (a gap, so a new segment starts), instead of each being skipped until the time passes the
+    old clock's last. A stream cannot wait: the row that went back stays skipped. The tracks of a resumed
+    state file are not judged: a feed replayed from its start is skipped up to where the earlier run stopped."""
+
+    FACTOR = 3.0
+
+    def __init__(self, engine, step, said):
+        self.engine, self.step, self.said = engine, step, said
+        self.tracks: dict = {}   # track -> [shift, last time as given, first time of its clock, the row that went back]
+
+    def adjust(self, rows) -> list:
+        """``rows`` (line, track, time, positions, time as given) with the times of restarted clocks moved."""
+        from ..streaming import REFERENCE_INTERVALS, _median
+
+        out = []
+        for row in rows:
+            number, track, time, values = row[:4]
+            if values is None or not math.isfinite(time):
+                out.append(row)
+                continue
+            state = self.tracks.get(track)
+            if state is None:   # a new track; one of a resumed state file is not judged (a feed replayed is
+                gaps = self.engine.gaps.get(_track_key(track))   # skipped up to where it stopped, not a restart)
+                state = self.tracks[track] = [0.0, None, time, None, []] if gaps is None else None
+            if state is None:
+                out.append(row)
+                continue
+            shift, last, start, back, steps = state
+            usual = _median(steps) if steps else None
+            state[3] = None
+            if back is not None and usual is not None and back[0] < time <= back[0] + self.FACTOR * usual:
+                shift = state[0] = last + shift + float(self.step(usual)) - time
+                self.said(f"line {back[1]} (that line skipped)", track, last, back[0])
+                last, start = time, back[0]
+            elif last is not None and usual is not None and last - time > self.FACTOR * usual and time >= start:
+                state[3] = (time, number)   # skipped (not after its track's last): the next row tells if it restarted
+            if state[3] is None:
+                if last is not None and time > last and len(steps) < REFERENCE_INTERVALS:
+                    steps.append(time - last)
+                state[1] = time if last is None else max(last, time)
+                state[2] = min(start, time)
+            out.append((number, track, time + shift, values, *row[4:]) if shift else row)
+        return out
 
 
 class _EmptyWatch:

@@ -656,7 +656,15 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, geog
             fmt = _input_format(input_path)
             columns = _columns(_header(input_path, fmt), time_column, position_columns, id_column,
                                _sample(input_path, fmt))
-            table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True)
+            import warnings
+
+            from ..io.tables import BadRowWarning
+
+            with warnings.catch_warnings():   # said below, as kalmix predict says it
+                warnings.simplefilter("ignore", BadRowWarning)
+                table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True, on_bad_row="skip")
+            if "bad_rows" in table.attrs:
+                click.echo(f"kalmix: error: {table.attrs['bad_rows'].summary()}: not evaluated", err=True)
             label = os.path.basename(input_path)
             _check_file_degrees(table, list(columns.positions), geographic)
         if tracks is not None and not tracks.strip(", "):

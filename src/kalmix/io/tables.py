@@ -575,7 +575,7 @@ def _csv_options(cols: TrackColumns, ids_as_text: bool, time_as_text: bool = Fal
 def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
                counts: dict | None = None, first_appearance: bool = False, as_given: bool = False,
                given_time: pd.Series | None = None, *, on_bad_row: str = "fail", lines: _ChunkLines | None = None,
-               time_kind: dict | None = None, where: str = "row") -> pd.DataFrame:
+               time_kind: dict | None = None, where: str = "row", clocks: ClockResets | None = None) -> pd.DataFrame:
     """Validate one raw table (or chunk) into the canonical sorted long table; ``as_given``: with its rows as
     the file gave them in ``attrs["as_given"]`` (:class:`AsGiven`; ``given_time``: the time column's values
     to keep, when not ``raw``'s own).
@@ -584,7 +584,9 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
     position that is not a finite number, or a date-time for a time) raises a ``ValueError`` naming its line
     (``lines``) or row with ``on_bad_row="fail"``; with ``"skip"`` it is left out of the table, keeps its
     place in ``as_given`` as a row not stepped, and is listed in ``attrs["bad_rows"]`` (:class:`BadRows`).
-    ``time_kind``: the time column's kind (numbers or date-times) across a file's chunks."""
+    ``time_kind``: the time column's kind (numbers or date-times) across a file's chunks. ``clocks``: a
+    track's clock that restarts starts a new segment (:class:`ClockResets`) instead of being sorted into the
+    rows before it."""
     if len(raw) == 0:
         raise ValueError("The track file has no rows (only a header or nothing at all)")
     if on_bad_row not in ON_BAD_ROW:
@@ -644,6 +646,8 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
                       DroppedRowWarning, stacklevel=3)
     if no_time.any() or bad.any():
         out = out[~(no_time | bad)]
+    if clocks is not None:
+        out = clocks.apply(out, named)
     back = int((out.groupby("track_id", sort=False)["time"].diff() < 0).sum())
     if back:
         warnings.warn(f"Times decrease at {back} row(s) within tracks; sorted each track's rows "
@@ -669,11 +673,102 @@ def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
         out = out[~dup]
     out.attrs["file_order"] = _RowOrder(out.index.to_numpy())   # each row's place in the file (read on demand)
     out.attrs["dropped"] = {"untimed": int(no_time.sum()), "repeated": int(dup.sum())}
+    if clocks is not None and clocks.found:
+        out.attrs["clock_resets"] = list(clocks.found)
     if as_given:
         out.attrs["as_given"] = AsGiven.of(raw, cols, sorted_places, dup, no_time | bad, given_time)
     if bad.any():
         out.attrs["bad_rows"] = BadRows.of(raw, cols, np.flatnonzero(bad), why, offset, lines, named)
     return out.reset_index(drop=True)
+
+
+class ClockResets:
+    """A track's clock that restarts (times 0 .. 49, then 0 .. 49 again), found in file order: sorting its rows
+    by time would interleave the two runs (half of them then repeated timestamps), so the rows from the restart
+    on are moved past the ones before it instead, by a step of ``step(usual)`` (``usual``: the track's
+    median step in the chunk) after the last time before it: a gap that starts a new segment. The output
+    keeps the times as given (:class:`AsGiven`); the table's times are the moved ones.
+
+    A restart is a step back by more than :attr:`FACTOR` usual steps, to a time inside the range of the run
+    before it (not a block of earlier rows that comes late: those are sorted into place), followed by steps
+    forward of at most :attr:`FACTOR` usual steps. State across a file's chunks: each track's shift, last time
+    and the first time of its current clock. ``found``: the chunk's restarts, ``(place, track, time before,
+    time after)``.
+    """
+
+    FACTOR = 3.0
+
+    def __init__(self, step):
+        self.step = step
+        self.tracks: dict = {}   # track -> [shift, last time as given, first time of its current clock]
+        self.found: list = []
+
+    def apply(self, out: pd.DataFrame, named) -> pd.DataFrame:
+        """``out`` (rows in file order, ``out.index`` their rows in the chunk) with each restarted clock's rows
+        moved; ``named(row)``: where a row is, for :attr:`found`."""
+        self.found = []
+        if out.empty:
+            return out
+        raw = out["time"].to_numpy(np.float64)
+        codes, uniques = pd.factorize(out["track_id"], sort=False)
+        firsts = np.full(len(uniques), -1, dtype=np.int64)
+        firsts[codes[::-1]] = np.arange(len(codes))[::-1]
+        steps = pd.Series(raw).groupby(codes, sort=False).diff().to_numpy()
+        look = np.zeros(len(uniques), dtype=bool)
+        look[codes[steps < 0]] = True
+        shift = np.zeros(len(uniques))
+        for c, track in enumerate(uniques.tolist()):
+            known = self.tracks.get(track)
+            if known is not None:
+                shift[c] = known[0]
+                look[c] |= raw[firsts[c]] < known[1]
+        moved = raw + shift[codes]
+        values = out.drop(columns=["track_id", "time"]).to_numpy(np.float64)
+        for c in np.flatnonzero(look):
+            rows = np.flatnonzero(codes == c)
+            moved[rows] = self._track(uniques[c], raw[rows], values[rows], out.index.to_numpy()[rows], named)
+        highest = pd.Series(raw).groupby(codes, sort=False).agg(["min", "max"]).to_numpy()
+        for c, track in enumerate(uniques.tolist()):   # each track's last time and current clock, for later chunks
+            if look[c]:
+                continue
+            known = self.tracks.get(track)
+            if known is None:
+                self.tracks[track] = [0.0, highest[c, 1], highest[c, 0]]
+            else:
+                known[1], known[2] = max(known[1], highest[c, 1]), min(known[2], highest[c, 0])
+        if not self.found and not shift.any():
+            return out
+        out = out.copy()
+        out["time"] = moved
+        return out
+
+    def _track(self, track, times, values, places, named) -> np.ndarray:
+        """One track's times in a chunk (file order) with its restarts moved; updates its state. Not a restart:
+        a track whose rows go back at more than one step in ten (rows in no order, sorted as they are), or a run
+        that repeats rows before it (the same time and positions: a block given twice)."""
+        shift, last, start = self.tracks.get(track, [0.0, None, None])
+        steps = np.diff(times)
+        forward = steps[steps > 0]
+        usual = float(np.median(forward)) if forward.size and 10 * int((steps < 0).sum()) <= len(times) else None
+        out = np.empty(len(times))
+        judged = 0   # rows before this are judged (a run of rows that came late is one block, sorted into place)
+        for j, time in enumerate(times):
+            if j >= judged and last is not None and usual is not None and last - time > self.FACTOR * usual:
+                run = j + 1
+                while run < len(times) and times[run - 1] < times[run] <= times[run - 1] + self.FACTOR * usual:
+                    run += 1
+                judged = run
+                again = np.flatnonzero(times[:j] == time)
+                again = again.size and all(np.array_equal(values[k], values[j], equal_nan=True) for k in again)
+                if run > j + 2 and times[run - 1] >= start and not again:   # goes on, inside the earlier clock's range
+                    self.found.append((named(int(places[j])), track, float(last), float(time)))
+                    shift = last + shift + float(self.step(usual)) - time
+                    last = start = time
+            out[j] = time + shift
+            last = time if last is None else max(last, time)
+            start = time if start is None else min(start, time)
+        self.tracks[track] = [shift, last, start]
+        return out
 
 
 class _RowOrder:
@@ -870,36 +965,75 @@ class _CsvLines:
         """The next ``n`` rows; ``checked``: pandas' values of column :attr:`check` for them (text)."""
         if not self.ok:
             return _ChunkLines(None, None, self.width, None)
-        lines = np.empty(n, dtype=np.int64)
-        fields = np.empty(n, dtype=np.int64)
-        texts: list | None = [] if self.keep else None
-        reader, pending, i = self.reader, self.pending, 0
-        last = None
         with self._no_field_limit():
-            while i < n:
-                before = reader.line_num
-                try:
-                    record = next(reader)
-                except (StopIteration, Exception):   # noqa: BLE001 - pandas reads the file; here only lines
+            taken = self._take_texts(n) if self.keep else self._take(n)
+        if taken is None:
+            self.ok = False
+        else:
+            lines, fields, texts, last = taken
+            if checked is not None and self.check is not None and n:
+                value = checked.iloc[-1]
+                mine = last[self.check] if self.check < len(last) else None
+                if isinstance(value, str) and mine is not None and mine != value:
                     self.ok = False
-                    break
-                if _blank(record):
-                    pending.clear()
-                    continue
-                lines[i], fields[i], last = before + 1, len(record), record
-                if texts is not None:
-                    texts.append("".join(pending).rstrip("\r\n"))
-                    pending.clear()
-                i += 1
-        if self.ok and checked is not None and self.check is not None and n:
-            value = checked.iloc[-1]
-            mine = last[self.check] if self.check < len(last) else None
-            if isinstance(value, str) and mine is not None and mine != value:
-                self.ok = False
         if not self.ok:
             self.close()
             return _ChunkLines(None, None, self.width, None)
         return _ChunkLines(lines, fields, self.width, texts)
+
+    def _take(self, n: int):
+        """``(lines, fields, None, last record)`` of the next ``n`` rows, or None at an early end: the records read
+        in C, each record's first line from the reader's line count (or, where a quoted field holds a line
+        break, from the breaks it holds)."""
+        import itertools
+
+        reader, records, counts = self.reader, [], []
+        before = reader.line_num
+        kept = 0
+        while kept < n:
+            try:
+                batch = list(itertools.islice(reader, n - kept))
+            except Exception:   # noqa: BLE001 - pandas reads the file; here only lines
+                return None
+            if not batch:
+                return None
+            width = np.fromiter(map(len, batch), dtype=np.int64, count=len(batch))
+            records += batch
+            counts.append(width)
+            kept += len(batch) - sum(_blank(batch[i]) for i in np.flatnonzero(width <= 1))
+        spans = np.ones(len(records), dtype=np.int64)
+        if reader.line_num - before != len(records):   # a quoted field holds a line break: count them
+            spans += np.fromiter((sum(field.count("\n") + field.count("\r") - field.count("\r\n")
+                                      for field in record) for record in records), dtype=np.int64,
+                                 count=len(records))
+        starts = before + np.cumsum(spans) - spans + 1
+        fields = np.concatenate(counts)
+        rows = np.ones(len(records), dtype=bool)
+        for i in np.flatnonzero(fields <= 1):
+            rows[i] = not _blank(records[i])
+        return starts[rows], fields[rows], None, records[int(np.flatnonzero(rows)[-1])]
+
+    def _take_texts(self, n: int):
+        """:meth:`_take` keeping each row's text (a file of rejects), a record at a time."""
+        lines = np.empty(n, dtype=np.int64)
+        fields = np.empty(n, dtype=np.int64)
+        texts: list = []
+        reader, pending, i = self.reader, self.pending, 0
+        last = None
+        while i < n:
+            before = reader.line_num
+            try:
+                record = next(reader)
+            except (StopIteration, Exception):   # noqa: BLE001 - pandas reads the file; here only lines
+                return None
+            if _blank(record):
+                pending.clear()
+                continue
+            lines[i], fields[i], last = before + 1, len(record), record
+            texts.append("".join(pending).rstrip("\r\n"))
+            pending.clear()
+            i += 1
+        return lines, fields, texts, last
 
     def close(self) -> None:
         self.handle.close()
@@ -1062,8 +1196,8 @@ def _checked_column(path, cols: TrackColumns, ids_as_text: bool) -> int | None:
 
 def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None = None,
                       chunk_rows: int = 1_000_000, format: str | None = None, ids_as_text: bool = False,
-                      as_given: bool = False, on_bad_row: str = "fail", bad_texts: bool = False
-                      ) -> Iterator[pd.DataFrame]:
+                      as_given: bool = False, on_bad_row: str = "fail", bad_texts: bool = False,
+                      clock_resets=None) -> Iterator[pd.DataFrame]:
     """Read a huge CSV or Parquet track file in bounded memory, chunk by chunk.
 
     Chunks of at most `chunk_rows` file rows come in file order (pandas
@@ -1099,6 +1233,10 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         chunk; a chunk may then be empty.
     bad_texts : bool, default False
         Keep a skipped CSV row's line as written (:attr:`BadRows.texts`), for a file of rejects.
+    clock_resets : callable, optional
+        ``step(usual)``: a track's clock that restarts (:class:`ClockResets`) goes on after the rows
+        before it by this step (a track's usual step given), instead of being sorted into them; the
+        chunk lists its restarts in ``chunk.attrs["clock_resets"]``. None: sorted (as any disorder).
 
     Yields
     ------
@@ -1114,6 +1252,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
     last: dict = {}
     counts: dict | None = {} if cols.time is None else None
     time_kind: dict = {}
+    clocks = None if clock_resets is None or cols.time is None else ClockResets(clock_resets)
     offset = kept = skipped = 0
     lines = None
     with contextlib.ExitStack() as stack:
@@ -1135,7 +1274,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
                 len(raw), raw[cols.track_id] if lines.check is not None else None)
             chunk = _normalise(raw, cols, offset, counts, first_appearance=ids_as_text and fmt == "csv",
                                as_given=as_given, given_time=given_time, on_bad_row=on_bad_row, lines=where,
-                               time_kind=time_kind, where="parquet" if fmt == "parquet" else "row")
+                               time_kind=time_kind, where="parquet" if fmt == "parquet" else "row", clocks=clocks)
             bad = chunk.attrs.get("bad_rows")
             if bad is not None:
                 skipped += len(bad)
