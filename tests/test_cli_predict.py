@@ -605,11 +605,11 @@ def test_a_state_file_made_with_gate_options_still_resumes(tmp_path):
 
 
 def test_a_gap_rule_that_cuts_tracks_into_pieces_says_what_to_do(cli, tmp_path):
-    """On tracks sampled at exponential intervals the default gap rule split 15 % of the rows (segments of
-    ~7 rows), and the rows before those splits got intervals holding 75-85 % of the measurements, silently. Such a
-    run now says so, and what to use instead; a regular track, or --max-gap none, says nothing."""
+    """On tracks sampled at heavy-tailed intervals (log-normal steps, sigma 2) the default gap rule splits ~10 % of
+    the rows, and the rows before those splits get intervals holding fewer of the measurements. Such a run says so,
+    and what to use instead; a regular track, or --max-gap none, says nothing."""
     rng = np.random.default_rng(7)
-    t = np.cumsum(rng.exponential(0.1, 400) + 0.01)
+    t = np.cumsum(0.1 * rng.lognormal(0.0, 2.0, 400) + 0.01)
     irregular = pd.DataFrame({"track_id": "a", "time": t, "x": t + rng.normal(0, 0.05, 400), "y": 0.0})
     regular = irregular.assign(time=np.arange(400) * 0.1)
     for frame, args, noted in ((irregular, [], True), (irregular, ["--max-gap", "none"], False), (regular, [], False)):

@@ -118,13 +118,16 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     rest: ``(whole, resumed, loaded predictor, the saved archive)``. Both run as such a file ran: before
     version 9, the lead head learned at the one-step rate (``lead_delay`` 1, a setting those files lack);
     before version 10, BOA did not clip (``clip`` inf, and no error scale in the state); before version 11 there was
-    no ``geographic`` setting (positions were flat)."""
+    no ``geographic`` setting (positions were flat); before version 12 the gap rule's reference interval was the
+    median of a track's first steps (``gap_reference`` "median", a setting those files lack)."""
     import json
 
     if version < 9:
         config, settings = {**config, "lead_delay": 1.0}, (*settings, "lead_delay")
     if version < 11:
         settings = (*settings, "geographic")
+    if version < 12:
+        config, settings = {**config, "gap_reference": "median"}, (*settings, "gap_reference")
     if version < 10:
         config = {**config, "rule_options": {"clip": float("inf"), **config.get("rule_options", {})}}
         members = (*members, *CLIP_MEMBERS)
@@ -135,7 +138,7 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     first.save(tmp_path / "s.npz")
     saved = dict(np.load(tmp_path / "s.npz"))
     meta = json.loads(str(saved["meta"]))
-    assert meta["format_version"] == STATE_FORMAT_VERSION == 11
+    assert meta["format_version"] == STATE_FORMAT_VERSION == 12
     meta["format_version"] = version
     for name in settings:
         del meta["config"][name]
@@ -274,6 +277,53 @@ def test_gap_rule():
     never = StreamConfig(max_gap_factor=math.inf)
     gaps = GapTracker()
     assert not any([gaps.advance(t, never) for t in (0.0, 1.0, 1000.0)][1:])
+
+
+def _irregular_times(rng, n=300):
+    """Steps uniform in 5-60 s (a vessel's AIS reports) whose first 16 have a median of 17.5 s, then a 3-day silence
+    and more such steps."""
+    first = np.array([6.0, 7, 9, 11, 12, 14, 15, 17, 18, 20, 22, 25, 55, 58, 59, 60])
+    steps = np.concatenate([first, rng.uniform(5.0, 60.0, n), [3 * 86400.0], rng.uniform(5.0, 60.0, n)])
+    return np.cumsum(np.concatenate([[0.0], steps]))
+
+
+def test_irregular_sampling_stays_one_segment_and_an_outage_splits():
+    """The reference interval is the upper quartile of a track's first 16 steps: a track sampled every 5 to 60 s
+    whose first steps happen to be short (median 17.5 s) is not cut at every long report; a 3-day silence is a gap.
+    The median's threshold (52.5 s, a state file before version 12) cut it at every step over 52.5 s."""
+    times = _irregular_times(np.random.default_rng(0))
+    silence = int(np.argmax(np.diff(times))) + 1
+    for reference, splits in (("upper quartile", [0, silence]), ("median", None)):
+        gaps = GapTracker()
+        config = StreamConfig(gap_reference=reference)
+        new = np.flatnonzero([gaps.advance(float(t), config) for t in times])
+        if splits is not None:
+            assert new.tolist() == splits and gaps.threshold(config) == 3 * 55.0
+        else:
+            assert len(new) > 20 and silence in new and gaps.threshold(config) == 3 * 17.5
+    with pytest.raises(ValueError, match="gap_reference"):
+        StreamConfig(gap_reference="mean")
+
+
+def test_the_length_unit_reads_the_noise_of_irregular_sampling():
+    """Uniform motion at 5 m/s sampled every 5 to 60 s with 10 m noise: with the times the rule reads the noise; on
+    the sample index alone it reads the speed times the steps' differences. On regular steps the times change
+    nothing, bit for bit."""
+    from kalmix.streaming import auto_length_unit
+
+    rng = np.random.default_rng(1)
+    times = np.cumsum(rng.uniform(5.0, 60.0, 2000))
+    values = (5.0 * times[:, None] * np.array([0.6, 0.8]) + rng.normal(0.0, 10.0, (2000, 2)))
+    assert auto_length_unit(values, times=times) == pytest.approx(10.0, rel=0.05)
+    assert auto_length_unit(values) > 3 * 10.0
+    regular = 0.1 * np.arange(2000)
+    assert auto_length_unit(values, times=regular) == auto_length_unit(values)
+
+
+def test_version_11_files_resume_with_the_median_gap_rule(tmp_path):
+    whole, resumed, second, _ = _as_older_file(tmp_path, CONFIG, 70, 11)
+    assert second.config.gap_reference == "median"
+    assert np.array_equal(_next(resumed), _next(whole), equal_nan=True)
 
 
 def _adversarial_times(rng, n):

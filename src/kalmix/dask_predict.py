@@ -395,7 +395,8 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
         raise ValueError("The track files have no rows (only headers or nothing at all)")
     unit, why = config.length_unit, None
     if derive_length:
-        unit, why = length_unit_rule(to_arrays(first, columns.positions).values)
+        arrays = to_arrays(first, columns.positions)
+        unit, why = length_unit_rule(arrays.values, times=arrays.times)
     time_unit = config.time_unit
     if time_unit is None:  # one gap rule over the chunks' rows in file order, reading on only until it is learned
         continued: list = []

@@ -23,9 +23,13 @@ says little about the motion after it), while the aggregation rule and the calib
 keep what they learned on the track (a warm start, :func:`kalmix.core.engine.run`'s
 ``restart``). The threshold is ``max_gap`` (in the time column's units)
 when given, else ``max_gap_factor`` (3) times the track's *reference interval*: the
-median of the first (up to 16) positive time steps of the track (a gap among them too, so
-that one short first step cannot make every later step a gap); once it has 16, a gap's step
-does not change it.
+upper quartile (the 13th in increasing order of 16) of the first (up to 16) positive time
+steps of the track (a gap among them too, so that one short first step cannot make every
+later step a gap); once it has 16, a gap's step does not change it. On regular sampling it
+is the step; on irregular sampling (steps of 5 to 60 s) it is near the long steps, so the
+sampling itself is not taken for gaps and the track stays one segment (a median of the 16
+steps put some tracks' thresholds below their longest steps and restarted them dozens of
+times), while an outage many times the longest usual step still starts a new segment.
 The rule is causal (it only looks at rows already seen), so a row-by-row stream and a
 whole file give the same segments, and it survives a ``--state`` save and resume.
 
@@ -91,19 +95,21 @@ from .core.engine import Bank, BankState, init_bank_state, tree_leaves, tree_map
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "SkippedRowWarning", "Checkpoint",
            "LengthUnitWarning", "ColumnNoteWarning", "estimate_length_unit", "length_unit_fallback", "find_columns",
            "guess_id", "auto_length_unit", "length_unit_rule", "auto_time_unit", "learned_time_unit", "next_row_times",
-           "id_to_json", "with_input_names", "STATE_FORMAT_VERSION"]
+           "id_to_json", "with_input_names", "STATE_FORMAT_VERSION", "GAP_REFERENCES"]
 
 #: Format version of the state files :meth:`TrackPredictor.save` writes. :meth:`TrackPredictor.load` reads
-#: versions 3 to 11 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
+#: versions 3 to 12 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
 #: versions", says what each version adds).
-STATE_FORMAT_VERSION = 11
-_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11)
+STATE_FORMAT_VERSION = 12
+_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12)
 _MAGIC = "kalmix-track-predictor"
-#: Number of first non-gap time steps whose median is a track's reference interval.
+#: Number of first non-gap time steps whose upper quartile is a track's reference interval.
 REFERENCE_INTERVALS = 16
+#: How a track's reference interval is taken from its first steps (:class:`StreamConfig`'s ``gap_reference``).
+GAP_REFERENCES = ("upper quartile", "median")
 
 
-def auto_length_unit(values, *, minimum_samples: int = 8) -> float:
+def auto_length_unit(values, *, minimum_samples: int = 8, times=None) -> float:
     """Typical measurement-noise size of tracks, from their second differences.
 
     For white measurement noise of standard deviation :math:`\\sigma` on a smooth
@@ -118,21 +124,30 @@ def auto_length_unit(values, *, minimum_samples: int = 8) -> float:
     (many exact zeros) can give 0: the fallback is the median of the non-zero
     :math:`|\\Delta^2 z|`, and 1 when the data has no second differences at all.
 
+    With ``times``, a triple whose two steps :math:`h_1, h_2` differ (irregular sampling)
+    uses the difference that uniform motion leaves at 0 whatever the steps,
+    :math:`h_1 (z_{k+1} - z_k) - h_2 (z_k - z_{k-1})`, scaled to the same noise size
+    (times :math:`\\sqrt 6 / \\sqrt{h_1^2 + h_2^2 + (h_1 + h_2)^2}`); a triple of equal steps
+    is :math:`|\\Delta^2 z|` as above. (Without it, a target at 5 m/s sampled every 5 to 60 s
+    reads its speed times the steps' differences as noise.)
+
     Parameters
     ----------
     values : ndarray, shape (T, p) or (T, N, p)
         Tracks on their sample index (NaN for missing or padding).
+    times : ndarray, shape (T,) or (T, N), optional
+        Each sample's time (NaN for padding); None: the samples are taken as evenly spaced.
 
     Returns
     -------
     float
         The ``length_unit`` to pass to :func:`kalmix.bank.make_params`.
     """
-    unit, _ = length_unit_rule(values, minimum_samples)
+    unit, _ = length_unit_rule(values, minimum_samples, times=times)
     return unit
 
 
-def length_unit_rule(values, minimum_samples: int = 8) -> tuple[float, str | None]:
+def length_unit_rule(values, minimum_samples: int = 8, *, times=None) -> tuple[float, str | None]:
     """:func:`auto_length_unit` and, when it fell back to 1, why (else None)."""
     try:
         z = np.asarray(values, dtype=np.float64)
@@ -145,7 +160,10 @@ def length_unit_rule(values, minimum_samples: int = 8) -> tuple[float, str | Non
     if z.shape[0] < 3:
         return 1.0, "fewer than 3 samples of a track to estimate it from"
     with np.errstate(over="ignore", invalid="ignore"):  # values near 1e308: those triples are skipped
-        second = np.abs(z[2:] - 2.0 * z[1:-1] + z[:-2]).ravel()
+        second = np.abs(z[2:] - 2.0 * z[1:-1] + z[:-2])
+        if times is not None:
+            second = _time_aware(second, z, times)
+        second = second.ravel()
     second = second[np.isfinite(second)]
     if second.size < minimum_samples:
         return 1.0, f"only {second.size} second difference(s) to estimate it from (it needs {minimum_samples})"
@@ -157,6 +175,26 @@ def length_unit_rule(values, minimum_samples: int = 8) -> tuple[float, str | Non
             return 1.0, "second differences that are all 0 (positions constant, or exactly on a line)"
         unit = float(np.median(nonzero)) / scale
     return unit, None
+
+
+def _time_aware(second, z, times):
+    """:func:`length_unit_rule`'s second differences ``second`` (T-2, N, p) of ``z``, those of triples with unequal
+    steps replaced by the time-aware difference (see :func:`auto_length_unit`); a triple without two positive
+    finite steps keeps its second difference."""
+    try:
+        t = np.asarray(times, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"times: expected numbers, shape (T,) or (T, N), got {times!r:.80}") from None
+    if t.ndim == 1:
+        t = t[:, None]
+    if t.shape != z.shape[:2]:
+        raise ValueError(f"times: expected shape {z.shape[:2]} (rows, tracks) as the values', got {t.shape}")
+    h1, h2 = (t[1:-1] - t[:-2])[..., None], (t[2:] - t[1:-1])[..., None]
+    usable = np.isfinite(h1) & np.isfinite(h2) & (h1 > 0) & (h2 > 0)
+    equal = np.abs(h1 - h2) <= 1e-9 * np.maximum(h1, h2)
+    weighted = (np.abs(h1 * (z[2:] - z[1:-1]) - h2 * (z[1:-1] - z[:-2])) * math.sqrt(6.0)
+                / np.sqrt(h1 * h1 + h2 * h2 + (h1 + h2) ** 2))
+    return np.where(usable & ~equal, weighted, second)
 
 
 def auto_time_unit(times) -> float:
@@ -227,7 +265,8 @@ def estimate_length_unit(table, position_names=None, *, geographic: bool | None 
     axes = resolve_axes(names, geographic)
     if axes is not None:
         table, names = local_table(table[["track_id", "time", *names]], names, axes), list(std_names(axes))
-    return length_unit_rule(to_arrays(table, names).values)
+    arrays = to_arrays(table, names)
+    return length_unit_rule(arrays.values, times=arrays.times)
 
 
 def find_columns(header, *, time: str | None = None, positions=None, track_id: str | None = None,
@@ -328,6 +367,11 @@ class StreamConfig:
         3, a step of more than 3 reference intervals (at 100 Hz, 3 dropped frames) starts a new
         segment: the experts start again (the rule and calibration go on). Pass ``inf`` (or a
         ``max_gap``) where short drops are the sampling and the target did not change course.
+    gap_reference : str
+        The reference interval: ``"upper quartile"`` (the default) of the track's first 16 steps (the
+        13th in increasing order), so that irregular sampling (steps of 5 to 60 s) keeps a track in one
+        segment; ``"median"``: their median (the rule of state files before format version 12, which
+        resume with it).
     options : dict
         Other arguments of :func:`kalmix.bank.make_params` (the AKF family).
     bank : str
@@ -365,6 +409,7 @@ class StreamConfig:
     horizon: int = 1
     max_gap: float | None = None
     max_gap_factor: float = 3.0
+    gap_reference: str = "upper quartile"
     options: dict = field(default_factory=dict)
     bank: str = DEFAULT_BANK["kind"]
     rule: str = DEFAULT_BANK["rule"]
@@ -398,6 +443,9 @@ class StreamConfig:
             raise ValueError(f"max_gap: expected a time step > 0, got {self.max_gap!r}")
         if not self.max_gap_factor > 1:
             raise ValueError(f"max_gap_factor: expected a number > 1, got {self.max_gap_factor!r}")
+        if self.gap_reference not in GAP_REFERENCES:
+            raise ValueError(f"gap_reference: expected one of {', '.join(map(repr, GAP_REFERENCES))}, got "
+                             f"{self.gap_reference!r:.80}")
         if isinstance(self.length_unit, str) and self.length_unit.strip().lower() == "auto":
             self.length_unit = "auto"
         elif isinstance(self.length_unit, str):
@@ -447,6 +495,13 @@ def _median(values) -> float:
     return float((ordered[middle - 1] + ordered[middle]) / 2.0)
 
 
+def _upper_quartile(values) -> float:
+    """The gap rule's reference interval: of ``n`` steps in increasing order the one at index ``3n // 4`` (the
+    13th of 16; of up to 4 steps, the largest)."""
+    ordered = sorted(values)
+    return float(ordered[min(len(ordered) - 1, 3 * len(ordered) // 4)])
+
+
 class SkippedRowWarning(RuntimeWarning):
     """A row was skipped because its time was not after its track's last time (said once per predictor)."""
 
@@ -482,7 +537,9 @@ class GapTracker:
             return float(config.max_gap)
         if not self.intervals or not math.isfinite(config.max_gap_factor):
             return math.inf
-        return config.max_gap_factor * _median(self.intervals)
+        if config.gap_reference == "median":   # state files before version 12
+            return config.max_gap_factor * _median(self.intervals)
+        return config.max_gap_factor * _upper_quartile(self.intervals)
 
     def advance(self, time: float, config: StreamConfig) -> bool | None:
         """Register ``time``; True if it starts a new segment, None if out of order or not finite (skip: a NaN
@@ -860,7 +917,7 @@ class TrackPredictor:
             unit, why = 1.0, None
             text = length_unit_fallback(None, where, "length_unit", metres)
         else:
-            unit, why = estimate_length_unit(table[["track_id", *names]].assign(time=0.0), names,
+            unit, why = estimate_length_unit(table[["track_id", *names]].assign(time=_seconds(table["time"])), names,
                                              geographic=self.axes is not None)
             text = None if why is None else length_unit_fallback(why, where, "length_unit", metres)
         try:
@@ -1914,6 +1971,8 @@ class TrackPredictor:
                     config["rule_options"] = {"clip": math.inf, **(config.get("rule_options") or {})}
                 if meta["format_version"] < 11:
                     config.setdefault("geographic", False)   # files before version 11 took positions as flat
+                if meta["format_version"] < 12:
+                    config.setdefault("gap_reference", "median")   # files before version 12 took the median
                 engine = cls(StreamConfig(**config), meta.get("position_names"))
                 engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
                 engine.outliers = int(meta.get("outliers", 0))
