@@ -338,11 +338,11 @@ def kalmix_predict(table: pd.DataFrame, directory: Path, options=(), source: Pat
                    ) -> tuple[pd.DataFrame, float, str]:
     """``kalmix predict`` (of the package under ``source``, default this checkout's ``src``) on ``table`` written
     as CSV, in a subprocess: its output, the seconds the process took, and what it said on stderr."""
-    source = directory / "tracks.csv"
-    if not source.exists():
-        table.to_csv(source, index=False)
+    tracks = directory / "tracks.csv"
+    if not tracks.exists():
+        table.to_csv(tracks, index=False)
     target = directory / f"out{len(list(directory.glob('out*.csv')))}.csv"
-    command = [sys.executable, "-m", "kalmix.cli", "predict", str(source), "-o", str(target), "--no-progress",
+    command = [sys.executable, "-m", "kalmix.cli", "predict", str(tracks), "-o", str(target), "--no-progress",
                *options]
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(source or ROOT / "src")] + [p for p in [env.get("PYTHONPATH")] if p])

@@ -417,7 +417,7 @@ def _local_only(given, output):
 @click.option("--length-unit", default="auto", show_default=True, help=_LENGTH_UNIT_HELP)
 @click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP + " 'none' never splits.")
 @click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True),
-              help="Gap threshold as a multiple of the reference interval (median of a track's first 16 steps).")
+              help="Gap threshold as a multiple of the reference interval (the upper quartile of a track's first 16 steps).")
 @click.option("--reach", default=None, help=_REACH_HELP)
 @click.option("--state", "state_path", default=None, type=click.Path(dir_okay=False),
               help="State file: resumed from if it exists, written on exit and every --save-every rows.")
@@ -590,7 +590,7 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
               help="Leading share of each track used to tune the peers (and the length unit), not scored.")
 @click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP + " 'none' never splits.")
 @click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True),
-              help="Gap threshold as a multiple of the reference interval (median of a track's first 16 steps).")
+              help="Gap threshold as a multiple of the reference interval (the upper quartile of a track's first 16 steps).")
 @click.option("--reach", default=None, help=_REACH_HELP)
 @click.option("--max-samples", default=None, type=click.IntRange(min=3),
               help="Use only the first N samples of each track (quicker).")
