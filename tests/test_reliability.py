@@ -529,8 +529,13 @@ def test_more_bad_command_lines_fail_at_start_with_one_line(cli, tmp_path, comma
 
 
 def test_process_table_names_missing_columns():
-    with pytest.raises(ValueError, match=r"missing \['time'\]"):
-        TrackPredictor(StreamConfig(n_experts=2)).process_table(pd.DataFrame({"track_id": [1], "x": [1.0]}))
+    """No position column: an error that names what was expected and the columns there are. No time column: row
+    order is time, as in ``kalmix predict``."""
+    with pytest.raises(ValueError, match=r"expected 1 to 3 position columns.*'track_id', 'time'"):
+        TrackPredictor(StreamConfig(n_experts=2)).process_table(pd.DataFrame({"track_id": [1], "time": [0.0]}))
+    out = TrackPredictor(StreamConfig(n_experts=2, length_unit=1.0)).process_table(
+        pd.DataFrame({"track_id": [1, 1, 1], "x": [1.0, 2.0, 3.0]}))
+    assert list(out["row"]) == [0, 1, 2] and np.isfinite(out["pred_x"]).all()
 
 
 def test_ids_are_text_as_written_in_files_and_on_stdin_and_a_bom_is_ignored(cli, tmp_path):

@@ -486,7 +486,7 @@ class StreamConfig:
         return self.horizon * (self.time_unit or 1.0) if self.horizon > 1 else None
 
 
-def _median(values) -> float:
+def short_median(values) -> float:
     """``np.median`` of a short list, bit for bit, without numpy's per-call cost (called once a row)."""
     ordered = sorted(values)
     middle = len(ordered) // 2
@@ -538,7 +538,7 @@ class GapTracker:
         if not self.intervals or not math.isfinite(config.max_gap_factor):
             return math.inf
         if config.gap_reference == "median":   # state files before version 12
-            return config.max_gap_factor * _median(self.intervals)
+            return config.max_gap_factor * short_median(self.intervals)
         return config.max_gap_factor * _upper_quartile(self.intervals)
 
     def advance(self, time: float, config: StreamConfig) -> bool | None:
@@ -1047,7 +1047,7 @@ class TrackPredictor:
     def _interval(self, gaps: "GapTracker") -> float:
         """A track's reference interval (median of its first steps), else the time unit, else 1."""
         if gaps.intervals:
-            return _median(gaps.intervals)
+            return short_median(gaps.intervals)
         return self.config.time_unit or 1.0
 
     def _forecast_next(self, state: BankState, times) -> tuple[np.ndarray, np.ndarray]:
@@ -1518,6 +1518,9 @@ class TrackPredictor:
                                  f"{next_times!r:.80}") from None
         position_names = (list(position_names) if position_names
                           else [c for c in table.columns if c not in ("track_id", "time")])
+        if not position_names:
+            raise ValueError(f"table: expected 1 to 3 position columns beside track_id and time, got none "
+                             f"(columns: {list(table.columns)})")
         missing = [c for c in ("track_id", "time", *position_names) if c not in table.columns]
         if missing:
             raise ValueError(f"table: expected the columns track_id, time and the positions, missing {missing} "

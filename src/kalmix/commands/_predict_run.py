@@ -206,7 +206,7 @@ class UnitWatch:
     def check(self, engine, final: bool = False) -> None:
         if self.done or engine is None or engine.config.time_unit is None:
             return
-        from ..streaming import REFERENCE_INTERVALS, _median
+        from ..streaming import REFERENCE_INTERVALS, short_median
 
         source = getattr(engine, "_unit_source", None)
         if source is None:   # given, resumed from a state file, or taken back as a wrong timestamp (warned)
@@ -220,7 +220,7 @@ class UnitWatch:
         self.done = True
         if len(steps) < 3:
             return
-        usual = _median(steps)
+        usual = short_median(steps)
         if usual > self.FACTOR * unit or unit > self.FACTOR * usual:
             click.echo(f"kalmix: warning: the time unit, {unit:.6g} time-column units, was learned from the first "
                        f"step of track {track!r}, whose usual step is {usual:.6g} (the median of its first "
@@ -1264,7 +1264,7 @@ class _StreamClocks:
 
     def adjust(self, rows) -> list:
         """``rows`` (line, track, time, positions, time as given) with the times of restarted clocks moved."""
-        from ..streaming import REFERENCE_INTERVALS, _median
+        from ..streaming import REFERENCE_INTERVALS, short_median
 
         out = []
         for row in rows:
@@ -1280,7 +1280,7 @@ class _StreamClocks:
                 out.append(row)
                 continue
             shift, last, start, back, steps = state
-            usual = _median(steps) if steps else None
+            usual = short_median(steps) if steps else None
             state[3] = None
             if back is not None and usual is not None and back[0] < time <= back[0] + self.FACTOR * usual:
                 shift = state[0] = last + shift + float(self.step(usual)) - time
