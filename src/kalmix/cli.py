@@ -62,13 +62,13 @@ def script() -> None:
     tuned for one run.
 
     - The cyclic garbage collector runs every 10,000 net container allocations instead of 700:
-      loading numba's kernels allocates ~250,000, so the default ran it ~350 times (0.12 s of a
-      2.4 s 100k-row ``kalmix predict``, 0.04 s now). Memory is freed as before; cycles a little later.
+      loading numba's kernels allocates hundreds of thousands of objects, which would run it hundreds
+      of times. Memory is freed as usual; cycles a little later.
     - Ctrl-C stops a numba compile too (:mod:`kalmix.commands._interrupt`).
     - While kalmix's kernels compile (a fresh install's first run), stderr says so, with the elapsed
       seconds (:class:`kalmix.commands._common.CompileDisplay`).
     - After a command that succeeded, the process ends without the interpreter's teardown, which
-      frees numba's, pandas' and the data's objects one by one (~0.2 s at the end of that run):
+      frees numba's, pandas' and the data's objects one by one:
       threads are joined, atexit handlers run and stdout/stderr are flushed first, as at a normal
       exit. A command that fails, a flush that fails, or a process under a profiler or tracer
       (cProfile, coverage, a debugger: they write their results after the program) exits the

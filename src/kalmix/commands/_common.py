@@ -63,8 +63,8 @@ def missing_directory(path) -> tuple[str, bool] | None:
 
 
 def output_file(ctx, param, value):
-    """click callback: a file to write, whose directory exists and is writable, checked before the work (a
-    missing directory was a traceback after the whole run)."""
+    """click callback: a file to write, whose directory exists and is writable, checked before the work, so a
+    missing directory fails at once, not after the whole run."""
     if value is not None:
         check_output_file(value)
     return value
@@ -116,7 +116,7 @@ def figure_format_problem(path) -> str | None:
 
 def figure_file(ctx, param, value):
     """click callback: :func:`output_file` in a format matplotlib writes (:func:`figure_format_problem`), checked
-    before the work (``--out fig.txt`` failed after it)."""
+    before the work, so ``--out fig.txt`` fails at once."""
     value = output_file(ctx, param, value)
     problem = None if value is None else figure_format_problem(value)
     if problem:
@@ -246,7 +246,7 @@ def progress_bar(total: int, description: str, unit: str):
     except ImportError:  # pragma: no cover - tqdm is in the cli extra
         yield lambda n=1, postfix=None: None
         return
-    # on a terminal only, as predict's: redirected to a log, every redraw was a line of \r updates
+    # on a terminal only, as predict's: redirected to a log, every redraw would be a line of \r updates
     with tqdm(total=total, desc=description, unit=unit, leave=False, dynamic_ncols=True,
               disable=not _is_terminal(sys.stderr)) as bar:
         def update(n=1, postfix=None):

@@ -45,8 +45,7 @@ _GATING_INPUTS = ("bias", "position", "velocity")
 
 
 # Below this many experts the scalar kernel (one expert at a time) is faster than the
-# experts-last kernel, whose vector loops then carry mostly overhead (measured: K = 1-4
-# scalar 1.3-3.3x faster, K >= 8 experts-last 1.6-3.9x faster; README, performance).
+# experts-last kernel, whose vector loops then carry mostly overhead.
 VECTOR_MIN_EXPERTS = 8
 
 

@@ -3,9 +3,8 @@
 numba compiles a kernel the first time it is called, one kernel after another, in one
 process; a fresh install (or a new kalmix version, whose sources key a new cache) pays
 all of it on its first run. The AKF family's driver (:mod:`kalmix.core.compiled.akf`, which
-inlines :mod:`kalmix.core._numba_kernels`' kernel) is two thirds of that for the
-default bank (compile events, 2 cores: 31 of 46 s; the rule driver 6 s, kinematic 3.5 s, AR
-2.8 s, turn 1.7 s). numba holds a lock while it compiles, so threads cannot share the work;
+inlines :mod:`kalmix.core._numba_kernels`' kernel) is most of that for the
+default bank. numba holds a lock while it compiles, so threads cannot share the work;
 processes can, through the cache: they write the same cache directory.
 
 :func:`compile_ahead`, called by :func:`kalmix.core.compiled.engine.run` (which passes itself), does
@@ -15,7 +14,7 @@ family's parameters) while this process compiles the other kernels of the bank (
 of the bank without its AKF family); then this process waits for the child and loads the
 AKF kernel from the cache. Every kernel is compiled once; the numbers are the same (the
 cache holds the same machine code). If the child fails, this process compiles the kernel
-itself, as before. ``KALMIX_BACKGROUND_COMPILE=0`` switches it off.
+itself. ``KALMIX_BACKGROUND_COMPILE=0`` switches it off.
 """
 
 from __future__ import annotations
@@ -113,7 +112,7 @@ def compile_ahead(bank, run) -> int | None:
                 _tiny_run(dataclasses.replace(bank, families=tuple(f for f in bank.families if f.kind != "akf")), run)
             except Exception:   # noqa: BLE001 - only a warm-up: the real run compiles what is missing, and reports
                 pass
-            except BaseException:   # Ctrl-C or a stop signal: stop now, not after the child's compile (~25 s)
+            except BaseException:   # Ctrl-C or a stop signal: stop now, not after the child's compile
                 _end(child)
                 raise
             try:

@@ -34,22 +34,18 @@ from ._warm import compile_ahead
 
 __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
 
-#: Upper bound of the per-block expert buffer(s). 16 MiB (it was 64): a quarter of the memory, and no slower
-#: (100-track, 100k-row file, default bank, 2 cores, alternated: 1.09-1.32 s against 1.11-1.71; 10,000
-#: targets x 50 rows the same). Below ~4 MiB the per-block Python work (~1.7 ms a block) costs more.
+#: Upper bound of the per-block expert buffer(s): large enough that the per-block Python work is small beside
+#: the kernels' (below a few MiB it is not), small enough to stay a modest share of memory.
 BUFFER_BYTES = 16 * 2**20
 #: More targets than this are run in groups of this many, each through all its rows: a group's state
-#: (~0.2 MB a target for the default bank) stays in the caches from row to row. Measured on 10,000
-#: targets x 50 rows, default bank, 2 cores: 2.07e6 expert-steps/s in one group, 3.5e6 in groups of 256,
-#: 4.3-4.7e6 with the groups on threads (each whole on one thread, so its Python work overlaps with the
-#: others' kernels; 128, 256 and 512 targets a group measure the same within the noise). Fewer targets run
-#: in smaller groups when that keeps the threads busier (:func:`._threads.group_size`).
+#: (~0.2 MB a target for the default bank) stays in the caches from row to row, and the groups run on
+#: threads (each whole on one thread, so its Python work overlaps with the others' kernels). Fewer targets
+#: run in smaller groups when that keeps the threads busier (:func:`._threads.group_size`).
 TARGET_GROUP = 256
 
 #: Fewest target-rows for which a call over few targets runs the families side by side on threads.
-#: Below it, handing the families to the threads costs more than it saves (default bank, one target,
-#: a call of 1 row: 0.39 ms side by side, 0.24 ms one family after another; 4 rows 0.41 / 0.32 ms;
-#: 16 rows 0.47 / 0.59 ms; 64 rows 1.46 / 1.88 ms). A live stream steps one row a call.
+#: Below it, handing the families to the threads costs more than it saves. A live stream steps one row a
+#: call.
 SIDE_BY_SIDE_MIN_ROWS = 16
 
 
