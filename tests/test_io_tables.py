@@ -334,7 +334,7 @@ def test_split_on_gaps_per_track_uses_own_median():
 def test_repeated_times_are_dropped_as_pandas_duplicated_keeps_the_last(first_appearance):
     """The normalised table drops the rows whose (track, time) repeats later, keeping the last, as pandas'
     ``duplicated(keep="last")`` does on the sorted table (numeric and text ids, -0.0 and 0.0, runs of three)."""
-    from kalmix.io.tables import _normalise
+    from kalmix.io.tables import normalise_table
 
     rng = np.random.default_rng(5)
     for trial in range(60):
@@ -344,7 +344,7 @@ def test_repeated_times_are_dropped_as_pandas_duplicated_keeps_the_last(first_ap
         raw = pd.DataFrame({"track_id": ids, "time": times, "x": rng.normal(size=n)})
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            out = _normalise(raw, TrackColumns("time", ("x",), "track_id"), first_appearance=first_appearance)
+            out = normalise_table(raw, TrackColumns("time", ("x",), "track_id"), first_appearance=first_appearance)
         if first_appearance:
             order = np.lexsort((times, pd.factorize(raw["track_id"], sort=False)[0]))
         else:

@@ -52,8 +52,8 @@ from dataclasses import asdict
 import numpy as np
 import pandas as pd
 
-from .io.tables import (TrackColumns, _check_unique, _csv_options, _header, _normalise, _to_float, check_output_names,
-                        detect_columns)
+from .io.tables import (TrackColumns, check_output_names, check_unique_columns, csv_options, detect_columns,
+                        normalise_table, read_header, to_float)
 
 __all__ = ["predict_dask", "read_archive", "archive_files", "prepare", "data_units", "PARTITION_ROWS",
            "BATCH_TRACKS"]
@@ -150,14 +150,14 @@ def _check_files(files, fmt, columns):
         if fmt == "csv" and os.path.getsize(path) == 0:
             raise ValueError(f"INPUT: {path!r} is empty (no header, no rows)")
         try:
-            header = _header(path, fmt)
+            header = read_header(path, fmt)
         except (OSError, ValueError) as error:   # (pyarrow's ArrowInvalid is a ValueError)
             raise _unreadable(path, error) from None
         missing = [name for name in columns.names if name not in header]
         if missing:
             raise ValueError(f"INPUT: {path!r} has no column {missing[0]!r}: expected the columns "
                              f"{columns.names} (as in {files[0]!r}), got {header}")
-        _check_unique(path, fmt, columns)
+        check_unique_columns(path, fmt, columns)
         if fmt == "parquet":
             import pyarrow.parquet as pq
 
@@ -212,7 +212,7 @@ def _read_raw(path, fmt, columns, groups=None, nrows=None):
                 else:
                     raw = parquet.read_row_groups(groups, columns=columns.names).to_pandas()
         else:
-            raw = pd.read_csv(path, usecols=columns.names, nrows=nrows, **_csv_options(columns, True))
+            raw = pd.read_csv(path, usecols=columns.names, nrows=nrows, **csv_options(columns, True))
     except (OSError, EOFError, pd.errors.ParserError, UnicodeDecodeError) as error:
         raise _unreadable(path, error) from None
     except ValueError as error:   # pyarrow's ArrowInvalid: a corrupt page, a bad footer
@@ -248,7 +248,7 @@ def _canonical(raw, columns: TrackColumns, base: int, where: str, offset: int = 
         out = pd.DataFrame({"track_id": ids})
         for name, source in ((("time", columns.time),) if columns.time is not None else ()) + tuple(
                 (p, p) for p in columns.positions):
-            out[name] = _to_float(raw[source].reset_index(drop=True), source, offset, dates=name == "time")
+            out[name] = to_float(raw[source].reset_index(drop=True), source, offset, dates=name == "time")
     except ValueError as error:
         raise ValueError(f"{where}: {error}") from None
     out["_order"] = (np.int64(base) << _ORDER_BITS) + np.arange(n, dtype=np.int64)
@@ -294,7 +294,7 @@ def read_archive(source, *, time=None, positions=None, track_id=None,
     import dask.dataframe as dd
 
     files, fmt = archive_files(source)
-    columns = detect_columns(_header(files[0], fmt), time=time, positions=positions, track_id=track_id)
+    columns = detect_columns(read_header(files[0], fmt), time=time, positions=positions, track_id=track_id)
     check_output_names(columns)
     _check_files(files, fmt, columns)
     meta = _canonical(_read_raw(files[0], fmt, columns, nrows=0), columns, 0, files[0])
@@ -386,7 +386,8 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
         for raw in _first_chunks(prepared, chunk_rows):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # the single-machine run warns; here the units only
-                chunk = _normalise(raw.drop(columns="_order"), canon, counts=counts, first_appearance=first_appearance)
+                chunk = normalise_table(raw.drop(columns="_order"), canon, counts=counts,
+                                        first_appearance=first_appearance)
             yield chunk
 
     read = chunks()
@@ -472,7 +473,7 @@ def _predict_partition(frame, columns, config, chunk_rows, batch_tracks, first_a
     frame = frame.sort_values("_order", kind="stable").drop(columns="_order")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # sorting and repeated times: as a single-machine read
-        table = _normalise(frame, _engine_columns(columns), first_appearance=first_appearance)
+        table = normalise_table(frame, _engine_columns(columns), first_appearance=first_appearance)
     out = predict_table(table, config, columns.positions, chunk_rows=chunk_rows, batch_tracks=batch_tracks)
     return with_input_names(out, columns).astype(meta.dtypes.to_dict())
 

@@ -115,14 +115,14 @@ def run_dask(input_path, output, settings, unit, time_column, position_columns, 
     from distributed import KilledWorker
 
     from ..dask_predict import archive_files, read_archive
-    from ..io.tables import _header, column_notes
+    from ..io.tables import column_notes, read_header
 
     started = time.perf_counter()
     partial = _partial_dir(output)
     try:
         frame, columns, fmt = read_archive(input_path, time=time_column, positions=position_names(position_columns),
                                            track_id=id_column)
-        for note in column_notes(columns, _header(archive_files(input_path)[0][0], fmt)):
+        for note in column_notes(columns, read_header(archive_files(input_path)[0][0], fmt)):
             _note(note)
         with _client(scheduler, workers) as client:
             total, splits, work = _compute(client, frame, columns, fmt, partial, settings, unit, chunk_rows,

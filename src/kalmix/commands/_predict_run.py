@@ -26,7 +26,7 @@ import numpy as np
 
 from ._common import silence_stdout
 from ._durable import Interrupted, Output, OutputClosed, count_rows
-from .predict import _columns, _header, _input_format, _output_columns, _sample
+from ._input import input_columns, input_format, sample_reader
 
 #: A chunk is stepped in pieces of about this many rows (each track's rows split in order,
 #: so every piece holds every track of the chunk and the batch stays as wide): the progress
@@ -540,15 +540,16 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     from tqdm import tqdm
 
     from ..io import iter_track_chunks
-    from ..io.tables import DroppedRowWarning
+    from ..io.tables import DroppedRowWarning, read_header
     from ..streaming import estimate_length_unit, length_unit_fallback, next_row_times
 
     if not os.path.exists(path):
         raise FileNotFoundError(f"INPUT: no such file {path!r}")
     if os.path.isdir(path):
         raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {path!r}")
-    in_fmt = _input_format(path)
-    columns = _columns(_header(path, in_fmt), time_column, position_columns, id_column, _sample(path, in_fmt))
+    in_fmt = input_format(path)
+    columns = input_columns(read_header(path, in_fmt), time_column, position_columns, id_column,
+                            sample_reader(path, in_fmt))
     _check_resumed(run.engine, columns)
     run.open_output()
     show = sys.stderr.isatty() if progress is None else progress
@@ -938,7 +939,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         except csv.Error as error:
             raise ValueError(f"line {line_number}: not a CSV header: {error}") from None
         pending = []
-    columns = _columns(header, time_column, position_columns, id_column)
+    columns = input_columns(header, time_column, position_columns, id_column)
     _check_resumed(run.engine, columns)
     words = _IdWatch(columns, header, id_column)
     from ..io.geo import check_degrees
@@ -1158,10 +1159,12 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
     if run.sink.fmt == "csv" and not run.sink.header_written:   # every row skipped: the header all the same,
         import pandas as pd   # named as a file's run names its columns
 
+        from ..streaming import with_input_names
+
         empty = pd.DataFrame(columns=["track_id", "time", "segment", *(
             name for names in engine.output_columns().values() for name in names)])
         with run.guard.deferred():
-            run.sink.write_header(list(_output_columns(empty, columns, columns.positions).columns))
+            run.sink.write_header(list(with_input_names(empty, columns).columns))
 
 
 class _BadLine(NamedTuple):
@@ -1241,9 +1244,9 @@ def given_time(value, fmt):
 
 def _track_key(track):
     """A stdin track id as the engine keys its trackers."""
-    from ..streaming import _id_to_json
+    from ..streaming import id_to_json
 
-    return _id_to_json(track)
+    return id_to_json(track)
 
 
 class _StreamClocks:

@@ -16,14 +16,17 @@ import click
 import numpy as np
 
 from ..archive import save_figure
-from ..bank import BANK_KINDS, DEFAULT_BANK, DEFAULT_REACH, GATE_OPTIONS, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED, recipe_parts
-from ._common import figure_format_problem, missing_directory, user_errors as _user_errors
+from ..bank import (BANK_KINDS, DEFAULT_BANK, DEFAULT_REACH, GATE_OPTIONS, LENGTH_UNIT_RANGE, MAX_HORIZON, MAX_SEED,
+                    recipe_parts)
+from ._common import figure_format_problem, missing_directory, position_names, user_errors as _user_errors
+from ._input import file_format, input_columns, input_format, sample_reader
 
 _LENGTH_UNIT_HELP = ("Typical measurement-noise size in data units (1 for pixels; ~0.01-0.05 for metres; metres for "
                      "geographic coordinates). "
                      "Default 'auto': median |second difference| / (0.6745*sqrt(6)) of the first chunk "
                      "(files) or 1 (stdin, unless a --state file holds one).")
-_GAP_HELP = ("A time step larger than this (in the time column's units) starts a new segment: the track's predictor restarts. "
+_GAP_HELP = ("A time step larger than this (in the time column's units) starts a new segment: the track's predictor "
+             "restarts. "
              "Default: --max-gap-factor times the track's reference interval.")
 
 
@@ -98,16 +101,6 @@ _BANK_OPTION_HELP = ("A kalmix.bank.make_params argument of the bank's AKF famil
                      "--rule combines the experts).")
 
 
-def _positions(text):
-    if text is None:
-        return None
-    names = [name.strip() for name in text.split(",") if name.strip()]
-    if not 1 <= len(names) <= 3:
-        raise click.BadParameter(f"expected 1 to 3 comma-separated column names, got {text!r}",
-                                 param_hint="--position")
-    return names
-
-
 def _length_unit(text):
     if text is None or str(text).lower() == "auto":
         return None
@@ -122,7 +115,8 @@ def _length_unit(text):
     return value
 
 
-_REACH_HELP = ("Across a time step longer than this many time units (--time-unit) only the constant-velocity experts make the "
+_REACH_HELP = ("Across a time step longer than this many time units (--time-unit) only the constant-velocity experts "
+               "make the "
                "one-step prediction (the others extrapolate fits made on the usual steps); 'none': every expert "
                "at every step. 8 suits tracks sampled at irregular intervals, with --max-gap none "
                "[default: none].")
@@ -182,25 +176,11 @@ def _max_gap(text):
     try:
         value = float(text)
     except ValueError:
-        raise click.BadParameter(f"expected a time step > 0, 'auto' or 'none', got {text!r}", param_hint="--max-gap")
+        raise click.BadParameter(f"expected a time step > 0, 'auto' or 'none', got {text!r}",
+                                 param_hint="--max-gap") from None
     if not value > 0:
         raise click.BadParameter(f"expected a time step > 0, 'auto' or 'none', got {text!r}", param_hint="--max-gap")
     return value, False
-
-
-def _header(path, fmt):
-    import pandas as pd
-
-    if fmt == "parquet":
-        import pyarrow.parquet as pq
-        return list(pq.ParquetFile(path).schema_arrow.names)
-    try:
-        return [str(c) for c in pd.read_csv(path, nrows=0).columns]
-    except pd.errors.EmptyDataError:
-        raise ValueError(f"The track file {os.fspath(path)!r} is empty (no header, no rows)") from None
-    except UnicodeDecodeError as error:
-        raise ValueError(f"INPUT: {os.fspath(path)!r} is not a CSV text file (UTF-8 expected; {error.reason} "
-                         f"at byte {error.start})") from None
 
 
 def _distinct_files(*named):
@@ -228,68 +208,6 @@ def _directory_exists(name, path):
                          f"{'is a file, not a directory' if taken else 'does not exist'}")
 
 
-def _file_format(path):
-    name = os.fspath(path).lower()
-    if name.endswith((".parquet", ".pq")):
-        return "parquet"
-    if name.endswith((".jsonl", ".ndjson", ".json")):
-        return "jsonl"
-    return "csv"
-
-
-def _input_format(path) -> str:
-    """``"parquet"`` or ``"csv"`` for a track file INPUT; ``ValueError`` for what is read otherwise."""
-    name, kind = os.fspath(path).lower(), _file_format(path)
-    if kind == "jsonl":
-        raise ValueError(f"INPUT: expected CSV (.csv, .csv.gz) or Parquet, got the JSON-lines file {path!r} (kalmix "
-                         f"predict reads JSON lines from stdin: 'kalmix predict - < {os.path.basename(path)}')")
-    if name.endswith((".tsv", ".tab", ".tsv.gz")):
-        raise ValueError(f"INPUT: expected CSV (comma-separated) or Parquet, got the tab-separated {path!r}; convert "
-                         "it first (e.g. pandas.read_csv(path, sep='\\t').to_csv('tracks.csv', index=False))")
-    return kind
-
-
-def _columns(header, time_column, position_columns, id_column, sample=None):
-    """The columns to use (:func:`kalmix.streaming.find_columns`, the Python API's too), its notes told on
-    stderr; ``sample(names, rows)``: the input's first rows of those columns (None: stdin, whose rows are yet
-    to come)."""
-    from ..streaming import find_columns
-
-    columns, notes = find_columns(header, time=time_column, positions=_positions(position_columns),
-                                  track_id=id_column, sample=sample)
-    for note in notes:
-        click.echo(f"kalmix: {note}", err=True)
-    if position_columns is None and sample is not None:
-        columns = _without_empty_positions(columns, sample)
-    return columns
-
-
-def _without_empty_positions(columns, sample):
-    """``columns`` without the detected position columns that are empty in every row of the input's first rows
-    (an exported ``z`` of 2-D tracks), with a note naming them: each row would be a missing measurement and
-    every prediction empty. Unchanged when none is empty, or all are (said at the end of the run)."""
-    import dataclasses
-
-    from ..io.tables import ID_SAMPLE_ROWS, _MISSING_TEXT
-
-    if len(columns.positions) < 2:
-        return columns
-    rows = sample(list(columns.positions), ID_SAMPLE_ROWS)
-    if rows is None or not len(rows) or any(name not in rows.columns for name in columns.positions):
-        return columns
-    empty = [name for name in columns.positions
-             if (rows[name].isna() | rows[name].astype(str).str.strip().str.lower().isin(_MISSING_TEXT)).all()]
-    if not empty or len(empty) == len(columns.positions):
-        return columns
-    kept = tuple(name for name in columns.positions if name not in empty)
-    which = ", ".join(repr(name) for name in empty)
-    click.echo(f"kalmix: note: the position column{'s' if len(empty) > 1 else ''} {which} "
-               f"{'are' if len(empty) > 1 else 'is'} empty in the first {len(rows):,} rows: predicting "
-               f"{', '.join(kept)} only (--position {','.join(columns.positions)} keeps "
-               f"{'them' if len(empty) > 1 else 'it'})", err=True)
-    return dataclasses.replace(columns, positions=kept)
-
-
 def _guess_id(columns, header, sample):
     """:func:`kalmix.streaming.guess_id`, its note told on stderr."""
     from ..streaming import guess_id
@@ -305,22 +223,22 @@ def _dask_id(input_path, time_column, position_columns, id_column):
     as a single file does (:func:`_guess_id`: taken with a note, or an error naming the columns). ``--id
     none`` where an id column is detected: an error (the Dask engine reads a detected id column)."""
     from ..dask_predict import archive_files
-    from ..io.tables import detect_columns
+    from ..io.tables import detect_columns, read_header
 
     if id_column is not None and id_column.strip().lower() != "none":
         return id_column
     files, fmt = archive_files(input_path)
-    header = _header(files[0], fmt)
+    header = read_header(files[0], fmt)
     if id_column is not None and id_column in header:
         return id_column
-    columns = detect_columns(header, time=time_column, positions=_positions(position_columns))
+    columns = detect_columns(header, time=time_column, positions=position_names(position_columns))
     if id_column is not None:   # none
         if columns.track_id is not None:
             raise ValueError(f"--id none: --engine dask reads the id column it detects ({columns.track_id!r}); "
                              "run --engine local for one track, or rename that column")
         return None
     if columns.track_id is None:
-        columns = _guess_id(columns, header, _sample(files[0], fmt))
+        columns = _guess_id(columns, header, sample_reader(files[0], fmt))
     return columns.track_id
 
 
@@ -331,45 +249,15 @@ def _dask_flat(input_path, time_column, position_columns, geographic):
         return
     from ..dask_predict import archive_files
     from ..io.geo import resolve_axes
-    from ..io.tables import detect_columns
+    from ..io.tables import detect_columns, read_header
 
     files, fmt = archive_files(input_path)
-    columns = detect_columns(_header(files[0], fmt), time=time_column, positions=_positions(position_columns))
+    columns = detect_columns(read_header(files[0], fmt), time=time_column,
+                             positions=position_names(position_columns))
     if resolve_axes(list(columns.positions), geographic) is not None:
         raise ValueError(f"--engine dask: takes positions as flat numbers, and {list(columns.positions)} are "
                          "geographic coordinates; use --engine local (which predicts them in metres), or "
                          "--no-geographic to take them as flat numbers")
-
-
-def _sample(path, fmt):
-    """``sample(names, rows)``: the first ``rows`` rows of those columns of a track file (a CSV's as text); None
-    where they cannot be read (the reading proper says why)."""
-    import pandas as pd
-
-    def read(names, rows):
-        try:
-            if fmt == "parquet":
-                import pyarrow.parquet as pq
-
-                with pq.ParquetFile(path) as parquet:
-                    batch = next(parquet.iter_batches(batch_size=rows, columns=list(dict.fromkeys(names))), None)
-                return None if batch is None else batch.to_pandas()
-            frame = pd.read_csv(path, nrows=rows, dtype=str, keep_default_na=False, na_values=[""])
-            return frame[[name for name in dict.fromkeys(names) if name in frame.columns]]
-        except (ValueError, UnicodeDecodeError, OSError, pd.errors.ParserError):
-            return None
-
-    return read
-
-
-def _output_columns(frame, columns, names):
-    """Rename the engine's columns back to the input's names; drop the id if the input had none."""
-    renames = {"time": columns.time or "row"}
-    if columns.track_id is not None:
-        renames["track_id"] = columns.track_id
-    else:
-        frame = frame.drop(columns="track_id")
-    return frame.rename(columns=renames)
 
 
 def _given(names):
@@ -409,7 +297,8 @@ def _local_only(given, output):
 @click.option("--rule", default=None, type=click.Choice(["boa", "mlpoly", "fixed_share"]),
               help="Aggregation rule [default: boa].")
 @click.option("--time-unit", default=None, type=click.FloatRange(min=0, min_open=True),
-              help="Typical sampling interval (the time unit, in the time column's units) that scales the CV/CA experts' noise "
+              help="Typical sampling interval (the time unit, in the time column's units) that scales the CV/CA "
+                   "experts' noise "
                    "[default: the first positive time step of a track, in the order the rows come].")
 @click.option("--experts", "n_experts", default=None, type=click.IntRange(min=1),
               help="Experts of the AKF family [default: 40].")
@@ -417,7 +306,8 @@ def _local_only(given, output):
 @click.option("--length-unit", default="auto", show_default=True, help=_LENGTH_UNIT_HELP)
 @click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP + " 'none' never splits.")
 @click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True),
-              help="Gap threshold as a multiple of the reference interval (the upper quartile of a track's first 16 steps).")
+              help="Gap threshold as a multiple of the reference interval (the upper quartile of a track's first "
+                   "16 steps).")
 @click.option("--reach", default=None, help=_REACH_HELP)
 @click.option("--state", "state_path", default=None, type=click.Path(dir_okay=False),
               help="State file: resumed from if it exists, written on exit and every --save-every rows.")
@@ -450,8 +340,8 @@ def _local_only(given, output):
 @click.option("--partitions", default=None, type=click.IntRange(min=1),
               help="--engine dask: partitions of the shuffle by track [default: the input's, at least "
                    "4 per worker thread].")
-def predict(input_path, time_column, position_columns, id_column, geographic, horizon, lead, output, bank_kind, rule, time_unit,
-            n_experts, seed, length_unit, max_gap, max_gap_factor, reach, state_path, save_every, chunk_rows,
+def predict(input_path, time_column, position_columns, id_column, geographic, horizon, lead, output, bank_kind, rule,
+            time_unit, n_experts, seed, length_unit, max_gap, max_gap_factor, reach, state_path, save_every, chunk_rows,
             progress, on_bad_row, rejects, mixture_options, engine_kind, backend, scheduler, workers, partitions):
     """Predict the next position of every track in INPUT (CSV, Parquet, or - for stdin).
 
@@ -489,7 +379,7 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
     reach = _reach(reach)
     options = _mixture_options(mixture_options, bank=True)
     output = None if output == "-" else output   # stdout, as '-' for INPUT is stdin
-    out_fmt = _file_format(output) if output else "csv"
+    out_fmt = file_format(output) if output else "csv"
     given = _given(("save_every", "scheduler", "workers", "partitions", "on_bad_row", "rejects"))
     with _user_errors():
         if engine_kind == "dask":
@@ -590,7 +480,8 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
               help="Leading share of each track used to tune the peers (and the length unit), not scored.")
 @click.option("--max-gap", default="auto", show_default=True, help=_GAP_HELP + " 'none' never splits.")
 @click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True),
-              help="Gap threshold as a multiple of the reference interval (the upper quartile of a track's first 16 steps).")
+              help="Gap threshold as a multiple of the reference interval (the upper quartile of a track's first "
+                   "16 steps).")
 @click.option("--reach", default=None, help=_REACH_HELP)
 @click.option("--max-samples", default=None, type=click.IntRange(min=3),
               help="Use only the first N samples of each track (quicker).")
@@ -612,9 +503,9 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
 @click.option("--track", "plot_track", default=None, help="Track id to plot (default: the first).")
 @click.option("--per-track/--no-per-track", default=True, show_default=True, help="Print the per-track tables.")
 @click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
-def evaluate(input_path, dataset, time_column, position_columns, id_column, geographic, horizon, n_experts, seed, length_unit,
-             tuning_fraction, max_gap, max_gap_factor, reach, max_samples, tracks, peers, json_path, per_coordinate,
-             plot_path, plot_rows, intervals_path, plot_track, per_track, mixture_options):
+def evaluate(input_path, dataset, time_column, position_columns, id_column, geographic, horizon, n_experts, seed,
+             length_unit, tuning_fraction, max_gap, max_gap_factor, reach, max_samples, tracks, peers, json_path,
+             per_coordinate, plot_path, plot_rows, intervals_path, plot_track, per_track, mixture_options):
     """Compare the mixture's prediction errors with the predictors you would use instead.
 
     Every predictor runs online over each track segment; the first --tuning-fraction of each
@@ -649,13 +540,14 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, geog
             label = dataset
         else:
             from ..io import read_tracks
+            from ..io.tables import read_header
             if not os.path.exists(input_path):
                 raise FileNotFoundError(f"INPUT: no such file {input_path!r}")
             if os.path.isdir(input_path):
                 raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {input_path!r}")
-            fmt = _input_format(input_path)
-            columns = _columns(_header(input_path, fmt), time_column, position_columns, id_column,
-                               _sample(input_path, fmt))
+            fmt = input_format(input_path)
+            columns = input_columns(read_header(input_path, fmt), time_column, position_columns, id_column,
+                                    sample_reader(input_path, fmt))
             import warnings
 
             from ..io.tables import BadRowWarning

@@ -47,7 +47,7 @@ from ..bank import (DEFAULT_BANK, GATE_OPTIONS, LENGTH_UNIT_RANGE, check_automat
 from ..core.mixture import init_state, predict, step
 from ..io.geo import local_table, resolve_axes, std_names
 from ..metrics import error_summary
-from ..streaming import GapTracker, StreamConfig, _length_unit_rule, auto_time_unit
+from ..streaming import GapTracker, StreamConfig, auto_time_unit, length_unit_rule
 
 __all__ = ["Streams", "EvaluationResult", "split_streams", "evaluate_table", "PREDICTORS", "ERROR_METRICS",
            "NOT_PEERS", "error_measure", "verdict", "ranking", "format_result"]
@@ -720,7 +720,7 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
                              f"{' ...' if len(have) > 20 else ''})")
         table = table[ids.isin(wanted)]
     streams = split_streams(table, max_gap=max_gap, max_gap_factor=max_gap_factor, max_samples=max_samples)
-    values, s, p = streams.values, streams.values.shape[1], streams.values.shape[2]
+    values, p = streams.values, streams.values.shape[2]
     track_lengths = np.bincount(streams.track_of, weights=streams.lengths).astype(int)
     cut = np.ceil(tuning_fraction * track_lengths[streams.track_of]).astype(int)   # (S,)
     present = streams.sample_index >= 0
@@ -737,7 +737,7 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         raise ValueError(f"horizon: no measurement of a scored row has one {horizon} rows before it in its "
                          f"segment (longest segment: {int(streams.lengths.max())} rows); give a smaller -H")
     # the peers' noise grids scale with the data's length unit (the rule), whatever unit the mixture is given
-    peer_unit, why = _length_unit_rule(np.where(tuning[..., None], values, np.nan) if tuning.any() else values)
+    peer_unit, why = length_unit_rule(np.where(tuning[..., None], values, np.nan) if tuning.any() else values)
     if why is not None:   # as predict says it
         log(f"length unit 1 for the peers{'' if length_unit is not None else ' and the mixture'} (the rule could "
             f"not estimate it: the tuning part has {why}; pass --length-unit, or a larger --tuning-fraction)")

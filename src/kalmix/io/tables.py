@@ -79,7 +79,7 @@ _AXES = (("x", "y", "z"), ("u_left", "u_right", "v"), ("u", "v", None), ("east",
          ("lat", "lng", "alt"))
 _PREFIXES = ("", "position_", "pos_", "position.", "pos.", "p", "pos", "position")
 _SINGLE = ("x", "position", "pos", "value")
-_MISSING_TEXT = frozenset({"", "nan", "na", "n/a", "nan.0", "null", "none", "<na>", "nat"})
+MISSING_TEXT = frozenset({"", "nan", "na", "n/a", "nan.0", "null", "none", "<na>", "nat"})
 _FORMATS = ("csv", "parquet")
 
 
@@ -342,7 +342,7 @@ def _kind_of_values(column: pd.Series) -> str:
         return "integer"
     values = column.dropna()
     values = values[values.map(lambda v: isinstance(v, str))].str.strip()
-    values = values[~values.str.lower().isin(_MISSING_TEXT)]
+    values = values[~values.str.lower().isin(MISSING_TEXT)]
     if values.empty:
         return "other"
     numbers = pd.to_numeric(values, errors="coerce")
@@ -360,7 +360,7 @@ def looks_like_a_word(value) -> bool:
     if not isinstance(value, str):
         return False
     text = value.strip()
-    if text.lower() in _MISSING_TEXT or text.lower() in ("true", "false"):
+    if text.lower() in MISSING_TEXT or text.lower() in ("true", "false"):
         return False
     try:
         float(text)
@@ -468,7 +468,7 @@ def _read_floats(s: pd.Series, dates: bool = False, kind: dict | None = None) ->
     unread = np.isnan(out) & s.notna().to_numpy()
     if unread.any():   # (the text only then: most columns are numbers)
         text = s.astype(str).str.strip().str.lower()
-        unread &= ~text.isin(_MISSING_TEXT).to_numpy()
+        unread &= ~text.isin(MISSING_TEXT).to_numpy()
     if dates:
         numbers = ~np.isnan(out) & ~bad
         seconds = np.full(len(s), np.nan)
@@ -513,7 +513,7 @@ def _bad_value(s: pd.Series, i: int, name: str, dates: bool = False, kind: dict 
     return f"column {name!r} must hold a number, got {value!r}"
 
 
-def _to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.ndarray:
+def to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.ndarray:
     """Column to float64; ValueError at the first value that is not a number. ``dates``: a text column of
     ISO 8601 date-times is read as seconds since 1970 UTC (:func:`iso_seconds`), as a datetime column is."""
     if pd.api.types.is_datetime64_any_dtype(s):
@@ -530,9 +530,9 @@ def _to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.n
         unread = np.isnan(out) & s.notna().to_numpy()
         if unread.any():   # (the text only then: most columns are numbers)
             text = s.astype(str).str.strip().str.lower()
-            bad |= unread & ~text.isin(_MISSING_TEXT).to_numpy()
+            bad |= unread & ~text.isin(MISSING_TEXT).to_numpy()
     if bad.any() and dates and np.isnan(out).all():
-        missing = s.isna().to_numpy() | s.astype(str).str.strip().str.lower().isin(_MISSING_TEXT).to_numpy()
+        missing = s.isna().to_numpy() | s.astype(str).str.strip().str.lower().isin(MISSING_TEXT).to_numpy()
         text = s.where(~missing).astype(object)
         try:
             return iso_seconds(text)
@@ -556,10 +556,14 @@ def _to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.n
     return out
 
 
-def _csv_options(cols: TrackColumns, ids_as_text: bool, time_as_text: bool = False) -> dict:
+#: :func:`to_float` by its former private name, which :mod:`kalmix.streaming` still imports.
+_to_float = to_float
+
+
+def csv_options(cols: TrackColumns, ids_as_text: bool, time_as_text: bool = False) -> dict:
     """``pd.read_csv`` arguments that read the id column as text exactly as written (empty = missing) and, with
     ``time_as_text``, the time column as text (missing as pandas reads it: empty, ``NA``, ``nan``, ...), which
-    :func:`_to_float` turns into the same numbers as pandas' own reading."""
+    :func:`to_float` turns into the same numbers as pandas' own reading."""
     text = [name for name, wanted in ((cols.track_id, ids_as_text), (cols.time, time_as_text))
             if wanted and name is not None]
     if not text:
@@ -572,7 +576,7 @@ def _csv_options(cols: TrackColumns, ids_as_text: bool, time_as_text: bool = Fal
     return {"dtype": {name: str for name in text}, "keep_default_na": False, "na_values": missing}
 
 
-def _normalise(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
+def normalise_table(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
                counts: dict | None = None, first_appearance: bool = False, as_given: bool = False,
                given_time: pd.Series | None = None, *, on_bad_row: str = "fail", lines: _ChunkLines | None = None,
                time_kind: dict | None = None, where: str = "row", clocks: ClockResets | None = None) -> pd.DataFrame:
@@ -813,7 +817,7 @@ class AsGiven:
 
     @classmethod
     def of(cls, raw, cols, sorted_places, dup, no_time, given_time=None) -> AsGiven:
-        """From :func:`_normalise`'s steps: ``sorted_places`` the file rows with a time sorted by track and time,
+        """From :func:`normalise_table`'s steps: ``sorted_places`` the file rows with a time sorted by track and time,
         ``dup`` which of them an equal time follows (dropped), ``no_time`` which file rows have no time."""
         n = len(raw)
         kept = np.cumsum(~dup)   # chunk row of a kept sorted row + 1; of a dropped one, the next kept
@@ -1080,18 +1084,24 @@ def _format_of(source: Any, format: str | None) -> str:
                      "file, or pass format='csv' or 'parquet'")
 
 
-def _header(source: Any, fmt: str) -> list[str]:
+def read_header(source: Any, fmt: str) -> list[str]:
+    """The column names of a track file (``fmt``: ``"csv"`` or ``"parquet"``), as text; a ``ValueError`` naming
+    the file when it is empty (no header, no rows) or, in CSV, not UTF-8 text."""
     if fmt == "parquet":
         import pyarrow.parquet as pq
         with pq.ParquetFile(source) as parquet:
             return list(parquet.schema_arrow.names)
+    name = os.fspath(source) if isinstance(source, (str, os.PathLike)) else getattr(source, "name", "(a buffer)")
     try:
         return [str(c) for c in pd.read_csv(source, nrows=0).columns]
     except pd.errors.EmptyDataError:
-        raise ValueError(f"The track file {os.fspath(source)!r} has no rows (it is empty)") from None
+        raise ValueError(f"The track file {name!r} is empty (no header, no rows)") from None
+    except UnicodeDecodeError as error:
+        raise ValueError(f"The track file {name!r} is not a CSV text file (UTF-8 expected; "
+                         f"{error.reason} at byte {error.start})") from None
 
 
-def _check_unique(source: Any, fmt: str, cols: TrackColumns) -> None:
+def check_unique_columns(source: Any, fmt: str, cols: TrackColumns) -> None:
     """``ValueError`` when a column used appears more than once in a CSV header (pandas would
     silently rename the copies ``x.1``, ``x.2`` and read the first)."""
     if fmt != "csv":
@@ -1152,13 +1162,13 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
     is_path = isinstance(path_or_buffer, (str, os.PathLike))
     lines = None
     if is_path:
-        cols = _resolve(_header(path_or_buffer, fmt), columns)
-        _check_unique(path_or_buffer, fmt, cols)
+        cols = _resolve(read_header(path_or_buffer, fmt), columns)
+        check_unique_columns(path_or_buffer, fmt, cols)
         if fmt == "parquet":
             import pyarrow.parquet as pq
             raw = pq.read_table(path_or_buffer, columns=cols.names).to_pandas()
         else:
-            raw = pd.read_csv(path_or_buffer, usecols=cols.names, **_csv_options(cols, ids_as_text))
+            raw = pd.read_csv(path_or_buffer, usecols=cols.names, **csv_options(cols, ids_as_text))
             if len(raw):
                 reader = _CsvLines(path_or_buffer, check=_checked_column(path_or_buffer, cols, ids_as_text))
                 try:
@@ -1174,7 +1184,7 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
             except pd.errors.EmptyDataError:
                 raise ValueError("The track file has no rows (it is empty)") from None
         cols = _resolve([str(c) for c in raw.columns], columns)
-    table = _normalise(raw, cols, first_appearance=ids_as_text and fmt == "csv" and is_path,
+    table = normalise_table(raw, cols, first_appearance=ids_as_text and fmt == "csv" and is_path,
                        on_bad_row=on_bad_row, lines=lines, where="parquet" if fmt == "parquet" else "row")
     bad = table.attrs.get("bad_rows")
     if table.empty:
@@ -1190,7 +1200,7 @@ def _checked_column(path, cols: TrackColumns, ids_as_text: bool) -> int | None:
     two readers' rows on it); None otherwise."""
     if not ids_as_text or cols.track_id is None:
         return None
-    header = _header(path, "csv")
+    header = read_header(path, "csv")
     return header.index(cols.track_id) if header.count(cols.track_id) == 1 else None
 
 
@@ -1247,8 +1257,8 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
     if int(chunk_rows) < 1:
         raise ValueError(f"Expected chunk_rows >= 1, got {chunk_rows}")
     fmt = _format_of(path, format)
-    cols = _resolve(_header(path, fmt), columns)
-    _check_unique(path, fmt, cols)
+    cols = _resolve(read_header(path, fmt), columns)
+    check_unique_columns(path, fmt, cols)
     last: dict = {}
     counts: dict | None = {} if cols.time is None else None
     time_kind: dict = {}
@@ -1263,7 +1273,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
                        parquet.iter_batches(batch_size=int(chunk_rows), columns=cols.names))
         else:
             reader = stack.enter_context(pd.read_csv(path, usecols=cols.names, chunksize=int(chunk_rows),
-                                                     **_csv_options(cols, ids_as_text, as_given)))
+                                                     **csv_options(cols, ids_as_text, as_given)))
             batches = ((raw, None) for raw in reader)
             lines = _CsvLines(path, texts=bad_texts, check=_checked_column(path, cols, ids_as_text))
             stack.callback(lines.close)
@@ -1272,7 +1282,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
                 continue
             where = None if lines is None else lines.take(
                 len(raw), raw[cols.track_id] if lines.check is not None else None)
-            chunk = _normalise(raw, cols, offset, counts, first_appearance=ids_as_text and fmt == "csv",
+            chunk = normalise_table(raw, cols, offset, counts, first_appearance=ids_as_text and fmt == "csv",
                                as_given=as_given, given_time=given_time, on_bad_row=on_bad_row, lines=where,
                                time_kind=time_kind, where="parquet" if fmt == "parquet" else "row", clocks=clocks)
             bad = chunk.attrs.get("bad_rows")
