@@ -260,7 +260,8 @@ def test_ids_that_differ_only_in_how_they_are_written_are_two_tracks_and_said_so
     state = str(tmp_path / "s.npz")
     _run(cli, ["predict", _write(tmp_path / "a.csv", ["id,t,x,y", *(f"1,{k},{k},0" for k in range(10))]), *FAST,
                "--state", state, "-o", str(tmp_path / "a_out.csv")])
-    resumed = _run(cli, ["predict", _write(tmp_path / "b.csv", ["id,t,x,y", *(f"1.0,{k},{k},0" for k in range(10, 20))]),
+    resumed = _run(cli, ["predict",
+                         _write(tmp_path / "b.csv", ["id,t,x,y", *(f"1.0,{k},{k},0" for k in range(10, 20))]),
                          "--state", state, "--no-progress", "-o", str(tmp_path / "b_out.csv")])
     assert "track ids '1' and '1.0' differ only in how a number is written: they are two tracks" in resumed.stderr
 
@@ -369,7 +370,8 @@ def test_a_clock_that_restarts_on_stdin_costs_one_row(cli, tmp_path):
 def test_rows_that_come_late_are_still_sorted_into_place(cli, tmp_path):
     """A block of earlier rows after later ones (halves swapped), or one late row, is disorder, not a restart."""
     swapped = ["id,t,x,y"] + [f"a,{k},{k},0" for k in range(50, 100)] + [f"a,{k},{k},0" for k in range(50)]
-    late = ["id,t,x,y"] + [f"a,{k},{k},0" for k in range(30)] + ["a,5.5,5.5,0"] + [f"a,{k},{k},0" for k in range(30, 60)]
+    late = (["id,t,x,y"] + [f"a,{k},{k},0" for k in range(30)] + ["a,5.5,5.5,0"]
+            + [f"a,{k},{k},0" for k in range(30, 60)])
     for name, rows in (("swapped", swapped), ("late", late)):
         result = _run(cli, ["predict", _write(tmp_path / f"{name}.csv", rows), *FAST])
         assert result.exit_code == 0 and "goes back" not in result.stderr and "Times decrease" in result.stderr

@@ -347,7 +347,8 @@ def test_a_replayed_feed_warns_in_a_few_lines_and_writes_the_header(cli, tmp_pat
     assert sum("is not after the previous time of track" in line for line in lines) == 10
     assert sum("further warnings like the last are only counted" in line for line in lines) == 1
     assert f"skipped {len(data)} row(s) at or before" in again.stderr
-    assert sum("no time, row skipped" in line for line in lines) == 1 and "skipped 1 row(s) without a time" in again.stderr
+    assert sum("no time, row skipped" in line for line in lines) == 1
+    assert "skipped 1 row(s) without a time" in again.stderr
     first_run = _run(cli, ["predict", _write_csv(data, tmp_path / "d.csv"), *FAST]).stdout
     assert again.stdout == first_run.splitlines(keepends=True)[0]
 
@@ -412,7 +413,8 @@ def test_state_refuses_conflicting_settings(cli, tmp_path):
 
 @pytest.mark.parametrize("made, then, refused", [
     ([], ["--max-gap", "none"], "made with --max-gap auto --max-gap-factor 3, got --max-gap none"),
-    ([], ["--max-gap-factor", "50"], "made with --max-gap auto --max-gap-factor 3, got --max-gap auto --max-gap-factor 50"),
+    ([], ["--max-gap-factor", "50"],
+     "made with --max-gap auto --max-gap-factor 3, got --max-gap auto --max-gap-factor 50"),
     (["--max-gap", "none"], ["--max-gap", "auto"], "made with --max-gap none, got --max-gap auto --max-gap-factor 3"),
     (["--max-gap", "2"], ["--max-gap", "1.5"], "made with --max-gap 2, got --max-gap 1.5"),
     (["--max-gap", "2"], ["--max-gap", "2"], None),
@@ -632,7 +634,8 @@ def test_csv_output_round_trips_every_value_and_quotes_what_needs_it():
 
     values = [1.0, 0.1, 1e-7, np.nan, 1e20, -0.0, 123456789.12345679, 2.5e-310, 1.7e9, 1e15, -3.0]
     frame = pd.DataFrame({"track_id": [f"t{i}" for i in range(len(values))], "time": values,
-                          "segment": np.arange(len(values)), "pred_x": np.random.default_rng(0).normal(size=len(values))})
+                          "segment": np.arange(len(values)),
+                          "pred_x": np.random.default_rng(0).normal(size=len(values))})
     text = csv_text(frame, header=True)
     assert text.splitlines()[0] == "track_id,time,segment,pred_x" and ",1.0," in text and ",-3.0," in text
     back = pd.read_csv(io.StringIO(text), dtype={"track_id": str})
@@ -776,7 +779,8 @@ def test_a_learned_time_unit_is_the_files_first_step_in_file_order_as_on_stdin(c
     file, piped = _sorted(_read(file.stdout)), _sorted(_read(piped.stdout))
     lead = ["lead_px", "lead_py", "lead_std_px", "lead_std_py"]
     assert np.isfinite(file[lead].to_numpy()).sum() > 300
-    np.testing.assert_array_equal(piped[["object_id", "t", "segment", *lead]], file[["object_id", "t", "segment", *lead]])
+    np.testing.assert_array_equal(piped[["object_id", "t", "segment", *lead]],
+                                  file[["object_id", "t", "segment", *lead]])
     units = [_saved_time_unit(tmp_path / name) for name in ("f.npz", "s.npz")]
     assert units == [pytest.approx(0.3, abs=1e-12)] * 2
 
@@ -858,7 +862,8 @@ def test_a_run_that_fails_before_its_first_row_leaves_the_output_as_it_was(cli, 
     old.write_text("earlier results\n")
     for extra in ([], ["--state", str(tmp_path / "s.npz")]):
         for out in (new, old):
-            result = CliRunner().invoke(cli, ["predict", str(bad), "-o", str(out), *FAST, *extra, "--on-bad-row", "fail"])
+            result = CliRunner().invoke(cli, ["predict", str(bad), "-o", str(out), *FAST, *extra,
+                                              "--on-bad-row", "fail"])
             assert result.exit_code != 0 and "must hold a number" in str(result.output) + str(result.exception)
         assert not new.exists()
         assert old.read_text() == "earlier results\n"

@@ -120,7 +120,8 @@ def test_display_on_a_terminal_counts_and_clears_its_line_for_other_writers(monk
     click.echo("kalmix: length unit 1", err=True)   # (click keeps the stream it found: the display's wrapper differs)
     display = CompileDisplay()
     display.start(True)
-    assert terminal.getvalue().endswith("\n\rkalmix: compiling kalmix's kernels for this machine, first run only ... 0 s")
+    assert terminal.getvalue().endswith(
+        "\n\rkalmix: compiling kalmix's kernels for this machine, first run only ... 0 s")
     display.tick(2.4)
     assert terminal.getvalue().endswith("first run only ... 2 s")
     width = display.drawn

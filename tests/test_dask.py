@@ -106,8 +106,8 @@ def test_dask_equals_single_machine_predict_over_many_files(cli, cluster, tmp_pa
     options = [*FAST, "--chunk-rows", "500"]
     single = _run(cli, ["predict", whole, *options, "-o", str(tmp_path / "single.parquet")])
     assert single.exit_code == 0, single.output
-    result = _run(cli, ["predict", str(tmp_path / "archive"), "--engine", "dask", "--scheduler", cluster.scheduler_address,
-                        *options, "-o", str(tmp_path / "out")])
+    result = _run(cli, ["predict", str(tmp_path / "archive"), "--engine", "dask",
+                        "--scheduler", cluster.scheduler_address, *options, "-o", str(tmp_path / "out")])
     assert result.exit_code == 0, result.output
     assert single.stderr.splitlines()[0] == result.stderr.splitlines()[0]  # "length unit ... (auto ...)"
     assert f"{len(data)} row(s) in, {len(data)} prediction(s) written" in result.stderr

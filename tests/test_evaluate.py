@@ -266,7 +266,8 @@ def test_cli_evaluate_refuses_up_front_what_it_cannot_do(tmp_path):
             (["-H", "40"], "horizon: no measurement of a scored row has one 40 rows before it"),
             (["--tracks", "t0,zz"], "tracks: ['zz'] not in the data (its track ids: ['t0', 't1'])"),
             (["--plot", str(tmp_path / "e.xyz")], "--plot: expected a figure file ending in .png"),
-            (["--plot-intervals", str(tmp_path / "e.png"), str(one_d)], "needs two position coordinates, the data has 1"),
+            (["--plot-intervals", str(tmp_path / "e.png"), str(one_d)],
+             "needs two position coordinates, the data has 1"),
             # these were taken silently, or named the wrong thing
             (["--track", "t0"], "--track: picks the track of --plot or --plot-intervals"),
             (["--tracks", ""], "--tracks: expected comma-separated track ids, got ''"),
@@ -319,7 +320,8 @@ def test_plots_pick_a_track_with_scored_errors_and_the_imm_says_when_it_was_not_
     ok = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--json", str(tmp_path / "r.json"),
                                  "--plot", str(tmp_path / "e.png")])
     assert ok.exit_code == 0, ok.output
-    assert "no scored error (too few rows after the tuning part, alone in their segments, or no measurement): track(s) a" in ok.stdout
+    assert ("no scored error (too few rows after the tuning part, alone in their segments, or no measurement): "
+            "track(s) a") in ok.stdout
     assert "track a\n" not in ok.stdout                            # not a table of NaN
     assert (tmp_path / "e.png").read_bytes()[:4] == b"\x89PNG"
     assert "the grid's middle" in json.loads((tmp_path / "r.json").read_text())["tuned"]["IMM (filterpy)"]["untuned"]
@@ -351,7 +353,8 @@ def test_one_wild_value_leaves_the_imm_out_instead_of_failing_the_run(tmp_path, 
     assert "note: IMM (filterpy) is not in the table: it failed on this data" in result.stdout
     rows = _table_rows(result.stdout)
     assert "IMM (filterpy)" not in rows and "mixture" in rows
-    assert "mixture one-step intervals, 80 scored row(s)" in result.stdout and "too few rows to judge the intervals" in result.stdout
+    assert "mixture one-step intervals, 80 scored row(s)" in result.stdout
+    assert "too few rows to judge the intervals" in result.stdout
 
 
 def test_tracks_are_taken_as_written_and_the_automatic_unit_range_is_said(tmp_path):
@@ -370,7 +373,8 @@ def test_tracks_are_taken_as_written_and_the_automatic_unit_range_is_said(tmp_pa
         assert "samples in" in result.stdout and f" {rows} samples" in result.stdout, (tracks, result.stdout[:200])
     frame.assign(x=frame["x"] * 1e300, y=frame["y"] * 1e300).to_csv(tmp_path / "huge.csv", index=False)
     result = runner.invoke(build(), ["evaluate", str(tmp_path / "huge.csv"), "--no-peers", "--experts", "2"])
-    assert result.exit_code == 1 and "the automatic length unit" in result.output and "rescale the data" in result.output
+    assert result.exit_code == 1
+    assert "the automatic length unit" in result.output and "rescale the data" in result.output
 
 
 def test_error_summary_of_errors_near_the_double_range():
@@ -521,7 +525,8 @@ def test_the_error_plot_draws_kalmix_the_best_peer_cv_and_no_prediction_by_defau
     path = tmp_path / "t.csv"
     _turning_tracks().to_csv(path, index=False)
     runner = CliRunner()
-    ok = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--no-peers", "--plot", str(tmp_path / "e.png"),
+    ok = runner.invoke(build(), ["evaluate", str(path), "--experts", "2", "--no-peers",
+                                 "--plot", str(tmp_path / "e.png"),
                                  "--plot-row", "mixture", "--plot-row", "single AKF"])
     assert ok.exit_code == 0, ok.output
     assert (tmp_path / "e.png").read_bytes()[:4] == b"\x89PNG"

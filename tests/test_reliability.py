@@ -227,10 +227,10 @@ def test_engine_calls_are_all_or_nothing(monkeypatch):
     # seventh row's second
     monkeypatch.setattr(TrackPredictor, "_run", failing)
     got = [engine.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows[:6]]
-    before = (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, dict(engine.states))
+    before = (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, {t: engine.states.ref(t) for t in engine.states})
     with pytest.raises(KeyboardInterrupt):
         engine.step_row(rows[6].track_id, rows[6].time, [rows[6].x, rows[6].y])
-    assert (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, dict(engine.states)) == before
+    assert (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, {t: engine.states.ref(t) for t in engine.states}) == before
     monkeypatch.setattr(TrackPredictor, "_run", real_run)
     got += [engine.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows[6:]]
     assert np.array_equal(np.array(got), np.array(expected), equal_nan=True)
@@ -482,7 +482,8 @@ def test_foreign_and_oversized_state_files_are_refused_without_inflating(tmp_pat
         for name, data in members.items():
             archive.writestr(name, data)
     opened.clear()
-    with pytest.raises(ValueError, match=r"field 'state/families/0/cov' expected \d+ bytes .* the archive declares 32000128"):
+    with pytest.raises(ValueError,
+                       match=r"field 'state/families/0/cov' expected \d+ bytes .* the archive declares 32000128"):
         TrackPredictor.load(tmp_path / "big.npz")
     assert "state/families/0/cov.npy" not in opened
 

@@ -97,7 +97,8 @@ def figure2(data: dict[str, Any], out: str | os.PathLike, *, top: int = 5, dpi: 
     ax.set_ylabel(r"diag $Q_{i,k}$ (px$^2$)")
     change = np.nanmax(1.0 - process_noise[-1] / process_noise[0])
     levels = len(np.unique(np.round(process_noise[0], 12)))
-    ax.text(0.01, 0.04, f"{levels} initial level{'s' * (levels != 1)} shared by {k} expert{'s' * (k != 1)}; largest relative decrease of any "
+    ax.text(0.01, 0.04, f"{levels} initial level{'s' * (levels != 1)} shared by {k} expert{'s' * (k != 1)}; "
+            "largest relative decrease of any "
             f"$Q_i$ over the run: {100 * change:.2g} %",
             transform=ax.transAxes, fontsize=8, color="0.2", bbox=dict(facecolor="white", alpha=0.8, lw=0))
     ax.legend(loc="center left", bbox_to_anchor=(1.0, 0.5), fontsize=8, title="thick: top experts",

@@ -302,8 +302,8 @@ class StateLock:
 
 def remove_stale_temporaries(path) -> int:
     """Remove the temporary files that saves of the state file ``path`` killed mid-write left beside it
-    (``.NAME.`` + 8 random characters + ``.tmp``, :func:`kalmix.archive.write_archive`); how many. Only the holder of the state's
-    lock saves, so none of them is in use: each is a dead process's."""
+    (``.NAME.`` + 8 random characters + ``.tmp``, :func:`kalmix.archive.write_archive`); how many. Only the holder
+    of the state's lock saves, so none of them is in use: each is a dead process's."""
     directory, name = os.path.split(os.path.realpath(path))
     pattern = re.compile(re.escape(f".{name}.") + r"[a-z0-9_]{8}\.tmp")
     removed = 0

@@ -30,8 +30,8 @@ multiple-model peers' steps are the costliest, so a single long segment is their
 (``python -m benchmarks.peer_models_timing`` times every peer). The capped peers are
 evaluated on the first ``n`` rows of every segment, the largest ``n`` that keeps the total
 within ``max_rows`` (:func:`row_budget`, deterministic). The tuning of the peers that
-reproduce a library's loop (filterpy, river, padasip) scores each candidate on at most ``TUNE_ROWS`` rows chosen the same way from the
-tuning parts (a constant of each module). ``Peer.predict_many`` (when set) runs a list
+reproduce a library's loop (filterpy, river, padasip) scores each candidate on at most ``TUNE_ROWS`` rows
+chosen the same way from the tuning parts (a constant of each module). ``Peer.predict_many`` (when set) runs a list
 of ``(values, times)`` in one batched pass with the same results as ``predict`` on each.
 
 Peers (modules):

@@ -77,7 +77,8 @@ def _imm_params(params):
 
 
 def _predict_imm_many(segments, candidates, horizon):
-    """IMM predictions of each candidate ``(q_cv, q_ca, r, s, time_unit)`` on each segment (:func:`~._batched.over_candidates`)."""
+    """IMM predictions of each candidate ``(q_cv, q_ca, r, s, time_unit)`` on each segment
+    (:func:`~._batched.over_candidates`)."""
     table = np.array(candidates, dtype=float)
 
     def run(z, times, lengths, column):
@@ -129,7 +130,8 @@ def _mmae_params(params):
 
 
 def _predict_mmae_many(segments, candidates, horizon):
-    """MMAE predictions of each candidate ``(q, spread, r, time_unit)`` on each segment (:func:`~._batched.over_candidates`)."""
+    """MMAE predictions of each candidate ``(q, spread, r, time_unit)`` on each segment
+    (:func:`~._batched.over_candidates`)."""
     table = np.array(candidates, dtype=float)
     qs = np.array([q * spread ** (np.arange(MMAE_FILTERS) - MMAE_FILTERS // 2) for q, spread, _, _ in candidates])
 
