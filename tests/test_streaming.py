@@ -530,14 +530,14 @@ def _leaves_of(state):
 def test_step_rows_is_all_or_nothing():
     engine = TrackPredictor(StreamConfig(n_experts=2, bank="kinematic", time_unit=1.0))
     engine.step_rows(["a", "b"], [0.0, 0.0], [[0.0, 0.0], [1.0, 1.0]])
-    before = {k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, dict(engine.states)
+    before = {k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, {t: engine.states.ref(t) for t in engine.states}
     with pytest.raises(ValueError, match="expected 2 coordinates per row"):
         engine.step_rows(["a", "c"], [1.0, 1.0], [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
     with pytest.raises(ValueError, match=r"expected 2 times and a \(2, p\) array"):
         engine.step_rows(["a", "c"], [1.0], [[0.0, 0.0], [1.0, 1.0]])
     with pytest.raises(TypeError, match=r"track_ids\[1\]: expected a track id \(text, a number, or a date\)"):
         engine.step_rows(["a", ["c"]], [1.0, 1.0], [[0.0, 0.0], [1.0, 1.0]])
-    assert ({k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, dict(engine.states)) == before
+    assert ({k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, {t: engine.states.ref(t) for t in engine.states}) == before
     assert engine.step_rows([], [], np.empty((0, 2))) == []
 
 
@@ -771,8 +771,41 @@ def test_new_tracks_fresh_states_made_at_once_are_the_fresh_state():
     engine.process_table(_table().iloc[:30], ["x", "y"])   # track "a" is known
     engine.states["a"] = tree_map(lambda x: x + 1.0, engine.states["a"])   # unlike a fresh one
     tracks = ["n1", "a", "n2", "n3"]
-    got = _stack(engine._states_or_fresh(tracks))
+    got = engine._states_or_fresh(tracks)
     want = _stack([engine.states["a"] if t == "a" else engine._fresh() for t in tracks])
     leaves = []
     tree_map(lambda x, y: leaves.append(x.dtype == y.dtype and x.tobytes() == y.tobytes()), got, want)
     assert leaves and all(leaves)
+
+
+def test_idle_tracks_keep_no_per_track_copy_of_leaves_alike_in_every_track(tmp_path):
+    """Many short tracks: the states are kept in shared blocks (TrackStates), a leaf alike in every track of a
+    block (as new, such as the AKF family's regression statistics before it learns) once per block, not once
+    per track; every track's state reads back as the stacked run would give it, and save / load round-trips."""
+    import pandas as pd
+
+    from kalmix.core.engine import tree_leaves
+    from kalmix.streaming import TRACK_BATCH
+
+    n = TRACK_BATCH + 300   # two batches of tracks
+    rng = np.random.default_rng(3)
+    table = pd.DataFrame({"track_id": np.repeat([f"t{i}" for i in range(n)], 2), "time": np.tile([0.0, 1.0], n),
+                          "x": rng.normal(size=2 * n), "y": rng.normal(size=2 * n)})
+    engine = TrackPredictor(StreamConfig(length_unit=1.0))
+    engine.process_table(table, ["x", "y"])
+    blocks = {id(engine.states.ref(t)[0]): engine.states.ref(t)[0] for t in engine.states}
+    assert len(blocks) == 2
+    held = {id(a): a.nbytes for block in blocks.values() for a in block.leaves}
+    dense = sum(a.nbytes for _, a in tree_leaves(engine._fresh())) * n
+    assert sum(held.values()) < dense / 3
+    fresh = dict(tree_leaves(engine._fresh()))
+    gram = [name for name in fresh if name.endswith("/gram")]
+    assert gram   # the default bank has an AKF family
+    for block in blocks.values():   # its statistics as new: one array shared by every block
+        names = [name for name, _ in tree_leaves(engine._fresh())]
+        assert block.leaves[names.index(gram[0])] is engine.states._template[1][names.index(gram[0])]
+    engine.save(tmp_path / "s.npz")
+    loaded = TrackPredictor.load(tmp_path / "s.npz")
+    for track in ("t0", f"t{n - 1}"):
+        for a, b in zip(_leaves_of(engine.states[track]), _leaves_of(loaded.states[track])):
+            assert a.dtype == b.dtype and a.tobytes() == b.tobytes()

@@ -648,6 +648,181 @@ def _take(state, index):
     return tree_map(lambda a: a[index], state)
 
 
+def _same_rows(array: np.ndarray) -> bool:
+    """Whether every row (first axis) of ``array`` holds the bits of its first row (NaN payloads and the sign of
+    zero included)."""
+    if len(array) <= 1:
+        return True
+    flat = np.ascontiguousarray(array).reshape(len(array), -1)
+    if flat.dtype.kind == "f":
+        flat = flat.view(np.int64 if flat.dtype.itemsize == 8 else np.uint8)
+    return bool((flat == flat[:1]).all())
+
+
+class _Block:
+    """Rows of many tracks' states, read only: per leaf (in :func:`tree_leaves` order) an ``(n, ...)`` array, or a
+    ``(1, ...)`` one that every row shares (a leaf whose rows are all alike, e.g. as new: the AKF family's
+    regression statistics before it learns)."""
+
+    __slots__ = ("leaves", "rows", "__weakref__")
+
+    def __init__(self, state: BankState, template=None):
+        leaves = [array for _, array in tree_leaves(state)]
+        self.rows = len(leaves[0]) if leaves else 0
+        shared = template or {}
+        self.leaves = []
+        for i, array in enumerate(leaves):
+            if _same_rows(array):
+                first = array[:1]
+                known = shared.get(i)
+                if known is not None and known.dtype == first.dtype and _same_rows(np.concatenate([known, first])):
+                    self.leaves.append(known)   # (one array for every track whose leaf is as new)
+                else:
+                    self.leaves.append(first.copy())
+            else:
+                self.leaves.append(array)
+
+
+class TrackStates(Mapping):
+    """Every track's engine state, kept by rows of shared blocks (:class:`_Block`): track id -> (block, row).
+
+    A mapping of track id -> :class:`~kalmix.core.engine.BankState` of one target (each look-up a copy). A
+    step reads its tracks' rows in one batch (:meth:`gather`) and stores the result's rows as one new block
+    (:meth:`put`): no per-track arrays, and a leaf alike in every row of a block (as new, or a
+    regularly sampled track's covariances) is kept once. Blocks are never changed, so a reference
+    (:meth:`ref`) stays valid for :meth:`TrackPredictor.rollback`; once the blocks hold twice as many rows
+    as there are tracks (plus :data:`COMPACT_SLACK`), the tracks' rows are copied into one new block.
+    """
+
+    #: rows a store may hold beyond twice its tracks' before it compacts
+    COMPACT_SLACK = 1024
+
+    def __init__(self):
+        self._where: dict = {}    # track -> (block, row), or None (a track known to have no state)
+        self._live: dict = {}     # id(block) -> [block, tracks on it]
+        self._rows = 0            # rows of the blocks in _live
+        self._template = None     # (structure, {leaf index: (1, ...) array as new})
+
+    # -- mapping ------------------------------------------------------------------------
+    def __len__(self):
+        return len(self._where)
+
+    def __iter__(self):
+        return iter(self._where)
+
+    def __contains__(self, track):
+        return track in self._where
+
+    def __getitem__(self, track):
+        ref = self._where[track]
+        return None if ref is None else self._rebuild([ref], 1)
+
+    def __setitem__(self, track, state):
+        if state is None:
+            self._set(track, None)
+        else:
+            self.put([track], state)
+
+    def pop(self, track, default=None):
+        if track not in self._where:
+            return default
+        value = self[track]
+        self._set(track, None)
+        del self._where[track]
+        return value
+
+    # -- references (checkpoints) ---------------------------------------------------------
+    def ref(self, track):
+        """What :meth:`restore` takes to return ``track`` to its present state (None: no state)."""
+        return self._where.get(track)
+
+    def restore(self, track, ref) -> None:
+        if ref is None:
+            if track in self._where:
+                self._set(track, None)
+                del self._where[track]
+        else:
+            self._set(track, ref)
+
+    def _set(self, track, ref) -> None:
+        old = self._where.get(track)
+        if old is not None:
+            entry = self._live[id(old[0])]
+            entry[1] -= 1
+            if not entry[1]:
+                del self._live[id(old[0])]
+                self._rows -= old[0].rows
+        if ref is not None:
+            entry = self._live.get(id(ref[0]))
+            if entry is None:
+                entry = self._live[id(ref[0])] = [ref[0], 0]
+                self._rows += ref[0].rows
+            entry[1] += 1
+        self._where[track] = ref
+
+    # -- batches ------------------------------------------------------------------------
+    def gather(self, tracks, fresh) -> BankState:
+        """The states of ``tracks`` stacked (a copy), new ones' from ``fresh(n)`` (:func:`init_bank_state`)."""
+        refs = [self._where.get(t) for t in tracks]
+        new = [c for c, ref in enumerate(refs) if ref is None]
+        if len(new) == len(tracks):
+            return fresh(len(tracks))
+        if new:
+            block = _Block(fresh(len(new)))
+            for k, c in enumerate(new):
+                refs[c] = (block, k)
+        return self._rebuild(refs, len(tracks))
+
+    def _rebuild(self, refs, n) -> BankState:
+        structure = self._template[0]
+        out = []
+        blocks: dict = {}
+        for c, (block, row) in enumerate(refs):
+            entry = blocks.get(id(block))
+            if entry is None:
+                entry = blocks[id(block)] = (block, [], [])
+            entry[1].append(c)
+            entry[2].append(row)
+        groups = [(block, np.array(columns), np.array(rows)) for block, columns, rows in blocks.values()]
+        for i in range(len(groups[0][0].leaves)):
+            parts = [block.leaves[i] for block, _, _ in groups]
+            array = np.empty((n,) + parts[0].shape[1:], dtype=np.result_type(*parts))   # (as np.concatenate)
+            for (block, columns, rows), part in zip(groups, parts):
+                array[columns] = part if len(part) == 1 else part[rows]
+            out.append(array)
+        leaves = iter(out)
+        return tree_map(lambda _: next(leaves), structure)
+
+    def put(self, tracks, state: BankState, columns=None) -> None:
+        """Store row ``columns[c]`` of ``state`` (default: row c) as the state of ``tracks[c]``."""
+        if not len(tracks):
+            return
+        if self._template is None:
+            self._template = (tree_map(lambda a: None if a is None else 0, state), {})
+        if columns is not None and list(columns) != list(range(len(state.screen.time))):
+            state = tree_map(lambda a: a[np.asarray(columns)], state)
+        block = _Block(state, self._template[1])
+        for c, track in enumerate(tracks):
+            self._set(track, (block, c))
+        if self._rows > 2 * len(self._where) + self.COMPACT_SLACK:
+            self._compact()
+
+    def shares_as_new(self) -> bool:
+        return self._template is not None and bool(self._template[1])
+
+    def share_as_new(self, state: BankState) -> None:
+        """Keep the leaves of ``state`` (one new target's) to be shared by every track whose leaf is as new."""
+        if self._template is None:
+            self._template = (tree_map(lambda a: 0, state), {})
+        self._template[1].clear()
+        self._template[1].update({i: array[:1].copy() for i, (_, array) in enumerate(tree_leaves(state))})
+
+    def _compact(self) -> None:
+        tracks = [t for t, ref in self._where.items() if ref is not None]
+        state = self._rebuild([self._where[t] for t in tracks], len(tracks))
+        self.put(tracks, state)
+
+
 def _by_key(index, rows, count) -> list[np.ndarray]:
     """``rows`` grouped by their key ``index[rows]`` (``count`` keys), each group in row order."""
     order = rows[np.argsort(index[rows], kind="stable")]
@@ -832,6 +1007,12 @@ def check_backend(backend: str) -> str:
     return backend
 
 
+#: Most tracks :meth:`TrackPredictor.process_table` steps in one run of the engine: their states are stacked for
+#: the run (~50 kB a track for the default bank) and the run returns as many, so a table of many tracks goes a
+#: batch at a time (the same bits), in bounded memory.
+TRACK_BATCH = 2048
+
+
 class TrackPredictor:
     """One mixture predictor per track id; tracks appear as they come.
 
@@ -872,7 +1053,8 @@ class TrackPredictor:
         if self.position_names is not None and len(set(self.position_names)) != len(self.position_names):
             raise ValueError(f"position_names: expected distinct names, got {list(self.position_names)}")
         self.params: Bank | None = None
-        self.states: dict[Any, BankState] = {}
+        #: track id -> its engine state (a mapping of one-target BankStates, kept in shared blocks)
+        self.states = TrackStates()
         self.gaps: dict[Any, GapTracker] = {}
         self.skipped = 0
         #: warn (once) when step_row / step_rows skips a row for its time (``kalmix predict`` counts them itself)
@@ -1019,12 +1201,15 @@ class TrackPredictor:
     def _fresh(self) -> BankState:
         return init_bank_state(self.params, 1)
 
-    def _states_or_fresh(self, tracks) -> list:
-        """Each track's state, or a fresh one: the new tracks' made at once (cheaper than one by one), each
-        a view of that batch (the same bits as :meth:`_fresh`), so only for :func:`_stack`, which copies."""
-        place = {t: i for i, t in enumerate(t for t in tracks if t not in self.states)}
-        batch = init_bank_state(self.params, len(place)) if place else None
-        return [self.states[t] if t in self.states else _take(batch, slice(place[t], place[t] + 1)) for t in tracks]
+    def _new_states(self, n: int) -> BankState:
+        """``n`` new targets' states (the same bits as :meth:`_fresh` each); the store shares their leaves."""
+        if not self.states.shares_as_new():
+            self.states.share_as_new(self._fresh())
+        return init_bank_state(self.params, n)
+
+    def _states_or_fresh(self, tracks) -> BankState:
+        """The states of ``tracks`` stacked (a copy), new tracks' as :meth:`_fresh`'s."""
+        return self.states.gather(tracks, self._new_states)
 
     def _run(self, values, times, lengths, state, restart, ahead_times=None, bank=None):
         """The compiled engine (the numpy reference without numba, the GPU engine with ``backend="gpu"``), on
@@ -1125,7 +1310,7 @@ class TrackPredictor:
         Cheap: the states are never modified in place, so only references are kept.
         """
         ids = list(self.gaps) if track_ids is None else [id_to_json(t) for t in track_ids]
-        tracks = {t: (self.gaps[t].copy() if t in self.gaps else None, self.states.get(t)) for t in ids}
+        tracks = {t: (self.gaps[t].copy() if t in self.gaps else None, self.states.ref(t)) for t in ids}
         return Checkpoint(self.rows, self.skipped, self.position_names, tracks, self.config.time_unit, self.outliers,
                           (self.config.length_unit, self.axes, self._geo_decided))
 
@@ -1146,11 +1331,11 @@ class TrackPredictor:
             if self.params is not None:
                 self.params = self._build(self.params.measurement_dim)
         for track, (gaps, state) in checkpoint.tracks.items():
-            for table, value in ((self.gaps, gaps), (self.states, state)):
-                if value is None:
-                    table.pop(track, None)
-                else:
-                    table[track] = value
+            if gaps is None:
+                self.gaps.pop(track, None)
+            else:
+                self.gaps[track] = gaps
+            self.states.restore(track, state)
 
     # -- one row at a time ------------------------------------------------------------
     def step_row(self, track_id, time: float, z) -> RowPrediction | None:
@@ -1426,8 +1611,7 @@ class TrackPredictor:
                 dense_times[:len(rows), c] = times[rows]
                 restart[:len(rows), c] = [gap for _, gap, _ in runs[track]]
                 ahead_times[:len(rows), c] = [when for _, _, when in runs[track]]
-            states = [self.states[t] if t in self.states else self._fresh() for t in tracks]
-            state = states[0] if len(tracks) == 1 else _stack(states)   # (one live row: no copies)
+            state = self._states_or_fresh(tracks)
             if self.params.lead is None:
                 result = nxt = self._run(dense, dense_times, lengths, state, restart, ahead_times)
             else:
@@ -1456,9 +1640,9 @@ class TrackPredictor:
                         ahead_std = np.full(p, np.nan) if first else result.lead_std[j, c]
                     results[r] = RowPrediction(track, float(times[r]), segment, nexts[r], ahead,
                                                nxt.ahead_std[j, c], ahead_std, glitch)
-            for c, track in enumerate(tracks):
+            for track in tracks:
                 self.gaps[track] = trackers[track]
-                self.states[track] = result.state if len(tracks) == 1 else _take(result.state, slice(c, c + 1))
+            self.states.put(tracks, result.state)
             self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
         self.rows += n_rows
         self.skipped += sum(r is None for r in results)
@@ -1719,9 +1903,13 @@ class TrackPredictor:
         lead = self.params.lead is not None
         if lead:
             out["lead"], out["lead_std"] = np.full(shape, np.nan), np.full(shape, np.nan)
-        if runs:
+        # the tracks a batch at a time (they are independent: the same bits): the stacked states and the engine's
+        # results stay a bounded size however many tracks the table holds
+        every_track, every_run = tracks, runs
+        for begin in range(0, len(every_track), TRACK_BATCH):
+            tracks, runs = every_track[begin:begin + TRACK_BATCH], every_run[begin:begin + TRACK_BATCH]
             new_tracks = [track not in self.states for track in tracks]
-            stacked = _stack(self._states_or_fresh(tracks))
+            stacked = self._states_or_fresh(tracks)
             where = [(stacked, c) for c in range(len(tracks))]   # each track's state: (a stacked state, its column)
             # a track's rows are stepped in pieces that end before a time gap: the forecast across the gap is made
             # by _forecast_far (only the constant-velocity experts extrapolate so far), the rest as in one run
@@ -1772,9 +1960,14 @@ class TrackPredictor:
                         out["lead"][first] = out["lead_std"][first] = np.nan
                 for k, c in enumerate(columns):
                     where[c] = (result.state, k)
+            by_state: dict = {}   # each track's rows stored with the others' of the same state
             for c, track in enumerate(tracks):
                 held, k = where[c]
-                self.states[track] = _take(held, slice(k, k + 1))
+                by_state.setdefault(id(held), (held, [], []))
+                by_state[id(held)][1].append(track)
+                by_state[id(held)][2].append(k)
+            for held, these, columns in by_state.values():
+                self.states.put(these, held, columns)
         if origins is not None:   # the forecasts back to degrees, each in the frame of the row it was made after
             from .io.geo import from_local
 
@@ -1949,7 +2142,7 @@ class TrackPredictor:
                 "output": self.output}
         arrays = {}
         if with_state:
-            arrays = dict(tree_leaves(_stack([self.states[t] for t in with_state])))
+            arrays = dict(tree_leaves(self.states.gather(with_state, self._new_states)))
         write_archive(path, meta, arrays)
 
     @classmethod
@@ -2009,13 +2202,13 @@ class TrackPredictor:
                                   else archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name))
                            for name, expected in tree_leaves(template)}
         engine.use_backend(backend)   # outside the checks of the file: a backend that cannot run is not corruption
-        index = 0
-        for track, gaps, has_state in entries:
+        for track, gaps, _ in entries:
             engine.gaps[track] = gaps
-            if has_state:
-                leaves = iter([value[index:index + 1].copy() for value in stacked.values()])
-                engine.states[track] = tree_map(lambda _: next(leaves), template)
-                index += 1
+        if count:
+            leaves = iter([np.asarray(value) for value in stacked.values()])
+            engine.states.share_as_new(template)
+            engine.states.put([track for track, _, has_state in entries if has_state],
+                              tree_map(lambda _: next(leaves), template))
         return engine
 
 
@@ -2084,7 +2277,7 @@ class Checkpoint(NamedTuple):
     rows: int
     skipped: int
     position_names: tuple | None
-    tracks: dict   # track id -> (GapTracker copy or None, BankState or None)
+    tracks: dict   # track id -> (GapTracker copy or None, its state's TrackStates.ref or None)
     time_unit: float | None = None
     outliers: int = 0
     settings: tuple | None = None   # (length_unit, axes, whether the axes are settled)
