@@ -530,14 +530,15 @@ def _leaves_of(state):
 def test_step_rows_is_all_or_nothing():
     engine = TrackPredictor(StreamConfig(n_experts=2, bank="kinematic", time_unit=1.0))
     engine.step_rows(["a", "b"], [0.0, 0.0], [[0.0, 0.0], [1.0, 1.0]])
-    before = {k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, {t: engine.states.ref(t) for t in engine.states}
+    refs = lambda: {t: engine.states.ref(t) for t in engine.states}  # noqa: E731
+    before = {k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, refs()
     with pytest.raises(ValueError, match="expected 2 coordinates per row"):
         engine.step_rows(["a", "c"], [1.0, 1.0], [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
     with pytest.raises(ValueError, match=r"expected 2 times and a \(2, p\) array"):
         engine.step_rows(["a", "c"], [1.0], [[0.0, 0.0], [1.0, 1.0]])
     with pytest.raises(TypeError, match=r"track_ids\[1\]: expected a track id \(text, a number, or a date\)"):
         engine.step_rows(["a", ["c"]], [1.0, 1.0], [[0.0, 0.0], [1.0, 1.0]])
-    assert ({k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, {t: engine.states.ref(t) for t in engine.states}) == before
+    assert ({k: g.to_json() for k, g in engine.gaps.items()}, engine.rows, refs()) == before
     assert engine.step_rows([], [], np.empty((0, 2))) == []
 
 
