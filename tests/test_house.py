@@ -16,11 +16,7 @@ SRC = ROOT / "src"
 
 #: ``(importer, owner, name)`` of the private names still imported across modules. Each is a name another
 #: module uses, so it belongs public in its owner. Do not add to it: make the name public in the module that owns it.
-PRIVATE_IMPORTS_LEFT = {
-    # to_float is public in kalmix.io.tables, which keeps this alias for streaming's import: when streaming
-    # imports to_float, the alias and this entry go
-    ("kalmix.streaming", "kalmix.io.tables", "_to_float"),
-}
+PRIVATE_IMPORTS_LEFT: set = set()
 
 
 def _tool(script: str, module: str) -> list[str]:

@@ -227,10 +227,14 @@ def test_engine_calls_are_all_or_nothing(monkeypatch):
     # seventh row's second
     monkeypatch.setattr(TrackPredictor, "_run", failing)
     got = [engine.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows[:6]]
-    before = (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, {t: engine.states.ref(t) for t in engine.states})
+    def snapshot():
+        return (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()},
+                {t: engine.states.ref(t) for t in engine.states})
+
+    before = snapshot()
     with pytest.raises(KeyboardInterrupt):
         engine.step_row(rows[6].track_id, rows[6].time, [rows[6].x, rows[6].y])
-    assert (engine.rows, {t: g.to_json() for t, g in engine.gaps.items()}, {t: engine.states.ref(t) for t in engine.states}) == before
+    assert snapshot() == before
     monkeypatch.setattr(TrackPredictor, "_run", real_run)
     got += [engine.step_row(r.track_id, r.time, [r.x, r.y]).next for r in rows[6:]]
     assert np.array_equal(np.array(got), np.array(expected), equal_nan=True)

@@ -868,21 +868,15 @@ def id_to_json(value):
     return value
 
 
-# Aliases of the public names, for the modules that still import the underscored ones
-# (kalmix.commands._predict_run, kalmix.experiments.evaluate).
-_length_unit_rule = length_unit_rule
-_id_to_json = id_to_json
-
-
 def _seconds(column) -> np.ndarray:
     """A table's time column as float seconds: datetimes since 1970 UTC, durations in seconds (as
     :func:`kalmix.io.read_tracks` reads them), numbers as they are."""
     import pandas as pd
 
     if pd.api.types.is_datetime64_any_dtype(column) or pd.api.types.is_timedelta64_dtype(column):
-        from .io.tables import _to_float
+        from .io.tables import to_float
 
-        return _to_float(column.reset_index(drop=True), "time", 0)
+        return to_float(column.reset_index(drop=True), "time", 0)
     return column.to_numpy(np.float64)
 
 
@@ -1746,7 +1740,7 @@ class TrackPredictor:
         form)."""
         import pandas as pd
 
-        from .io.tables import _to_float, detect_columns
+        from .io.tables import detect_columns, to_float
 
         given = list(position_names) if position_names else None
         if "track_id" in table.columns and "time" in table.columns:
@@ -1780,7 +1774,7 @@ class TrackPredictor:
                               is not None else 0.0 for key in (id_to_json(u) for u in uniques)])
             times = count + (start[codes] if len(start) else 0.0)
         else:
-            times = _to_float(table[columns.time].reset_index(drop=True), columns.time, 0, dates=True)
+            times = to_float(table[columns.time].reset_index(drop=True), columns.time, 0, dates=True)
         canonical = pd.DataFrame({"track_id": ids, "time": times,
                                   **{name: table[name].to_numpy() for name in columns.positions}})
         return canonical, list(columns.positions), columns

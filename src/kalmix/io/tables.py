@@ -556,10 +556,6 @@ def to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.nd
     return out
 
 
-#: :func:`to_float` by its former private name, which :mod:`kalmix.streaming` still imports.
-_to_float = to_float
-
-
 def csv_options(cols: TrackColumns, ids_as_text: bool, time_as_text: bool = False) -> dict:
     """``pd.read_csv`` arguments that read the id column as text exactly as written (empty = missing) and, with
     ``time_as_text``, the time column as text (missing as pandas reads it: empty, ``NA``, ``nan``, ...), which
