@@ -135,6 +135,8 @@ def test_a_parquet_file_names_the_bad_rows_by_their_index(cli, tmp_path):
     assert "2 bad row(s) skipped (rows 7, 20, counted from 0; see --rejects" in result.stderr
     listed = pd.read_csv(rejects)
     assert listed["row"].tolist() == [7, 20] and json.loads(listed["input"][0])["x"] == "n/a?"
+    strict = json.loads(listed["input"][1], parse_constant=lambda name: pytest.fail(f"not strict JSON: {name}"))
+    assert strict["y"] == "inf"   # an infinite position as text (JSON has no Infinity)
     failed = _run(cli, ["predict", str(tmp_path / "t.parquet"), *FAST, "--on-bad-row", "fail"])
     assert failed.exit_code == 1 and "row 7 (counted from 0): column 'x' must hold a number, got 'n/a?'" \
         in failed.stderr
@@ -353,6 +355,36 @@ def test_a_clock_that_restarts_starts_a_new_segment_instead_of_losing_half_the_t
     assert len(a) == 100 and a["t"].tolist() == [k % 50 for k in range(100)]   # as given
     assert a["segment"].tolist() == [0] * 50 + [1] * 50 and a["pred_x"].notna().all()
     assert (out.loc[out["id"] == "b", "segment"] == 0).all()
+
+
+def _twice(tmp_path, rows=None):
+    """Track a: times 0..19, then 0..19 again (the clock restarts at line 22)."""
+    lines = ["track_id,time,x,y"] + [f"a,{k % 20},{0.5 * k},{0.25 * k}" for k in range(40)]
+    return _write(tmp_path / "twice.csv", lines if rows is None else lines[:1] + lines[1:][rows])
+
+
+def test_a_resumed_run_goes_on_with_a_clock_that_restarted(cli, tmp_path):
+    """Before: the resumed run read the new clock's times as given (10, 11, ...), before the moved times the
+    state saved, and skipped every row left as already done."""
+    whole = _run(cli, ["predict", _twice(tmp_path), *FAST])
+    assert whole.exit_code == 0, whole.stderr
+    state, out = str(tmp_path / "s.json"), str(tmp_path / "out.csv")
+    for part in (slice(0, 30), slice(30, 40)):
+        result = _run(cli, ["predict", _twice(tmp_path, part), *FAST, "--state", state, "-o", out])
+        assert result.exit_code == 0 and "skipped" not in result.stderr, result.stderr
+    assert open(out).read() == whole.stdout
+    again = _run(cli, ["predict", _twice(tmp_path), *FAST, "--state", state, "-o", out])   # from the start
+    assert again.exit_code == 0 and open(out).read() == whole.stdout
+
+
+@pytest.mark.parametrize("chunk_rows", ["19", "20", "21"])
+def test_a_clock_that_restarts_at_the_end_of_a_chunk_is_found(cli, tmp_path, chunk_rows):
+    """Before: a restart in a chunk's last two rows was not found, and the run stopped (the file not sorted) or
+    sorted the new clock's first rows into the old one."""
+    whole = _run(cli, ["predict", _twice(tmp_path), *FAST])
+    chunked = _run(cli, ["predict", _twice(tmp_path), *FAST, "--chunk-rows", chunk_rows])
+    assert chunked.exit_code == 0, chunked.stderr
+    assert chunked.stdout == whole.stdout
 
 
 def test_a_clock_that_restarts_on_stdin_costs_one_row(cli, tmp_path):

@@ -509,11 +509,11 @@ class SkippedRowWarning(RuntimeWarning):
 class GapTracker:
     """Causal gap detection for one track (see the module docstring)."""
 
-    __slots__ = ("last_time", "intervals", "segment", "jumped_from", "jump_counted", "glitches", "origin")
+    __slots__ = ("last_time", "intervals", "segment", "jumped_from", "jump_counted", "glitches", "origin", "clock")
 
     def __init__(self, last_time: float | None = None, intervals=(), segment: int = -1,
                  jumped_from: float | None = None, jump_counted: bool = False, glitches: int = 0,
-                 origin=None):
+                 origin=None, clock=None):
         self.last_time = last_time
         self.intervals = list(intervals)
         self.segment = segment
@@ -527,10 +527,13 @@ class GapTracker:
         #: geographic data: the origin (latitude, longitude, height) of the track's current frame
         #: (:func:`kalmix.io.geo.assign_frames`), None before its first fix
         self.origin = None if origin is None else tuple(float(v) for v in origin)
+        #: a file's track whose clock restarted (:class:`kalmix.io.tables.ClockResets`): ``[shift, last time as
+        #: given, first time of its current clock]``, for a resumed run to go on moving its times; else None
+        self.clock = None if clock is None else [float(v) for v in clock]
 
     def copy(self) -> "GapTracker":
         return GapTracker(self.last_time, self.intervals, self.segment, self.jumped_from, self.jump_counted,
-                          self.glitches, self.origin)
+                          self.glitches, self.origin, self.clock)
 
     def threshold(self, config: StreamConfig) -> float:
         if config.max_gap is not None:
@@ -620,6 +623,8 @@ class GapTracker:
                "jumped_from": self.jumped_from, "jump_counted": self.jump_counted, "glitches": self.glitches}
         if self.origin is not None:
             out["origin"] = list(self.origin)
+        if self.clock is not None:
+            out["clock"] = list(self.clock)
         return out
 
 

@@ -305,9 +305,10 @@ class Run:
         if bad is not None:
             click.echo(f"kalmix: error: {bad}", err=True)
         if engine is not None and engine.skipped > self.skipped0:
+            fate = ("their output rows have empty predictions" if self.unit == "row" else   # stdin's rows
+                    "not written (a file's rows skipped are left out of the output)")
             click.echo(f"kalmix: error: skipped {engine.skipped - self.skipped0} row(s) at or before their "
-                       "track's last time (already processed or out of order); their output rows have empty "
-                       "predictions", err=True)
+                       f"track's last time (already processed or out of order); {fate}", err=True)
         if self.untimed:
             click.echo(f"kalmix: error: skipped {self.untimed} row(s) without a time; their output rows have empty "
                        "predictions", err=True)
@@ -567,9 +568,10 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     run.bad.open("row" if in_fmt == "parquet" else "line", append=run.resuming)
     axes = _geographic(run.engine, settings, columns)
     offset = 0   # file rows before the chunk
+    clocks = _clocks(run.engine, settings)
     ahead = (_lookahead(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
                                           ids_as_text=True, on_bad_row=run.on_bad_row,
-                                          clock_resets=reset_step(settings)))
+                                          clock_resets=_clocks(run.engine, settings)))
              if total_rows > chunk_rows else [])
     with tqdm(total=total, unit="rows", file=sys.stderr, disable=not show,
               desc="kalmix predict", smoothing=0.1) as bar, warnings.catch_warnings():
@@ -577,7 +579,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
         for index, chunk in enumerate(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
                                                         ids_as_text=True, as_given=True, on_bad_row=run.on_bad_row,
                                                         bad_texts=run.bad.path is not None,
-                                                        clock_resets=reset_step(settings))):
+                                                        clock_resets=clocks)):
             for why, count in chunk.attrs.get("dropped", {}).items():
                 run.dropped[why] += count
             run.ids.see_many(pd.unique(chunk["track_id"]).tolist())
@@ -615,6 +617,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                     bar.update(len(piece))
                     if k >= (unit_at or 0):   # the rows before the time unit's step go with the next part
                         run.guard.tick()
+                _keep_clocks(engine, clocks, pd.unique(chunk["track_id"]))
                 written: list = []
                 frame = given_rows(merge(frames, chunk), chunk, columns, run.sink.fmt, written)
                 with run.guard.deferred():
@@ -630,6 +633,27 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                 raise
             bar.update(chunk.attrs.get("file_rows", len(chunk)) - len(chunk))
             run.units.check(run.engine)
+
+
+def _clocks(engine, settings):
+    """A file's :class:`kalmix.io.tables.ClockResets`, going on with the clocks a resumed state file saved."""
+    from ..io.tables import ClockResets
+
+    clocks = ClockResets(reset_step(settings))
+    for key, gaps in ({} if engine is None else engine.gaps).items():
+        if gaps.clock is not None:
+            clocks.resume(key, gaps.clock)   # a file's ids are text, or numbers its own key
+    return clocks
+
+
+def _keep_clocks(engine, clocks, tracks) -> None:
+    """Keep in the engine's state (saved with it, rolled back with it) the clock of each of ``tracks`` that
+    restarted, for a resumed run to go on moving its times."""
+    for track in tracks:
+        clock = clocks.tracks.get(track)
+        gaps = engine.gaps.get(_track_key(track))
+        if gaps is not None and (clock is not None and clock[0] or gaps.clock is not None):
+            gaps.clock = None if clock is None else list(clock)
 
 
 def reset_step(settings):

@@ -691,9 +691,10 @@ class ClockResets:
 
     A restart is a step back by more than :attr:`FACTOR` usual steps, to a time inside the range of the run
     before it (not a block of earlier rows that comes late: those are sorted into place), followed by steps
-    forward of at most :attr:`FACTOR` usual steps. State across a file's chunks: each track's shift, last time
-    and the first time of its current clock. ``found``: the chunk's restarts, ``(place, track, time before,
-    time after)``.
+    forward of at most :attr:`FACTOR` usual steps (at least two, or as many as the chunk holds when a chunk
+    follows it: a later chunk cannot move the rows of this one). State across a file's chunks: each track's
+    shift, last time and the first time of its current clock (:meth:`resume` takes them from an earlier run).
+    ``found``: the chunk's restarts, ``(place, track, time before, time after)``.
     """
 
     FACTOR = 3.0
@@ -702,6 +703,15 @@ class ClockResets:
         self.step = step
         self.tracks: dict = {}   # track -> [shift, last time as given, first time of its current clock]
         self.found: list = []
+        self.resumed: set = set()   # tracks of a resumed run's state not yet seen in this one
+        self.more = False   # a chunk of the file comes after this one
+
+    def resume(self, track, clock) -> None:
+        """Go on with ``track``'s clock ``[shift, last time as given, first time of its current clock]`` saved by
+        an earlier run: its rows that go on after that last time are moved by that shift. Its first row in this
+        run at or before that time (the file read again from its start) drops it: the restarts are found again."""
+        self.tracks[track] = [float(v) for v in clock]
+        self.resumed.add(track)
 
     def apply(self, out: pd.DataFrame, named) -> pd.DataFrame:
         """``out`` (rows in file order, ``out.index`` their rows in the chunk) with each restarted clock's rows
@@ -718,6 +728,10 @@ class ClockResets:
         look[codes[steps < 0]] = True
         shift = np.zeros(len(uniques))
         for c, track in enumerate(uniques.tolist()):
+            if track in self.resumed:
+                self.resumed.discard(track)
+                if raw[firsts[c]] <= self.tracks[track][1]:
+                    del self.tracks[track]
             known = self.tracks.get(track)
             if known is not None:
                 shift[c] = known[0]
@@ -760,7 +774,9 @@ class ClockResets:
                 judged = run
                 again = np.flatnonzero(times[:j] == time)
                 again = again.size and all(np.array_equal(values[k], values[j], equal_nan=True) for k in again)
-                if run > j + 2 and times[run - 1] >= start and not again:   # goes on, inside the earlier clock's range
+                # goes on (two steps forward, or forward up to the chunk's last row of the track when a chunk
+                # follows, which cannot move rows already read), inside the earlier clock's range
+                if (run > j + 2 or (self.more and run == len(times))) and times[run - 1] >= start and not again:
                     self.found.append((named(int(places[j])), track, float(last), float(time)))
                     shift = last + shift + float(self.step(usual)) - time
                     last = start = time
@@ -888,6 +904,7 @@ class BadRows:
 
             used = raw[cols.names].iloc[rows]
             texts = [json.dumps({str(k): (None if v is None or (isinstance(v, float) and np.isnan(v)) else
+                                          str(v) if isinstance(v, float) and np.isinf(v) else
                                           v if isinstance(v, (int, float, str, bool)) else str(v))
                                  for k, v in record.items()}) for record in used.to_dict("records")]
         return cls(offset + rows, [named(int(i)) for i in rows], [why[int(i)] for i in rows], texts, rows)
@@ -1239,10 +1256,11 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         chunk; a chunk may then be empty.
     bad_texts : bool, default False
         Keep a skipped CSV row's line as written (:attr:`BadRows.texts`), for a file of rejects.
-    clock_resets : callable, optional
+    clock_resets : callable or ClockResets, optional
         ``step(usual)``: a track's clock that restarts (:class:`ClockResets`) goes on after the rows
         before it by this step (a track's usual step given), instead of being sorted into them; the
-        chunk lists its restarts in ``chunk.attrs["clock_resets"]``. None: sorted (as any disorder).
+        chunk lists its restarts in ``chunk.attrs["clock_resets"]``. A :class:`ClockResets`: that one
+        (its tracks' clocks read after each chunk). None: sorted (as any disorder).
 
     Yields
     ------
@@ -1258,7 +1276,8 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
     last: dict = {}
     counts: dict | None = {} if cols.time is None else None
     time_kind: dict = {}
-    clocks = None if clock_resets is None or cols.time is None else ClockResets(clock_resets)
+    clocks = None if clock_resets is None or cols.time is None else (
+        clock_resets if isinstance(clock_resets, ClockResets) else ClockResets(clock_resets))
     offset = kept = skipped = 0
     lines = None
     with contextlib.ExitStack() as stack:
@@ -1273,7 +1292,12 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
             batches = ((raw, None) for raw in reader)
             lines = _CsvLines(path, texts=bad_texts, check=_checked_column(path, cols, ids_as_text))
             stack.callback(lines.close)
-        for raw, given_time in batches:
+        batches = iter(batches)
+        following = next(batches, None)
+        while following is not None:   # one batch ahead: whether a chunk is the file's last
+            (raw, given_time), following = following, next(batches, None)
+            if clocks is not None:
+                clocks.more = following is not None
             if len(raw) == 0:
                 continue
             where = None if lines is None else lines.take(
