@@ -75,22 +75,28 @@ several calls (``kalmix predict`` rolls a whole chunk back when interrupted).
 from __future__ import annotations
 
 import datetime
-import decimal
 import math
 import numbers
 import os
 import warnings
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, replace
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from ._values import measurements as _measurements
 from .archive import open_archive, write_archive
-from .bank import (DEFAULT_BANK, DEFAULT_REACH, LENGTH_UNIT_RANGE, check_horizon, check_length_unit, make_bank,
-                   make_params, short_lead)
+from .bank import LENGTH_UNIT_RANGE, make_bank
 from .core.engine import Bank, BankState, init_bank_state, tree_leaves, tree_map
+from .stream.columns import ColumnNoteWarning, find_columns, guess_id
+from .stream.config import GAP_REFERENCES, StreamConfig
+from .stream.gaps import REFERENCE_INTERVALS as REFERENCE_INTERVALS
+from .stream.gaps import GapTracker, SkippedRowWarning, short_median
+from .stream.ids import id_from_meta, id_to_json, id_to_meta, keyable, track_key
+from .stream.store import TrackStates
+from .stream.units import (LengthUnitWarning, auto_length_unit, auto_time_unit, estimate_length_unit,
+                           length_unit_fallback, length_unit_rule)
 
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "SkippedRowWarning", "Checkpoint",
            "LengthUnitWarning", "ColumnNoteWarning", "estimate_length_unit", "length_unit_fallback", "find_columns",
@@ -103,529 +109,6 @@ __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "Ski
 STATE_FORMAT_VERSION = 12
 _READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12)
 _MAGIC = "kalmix-track-predictor"
-#: Number of first non-gap time steps whose upper quartile is a track's reference interval.
-REFERENCE_INTERVALS = 16
-#: How a track's reference interval is taken from its first steps (:class:`StreamConfig`'s ``gap_reference``).
-GAP_REFERENCES = ("upper quartile", "median")
-
-
-def auto_length_unit(values, *, minimum_samples: int = 8, times=None) -> float:
-    """Typical measurement-noise size of tracks, from their second differences.
-
-    For white measurement noise of standard deviation :math:`\\sigma` on a smooth
-    path, :math:`\\Delta^2 z_k = z_{k+1} - 2 z_k + z_{k-1}` has standard deviation
-    :math:`\\sqrt 6 \\sigma`; the robust estimate is
-
-    .. math:: u = \\frac{\\operatorname{median} |\\Delta^2 z|}{0.6745 \\sqrt 6}
-
-    pooled over every coordinate and track (NaN-containing triples skipped). Real
-    acceleration inflates it, so it is an upper bound of the noise, which is what
-    the bank's noise grid needs (its levels span 0.2–2.2 units). Quantised data
-    (many exact zeros) can give 0: the fallback is the median of the non-zero
-    :math:`|\\Delta^2 z|`, and 1 when the data has no second differences at all.
-
-    With ``times``, a triple whose two steps :math:`h_1, h_2` differ (irregular sampling)
-    uses the difference that uniform motion leaves at 0 whatever the steps,
-    :math:`h_1 (z_{k+1} - z_k) - h_2 (z_k - z_{k-1})`, scaled to the same noise size
-    (times :math:`\\sqrt 6 / \\sqrt{h_1^2 + h_2^2 + (h_1 + h_2)^2}`); a triple of equal steps
-    is :math:`|\\Delta^2 z|` as above. (Without it, a target at 5 m/s sampled every 5 to 60 s
-    reads its speed times the steps' differences as noise.)
-
-    Parameters
-    ----------
-    values : ndarray, shape (T, p) or (T, N, p)
-        Tracks on their sample index (NaN for missing or padding).
-    times : ndarray, shape (T,) or (T, N), optional
-        Each sample's time (NaN for padding); None: the samples are taken as evenly spaced.
-
-    Returns
-    -------
-    float
-        The ``length_unit`` to pass to :func:`kalmix.bank.make_params`.
-    """
-    unit, _ = length_unit_rule(values, minimum_samples, times=times)
-    return unit
-
-
-def length_unit_rule(values, minimum_samples: int = 8, *, times=None) -> tuple[float, str | None]:
-    """:func:`auto_length_unit` and, when it fell back to 1, why (else None)."""
-    try:
-        z = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"values: expected numbers, shape (T, p) or (T, N, p), got {values!r:.80}") from None
-    if z.ndim == 2:
-        z = z[:, None, :]
-    if z.ndim != 3:
-        raise ValueError(f"values: expected shape (T, p) or (T, N, p) (rows, [tracks,] coordinates), got {z.shape}")
-    if z.shape[0] < 3:
-        return 1.0, "fewer than 3 samples of a track to estimate it from"
-    with np.errstate(over="ignore", invalid="ignore"):  # values near 1e308: those triples are skipped
-        second = np.abs(z[2:] - 2.0 * z[1:-1] + z[:-2])
-        if times is not None:
-            second = _time_aware(second, z, times)
-        second = second.ravel()
-    second = second[np.isfinite(second)]
-    if second.size < minimum_samples:
-        return 1.0, f"only {second.size} second difference(s) to estimate it from (it needs {minimum_samples})"
-    scale = 0.6745 * math.sqrt(6.0)
-    unit = float(np.median(second)) / scale
-    if unit <= 0:
-        nonzero = second[second > 0]
-        if not nonzero.size:
-            return 1.0, "second differences that are all 0 (positions constant, or exactly on a line)"
-        unit = float(np.median(nonzero)) / scale
-    return unit, None
-
-
-def _time_aware(second, z, times):
-    """:func:`length_unit_rule`'s second differences ``second`` (T-2, N, p) of ``z``, those of triples with unequal
-    steps replaced by the time-aware difference (see :func:`auto_length_unit`); a triple without two positive
-    finite steps keeps its second difference."""
-    try:
-        t = np.asarray(times, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"times: expected numbers, shape (T,) or (T, N), got {times!r:.80}") from None
-    if t.ndim == 1:
-        t = t[:, None]
-    if t.shape != z.shape[:2]:
-        raise ValueError(f"times: expected shape {z.shape[:2]} (rows, tracks) as the values', got {t.shape}")
-    h1, h2 = (t[1:-1] - t[:-2])[..., None], (t[2:] - t[1:-1])[..., None]
-    usable = np.isfinite(h1) & np.isfinite(h2) & (h1 > 0) & (h2 > 0)
-    equal = np.abs(h1 - h2) <= 1e-9 * np.maximum(h1, h2)
-    weighted = (np.abs(h1 * (z[2:] - z[1:-1]) - h2 * (z[1:-1] - z[:-2])) * math.sqrt(6.0)
-                / np.sqrt(h1 * h1 + h2 * h2 + (h1 + h2) ** 2))
-    return np.where(usable & ~equal, weighted, second)
-
-
-def auto_time_unit(times) -> float:
-    """Typical sampling interval: the median of the positive time steps of every track.
-
-    Parameters
-    ----------
-    times : ndarray, shape (T,) or (T, N)
-        Time stamps of each track on its sample index (NaN for padding).
-
-    Returns
-    -------
-    float
-        The ``time_unit`` of :func:`kalmix.bank.make_bank` (1 when there is no positive step).
-    """
-    t = np.asarray(times, dtype=np.float64)
-    if t.ndim == 1:
-        t = t[:, None]
-    steps = np.diff(t, axis=0).ravel()
-    steps = steps[np.isfinite(steps) & (steps > 0)]
-    return float(np.median(steps)) if steps.size else 1.0
-
-
-class LengthUnitWarning(UserWarning):
-    """``length_unit="auto"`` fell back to 1: nothing to estimate it from (the text says why, as ``kalmix predict``'s
-    note does); pass a ``length_unit``."""
-
-
-class ColumnNoteWarning(UserWarning):
-    """What :meth:`TrackPredictor.process_table` found, or did not find, among a table's columns (the notes
-    ``kalmix predict`` prints: no track id column, no time column, an id taken from a column's name)."""
-
-
-def length_unit_fallback(why: str | None, where: str, option: str, unit: str = "") -> str:
-    """The note (``kalmix predict``'s) and warning text (the Python API's) of a length unit that fell back to 1:
-    ``why`` the rule could not estimate it from ``where`` (None: ``where`` has no sample at all); ``option``
-    the setting to pass; ``unit`` the unit's name after the 1 (`` m`` for geographic data)."""
-    if why is None:
-        return f"length unit 1{unit} ({where} has no sample to estimate it from; pass {option})"
-    return f"length unit 1{unit} (auto could not estimate it: {where} has {why}; pass {option})"
-
-
-def estimate_length_unit(table, position_names=None, *, geographic: bool | None = None) -> tuple[float, str | None]:
-    """The length unit ``auto`` takes from a track table: ``kalmix predict``'s (on a file's first chunk) and
-    :meth:`TrackPredictor.process_table`'s (on its first table), one function for both.
-
-    :func:`length_unit_rule` on the table's tracks: for geographic positions (``geographic``, as
-    :class:`StreamConfig`'s) in metres, each track in the frame of its first fix
-    (:func:`kalmix.io.geo.local_table`).
-
-    Parameters
-    ----------
-    table : pandas.DataFrame
-        ``track_id``, ``time`` and the positions, each track's rows in time order.
-    position_names : sequence of str, optional
-        Default: every column but ``track_id`` and ``time``.
-
-    Returns
-    -------
-    (float, str or None)
-        The unit, and why it is the fallback 1 (None when it was estimated).
-    """
-    from .io.geo import local_table, resolve_axes, std_names
-    from .io.tables import to_arrays
-
-    names = ([c for c in table.columns if c not in ("track_id", "time")] if position_names is None
-             else list(position_names))
-    axes = resolve_axes(names, geographic)
-    if axes is not None:
-        table, names = local_table(table[["track_id", "time", *names]], names, axes), list(std_names(axes))
-    arrays = to_arrays(table, names)
-    return length_unit_rule(arrays.values, times=arrays.times)
-
-
-def find_columns(header, *, time: str | None = None, positions=None, track_id: str | None = None,
-                 sample=None):
-    """The id, time and position columns of a table with the column names ``header``: how ``kalmix predict``
-    finds them, and :meth:`TrackPredictor.process_table` when a table does not name them ``track_id`` and
-    ``time``.
-
-    :func:`kalmix.io.detect_columns` (names given win); ``track_id="none"`` (not a column):
-    one track; with no id column named or detected, :func:`guess_id`; then
-    :func:`kalmix.io.tables.check_output_names`.
-
-    Parameters
-    ----------
-    sample : callable, optional
-        ``sample(names, rows)``: the first ``rows`` rows of those columns (a DataFrame), to tell
-        whether an unused column holds track ids; None: by names only.
-
-    Returns
-    -------
-    (TrackColumns, list of str)
-        The columns and the notes a user should hear (``kalmix predict`` prints them on stderr,
-        ``process_table`` warns them as :class:`ColumnNoteWarning`).
-    """
-    import dataclasses
-
-    from .io.tables import check_output_names, column_notes, detect_columns
-
-    header = [str(c) for c in header]
-    single = track_id is not None and track_id.strip().lower() == "none" and track_id not in header
-    columns = detect_columns(header, time=time, positions=positions, track_id=None if single else track_id)
-    notes = []
-    if single:
-        columns = dataclasses.replace(columns, track_id=None)
-    elif columns.track_id is None:
-        columns, notes = guess_id(columns, header, sample)
-    check_output_names(columns)
-    return columns, notes + column_notes(columns, header, single_track=single)
-
-
-def guess_id(columns, header, sample=None):
-    """``columns`` with the unused column taken as the track id when exactly one is named like one (vessel,
-    player_id, ...; a note says so); a ``ValueError`` naming them when unused columns look like ids otherwise
-    (repeated words, whole numbers that tell apart rows of one time) or when several are named so: without an
-    id every row would be one track, the tracks' rows mixed, and never silently. Returns the columns and the
-    notes."""
-    from .io.tables import ID_SAMPLE_ROWS, detect_columns, id_candidates
-
-    unused = [name for name in header if name not in {columns.time, *columns.positions}]
-    if not unused:
-        return columns, []
-    rows = sample([*unused, *([columns.time] if columns.time else [])], ID_SAMPLE_ROWS) if sample else None
-    found = id_candidates(columns, header, rows)
-    named = [name for name, why in found if why == "its name"]
-    if len(named) == 1:
-        note = (f"note: no track id column named or detected: taking {named[0]!r} as the track id, from its name "
-                "(--id COLUMN to choose another, --id none for one track)")
-        return detect_columns(header, time=columns.time, positions=columns.positions, track_id=named[0]), [note]
-    if found:
-        which = "; ".join(f"{name!r} ({why})" for name, why in found[:4]) + ("; ..." if len(found) > 4 else "")
-        looks = "these columns look" if len(found) > 1 else "a column looks"
-        raise ValueError(f"no track id column named or detected, and {looks} like one: {which}. Without an id "
-                         f"every row is one track, the tracks' rows mixed: pass --id {found[0][0]}, or --id none "
-                         "if the input holds a single track")
-    return columns, []
-
-
-@dataclass
-class StreamConfig:
-    """Settings of a :class:`TrackPredictor`, saved with its state.
-
-    Parameters
-    ----------
-    n_experts : int
-        Size of the bank's AKF family (40 in the paper); the other families have their own
-        sizes (the default bank: 119 experts in all; ``n_experts=5`` gives 84).
-    seed : int
-        Seed of the bank.
-    length_unit : float or "auto"
-        Measurement-noise size in data units (metres for geographic data; see
-        :func:`auto_length_unit`). ``"auto"`` (the default): estimated as ``kalmix predict`` does,
-        by :func:`estimate_length_unit` on the first table :meth:`TrackPredictor.process_table`
-        gets; a predictor whose first rows come through :meth:`~TrackPredictor.step_row` or
-        :meth:`~TrackPredictor.step_rows` (a live stream, with no sample to estimate from at its
-        first row) takes 1, as ``kalmix predict -`` does. Either fallback to 1 gives a
-        :class:`LengthUnitWarning`. The predictor keeps the unit it chose in its own copy of the
-        settings (``predictor.config.length_unit``), and the state file saves it.
-    horizon : int
-        Besides the next row, also predict ``horizon`` time units ahead (``horizon`` frames
-        for frame-based experts; 1 = only the next row), with its own weights (a lead head).
-    lead : float or None
-        Also predict ``lead`` time-column units after each row (``RowPrediction.ahead``,
-        ``lead_<pos>`` in a table), with weights and intervals learned on lead-``lead`` errors.
-    max_gap : float or None
-        Absolute gap threshold (time units); ``None`` uses ``max_gap_factor``.
-    max_gap_factor : float
-        Gap threshold relative to the reference interval; ``inf`` never splits. At the default
-        3, a step of more than 3 reference intervals (at 100 Hz, 3 dropped frames) starts a new
-        segment: the experts start again (the rule and calibration go on). Pass ``inf`` (or a
-        ``max_gap``) where short drops are the sampling and the target did not change course.
-    gap_reference : str
-        The reference interval: ``"upper quartile"`` (the default) of the track's first 16 steps (the
-        13th in increasing order), so that irregular sampling (steps of 5 to 60 s) keeps a track in one
-        segment; ``"median"``: their median (the rule of state files before format version 12, which
-        resume with it).
-    options : dict
-        Other arguments of :func:`kalmix.bank.make_params` (the AKF family).
-    bank : str
-        Bank recipe of :func:`kalmix.bank.make_bank` (:data:`kalmix.bank.BANK_KINDS`);
-        ``n_experts`` is the size of its AKF family.
-    rule : str
-        Aggregation rule (``boa``, ``mlpoly``, ``fixed_share``).
-    rule_options : dict
-        The rule's parameters over :data:`kalmix.bank.DEFAULT_RULE_OPTIONS` (``rule_options`` of
-        :func:`kalmix.bank.make_bank`).
-    time_unit : float or None
-        The typical sampling interval (time-column units) that scales the kinematic
-        experts' noise; ``None``: learned from the data, the first positive time step
-        between two rows of one track (in row order, so a file and a stream of the same
-        rows learn the same unit).
-    reach : float or None
-        In time units: across a longer step only the CV experts make the one-step forecast
-        (``reach`` of :func:`kalmix.bank.make_bank`); None: every expert at every step.
-    lead_delay : float or None
-        ``lead_delay`` of :func:`kalmix.bank.make_bank` (None: the lead's rows); checked always, used
-        only with a lead.
-    geographic : bool or None
-        Whether the positions are latitude and longitude in degrees (and an altitude in metres):
-        then each track is predicted in metres east and north of its first fix
-        (:mod:`kalmix.io.geo`), latitudes beyond ±90° or longitudes beyond ±180° are refused, the
-        forecasts come back in degrees and their standard deviations in metres (``std_east_m``,
-        ``std_north_m``). None (the default): when the position names say so (``lat``/``lon``,
-        ``latitude``/``longitude``, ...); True: the positions in the order latitude,
-        longitude[, altitude] whatever their names; False: flat numbers.
-    """
-
-    n_experts: int = 40
-    seed: int = 0
-    length_unit: float | str = "auto"
-    horizon: int = 1
-    max_gap: float | None = None
-    max_gap_factor: float = 3.0
-    gap_reference: str = "upper quartile"
-    options: dict = field(default_factory=dict)
-    bank: str = DEFAULT_BANK["kind"]
-    rule: str = DEFAULT_BANK["rule"]
-    time_unit: float | None = None
-    rule_options: dict = field(default_factory=dict)
-    lead: float | None = None
-    reach: float | None = DEFAULT_REACH
-    lead_delay: float | None = None
-    geographic: bool | None = None
-
-    def __post_init__(self):
-        from .bank import BANK_KINDS
-
-        self.horizon = check_horizon(self.horizon)
-        for name in ("lead", "time_unit", "max_gap", "max_gap_factor", "reach", "lead_delay"):
-            value = getattr(self, name)
-            if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)):
-                raise TypeError(f"{name}: expected a number, got {type(value).__name__} {value!r:.80}")
-        if self.bank not in BANK_KINDS:
-            raise ValueError(f"bank: expected one of {', '.join(BANK_KINDS)}, got {self.bank!r}")
-        if self.lead is not None:
-            if not (math.isfinite(self.lead) and self.lead > 0):
-                raise ValueError(f"lead: expected a finite time > 0 (time-column units), got {self.lead!r}")
-            if self.horizon > 1:
-                raise ValueError(f"lead and horizon: give one of them (a horizon H is the lead of H time units), "
-                                 f"got lead={self.lead!r} and horizon={self.horizon!r}")
-            self.lead = float(self.lead)
-        if self.lead_delay is not None:
-            self.lead_delay = float(self.lead_delay)   # a numpy scalar saves as its own type
-        if self.max_gap is not None and not self.max_gap > 0:
-            raise ValueError(f"max_gap: expected a time step > 0, got {self.max_gap!r}")
-        if not self.max_gap_factor > 1:
-            raise ValueError(f"max_gap_factor: expected a number > 1, got {self.max_gap_factor!r}")
-        if self.gap_reference not in GAP_REFERENCES:
-            raise ValueError(f"gap_reference: expected one of {', '.join(map(repr, GAP_REFERENCES))}, got "
-                             f"{self.gap_reference!r:.80}")
-        if isinstance(self.length_unit, str) and self.length_unit.strip().lower() == "auto":
-            self.length_unit = "auto"
-        elif isinstance(self.length_unit, str):
-            raise ValueError(f"length_unit: expected a number or 'auto', got {self.length_unit!r}")
-        else:
-            self.length_unit = check_length_unit(self.length_unit)
-        if self.geographic is not None and not isinstance(self.geographic, (bool, np.bool_)):
-            raise TypeError(f"geographic: expected True, False or None (detected from the position names), got "
-                            f"{type(self.geographic).__name__} {self.geographic!r:.80}")
-        if self.geographic is not None:
-            self.geographic = bool(self.geographic)
-        if self.time_unit is not None and not (math.isfinite(self.time_unit) and self.time_unit > 0):
-            raise ValueError(f"time_unit: expected a finite number > 0, got {self.time_unit!r}")
-        if not isinstance(self.options, dict):
-            raise TypeError(f"options: expected a dict of make_params arguments, got {self.options!r}")
-        if not isinstance(self.rule_options, dict):
-            raise TypeError(f"rule_options: expected a dict of the rule's parameters, got {self.rule_options!r}")
-        # every bank argument is checked now, not at the first row (a lead against a time unit still to be
-        # learned is checked when it is learned: here as one unit)
-        length = self.numeric_length_unit()
-        make_params(1, self.n_experts, seed=self.seed, length_unit=length, **self.options)
-        why = short_lead(self.lead, self.time_unit)   # (a learned unit comes here too: replace(config, time_unit=))
-        if why is not None:
-            warnings.warn(why, RuntimeWarning, stacklevel=3)
-        unit = self.time_unit if self.time_unit is not None else (self.lead if self.lead is not None else 1.0)
-        make_bank(1, self.bank, rule=self.rule, length_unit=length, time_unit=unit,
-                  seed=self.seed, n_akf=self.n_experts, akf_options=self.options, lead=self.lead_time(),
-                  rule_options=self.rule_options, reach=self.reach, lead_delay=self.lead_delay)
-
-    def numeric_length_unit(self) -> float:
-        """``length_unit``, or 1 while it is ``"auto"`` (not chosen yet)."""
-        return 1.0 if self.length_unit == "auto" else float(self.length_unit)
-
-    def lead_time(self) -> float | None:
-        """The lead head's lead in time-column units: ``lead``, or ``horizon`` time units, or None."""
-        if self.lead is not None:
-            return self.lead
-        return self.horizon * (self.time_unit or 1.0) if self.horizon > 1 else None
-
-
-def short_median(values) -> float:
-    """``np.median`` of a short list, bit for bit, without numpy's per-call cost (called once a row)."""
-    ordered = sorted(values)
-    middle = len(ordered) // 2
-    if len(ordered) % 2:
-        return float(ordered[middle])
-    return float((ordered[middle - 1] + ordered[middle]) / 2.0)
-
-
-def _upper_quartile(values) -> float:
-    """The gap rule's reference interval: of ``n`` steps in increasing order the one at index ``3n // 4`` (the
-    13th of 16; of up to 4 steps, the largest)."""
-    ordered = sorted(values)
-    return float(ordered[min(len(ordered) - 1, 3 * len(ordered) // 4)])
-
-
-class SkippedRowWarning(RuntimeWarning):
-    """A row was skipped because its time was not after its track's last time (said once per predictor)."""
-
-
-class GapTracker:
-    """Causal gap detection for one track (see the module docstring)."""
-
-    __slots__ = ("last_time", "intervals", "segment", "jumped_from", "jump_counted", "glitches", "origin", "clock")
-
-    def __init__(self, last_time: float | None = None, intervals=(), segment: int = -1,
-                 jumped_from: float | None = None, jump_counted: bool = False, glitches: int = 0,
-                 origin=None, clock=None):
-        self.last_time = last_time
-        self.intervals = list(intervals)
-        self.segment = segment
-        #: when the previous row jumped ahead (a gap, the track's first row, or its first step, which
-        #: has no reference to be judged against): the time before it; else None
-        self.jumped_from = jumped_from
-        #: that jump's step went into ``intervals`` (the first step), to be taken back if it was wrong
-        self.jump_counted = jump_counted
-        #: rows that came back before a jump (the jump's timestamp was wrong)
-        self.glitches = glitches
-        #: geographic data: the origin (latitude, longitude, height) of the track's current frame
-        #: (:func:`kalmix.io.geo.assign_frames`), None before its first fix
-        self.origin = None if origin is None else tuple(float(v) for v in origin)
-        #: a file's track whose clock restarted (:class:`kalmix.io.tables.ClockResets`): ``[shift, last time as
-        #: given, first time of its current clock]``, for a resumed run to go on moving its times; else None
-        self.clock = None if clock is None else [float(v) for v in clock]
-
-    def copy(self) -> "GapTracker":
-        return GapTracker(self.last_time, self.intervals, self.segment, self.jumped_from, self.jump_counted,
-                          self.glitches, self.origin, self.clock)
-
-    def threshold(self, config: StreamConfig) -> float:
-        if config.max_gap is not None:
-            return float(config.max_gap)
-        if not self.intervals or not math.isfinite(config.max_gap_factor):
-            return math.inf
-        if config.gap_reference == "median":   # state files before version 12
-            return config.max_gap_factor * short_median(self.intervals)
-        return config.max_gap_factor * _upper_quartile(self.intervals)
-
-    def advance(self, time: float, config: StreamConfig) -> bool | None:
-        """Register ``time``; True if it starts a new segment, None if out of order or not finite (skip: a NaN
-        or infinite time never becomes the track's clock, which would skip every later row)."""
-        if not math.isfinite(time):
-            return None
-        if self.last_time is None:
-            self.last_time, self.segment = time, self.segment + 1
-            self.jumped_from, self.jump_counted = -math.inf, False
-            return True
-        dt = time - self.last_time
-        if not dt > 0:
-            if self.jumped_from is not None and self.jumped_from < time < self.last_time and (
-                    not self.jump_counted  # a gap or the first row: any row coming back in between
-                    or self.last_time - self.jumped_from > config.max_gap_factor * (time - self.jumped_from)):
-                # the previous row jumped ahead and this one comes back in between: that jump was a
-                # wrong timestamp; the clock follows this row, which continues the jump's segment
-                if self.jump_counted:
-                    self.intervals.pop()
-                self.last_time, self.jumped_from, self.jump_counted = time, None, False
-                self.glitches += 1
-                return False
-            return None
-        unjudged = not self.intervals and config.max_gap is None
-        gap = dt > self.threshold(config)
-        self.jumped_from = self.last_time if gap or unjudged else None
-        self.jump_counted = False
-        if gap:
-            self.segment += 1
-        if len(self.intervals) < REFERENCE_INTERVALS and (not gap or config.max_gap is None):
-            # while the reference is incomplete a gap's step goes into it too: otherwise a short first step
-            # (10 ms among 33 ms frames) would make every later step a gap, kept out of the reference, and the
-            # track would restart at every row. A row coming back inside that gap is still a wrong timestamp, as
-            # after any gap (jump_counted stays False: the first step's test would lose such a row); the gap's
-            # step then stays in the reference, where the median outvotes it.
-            self.intervals.append(dt)
-            self.jump_counted = unjudged
-        self.last_time = time
-        return gap
-
-    def advance_many(self, times: np.ndarray, config: StreamConfig) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`advance` over ``times`` in order: codes ``(n,)`` int8 (1 a new segment, 0 continues,
-        -1 skipped) and each row's segment ``(n,)``.
-
-        The same state and answers as calling :meth:`advance` row by row, faster: once a track's
-        reference intervals are complete its threshold is fixed, so a stretch of rows whose
-        steps are positive and within it changes nothing but the clock, and is taken at once;
-        every other row (a gap, a row out of order, the rows before the reference is complete)
-        goes through :meth:`advance`.
-        """
-        n = len(times)
-        codes = np.zeros(n, dtype=np.int8)
-        segments = np.empty(n, dtype=np.int64)
-        stops = threshold = None
-        i = 0
-        while i < n:
-            if self.jumped_from is None and self.last_time is not None and len(self.intervals) >= REFERENCE_INTERVALS:
-                if stops is None:   # complete intervals stay complete: the threshold no longer moves
-                    threshold = self.threshold(config)
-                    steps = np.diff(times, prepend=np.nan)
-                    stops = np.flatnonzero(~((steps > 0) & (steps <= threshold)))
-                step = float(times[i]) - self.last_time
-                if step > 0 and step <= threshold:
-                    k = np.searchsorted(stops, i, side="right")
-                    end = int(stops[k]) if k < len(stops) else n
-                    segments[i:end] = self.segment
-                    self.last_time, self.jump_counted = float(times[end - 1]), False
-                    i = end
-                    continue
-            new = self.advance(float(times[i]), config)
-            codes[i] = -1 if new is None else int(new)
-            segments[i] = self.segment
-            i += 1
-        return codes, segments
-
-    def to_json(self) -> dict:
-        out = {"last_time": self.last_time, "intervals": self.intervals, "segment": self.segment,
-               "jumped_from": self.jumped_from, "jump_counted": self.jump_counted, "glitches": self.glitches}
-        if self.origin is not None:
-            out["origin"] = list(self.origin)
-        if self.clock is not None:
-            out["clock"] = list(self.clock)
-        return out
 
 
 class RowPrediction(NamedTuple):
@@ -653,181 +136,6 @@ def _take(state, index):
     return tree_map(lambda a: a[index], state)
 
 
-def _same_rows(array: np.ndarray) -> bool:
-    """Whether every row (first axis) of ``array`` holds the bits of its first row (NaN payloads and the sign of
-    zero included)."""
-    if len(array) <= 1:
-        return True
-    flat = np.ascontiguousarray(array).reshape(len(array), -1)
-    if flat.dtype.kind == "f":
-        flat = flat.view(np.int64 if flat.dtype.itemsize == 8 else np.uint8)
-    return bool((flat == flat[:1]).all())
-
-
-class _Block:
-    """Rows of many tracks' states, read only: per leaf (in :func:`tree_leaves` order) an ``(n, ...)`` array, or a
-    ``(1, ...)`` one that every row shares (a leaf whose rows are all alike, e.g. as new: the AKF family's
-    regression statistics before it learns)."""
-
-    __slots__ = ("leaves", "rows", "__weakref__")
-
-    def __init__(self, state: BankState, template=None):
-        leaves = [array for _, array in tree_leaves(state)]
-        self.rows = len(leaves[0]) if leaves else 0
-        shared = template or {}
-        self.leaves = []
-        for i, array in enumerate(leaves):
-            if _same_rows(array):
-                first = array[:1]
-                known = shared.get(i)
-                if known is not None and known.dtype == first.dtype and _same_rows(np.concatenate([known, first])):
-                    self.leaves.append(known)   # (one array for every track whose leaf is as new)
-                else:
-                    self.leaves.append(first.copy())
-            else:
-                self.leaves.append(array)
-
-
-class TrackStates(Mapping):
-    """Every track's engine state, kept by rows of shared blocks (:class:`_Block`): track id -> (block, row).
-
-    A mapping of track id -> :class:`~kalmix.core.engine.BankState` of one target (each look-up a copy). A
-    step reads its tracks' rows in one batch (:meth:`gather`) and stores the result's rows as one new block
-    (:meth:`put`): no per-track arrays, and a leaf alike in every row of a block (as new, or a
-    regularly sampled track's covariances) is kept once. Blocks are never changed, so a reference
-    (:meth:`ref`) stays valid for :meth:`TrackPredictor.rollback`; once the blocks hold twice as many rows
-    as there are tracks (plus :data:`COMPACT_SLACK`), the tracks' rows are copied into one new block.
-    """
-
-    #: rows a store may hold beyond twice its tracks' before it compacts
-    COMPACT_SLACK = 1024
-
-    def __init__(self):
-        self._where: dict = {}    # track -> (block, row), or None (a track known to have no state)
-        self._live: dict = {}     # id(block) -> [block, tracks on it]
-        self._rows = 0            # rows of the blocks in _live
-        self._template = None     # (structure, {leaf index: (1, ...) array as new})
-
-    # -- mapping ------------------------------------------------------------------------
-    def __len__(self):
-        return len(self._where)
-
-    def __iter__(self):
-        return iter(self._where)
-
-    def __contains__(self, track):
-        return track in self._where
-
-    def __getitem__(self, track):
-        ref = self._where[track]
-        return None if ref is None else self._rebuild([ref], 1)
-
-    def __setitem__(self, track, state):
-        if state is None:
-            self._set(track, None)
-        else:
-            self.put([track], state)
-
-    def pop(self, track, default=None):
-        if track not in self._where:
-            return default
-        value = self[track]
-        self._set(track, None)
-        del self._where[track]
-        return value
-
-    # -- references (checkpoints) ---------------------------------------------------------
-    def ref(self, track):
-        """What :meth:`restore` takes to return ``track`` to its present state (None: no state)."""
-        return self._where.get(track)
-
-    def restore(self, track, ref) -> None:
-        if ref is None:
-            if track in self._where:
-                self._set(track, None)
-                del self._where[track]
-        else:
-            self._set(track, ref)
-
-    def _set(self, track, ref) -> None:
-        old = self._where.get(track)
-        if old is not None:
-            entry = self._live[id(old[0])]
-            entry[1] -= 1
-            if not entry[1]:
-                del self._live[id(old[0])]
-                self._rows -= old[0].rows
-        if ref is not None:
-            entry = self._live.get(id(ref[0]))
-            if entry is None:
-                entry = self._live[id(ref[0])] = [ref[0], 0]
-                self._rows += ref[0].rows
-            entry[1] += 1
-        self._where[track] = ref
-
-    # -- batches ------------------------------------------------------------------------
-    def gather(self, tracks, fresh) -> BankState:
-        """The states of ``tracks`` stacked (a copy), new ones' from ``fresh(n)`` (:func:`init_bank_state`)."""
-        refs = [self._where.get(t) for t in tracks]
-        new = [c for c, ref in enumerate(refs) if ref is None]
-        if len(new) == len(tracks):
-            return fresh(len(tracks))
-        if new:
-            block = _Block(fresh(len(new)))
-            for k, c in enumerate(new):
-                refs[c] = (block, k)
-        return self._rebuild(refs, len(tracks))
-
-    def _rebuild(self, refs, n) -> BankState:
-        structure = self._template[0]
-        out = []
-        blocks: dict = {}
-        for c, (block, row) in enumerate(refs):
-            entry = blocks.get(id(block))
-            if entry is None:
-                entry = blocks[id(block)] = (block, [], [])
-            entry[1].append(c)
-            entry[2].append(row)
-        groups = [(block, np.array(columns), np.array(rows)) for block, columns, rows in blocks.values()]
-        for i in range(len(groups[0][0].leaves)):
-            parts = [block.leaves[i] for block, _, _ in groups]
-            array = np.empty((n,) + parts[0].shape[1:], dtype=np.result_type(*parts))   # (as np.concatenate)
-            for (block, columns, rows), part in zip(groups, parts):
-                array[columns] = part if len(part) == 1 else part[rows]
-            out.append(array)
-        leaves = iter(out)
-        return tree_map(lambda _: next(leaves), structure)
-
-    def put(self, tracks, state: BankState, columns=None) -> None:
-        """Store row ``columns[c]`` of ``state`` (default: row c) as the state of ``tracks[c]``."""
-        if not len(tracks):
-            return
-        if self._template is None:
-            self._template = (tree_map(lambda a: None if a is None else 0, state), {})
-        if columns is not None and list(columns) != list(range(len(state.screen.time))):
-            state = tree_map(lambda a: a[np.asarray(columns)], state)
-        block = _Block(state, self._template[1])
-        for c, track in enumerate(tracks):
-            self._set(track, (block, c))
-        if self._rows > 2 * len(self._where) + self.COMPACT_SLACK:
-            self._compact()
-
-    def shares_as_new(self) -> bool:
-        return self._template is not None and bool(self._template[1])
-
-    def share_as_new(self, state: BankState) -> None:
-        """Keep the leaves of ``state`` (one new target's) to be shared by every track whose leaf is as new."""
-        if self._template is None:
-            self._template = (tree_map(lambda a: 0, state), {})
-        self._template[1].clear()
-        self._template[1].update({i: array[:1].copy() for i, (_, array) in enumerate(tree_leaves(state))})
-
-    def _compact(self) -> None:
-        tracks = [t for t, ref in self._where.items() if ref is not None]
-        state = self._rebuild([self._where[t] for t in tracks], len(tracks))
-        self.put(tracks, state)
-
-
 def _by_key(index, rows, count) -> list[np.ndarray]:
     """``rows`` grouped by their key ``index[rows]`` (``count`` keys), each group in row order."""
     order = rows[np.argsort(index[rows], kind="stable")]
@@ -853,24 +161,6 @@ def _is_missing(values) -> np.ndarray:
     import pandas as pd
 
     return np.asarray(pd.isna(np.asarray(values, dtype=object)), dtype=bool)
-
-
-def id_to_json(value):
-    """A track id as the state file keeps it: numpy scalars as Python numbers, bools and text, numpy dates and
-    durations as pandas'; anything else as it is."""
-    if isinstance(value, (np.datetime64, np.timedelta64)):   # (numpy's timedelta64 is an integer type)
-        import pandas as pd
-
-        return (pd.Timestamp if isinstance(value, np.datetime64) else pd.Timedelta)(value)
-    if isinstance(value, np.bool_):
-        return bool(value)
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    if isinstance(value, np.str_):
-        return str(value)
-    return value
 
 
 def _seconds(column) -> np.ndarray:
@@ -917,73 +207,6 @@ def _row_times(times) -> np.ndarray:
     if given.dtype.kind in "Mm":
         return _seconds(pd.Series(given.reshape(-1)))
     return given.astype(np.float64)
-
-
-#: What a track id may be: what the state file keeps (:func:`_id_to_meta`).
-_ID_TYPES = (str, int, float, bytes, decimal.Decimal, datetime.date, datetime.time, datetime.timedelta)
-
-
-def _keyable(key) -> bool:
-    """Whether ``key`` (from :func:`id_to_json`) can be a track id: one the state file keeps (text, a number, a
-    date, time or duration, a decimal, bytes). Others (a UUID, a Period, a tuple) are refused at the row rather
-    than by ``save`` at the end of a long stream."""
-    return isinstance(key, _ID_TYPES)
-
-
-def _track_key(value, where: str):
-    """A track id as the predictor's key (numpy scalars as Python ones, as :meth:`TrackPredictor.process_table`
-    and the state file hold them); ``TypeError``/``ValueError`` for what cannot be an id."""
-    import pandas as pd
-
-    try:
-        missing = value is None or bool(pd.isna(value))   # None, NaN, NaT, pd.NA
-    except (TypeError, ValueError):
-        missing = False
-    if missing:
-        raise ValueError(f"{where}: expected a track id (text or a number), got {value!r}")
-    if isinstance(value, (bool, np.bool_)):   # True == 1 as a key: it would continue track 1
-        raise TypeError(f"{where}: expected a track id (text or a number), got {value!r}: a bool is not one (True "
-                        "and 1 would be the same track)")
-    key = id_to_json(value)
-    if not _keyable(key):
-        raise TypeError(f"{where}: expected a track id (text, a number, or a date), got {type(value).__name__} "
-                        f"{value!r:.80}")
-    return key
-
-
-def _id_to_meta(track):
-    """A track id as the state file's JSON holds it: JSON values as they are; dates, times, durations,
-    decimals and bytes (Parquet id columns) tagged, so that :func:`_id_from_meta` gives back an equal key."""
-
-    import pandas as pd
-
-    if isinstance(track, (pd.Timestamp, datetime.datetime)):
-        return {"datetime": pd.Timestamp(track).isoformat()}
-    if isinstance(track, (pd.Timedelta, datetime.timedelta)):
-        return {"timedelta_ns": int(pd.Timedelta(track).value)}
-    if isinstance(track, datetime.date):
-        return {"date": track.isoformat()}
-    if isinstance(track, datetime.time):
-        return {"time": track.isoformat()}
-    if isinstance(track, decimal.Decimal):
-        return {"decimal": str(track)}
-    if isinstance(track, bytes):
-        return {"bytes": track.hex()}
-    return track
-
-
-def _id_from_meta(value):
-    """The inverse of :func:`_id_to_meta`."""
-    if not isinstance(value, dict):
-        return value
-
-    import pandas as pd
-
-    (kind, text), = value.items()
-    decode = {"datetime": pd.Timestamp, "timedelta_ns": lambda ns: pd.Timedelta(int(ns), unit="ns"),
-              "date": datetime.date.fromisoformat, "time": datetime.time.fromisoformat,
-              "decimal": decimal.Decimal, "bytes": bytes.fromhex}
-    return decode[kind](text)
 
 
 BACKENDS = ("cpu", "gpu")
@@ -1368,7 +591,7 @@ class TrackPredictor:
         except (TypeError, ValueError, OverflowError):
             raise ValueError(f"time: expected a number, a date and time (datetime, ISO text) or a duration, "
                              f"got {time!r:.80}") from None
-        out = self._step_checked([_track_key(track_id, "track_id")], np.array([time]), z[None, :], names,
+        out = self._step_checked([track_key(track_id, "track_id")], np.array([time]), z[None, :], names,
                                  lambda i: "z")[0]
         self._committed(names, [asked])
         return out
@@ -1507,7 +730,7 @@ class TrackPredictor:
         if np.isinf(values).any():
             i = int(np.flatnonzero(np.isinf(values).any(axis=-1))[0])
             raise ValueError(f"values[{i}]: expected finite numbers (NaN for a missing measurement), got {values[i]!r}")
-        out = self._step_checked([_track_key(track, f"track_ids[{i}]") for i, track in enumerate(ids)], times, values,
+        out = self._step_checked([track_key(track, f"track_ids[{i}]") for i, track in enumerate(ids)], times, values,
                                  names, lambda i: f"values[{i}]")
         self._committed(names, asked)
         return out
@@ -2071,7 +1294,7 @@ class TrackPredictor:
                              f"({uniques[missing[0]]!r}) in row {first_row + row} (counted from 0)")
         keys = [id_to_json(u) for u in uniques]
         for u, key in enumerate(keys):   # a tuple, say: step_row refuses it, and the state file could not give it back
-            if not _keyable(key):
+            if not keyable(key):
                 row = int(np.flatnonzero(index == u)[0])
                 raise TypeError(f"table: expected a track id (text, a number, or a date) in every row, got "
                                 f"{type(uniques[u]).__name__} {uniques[u]!r:.80} in row {first_row + row} (counted "
@@ -2135,7 +1358,7 @@ class TrackPredictor:
         meta = {"magic": _MAGIC, "format_version": STATE_FORMAT_VERSION, "config": asdict(self.config),
                 "measurement_dim": None if self.params is None else self.params.measurement_dim,
                 "position_names": None if self.position_names is None else list(self.position_names),
-                "tracks": [{"id": _id_to_meta(t), "gaps": self.gaps[t].to_json(), "state": t in self.states}
+                "tracks": [{"id": id_to_meta(t), "gaps": self.gaps[t].to_json(), "state": t in self.states}
                            for t in tracks],
                 "rows": self.rows, "skipped": self.skipped, "outliers": self.outliers,
                 "output": self.output}
@@ -2175,7 +1398,7 @@ class TrackPredictor:
                 engine.loaded_version = meta["format_version"]
                 if meta["measurement_dim"] is not None:
                     engine._ensure_params(int(meta["measurement_dim"]))
-                entries = [(_id_from_meta(entry["id"]), GapTracker(**entry["gaps"]), bool(entry["state"]))
+                entries = [(id_from_meta(entry["id"]), GapTracker(**entry["gaps"]), bool(entry["state"]))
                            for entry in meta["tracks"]]
             except (KeyError, TypeError, ValueError) as error:
                 settings = meta.get("config") if isinstance(meta, dict) else None

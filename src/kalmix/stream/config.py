@@ -1,0 +1,167 @@
+"""The settings of a :class:`kalmix.streaming.TrackPredictor` (re-exported by :mod:`kalmix.streaming`)."""
+
+from __future__ import annotations
+
+import math
+import numbers
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..bank import DEFAULT_BANK, DEFAULT_REACH, check_horizon, check_length_unit, make_bank, make_params, short_lead
+
+#: How a track's reference interval is taken from its first steps (:class:`StreamConfig`'s ``gap_reference``).
+GAP_REFERENCES = ("upper quartile", "median")
+
+
+@dataclass
+class StreamConfig:
+    """Settings of a :class:`TrackPredictor`, saved with its state.
+
+    Parameters
+    ----------
+    n_experts : int
+        Size of the bank's AKF family (40 in the paper); the other families have their own
+        sizes (the default bank: 119 experts in all; ``n_experts=5`` gives 84).
+    seed : int
+        Seed of the bank.
+    length_unit : float or "auto"
+        Measurement-noise size in data units (metres for geographic data; see
+        :func:`auto_length_unit`). ``"auto"`` (the default): estimated as ``kalmix predict`` does,
+        by :func:`estimate_length_unit` on the first table :meth:`TrackPredictor.process_table`
+        gets; a predictor whose first rows come through :meth:`~TrackPredictor.step_row` or
+        :meth:`~TrackPredictor.step_rows` (a live stream, with no sample to estimate from at its
+        first row) takes 1, as ``kalmix predict -`` does. Either fallback to 1 gives a
+        :class:`LengthUnitWarning`. The predictor keeps the unit it chose in its own copy of the
+        settings (``predictor.config.length_unit``), and the state file saves it.
+    horizon : int
+        Besides the next row, also predict ``horizon`` time units ahead (``horizon`` frames
+        for frame-based experts; 1 = only the next row), with its own weights (a lead head).
+    lead : float or None
+        Also predict ``lead`` time-column units after each row (``RowPrediction.ahead``,
+        ``lead_<pos>`` in a table), with weights and intervals learned on lead-``lead`` errors.
+    max_gap : float or None
+        Absolute gap threshold (time units); ``None`` uses ``max_gap_factor``.
+    max_gap_factor : float
+        Gap threshold relative to the reference interval; ``inf`` never splits. At the default
+        3, a step of more than 3 reference intervals (at 100 Hz, 3 dropped frames) starts a new
+        segment: the experts start again (the rule and calibration go on). Pass ``inf`` (or a
+        ``max_gap``) where short drops are the sampling and the target did not change course.
+    gap_reference : str
+        The reference interval: ``"upper quartile"`` (the default) of the track's first 16 steps (the
+        13th in increasing order), so that irregular sampling (steps of 5 to 60 s) keeps a track in one
+        segment; ``"median"``: their median (the rule of state files before format version 12, which
+        resume with it).
+    options : dict
+        Other arguments of :func:`kalmix.bank.make_params` (the AKF family).
+    bank : str
+        Bank recipe of :func:`kalmix.bank.make_bank` (:data:`kalmix.bank.BANK_KINDS`);
+        ``n_experts`` is the size of its AKF family.
+    rule : str
+        Aggregation rule (``boa``, ``mlpoly``, ``fixed_share``).
+    rule_options : dict
+        The rule's parameters over :data:`kalmix.bank.DEFAULT_RULE_OPTIONS` (``rule_options`` of
+        :func:`kalmix.bank.make_bank`).
+    time_unit : float or None
+        The typical sampling interval (time-column units) that scales the kinematic
+        experts' noise; ``None``: learned from the data, the first positive time step
+        between two rows of one track (in row order, so a file and a stream of the same
+        rows learn the same unit).
+    reach : float or None
+        In time units: across a longer step only the CV experts make the one-step forecast
+        (``reach`` of :func:`kalmix.bank.make_bank`); None: every expert at every step.
+    lead_delay : float or None
+        ``lead_delay`` of :func:`kalmix.bank.make_bank` (None: the lead's rows); checked always, used
+        only with a lead.
+    geographic : bool or None
+        Whether the positions are latitude and longitude in degrees (and an altitude in metres):
+        then each track is predicted in metres east and north of its first fix
+        (:mod:`kalmix.io.geo`), latitudes beyond ±90° or longitudes beyond ±180° are refused, the
+        forecasts come back in degrees and their standard deviations in metres (``std_east_m``,
+        ``std_north_m``). None (the default): when the position names say so (``lat``/``lon``,
+        ``latitude``/``longitude``, ...); True: the positions in the order latitude,
+        longitude[, altitude] whatever their names; False: flat numbers.
+    """
+
+    n_experts: int = 40
+    seed: int = 0
+    length_unit: float | str = "auto"
+    horizon: int = 1
+    max_gap: float | None = None
+    max_gap_factor: float = 3.0
+    gap_reference: str = "upper quartile"
+    options: dict = field(default_factory=dict)
+    bank: str = DEFAULT_BANK["kind"]
+    rule: str = DEFAULT_BANK["rule"]
+    time_unit: float | None = None
+    rule_options: dict = field(default_factory=dict)
+    lead: float | None = None
+    reach: float | None = DEFAULT_REACH
+    lead_delay: float | None = None
+    geographic: bool | None = None
+
+    def __post_init__(self):
+        from ..bank import BANK_KINDS
+
+        self.horizon = check_horizon(self.horizon)
+        for name in ("lead", "time_unit", "max_gap", "max_gap_factor", "reach", "lead_delay"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)):
+                raise TypeError(f"{name}: expected a number, got {type(value).__name__} {value!r:.80}")
+        if self.bank not in BANK_KINDS:
+            raise ValueError(f"bank: expected one of {', '.join(BANK_KINDS)}, got {self.bank!r}")
+        if self.lead is not None:
+            if not (math.isfinite(self.lead) and self.lead > 0):
+                raise ValueError(f"lead: expected a finite time > 0 (time-column units), got {self.lead!r}")
+            if self.horizon > 1:
+                raise ValueError(f"lead and horizon: give one of them (a horizon H is the lead of H time units), "
+                                 f"got lead={self.lead!r} and horizon={self.horizon!r}")
+            self.lead = float(self.lead)
+        if self.lead_delay is not None:
+            self.lead_delay = float(self.lead_delay)   # a numpy scalar saves as its own type
+        if self.max_gap is not None and not self.max_gap > 0:
+            raise ValueError(f"max_gap: expected a time step > 0, got {self.max_gap!r}")
+        if not self.max_gap_factor > 1:
+            raise ValueError(f"max_gap_factor: expected a number > 1, got {self.max_gap_factor!r}")
+        if self.gap_reference not in GAP_REFERENCES:
+            raise ValueError(f"gap_reference: expected one of {', '.join(map(repr, GAP_REFERENCES))}, got "
+                             f"{self.gap_reference!r:.80}")
+        if isinstance(self.length_unit, str) and self.length_unit.strip().lower() == "auto":
+            self.length_unit = "auto"
+        elif isinstance(self.length_unit, str):
+            raise ValueError(f"length_unit: expected a number or 'auto', got {self.length_unit!r}")
+        else:
+            self.length_unit = check_length_unit(self.length_unit)
+        if self.geographic is not None and not isinstance(self.geographic, (bool, np.bool_)):
+            raise TypeError(f"geographic: expected True, False or None (detected from the position names), got "
+                            f"{type(self.geographic).__name__} {self.geographic!r:.80}")
+        if self.geographic is not None:
+            self.geographic = bool(self.geographic)
+        if self.time_unit is not None and not (math.isfinite(self.time_unit) and self.time_unit > 0):
+            raise ValueError(f"time_unit: expected a finite number > 0, got {self.time_unit!r}")
+        if not isinstance(self.options, dict):
+            raise TypeError(f"options: expected a dict of make_params arguments, got {self.options!r}")
+        if not isinstance(self.rule_options, dict):
+            raise TypeError(f"rule_options: expected a dict of the rule's parameters, got {self.rule_options!r}")
+        # every bank argument is checked now, not at the first row (a lead against a time unit still to be
+        # learned is checked when it is learned: here as one unit)
+        length = self.numeric_length_unit()
+        make_params(1, self.n_experts, seed=self.seed, length_unit=length, **self.options)
+        why = short_lead(self.lead, self.time_unit)   # (a learned unit comes here too: replace(config, time_unit=))
+        if why is not None:
+            warnings.warn(why, RuntimeWarning, stacklevel=3)
+        unit = self.time_unit if self.time_unit is not None else (self.lead if self.lead is not None else 1.0)
+        make_bank(1, self.bank, rule=self.rule, length_unit=length, time_unit=unit,
+                  seed=self.seed, n_akf=self.n_experts, akf_options=self.options, lead=self.lead_time(),
+                  rule_options=self.rule_options, reach=self.reach, lead_delay=self.lead_delay)
+
+    def numeric_length_unit(self) -> float:
+        """``length_unit``, or 1 while it is ``"auto"`` (not chosen yet)."""
+        return 1.0 if self.length_unit == "auto" else float(self.length_unit)
+
+    def lead_time(self) -> float | None:
+        """The lead head's lead in time-column units: ``lead``, or ``horizon`` time units, or None."""
+        if self.lead is not None:
+            return self.lead
+        return self.horizon * (self.time_unit or 1.0) if self.horizon > 1 else None
