@@ -30,3 +30,24 @@ def camera():
     from kalmix.vision import StereoCamera
 
     return StereoCamera()
+
+
+def pytest_configure(config):
+    """With pytest-xdist, compile the default kernels once, here in the controller, before the workers start.
+
+    On an empty kernel cache every worker would otherwise compile the same kernels at the same time (the default
+    bank, its lead head, the paper's mixture), each paying the whole compile on a shared core; compiled here,
+    the workers load them from the cache. A warm cache makes this a second's work; a run without xdist compiles
+    as it goes."""
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        return
+    from kalmix import MixturePredictor, StreamConfig, TrackPredictor
+
+    for settings in ({}, {"lead": 1.0}):
+        TrackPredictor(StreamConfig(length_unit=1.0, **settings)).warm_up(2)
+    for experts in (4, 40):   # the scalar kernel (few experts) and the experts-last one
+        MixturePredictor(n_experts=experts, seed=0, backend="numba").run(smooth_tracks(0, 20, dim=2)[:, 0])
