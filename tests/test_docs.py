@@ -29,6 +29,7 @@ def test_site_builds_strict(tmp_path):
         assert (site / page / "index.html").is_file(), page
     cli = (site / "cli" / "index.html").read_text()
     assert "--length-unit" in cli and "kalmix evaluate" in cli            # generated from the click commands
+    assert "Sentinel" not in cli                                            # no default shown where there is none
     api = (site / "reference" / "streaming" / "index.html").read_text()
     assert "step_row" in api and "process_table" in api                     # generated from the docstrings
 
