@@ -29,7 +29,7 @@ import sys
 
 import numpy as np
 
-from ._common import grid_search, one_step_rms
+from ._common import check_horizon, check_segment, grid_search, one_step_rms
 from .kinematic import segment_batches
 
 __all__ = ["block_diagonal", "log_likelihood", "likelihood", "imm_run", "mmae_run", "over_candidates", "batched_search",
@@ -322,3 +322,11 @@ def batched_search(grid, pieces, predict_many):
     predictions = predict_many(candidates)
     scores = {tuple(c.values()): one_step_rms(pieces, p) for c, p in zip(candidates, predictions)}
     return grid_search(grid, lambda c: scores[tuple(c.values())])
+
+
+def one_candidate(run_many, candidate, segments, horizon, *, single: bool = False) -> list[np.ndarray]:
+    """The predictions of one tuned ``candidate`` on ``segments`` (``(values, times)`` pairs), each checked,
+    through ``run_many(pieces, candidates, horizon)``; ``single``: one segment, whose errors name no index."""
+    horizon = check_horizon(horizon)
+    pieces = [check_segment(v, t, where="" if single else f" of segments[{i}]") for i, (v, t) in enumerate(segments)]
+    return run_many(pieces, [candidate], horizon)[0]

@@ -31,8 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._batched import batched_search, imm_run, mmae_run, over_candidates, steps
-from ._common import check_horizon, check_positive, check_segment, check_segments, tuning_rows
+from ._batched import batched_search, imm_run, mmae_run, one_candidate, over_candidates, steps
+from ._common import check_positive, check_segments, tuning_rows
 from .kinematic import INITIAL_VARIANCE_RATIO, process_noise_shape, transition, tune_ca, tune_cv
 
 __all__ = ["TUNE_ROWS", "MMAE_FILTERS", "tune_imm", "predict_imm", "predict_many_imm", "tune_mmae", "predict_mmae",
@@ -93,16 +93,13 @@ def _predict_imm_many(segments, candidates, horizon):
 def predict_imm(values, times, params: dict, horizon: int = 1) -> np.ndarray:
     """Row ``t``: the IMM's open-loop prediction of row ``t + horizon`` from rows ``<= t``."""
     candidate = _imm_params(params)
-    horizon = check_horizon(horizon)
-    return _predict_imm_many([check_segment(values, times)], [candidate], horizon)[0][0]
+    return one_candidate(_predict_imm_many, candidate, [(values, times)], horizon, single=True)[0]
 
 
 def predict_many_imm(segments, params: dict, horizon: int = 1) -> list[np.ndarray]:
     """:func:`predict_imm` over a list of ``(values, times)`` in one batched pass."""
     candidate = _imm_params(params)
-    horizon = check_horizon(horizon)
-    pieces = [check_segment(v, t, where=f" of segments[{i}]") for i, (v, t) in enumerate(segments)]
-    return _predict_imm_many(pieces, [candidate], horizon)[0]
+    return one_candidate(_predict_imm_many, candidate, segments, horizon)
 
 
 def tune_imm(segments, *, unit: float, time_unit: float) -> dict:
@@ -148,16 +145,13 @@ def _predict_mmae_many(segments, candidates, horizon):
 def predict_mmae(values, times, params: dict, horizon: int = 1) -> np.ndarray:
     """Row ``t``: the MMAE bank's open-loop prediction of row ``t + horizon`` from rows ``<= t``."""
     candidate = _mmae_params(params)
-    horizon = check_horizon(horizon)
-    return _predict_mmae_many([check_segment(values, times)], [candidate], horizon)[0][0]
+    return one_candidate(_predict_mmae_many, candidate, [(values, times)], horizon, single=True)[0]
 
 
 def predict_many_mmae(segments, params: dict, horizon: int = 1) -> list[np.ndarray]:
     """:func:`predict_mmae` over a list of ``(values, times)`` in one batched pass."""
     candidate = _mmae_params(params)
-    horizon = check_horizon(horizon)
-    pieces = [check_segment(v, t, where=f" of segments[{i}]") for i, (v, t) in enumerate(segments)]
-    return _predict_mmae_many(pieces, [candidate], horizon)[0]
+    return one_candidate(_predict_mmae_many, candidate, segments, horizon)
 
 
 def tune_mmae(segments, *, unit: float, time_unit: float) -> dict:

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._batched import batched_search, over_candidates
-from ._common import check_horizon, check_positive, check_segment, check_segments, tuning_rows
+from ._batched import batched_search, one_candidate, over_candidates
+from ._common import check_positive, check_segments, tuning_rows
 
 __all__ = ["TUNE_ROWS", "GRID", "tune", "predict", "predict_many"]
 
@@ -125,16 +125,13 @@ def _predict_many(segments, candidates, horizon):
 def predict(values, times, params: dict, horizon: int = 1) -> np.ndarray:
     """Row ``t``: the RLS AR model's open-loop prediction of row ``t + horizon`` from rows ``<= t``."""
     candidate = _read(params)
-    horizon = check_horizon(horizon)
-    return _predict_many([check_segment(values, times)], [candidate], horizon)[0][0]
+    return one_candidate(_predict_many, candidate, [(values, times)], horizon, single=True)[0]
 
 
 def predict_many(segments, params: dict, horizon: int = 1) -> list[np.ndarray]:
     """:func:`predict` over a list of ``(values, times)`` in one batched pass."""
     candidate = _read(params)
-    horizon = check_horizon(horizon)
-    pieces = [check_segment(v, t, where=f" of segments[{i}]") for i, (v, t) in enumerate(segments)]
-    return _predict_many(pieces, [candidate], horizon)[0]
+    return one_candidate(_predict_many, candidate, segments, horizon)
 
 
 def tune(segments, *, unit: float, time_unit: float) -> dict:
