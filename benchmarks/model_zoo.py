@@ -208,6 +208,15 @@ def scenarios() -> dict[str, Scenario]:
                  _regular(10.0),
                  {"model": "constant velocity", "q_m2_per_s3": q, "measurement_std_m": r, "dt_s": 10.0,
                   "outage_s": outage}, outage=outage, seed=6))
+    # many short tracks: vessels seen for a dozen reports each, 10-60 min apart (a day of a coastal AIS feed); the
+    # optimum knows the population's speeds (its prior), which a track of 12 rows cannot learn alone
+    q, r = 1e-6, 10.0
+    add(Scenario("short_tracks", "400 tracks of 12 rows, steps 10-60 min",
+                 f"constant velocity (q = {q:g} m²/s³), steps uniform in 10-60 min, {r:g} m noise, 12 rows per "
+                 "track", [kinematic(1, q)], r, np.zeros(4), np.array([1000.0, 5.0, 1000.0, 5.0]),
+                 _uniform(600.0, 3600.0),
+                 {"model": "constant velocity", "q_m2_per_s3": q, "measurement_std_m": r,
+                  "dt_s": "uniform in [600, 3600]", "rows_per_track": 12}, tracks=400, rows=12, seed=8))
     # Markov switching between constant velocity and coordinated turns left and right, 1 Hz
     omega, q, r, stay = 0.1, 0.05, 3.0, 0.95
     switch = np.array([[stay, (1 - stay) / 2, (1 - stay) / 2], [1 - stay, stay, 0.0], [1 - stay, 0.0, stay]])
