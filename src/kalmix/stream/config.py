@@ -13,6 +13,8 @@ from ..bank import DEFAULT_BANK, DEFAULT_REACH, check_horizon, check_length_unit
 
 #: How a track's reference interval is taken from its first steps (:class:`StreamConfig`'s ``gap_reference``).
 GAP_REFERENCES = ("upper quartile", "median")
+#: Number of first non-gap time steps whose upper quartile is a track's reference interval.
+REFERENCE_INTERVALS = 16
 
 
 @dataclass
@@ -53,6 +55,13 @@ class StreamConfig:
         13th in increasing order), so that irregular sampling (steps of 5 to 60 s) keeps a track in one
         segment; ``"median"``: their median (the rule of state files before format version 12, which
         resume with it).
+    gap_min_steps : int
+        Steps a track must have before a step is judged a gap (4: the upper quartile of fewer steps is their
+        largest, one to three draws of the sampling say little about its spread, and a track sampled every 10 to
+        60 minutes would restart at its third row). Files before format version 13 resume with 1.
+    population_prior : bool
+        Whether a new track's rule starts from what the tracks before it learned
+        (:mod:`kalmix.stream.population`), or empty. Files before format version 13 resume without it.
     options : dict
         Other arguments of :func:`kalmix.bank.make_params` (the AKF family).
     bank : str
@@ -91,6 +100,8 @@ class StreamConfig:
     max_gap: float | None = None
     max_gap_factor: float = 3.0
     gap_reference: str = "upper quartile"
+    gap_min_steps: int = 4
+    population_prior: bool = True
     options: dict = field(default_factory=dict)
     bank: str = DEFAULT_BANK["kind"]
     rule: str = DEFAULT_BANK["rule"]
@@ -124,6 +135,15 @@ class StreamConfig:
             raise ValueError(f"max_gap: expected a time step > 0, got {self.max_gap!r}")
         if not self.max_gap_factor > 1:
             raise ValueError(f"max_gap_factor: expected a number > 1, got {self.max_gap_factor!r}")
+        if isinstance(self.gap_min_steps, bool) or not isinstance(self.gap_min_steps, numbers.Integral) or not (
+                1 <= self.gap_min_steps <= REFERENCE_INTERVALS):
+            raise ValueError(f"gap_min_steps: expected an integer in [1, {REFERENCE_INTERVALS}], got "
+                             f"{self.gap_min_steps!r:.80}")
+        self.gap_min_steps = int(self.gap_min_steps)
+        if not isinstance(self.population_prior, (bool, np.bool_)):
+            raise TypeError(f"population_prior: expected True or False, got {type(self.population_prior).__name__} "
+                            f"{self.population_prior!r:.80}")
+        self.population_prior = bool(self.population_prior)
         if self.gap_reference not in GAP_REFERENCES:
             raise ValueError(f"gap_reference: expected one of {', '.join(map(repr, GAP_REFERENCES))}, got "
                              f"{self.gap_reference!r:.80}")

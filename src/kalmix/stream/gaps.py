@@ -7,10 +7,8 @@ import math
 
 import numpy as np
 
-from .config import StreamConfig
+from .config import REFERENCE_INTERVALS, StreamConfig
 
-#: Number of first non-gap time steps whose upper quartile is a track's reference interval.
-REFERENCE_INTERVALS = 16
 
 
 def short_median(values) -> float:
@@ -65,8 +63,8 @@ class GapTracker:
     def threshold(self, config: StreamConfig) -> float:
         if config.max_gap is not None:
             return float(config.max_gap)
-        if not self.intervals or not math.isfinite(config.max_gap_factor):
-            return math.inf
+        if len(self.intervals) < config.gap_min_steps or not math.isfinite(config.max_gap_factor):
+            return math.inf   # (too few steps to tell the sampling's spread)
         if config.gap_reference == "median":   # state files before version 12
             return config.max_gap_factor * short_median(self.intervals)
         return config.max_gap_factor * _upper_quartile(self.intervals)

@@ -1,0 +1,97 @@
+"""The population prior: a new track's rule starts from what the tracks before it learned.
+
+A track of a dozen rows spends them learning which experts to trust; the tracks before it, from the same
+sensor and of the same kind of target, already showed it. So a new track's BOA state is not empty: it is
+the population's mean state per learned row, times :data:`POPULATION_ROWS` — as if the track had already
+learned that many rows like the average of the tracks before it. Its own rows then count as much as those
+pseudo-rows after :data:`POPULATION_ROWS` of them, and more and more after that.
+
+**Which tracks, when.** The population is summarised at fixed points of the stream: after its first
+:data:`FIRST_SNAPSHOT` rows, then after twice as many, and so on up to every :data:`SNAPSHOT_EVERY` rows
+(the rows given, in the order they came, counted from the first row the predictor ever saw, across
+chunks, calls and resumed state files). A track whose first row comes after a point starts from the
+summary made there; before the first point, from an empty state (the rule's own start). The summary takes
+every track with at least :data:`MIN_ROWS` learned rows. Defined by rows, not by calls, it gives the same
+numbers whether a file is read in one table, in chunks, or row by row.
+
+Only BOA (the default rule) has a prior; a bank with another rule starts every track empty.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["POPULATION_ROWS", "MIN_ROWS", "FIRST_SNAPSHOT", "SNAPSHOT_EVERY", "Prior", "snapshot_points",
+           "summarise", "start_rule"]
+
+#: Pseudo-rows of the population a new track starts with (the weight of the prior, in rows of the track's own).
+POPULATION_ROWS = 30
+#: A track takes part in the population once it has learned this many rows.
+MIN_ROWS = 3
+#: The first summary is made after this many rows of the stream; the next after twice as many, and so on ...
+FIRST_SNAPSHOT = 32
+#: ... up to one every this many rows.
+SNAPSHOT_EVERY = 65536
+
+
+class Prior(NamedTuple):
+    """What a new track's BOA state starts from: :data:`POPULATION_ROWS` times the population's mean per row."""
+
+    regret: np.ndarray     # (K,)
+    variance: np.ndarray   # (K,)
+    bound: np.ndarray      # (K,) the population's median range bound
+    tracks: int            # tracks summarised
+
+
+def snapshot_points(done: int, upto: int) -> list[int]:
+    """The summary points ``P`` with ``done < P <= upto`` (rows of the stream, see the module)."""
+    points = []
+    p = FIRST_SNAPSHOT
+    while p < SNAPSHOT_EVERY and p <= upto:
+        if p > done:
+            points.append(p)
+        p *= 2
+    k = max(1, done // SNAPSHOT_EVERY + 1)
+    while k * SNAPSHOT_EVERY <= upto:
+        points.append(k * SNAPSHOT_EVERY)
+        k += 1
+    return points
+
+
+def summarise(parts) -> Prior | None:
+    """The prior from ``parts``, an iterable of ``(regret (n, K), variance (n, K), bound (n, K), rows (n,))``:
+    BOA states of tracks and the rows each learned, in the order the tracks came. None when no track has
+    :data:`MIN_ROWS` rows."""
+    regret = variance = None
+    bounds = []
+    count = 0
+    for r, v, b, rows in parts:
+        rows = np.asarray(rows, dtype=np.float64)
+        use = rows >= MIN_ROWS
+        if not use.any():
+            continue
+        scale = 1.0 / rows[use, None]
+        r_sum = (np.asarray(r)[use] * scale).sum(axis=0)
+        v_sum = (np.asarray(v)[use] * scale).sum(axis=0)
+        regret = r_sum if regret is None else regret + r_sum
+        variance = v_sum if variance is None else variance + v_sum
+        bounds.append(np.asarray(b)[use])
+        count += int(use.sum())
+    if not count:
+        return None
+    return Prior(regret / count * POPULATION_ROWS, variance / count * POPULATION_ROWS,
+                 np.median(np.concatenate(bounds), axis=0), count)
+
+
+def start_rule(rule_state, prior: Prior | None):
+    """``rule_state`` (a fresh BOA state of n targets) starting from ``prior`` (unchanged without one)."""
+    if prior is None:
+        return rule_state
+    n = rule_state.regret.shape[0]
+
+    def rows(value):
+        return np.broadcast_to(value, (n, len(value))).copy()
+
+    return rule_state._replace(regret=rows(prior.regret), variance=rows(prior.variance), bound=rows(prior.bound))

@@ -1,0 +1,150 @@
+"""The population prior (kalmix.stream.population) and the young tracks' gap rule (StreamConfig.gap_min_steps):
+a new track starts from what the tracks before it learned, the same whether a file comes in one table, in chunks
+or row by row, and resumes exactly from a state file."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from kalmix import StreamConfig, TrackPredictor
+from kalmix.core.engine import tree_leaves
+from kalmix.stream import population
+
+
+def _short_tracks(tracks=60, rows=12, seed=8):
+    """Constant-velocity vessels (5 m/s spread) seen 12 times each, 10-60 min apart, 10 m noise, one track
+    after the other (as a file sorted by track lists them)."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for k in range(tracks):
+        t = np.concatenate([[0.0], np.cumsum(rng.uniform(600.0, 3600.0, rows - 1))]) + rng.uniform(0, 100)
+        x0, v = rng.normal(0.0, 1000.0, 2), rng.normal(0.0, 5.0, 2)
+        z = x0 + t[:, None] * v + rng.normal(0.0, 10.0, (rows, 2))
+        frames.append(pd.DataFrame({"track_id": f"t{k:03d}", "time": t, "x": z[:, 0], "y": z[:, 1]}))
+    return pd.concat(frames, ignore_index=True)
+
+
+def _one_step_rms(table, out, skip=2):
+    """RMS per coordinate of each row's forecast of its track's next row, from each track's row ``skip`` on."""
+    nxt = table.assign(i=table.groupby("track_id").cumcount() - 1)
+    scored = out.assign(i=out.groupby("track_id").cumcount()).merge(nxt, on=["track_id", "i"], suffixes=("", "_t"))
+    scored = scored[scored.i >= skip]
+    return float(np.sqrt(np.mean(np.concatenate([scored.pred_x - scored.x, scored.pred_y - scored.y]) ** 2)))
+
+
+def _same_states(a, b):
+    assert list(a.states) == list(b.states)
+    for track in a.states:
+        for (name, x), (_, y) in zip(tree_leaves(a.states[track]), tree_leaves(b.states[track])):
+            np.testing.assert_array_equal(x, y, err_msg=f"{track} {name}")
+
+
+def test_snapshot_points_double_then_keep_a_fixed_pace():
+    first, every = population.FIRST_SNAPSHOT, population.SNAPSHOT_EVERY
+    assert population.snapshot_points(0, first - 1) == []
+    assert population.snapshot_points(0, 4 * first) == [first, 2 * first, 4 * first]
+    assert population.snapshot_points(first, 4 * first - 1) == [2 * first]
+    points = population.snapshot_points(0, 3 * every)
+    assert points[-3:] == [every, 2 * every, 3 * every] and points == sorted(set(points))
+    assert population.snapshot_points(every, 2 * every) == [2 * every]
+
+
+def test_summarise_takes_tracks_with_enough_rows_per_row_times_the_pseudo_rows():
+    k = 3
+    regret = np.array([[1.0, 2.0, 3.0], [10.0, 10.0, 10.0], [5.0, 5.0, 5.0]])
+    variance = regret * 2.0
+    bound = np.array([[1.0, 1.0, 1.0], [3.0, 3.0, 3.0], [100.0, 100.0, 100.0]])
+    rows = np.array([2, 4, population.MIN_ROWS - 1])   # the first and the last have too few rows
+    rows[0] = population.MIN_ROWS
+    prior = population.summarise([(regret[:2], variance[:2], bound[:2], rows[:2]),
+                                  (regret[2:], variance[2:], bound[2:], rows[2:])])
+    per_row = (regret[0] / rows[0] + regret[1] / rows[1]) / 2
+    np.testing.assert_allclose(prior.regret, per_row * population.POPULATION_ROWS, rtol=1e-15)
+    np.testing.assert_allclose(prior.variance, 2 * per_row * population.POPULATION_ROWS, rtol=1e-15)
+    np.testing.assert_array_equal(prior.bound, np.full(k, 2.0))   # the median of 1 and 3
+    assert prior.tracks == 2
+    assert population.summarise([(regret[2:], variance[2:], bound[2:], rows[2:])]) is None
+
+
+@pytest.mark.parametrize("prior", [True, False])
+def test_a_file_in_one_table_in_chunks_and_row_by_row_learn_the_same_bits(prior):
+    table = _short_tracks(tracks=40)
+    config = StreamConfig(length_unit=27.0, population_prior=prior)
+    whole = TrackPredictor(config)
+    whole.process_table(table, ["x", "y"])
+    chunks = TrackPredictor(config)
+    for begin in range(0, len(table), 37):
+        chunks.process_table(table.iloc[begin:begin + 37], ["x", "y"])
+    rows = TrackPredictor(config)
+    for begin in range(0, len(table), 5):
+        part = table.iloc[begin:begin + 5]
+        rows.step_rows(part.track_id.tolist(), part.time.to_numpy(), part[["x", "y"]].to_numpy())
+    assert len(whole.priors) == (4 if prior else 0)   # after rows 32, 64, 128 and 256 of 480
+    for other in (chunks, rows):
+        assert len(other.priors) == len(whole.priors)
+        for a, b in zip(whole.priors, other.priors):
+            np.testing.assert_array_equal(a.regret, b.regret)
+            np.testing.assert_array_equal(a.variance, b.variance)
+            np.testing.assert_array_equal(a.bound, b.bound)
+        _same_states(whole, other)
+
+
+def test_new_tracks_start_from_the_population_and_predict_better():
+    """On 60 short tracks the prior takes the one-step RMS from 2.69 km to 0.45 km per coordinate (measured; the
+    Kalman filter with the true model: ~0.1 km); the rows before the first summary are the same either way."""
+    table = _short_tracks()
+    with_prior = TrackPredictor(StreamConfig(length_unit=27.0))
+    without = TrackPredictor(StreamConfig(length_unit=27.0, population_prior=False))
+    a, b = with_prior.process_table(table, ["x", "y"]), without.process_table(table, ["x", "y"])
+    first = table.index[:population.FIRST_SNAPSHOT]   # rows before the first summary: no prior yet
+    np.testing.assert_array_equal(a.loc[first, ["pred_x", "pred_y"]], b.loc[first, ["pred_x", "pred_y"]])
+    rms_with, rms_without = _one_step_rms(table, a), _one_step_rms(table, b)
+    assert rms_with < 0.2 * rms_without, (rms_with, rms_without)
+
+
+def test_only_boa_has_a_prior():
+    table = _short_tracks(tracks=10)
+    predictor = TrackPredictor(StreamConfig(length_unit=27.0, rule="mlpoly"))
+    predictor.process_table(table, ["x", "y"])
+    assert predictor.priors == [] and predictor.prior is None
+
+
+def test_a_saved_predictor_resumes_its_population_exactly(tmp_path):
+    table = _short_tracks(tracks=30)
+    config = StreamConfig(length_unit=27.0)
+    whole = TrackPredictor(config)
+    expected = whole.process_table(table, ["x", "y"])
+    half = len(table) // 2 + 7
+    first = TrackPredictor(config)
+    head = first.process_table(table.iloc[:half], ["x", "y"])
+    first.save(tmp_path / "state.kalmix")
+    resumed = TrackPredictor.load(tmp_path / "state.kalmix")
+    tail = resumed.process_table(table.iloc[half:], ["x", "y"])
+    _same_states(whole, resumed)
+    assert len(resumed.priors) == len(whole.priors)
+    got = pd.concat([head, tail], ignore_index=True)
+    inner = np.ones(len(table), dtype=bool)
+    inner[half - 1] = False   # the head's last row forecast without the next row's time
+    np.testing.assert_array_equal(got.loc[inner, ["pred_x", "pred_y"]], expected.loc[inner, ["pred_x", "pred_y"]])
+
+
+def test_a_young_track_is_not_cut_by_its_first_steps():
+    """Steps of 10 to 60 minutes: with one step of 866 s known, a step of 3,000 s is over 3 times it; it is not
+    a gap before the track has ``gap_min_steps`` steps."""
+    times = [0.0, 866.0, 3866.0, 5000.0, 8000.0, 9000.0, 200000.0]
+    table = pd.DataFrame({"track_id": "a", "time": times, "x": np.arange(7.0), "y": np.zeros(7)})
+    segments = TrackPredictor(StreamConfig(length_unit=1.0)).process_table(table, ["x", "y"])["segment"]
+    assert segments.tolist() == [0, 0, 0, 0, 0, 0, 1]   # the last step (about 2 days) is a gap
+    cut = TrackPredictor(StreamConfig(length_unit=1.0, gap_min_steps=1)).process_table(table, ["x", "y"])["segment"]
+    assert cut.tolist() == [0, 0, 1, 1, 1, 1, 2]
+
+
+@pytest.mark.parametrize("value, error", [(0, ValueError), (17, ValueError), (2.5, ValueError), (True, ValueError)])
+def test_gap_min_steps_is_checked(value, error):
+    with pytest.raises(error, match="gap_min_steps: expected an integer in"):
+        StreamConfig(gap_min_steps=value)
+
+
+def test_population_prior_is_checked():
+    with pytest.raises(TypeError, match="population_prior: expected True or False, got str"):
+        StreamConfig(population_prior="no")
