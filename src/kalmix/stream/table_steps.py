@@ -138,7 +138,8 @@ class TableSteps:
         form)."""
         import pandas as pd
 
-        from ..io.tables import detect_columns, to_float
+        from ..io.columns import detect_columns
+        from ..io.values import to_float
 
         given = list(position_names) if position_names else None
         if "track_id" in table.columns and "time" in table.columns:

@@ -14,7 +14,7 @@ def column_seconds(column) -> np.ndarray:
     import pandas as pd
 
     if pd.api.types.is_datetime64_any_dtype(column) or pd.api.types.is_timedelta64_dtype(column):
-        from ..io.tables import to_float
+        from ..io.values import to_float
 
         return to_float(column.reset_index(drop=True), "time", 0)
     return column.to_numpy(np.float64)
@@ -40,7 +40,7 @@ def row_times(times) -> np.ndarray:
         try:   # text: numbers, or ISO 8601 dates as a file and stdin take them
             return np.where(blank, "nan", flat).astype(np.float64).reshape(given.shape)
         except ValueError:
-            from ..io.tables import iso_seconds
+            from ..io.values import iso_seconds
 
             return iso_seconds(np.where(blank, None, flat)).reshape(given.shape)
     if given.dtype.kind == "O" and given.size and all(
