@@ -766,7 +766,7 @@ def test_new_tracks_fresh_states_made_at_once_are_the_fresh_state():
     """process_table makes the new tracks' fresh states in one batch: each is the bits of one made alone, and
     known tracks keep theirs (in the order asked)."""
     from kalmix.core.engine import tree_map
-    from kalmix.streaming import _stack
+    from kalmix.stream.table_steps import _stack
 
     engine = TrackPredictor(StreamConfig(**CONFIG))
     engine.process_table(_table().iloc[:30], ["x", "y"])   # track "a" is known

@@ -32,7 +32,7 @@ def find_columns(header, *, time: str | None = None, positions=None, track_id: s
     """
     import dataclasses
 
-    from ..io.tables import check_output_names, column_notes, detect_columns
+    from ..io.columns import check_output_names, column_notes, detect_columns
 
     header = [str(c) for c in header]
     single = track_id is not None and track_id.strip().lower() == "none" and track_id not in header
@@ -52,7 +52,7 @@ def guess_id(columns, header, sample=None):
     (repeated words, whole numbers that tell apart rows of one time) or when several are named so: without an
     id every row would be one track, the tracks' rows mixed, and never silently. Returns the columns and the
     notes."""
-    from ..io.tables import ID_SAMPLE_ROWS, detect_columns, id_candidates
+    from ..io.columns import ID_SAMPLE_ROWS, detect_columns, id_candidates
 
     unused = [name for name in header if name not in {columns.time, *columns.positions}]
     if not unused:

@@ -37,6 +37,14 @@ def keyable(key) -> bool:
     return isinstance(key, _ID_TYPES)
 
 
+def factorize_ids(values) -> tuple[np.ndarray, np.ndarray]:
+    """Codes (in order of first appearance) and the distinct values of ``values`` (a table's track ids)."""
+    import pandas as pd
+
+    codes, uniques = pd.factorize(values, use_na_sentinel=False)
+    return np.asarray(codes, dtype=np.int64), np.asarray(uniques, dtype=object)
+
+
 def track_key(value, where: str):
     """A track id as the predictor's key (numpy scalars as Python ones, as :meth:`TrackPredictor.process_table`
     and the state file hold them); ``TypeError``/``ValueError`` for what cannot be an id."""

@@ -152,7 +152,7 @@ def estimate_length_unit(table, position_names=None, *, geographic: bool | None 
         The unit, and why it is the fallback 1 (None when it was estimated).
     """
     from ..io.geo import local_table, resolve_axes, std_names
-    from ..io.tables import to_arrays
+    from ..io.arrays import to_arrays
 
     names = ([c for c in table.columns if c not in ("track_id", "time")] if position_names is None
              else list(position_names))

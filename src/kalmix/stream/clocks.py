@@ -1,0 +1,192 @@
+"""Every track's clock in a :class:`~kalmix.streaming.TrackPredictor`: the gap rule row by row and over a
+table's rows (:class:`~kalmix.stream.gaps.GapTracker`), and the time unit learned from the data's first step."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import replace
+
+import numpy as np
+
+from .gaps import GapTracker, short_median
+from .ids import factorize_ids, id_to_json, keyable
+from .times import column_seconds
+
+
+def _by_key(index, rows, count) -> list[np.ndarray]:
+    """``rows`` grouped by their key ``index[rows]`` (``count`` keys), each group in row order."""
+    order = rows[np.argsort(index[rows], kind="stable")]
+    edges = np.concatenate([[0], np.cumsum(np.bincount(index[rows], minlength=count))])
+    return [order[edges[u]:edges[u + 1]] for u in range(count)]
+
+
+def _is_missing(values) -> np.ndarray:
+    """Which of ``values`` are None, NaN, NaT or pandas' NA (no track id)."""
+    import pandas as pd
+
+    return np.asarray(pd.isna(np.asarray(values, dtype=object)), dtype=bool)
+
+
+class TrackClocks:
+    """The part of :class:`~kalmix.streaming.TrackPredictor` that keeps its tracks' clocks (``gaps``: track id ->
+    :class:`~kalmix.stream.gaps.GapTracker`) and its time unit."""
+
+    def _unit_step_taken_back(self, track, gaps: GapTracker) -> None:
+        """Warn once when the step the time unit was learned from (a track's first) is taken back: a row came
+        back before it, so that step's timestamp was wrong, and so is the unit (the bank stays as it is)."""
+        source = self._unit_source
+        if source is not None and source[0] == track and gaps.glitches and (
+                not gaps.intervals or gaps.intervals[0] != source[1]):
+            self._unit_source = None
+            warnings.warn(f"the time unit, {source[1]:.6g} time-column units, was learned from the first step of "
+                          f"track {track!r}, which a later row showed to be a wrong timestamp; the kinematic "
+                          "experts' noise and the lead's frames scale with it: pass time_unit (--time-unit) to set it",
+                          RuntimeWarning, stacklevel=4)
+
+    def _learn_time_unit(self, value: float, track=None) -> None:
+        """Fix a learned time unit (the bank's parameters scale with it; states do not).
+
+        Only first rows of tracks come before it (a track's second row has a time step), and
+        nothing they leave in a state depends on the unit (the lead head keeps no forecast made
+        from a first row), so the order in which those first rows come changes nothing.
+        """
+        if self.config.time_unit is None and math.isfinite(value) and value > 0:
+            try:   # the settings with this unit (a lead in time units is bounded), checked before any change
+                learned = replace(self.config, time_unit=float(value))
+            except ValueError as error:
+                raise ValueError(f"the time unit learned from the data's first step, {value:.6g} time-column units, "
+                                 f"does not suit these settings: {error} (pass time_unit, --time-unit on the "
+                                 "command line)") from None
+            self.config.time_unit = learned.time_unit
+            self._unit_source = (track, learned.time_unit)
+            if self.params is not None:
+                self.params = self._build(self.params.measurement_dim)
+
+    def _advance(self, track, time: float) -> tuple[GapTracker, bool | None]:
+        """The gap rule for one row of a table (a new track gets a tracker); learns the time unit."""
+        gaps = self.gaps.get(track)
+        if gaps is None:
+            gaps = self.gaps[track] = GapTracker()
+        new = gaps.advance(time, self.config)
+        if self.config.time_unit is None and gaps.intervals:
+            self._learn_time_unit(gaps.intervals[0], track)
+        self._unit_step_taken_back(track, gaps)
+        return gaps, new
+
+    def _interval(self, gaps: "GapTracker") -> float:
+        """A track's reference interval (median of its first steps), else the time unit, else 1."""
+        if gaps.intervals:
+            return short_median(gaps.intervals)
+        return self.config.time_unit or 1.0
+
+    @property
+    def track_ids(self) -> list:
+        return list(self.gaps)
+
+    @property
+    def time_glitches(self) -> int:
+        """Rows that came back before a jump ahead in time (see the module docstring)."""
+        return sum(g.glitches for g in self.gaps.values())
+
+    def _first_step(self, ids, times) -> tuple | None:
+        """``(row, track, step)``: the row of these rows, in this order, at which the time unit would be learned,
+        its track and the step learned (None: no such row). Nothing is changed."""
+        trackers: dict = {}
+        for i in range(len(ids)):
+            track = id_to_json(ids[i])
+            if track not in trackers:
+                trackers[track] = self.gaps[track].copy() if track in self.gaps else GapTracker()
+            trackers[track].advance(float(times[i]), self.config)
+            if trackers[track].intervals:
+                return i, track, trackers[track].intervals[0]
+        return None
+
+    def _unit_row(self, ids, times) -> int | None:
+        """The row of a table at which the time unit would be learned (None: not in this table)."""
+        found = self._first_step(ids, times)
+        return None if found is None else found[0]
+
+    def time_unit_row(self, table) -> int | None:
+        """The position in ``table`` (``track_id`` and ``time`` columns, rows in arrival order, continuing the
+        tracks this predictor has seen) of the row whose step fixes the time unit; None if the unit is known
+        or no row of the table fixes it. See :meth:`learn_time_unit`."""
+        found = self._table_first_step(table)
+        return None if found is None else found[0]
+
+    def _table_first_step(self, table) -> tuple | None:
+        """:meth:`_first_step` of a table's rows while the time unit is unknown (None once it is known)."""
+        if self.config.time_unit is not None:
+            return None
+        return self._first_step(table["track_id"].to_numpy(), column_seconds(table["time"]))
+
+    def learn_time_unit(self, table) -> float | None:
+        """Fix the time unit, if it is not known yet, from the first step of a table's rows in arrival order,
+        without stepping them; returns the time unit (None: still unknown).
+
+        Stepping the rows one by one learns the unit at that step, and the rows before it run
+        with a unit of 1. So this gives the same numbers as stepping the table when every row
+        before that step has been stepped already (:meth:`time_unit_row` tells where it is):
+        ``kalmix predict`` steps a file's rows track by track (:func:`kalmix.io.iter_track_chunks`
+        sorts a chunk), so it steps the rows before that step in file order
+        (:func:`kalmix.io.in_file_order`), fixes the unit here, then steps the rest track by
+        track: the numbers of a stream of the same rows. (Called before those rows instead, the
+        numbers differ where they depend on the unit: a restart before the unit is known, by an
+        absolute ``max_gap``, or a ``horizon`` after a time glitch.)
+
+        Parameters
+        ----------
+        table : pandas.DataFrame
+            ``track_id`` and ``time`` columns, in arrival order (later rows continue the tracks
+            this predictor has seen).
+        """
+        found = self._table_first_step(table)
+        if found is not None:
+            self._learn_time_unit(found[2], found[1])
+        return self.config.time_unit
+
+    def _gap_rule(self, ids, times, first_row=0):
+        """The gap rule over a table's rows, in row order as :meth:`_advance` row by row.
+
+        Returns the tracks with kept rows (in the order of their first kept row), each one's
+        kept rows, every row's segment, which rows start a new segment of a track already
+        running (a restart), and which rows are kept (not out of order).
+        """
+        n_rows = len(ids)
+        codes = np.empty(n_rows, dtype=np.int8)
+        segments = np.zeros(n_rows, dtype=np.int64)
+        index, uniques = factorize_ids(ids)
+        missing = np.flatnonzero(_is_missing(uniques))
+        if len(missing):
+            row = int(np.flatnonzero(index == missing[0])[0])
+            raise ValueError(f"table: expected a track id in every row, got a missing value "
+                             f"({uniques[missing[0]]!r}) in row {first_row + row} (counted from 0)")
+        keys = [id_to_json(u) for u in uniques]
+        for u, key in enumerate(keys):   # a tuple, say: step_row refuses it, and the state file could not give it back
+            if not keyable(key):
+                row = int(np.flatnonzero(index == u)[0])
+                raise TypeError(f"table: expected a track id (text, a number, or a date) in every row, got "
+                                f"{type(uniques[u]).__name__} {uniques[u]!r:.80} in row {first_row + row} (counted "
+                                "from 0)")
+        had_state = np.array([key in self.states for key in keys], dtype=bool)
+        start = 0
+        while start < n_rows and self.config.time_unit is None:   # until a step fixes the time unit
+            gaps, new = self._advance(keys[index[start]], float(times[start]))
+            codes[start], segments[start] = -1 if new is None else int(new), gaps.segment
+            start += 1
+        # then track by track (tracks are independent once the unit is known)
+        for key, rows in zip(keys, _by_key(index, np.arange(start, n_rows), len(keys))):
+            if len(rows):
+                gaps = self.gaps.get(key)
+                if gaps is None:
+                    gaps = self.gaps[key] = GapTracker()
+                codes[rows], segments[rows] = gaps.advance_many(times[rows], self.config)
+                self._unit_step_taken_back(key, gaps)
+        keep = codes >= 0
+        self.skipped += int(n_rows - keep.sum())
+        runs = _by_key(index, np.flatnonzero(keep), len(keys))
+        present = sorted((u for u in range(len(keys)) if len(runs[u])), key=lambda u: runs[u][0])
+        first_kept = np.array([runs[u][0] for u in present], dtype=np.int64)
+        gap_rows = codes == 1
+        gap_rows[first_kept] &= had_state[index[first_kept]]
+        return [keys[u] for u in present], [runs[u] for u in present], segments, gap_rows, keep

@@ -1,0 +1,223 @@
+"""The :class:`~kalmix.streaming.TrackPredictor`: one mixture predictor per track, put together from its parts
+(:mod:`.bank_runs`, :mod:`.clocks`, :mod:`.row_steps`, :mod:`.table_steps`, :mod:`.state_file`), and what runs
+the gap rule alone over tables (:func:`learned_time_unit`, :func:`next_row_times`)."""
+
+from __future__ import annotations
+
+import numbers
+from dataclasses import replace
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ..core.engine import Bank
+from .bank_runs import BankRuns, check_backend
+from .clocks import TrackClocks
+from .config import StreamConfig
+from .gaps import GapTracker
+from .ids import id_to_json
+from .row_steps import RowSteps
+from .state_file import StateFile
+from .store import TrackStates
+from .table_steps import TableSteps
+from .times import column_seconds
+
+
+class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, StateFile):
+    """One mixture predictor per track id; tracks appear as they come.
+
+    Parameters
+    ----------
+    config : StreamConfig
+    position_names : sequence of str, optional
+        Names of the measured coordinates (kept in the state file).
+    backend : {"cpu", "gpu"}
+        Where the engine runs: the compiled CPU engine (the numpy reference without numba), or
+        the GPU engine (:mod:`kalmix.core.compiled.gpu`; the ``gpu`` extra and an NVIDIA GPU),
+        the same numbers. Not kept in the state file: a state saved on one resumes on the other.
+
+    Attributes
+    ----------
+    skipped : int
+        Rows skipped because their time was not after their track's previous time.
+    warn_skipped : bool
+        Whether the next row that :meth:`step_row` / :meth:`step_rows` skips for its time gives a
+        :class:`SkippedRowWarning` (once: then False).
+    rows : int
+        Rows processed (including skipped ones), counted over saves and resumes.
+    output : dict or None
+        What the program that saved the state wrote with it (``kalmix predict`` records its
+        ``-o`` file there); kept as is by :meth:`save` / :meth:`load`.
+    """
+
+    def __init__(self, config: StreamConfig, position_names=None, *, backend: str = "cpu"):
+        import copy
+
+        if not isinstance(config, StreamConfig):
+            raise TypeError(f"config: expected a StreamConfig, got {type(config).__name__} {config!r:.80}")
+        self.backend = check_backend(backend)
+        self.config = copy.deepcopy(config)   # the predictor learns its time unit into it: not the caller's
+        if isinstance(position_names, str):
+            position_names = (position_names,)
+        self.position_names = None if position_names is None else tuple(position_names)
+        if self.position_names is not None and len(set(self.position_names)) != len(self.position_names):
+            raise ValueError(f"position_names: expected distinct names, got {list(self.position_names)}")
+        self.params: Bank | None = None
+        #: track id -> its engine state (a mapping of one-target BankStates, kept in shared blocks)
+        self.states = TrackStates()
+        self.gaps: dict[Any, GapTracker] = {}
+        self.skipped = 0
+        #: warn (once) when step_row / step_rows skips a row for its time (``kalmix predict`` counts them itself)
+        self.warn_skipped = True
+        #: the first row the step in progress skipped for its time: (track, its index in the call, time, last time)
+        self._late = None
+        self.rows = 0
+        self.outliers = 0   # rows the glitch screen did not learn (kalmix.core.screen)
+        self.output: dict | None = None
+        self.loaded_version: int | None = None  # format version of the file :meth:`load` read
+        self._plain: tuple | None = None   # (bank, the bank without its lead head), see _without_lead
+        self._far: tuple | None = None   # (bank, the bank that forecasts across a gap), see _far_bank
+        #: the positions' latitude, longitude and altitude (:class:`kalmix.io.geo.GeoAxes`) when they are
+        #: geographic (``config.geographic``), else None
+        self.axes = None
+        self._geo_decided = False
+        self._decide_geographic(self.position_names)
+        self._unit_source: tuple | None = None   # (track, unit) the time unit was learned from, until judged
+
+    def warm_up(self, measurement_dim: int | None = None) -> None:
+        """Load the compiled kernels this predictor's runs use now (or compile them, on a fresh install).
+
+        numba loads a kernel from its cache (or compiles it) at its first call; that takes a
+        fraction of a second with a warm cache, and minutes the first time. Call this where
+        that wait does no harm: before a live feed starts, or in a thread while the feed is
+        silent (``kalmix predict -`` does, until stdin's first rows). It runs a throwaway copy
+        of this predictor on a tiny made-up table (two tracks, a missing row, a gap that
+        restarts a track), so this predictor does not change. Nothing to do for the numpy
+        reference; the GPU engine's kernels compile at its first run instead.
+
+        Parameters
+        ----------
+        measurement_dim : int, optional
+            Coordinates per row; default the predictor's (its position names or bank).
+        """
+        import pandas as pd
+
+        from ..core.compiled import numba_available
+
+        if measurement_dim is not None and (isinstance(measurement_dim, bool) or not isinstance(
+                measurement_dim, numbers.Integral) or measurement_dim < 1):
+            raise ValueError(f"measurement_dim: expected an integer >= 1 (coordinates per row), "
+                             f"got {measurement_dim!r}")
+        if self.backend != "cpu" or not numba_available():
+            return
+        names = list(self.position_names or ())
+        p = measurement_dim or len(names) or (self.params.measurement_dim if self.params is not None else 0)
+        if p < 1:
+            raise ValueError("warm_up: the number of coordinates is not known yet; pass measurement_dim")
+        names = names if len(names) == p else [f"x{j}" for j in range(p)]
+        config = self.config
+        if config.length_unit == "auto":   # (a made-up table: not one to estimate the unit from)
+            config = replace(config, length_unit=1.0)
+        if config.time_unit is None:   # the made-up rows are 1 apart: not a unit to learn (nor to warn of a lead by)
+            config = replace(config, time_unit=config.lead if config.lead is not None else 1.0)
+        twin = TrackPredictor(config, names)
+        twin.params = self.params if self.params is not None and self.params.measurement_dim == p else None
+        rows = 6
+        times = np.concatenate([np.arange(rows, dtype=np.float64), np.arange(rows, dtype=np.float64)])
+        times[rows + 3:] += 1e6   # a long gap: the second track restarts
+        values = np.cumsum(np.random.default_rng(0).normal(size=(2 * rows, p)), axis=0)
+        values[2] = np.nan
+        table = pd.DataFrame({"track_id": [0] * rows + [1] * rows, "time": times, **dict(zip(names, values.T))})
+        twin.process_table(table, names, {0: float(rows)})
+
+    # -- transactions -----------------------------------------------------------------
+    def checkpoint(self, track_ids=None) -> "Checkpoint":
+        """Snapshot of the counters and of ``track_ids``' trackers and states (all tracks if None).
+
+        :meth:`rollback` returns to it, provided only those tracks were touched in between.
+        Cheap: the states are never modified in place, so only references are kept.
+        """
+        ids = list(self.gaps) if track_ids is None else [id_to_json(t) for t in track_ids]
+        tracks = {t: (self.gaps[t].copy() if t in self.gaps else None, self.states.ref(t)) for t in ids}
+        return Checkpoint(self.rows, self.skipped, self.position_names, tracks, self.config.time_unit, self.outliers,
+                          (self.config.length_unit, self.axes, self._geo_decided))
+
+    def rollback(self, checkpoint: "Checkpoint") -> None:
+        """Undo everything done since ``checkpoint`` was taken."""
+        self.rows, self.skipped, self.position_names = checkpoint.rows, checkpoint.skipped, checkpoint.position_names
+        self.outliers = checkpoint.outliers
+        if checkpoint.settings is not None:   # a length unit or geographic setting chosen since
+            length_unit, self.axes, self._geo_decided = checkpoint.settings
+            if self.config.length_unit != length_unit:
+                self.config.length_unit = length_unit
+                if length_unit == "auto":
+                    self.params = None   # (no track has a state yet: the unit is chosen at the first rows)
+                elif self.params is not None:
+                    self.params = self._build(self.params.measurement_dim)
+        if self.config.time_unit != checkpoint.time_unit:  # a unit learned from rows now undone
+            self.config.time_unit = checkpoint.time_unit
+            if self.params is not None:
+                self.params = self._build(self.params.measurement_dim)
+        for track, (gaps, state) in checkpoint.tracks.items():
+            if gaps is None:
+                self.gaps.pop(track, None)
+            else:
+                self.gaps[track] = gaps
+            self.states.restore(track, state)
+
+
+def learned_time_unit(tables, config: StreamConfig, continued: list | None = None) -> float | None:
+    """The time unit :meth:`TrackPredictor.process_table` learns from ``tables`` fed in this order.
+
+    Only the gap rule runs (no bank): the unit is the first interval a track's
+    :class:`GapTracker` keeps, in row order, exactly as in ``process_table`` (the bank's
+    parameters scale with it, so a run split over several machines fixes it in advance to
+    give the numbers of one run). ``None`` when no table has a positive step of a track.
+
+    Parameters
+    ----------
+    tables : iterable of pandas.DataFrame
+        ``track_id`` and ``time`` columns, in the order ``process_table`` would get them.
+    config : StreamConfig
+        The gap rule's settings (``max_gap``, ``max_gap_factor``); its ``time_unit`` is ignored.
+    continued : list, optional
+        Receives the tracks that have a row before that step other than their first (a restart by
+        an absolute ``max_gap``, a row after a time glitch): such a row's numbers can depend on
+        the unit, which a run that steps it before knowing the unit takes as 1.
+    """
+    scratch = TrackPredictor(replace(config, time_unit=None))
+    for table in tables:
+        for track, time in zip(table["track_id"].to_numpy(), column_seconds(table["time"])):
+            key = id_to_json(track)
+            seen = key in scratch.gaps
+            _, new = scratch._advance(key, float(time))
+            if scratch.config.time_unit is not None:
+                return scratch.config.time_unit
+            if seen and new is not None and continued is not None and key not in continued:
+                continued.append(key)
+    return None
+
+
+def next_row_times(parts, after: dict | None = None) -> list[dict]:
+    """For tables ``parts`` fed to :meth:`TrackPredictor.process_table` in this order, each one's
+    ``next_times``: track id -> time of the track's next row after that table (in a later part,
+    else ``after``, e.g. a later chunk of a file)."""
+    out = []
+    upcoming = dict(after or {})
+    for part in reversed(parts):
+        out.append(dict(upcoming))
+        firsts = part.groupby("track_id", sort=False)["time"].first()
+        upcoming.update((track, float(t)) for track, t in zip(firsts.index, column_seconds(firsts)))
+    return out[::-1]
+
+
+class Checkpoint(NamedTuple):
+    """What :meth:`TrackPredictor.checkpoint` returns."""
+
+    rows: int
+    skipped: int
+    position_names: tuple | None
+    tracks: dict   # track id -> (GapTracker copy or None, its state's TrackStates.ref or None)
+    time_unit: float | None = None
+    outliers: int = 0
+    settings: tuple | None = None   # (length_unit, axes, whether the axes are settled)
