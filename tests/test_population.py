@@ -93,8 +93,8 @@ def test_new_tracks_start_from_the_population_and_predict_better():
     """On 60 short tracks the prior takes the one-step RMS from 2.69 km to 0.45 km per coordinate (measured; the
     Kalman filter with the true model: ~0.1 km); the rows before the first summary are the same either way."""
     table = _short_tracks()
-    with_prior = TrackPredictor(StreamConfig(length_unit=27.0))
-    without = TrackPredictor(StreamConfig(length_unit=27.0, population_prior=False))
+    with_prior = TrackPredictor(StreamConfig(length_unit=27.0, population_prior=True))
+    without = TrackPredictor(StreamConfig(length_unit=27.0))   # (off by default)
     a, b = with_prior.process_table(table, ["x", "y"]), without.process_table(table, ["x", "y"])
     first = table.index[:population.FIRST_SNAPSHOT]   # rows before the first summary: no prior yet
     np.testing.assert_array_equal(a.loc[first, ["pred_x", "pred_y"]], b.loc[first, ["pred_x", "pred_y"]])
@@ -104,14 +104,14 @@ def test_new_tracks_start_from_the_population_and_predict_better():
 
 def test_only_boa_has_a_prior():
     table = _short_tracks(tracks=10)
-    predictor = TrackPredictor(StreamConfig(length_unit=27.0, rule="mlpoly"))
+    predictor = TrackPredictor(StreamConfig(length_unit=27.0, rule="mlpoly", population_prior=True))
     predictor.process_table(table, ["x", "y"])
     assert predictor.priors == [] and predictor.prior is None
 
 
 def test_a_saved_predictor_resumes_its_population_exactly(tmp_path):
     table = _short_tracks(tracks=30)
-    config = StreamConfig(length_unit=27.0)
+    config = StreamConfig(length_unit=27.0, population_prior=True)
     whole = TrackPredictor(config)
     expected = whole.process_table(table, ["x", "y"])
     half = len(table) // 2 + 7

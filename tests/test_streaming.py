@@ -87,17 +87,21 @@ def test_track_equals_the_reference_engine_on_that_track(bank):
 
 @pytest.mark.parametrize("time_unit", [None, 0.1])
 def test_chunks_equal_one_table_and_interleaved_order(time_unit):
-    """Chunks and row order change nothing, with the time unit given or learned (in row order, from the
-    first time step: only first rows of tracks come before it, and nothing they leave depends on it)."""
+    """Chunks change nothing, with the time unit given or learned (in row order, from the first time step: only
+    first rows of tracks come before it, and nothing they leave depends on it). Without the population prior the
+    tracks are independent, so neither does the order of the rows; with it, a track starts from the tracks whose
+    rows came before (kalmix.stream.population)."""
     table = _table()
     config = {**CONFIG, "time_unit": time_unit}
-    whole = TrackPredictor(StreamConfig(**config)).process_table(table)
-    engine = TrackPredictor(StreamConfig(**config))
     interleaved = table.sort_values(["time", "track_id"], kind="stable")
-    parts = [engine.process_table(interleaved.iloc[i:i + 23]) for i in range(0, len(interleaved), 23)]
-    chunked = pd.concat(parts).sort_values(["track_id", "time"]).reset_index(drop=True)
-    pd.testing.assert_frame_equal(chunked, whole.sort_values(["track_id", "time"]).reset_index(drop=True),
-                                  check_exact=False, atol=1e-9, rtol=0)
+    for prior in (True, False):
+        settings = StreamConfig(**config, population_prior=prior)
+        whole = TrackPredictor(settings).process_table(table if not prior else interleaved)
+        engine = TrackPredictor(settings)
+        parts = [engine.process_table(interleaved.iloc[i:i + 23]) for i in range(0, len(interleaved), 23)]
+        chunked = pd.concat(parts).sort_values(["track_id", "time"]).reset_index(drop=True)
+        pd.testing.assert_frame_equal(chunked, whole.sort_values(["track_id", "time"]).reset_index(drop=True),
+                                      check_exact=False, atol=1e-9, rtol=0)
 
 
 def test_save_and_resume_is_bit_for_bit(tmp_path):
@@ -119,7 +123,9 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     version 9, the lead head learned at the one-step rate (``lead_delay`` 1, a setting those files lack);
     before version 10, BOA did not clip (``clip`` inf, and no error scale in the state); before version 11 there was
     no ``geographic`` setting (positions were flat); before version 12 the gap rule's reference interval was the
-    median of a track's first steps (``gap_reference`` "median", a setting those files lack)."""
+    median of a track's first steps (``gap_reference`` "median", a setting those files lack); before version 13
+    any step of a track could be a gap (``gap_min_steps`` 1) and no track started from a population prior
+    (``population_prior`` False, and no learned rows or priors in the file)."""
     import json
 
     if version < 9:
@@ -128,6 +134,9 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
         settings = (*settings, "geographic")
     if version < 12:
         config, settings = {**config, "gap_reference": "median"}, (*settings, "gap_reference")
+    if version < 13:
+        config = {**config, "gap_min_steps": 1, "population_prior": False}
+        settings = (*settings, "gap_min_steps", "population_prior")
     if version < 10:
         config = {**config, "rule_options": {"clip": float("inf"), **config.get("rule_options", {})}}
         members = (*members, *CLIP_MEMBERS)
@@ -138,8 +147,12 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     first.save(tmp_path / "s.npz")
     saved = dict(np.load(tmp_path / "s.npz"))
     meta = json.loads(str(saved["meta"]))
-    assert meta["format_version"] == STATE_FORMAT_VERSION == 12
+    assert meta["format_version"] == STATE_FORMAT_VERSION == 13
     meta["format_version"] = version
+    if version < 13:
+        assert meta.pop("priors") == []   # (population_prior False)
+        for entry in meta["tracks"]:
+            del entry["rows"]
     for name in settings:
         del meta["config"][name]
     if version < 10 and "rule_options" in meta["config"]:
@@ -211,7 +224,8 @@ def test_version_8_files_resume_with_the_lead_learning_at_the_one_step_rate(tmp_
     for field in ("next", "ahead"):
         assert np.array_equal(np.array([getattr(r, field) for r in resumed]),
                               np.array([getattr(r, field) for r in whole]), equal_nan=True), field
-    today = TrackPredictor(StreamConfig(**CONFIG, rule_options={"clip": float("inf")}))   # as version 9 ran
+    today = TrackPredictor(StreamConfig(**CONFIG, rule_options={"clip": float("inf")}, gap_min_steps=1,
+                                        population_prior=False))   # as version 9 ran
     rows = _rows(today, _table())
     assert today.params.lead.frames == 3 and today.params.lead_rule_params.delay == 3.0
     assert np.array_equal(_next(rows), _next(whole), equal_nan=True)   # the one-step rule did not change
@@ -323,6 +337,14 @@ def test_the_length_unit_reads_the_noise_of_irregular_sampling():
 def test_version_11_files_resume_with_the_median_gap_rule(tmp_path):
     whole, resumed, second, _ = _as_older_file(tmp_path, CONFIG, 70, 11)
     assert second.config.gap_reference == "median"
+    assert np.array_equal(_next(resumed), _next(whole), equal_nan=True)
+
+
+def test_version_12_files_resume_without_the_population_prior(tmp_path):
+    """Version 12 files: any step could be a gap, and new tracks started empty; they resume so."""
+    whole, resumed, second, _ = _as_older_file(tmp_path, CONFIG, 70, 12)
+    assert second.config.gap_min_steps == 1 and second.config.population_prior is False
+    assert second.priors == [] and second.track_rows == {}
     assert np.array_equal(_next(resumed), _next(whole), equal_nan=True)
 
 

@@ -119,13 +119,14 @@ class BankRuns:
         return self._plain[1]
 
     def _fresh(self) -> BankState:
-        return init_bank_state(self.params, 1)
+        """A new track's state: its rule from the population prior (:mod:`.population`)."""
+        return self.with_prior(init_bank_state(self.params, 1))
 
     def _new_states(self, n: int) -> BankState:
         """``n`` new targets' states (the same bits as :meth:`_fresh` each); the store shares their leaves."""
         if not self.states.shares_as_new():
             self.states.share_as_new(self._fresh())
-        return init_bank_state(self.params, n)
+        return self.with_prior(init_bank_state(self.params, n))
 
     def _states_or_fresh(self, tracks) -> BankState:
         """The states of ``tracks`` stacked (a copy), new tracks' as :meth:`_fresh`'s."""

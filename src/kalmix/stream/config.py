@@ -101,7 +101,7 @@ class StreamConfig:
     max_gap_factor: float = 3.0
     gap_reference: str = "upper quartile"
     gap_min_steps: int = 4
-    population_prior: bool = True
+    population_prior: bool = False
     options: dict = field(default_factory=dict)
     bank: str = DEFAULT_BANK["kind"]
     rule: str = DEFAULT_BANK["rule"]

@@ -61,10 +61,18 @@ class GapTracker:
                           self.glitches, self.origin, self.clock)
 
     def threshold(self, config: StreamConfig) -> float:
+        """A step longer than this starts a new segment."""
+        if config.max_gap is None and len(self.intervals) < config.gap_min_steps:
+            return math.inf   # (too few steps to tell the sampling's spread)
+        return self._jump(config)
+
+    def _jump(self, config: StreamConfig) -> float:
+        """A step longer than this jumps ahead: a row that then comes back in between is a time glitch (the jump's
+        timestamp was wrong). The gap threshold, but for a track with fewer than ``gap_min_steps`` steps."""
         if config.max_gap is not None:
             return float(config.max_gap)
-        if len(self.intervals) < config.gap_min_steps or not math.isfinite(config.max_gap_factor):
-            return math.inf   # (too few steps to tell the sampling's spread)
+        if not self.intervals or not math.isfinite(config.max_gap_factor):
+            return math.inf
         if config.gap_reference == "median":   # state files before version 12
             return config.max_gap_factor * short_median(self.intervals)
         return config.max_gap_factor * _upper_quartile(self.intervals)
@@ -93,7 +101,7 @@ class GapTracker:
             return None
         unjudged = not self.intervals and config.max_gap is None
         gap = dt > self.threshold(config)
-        self.jumped_from = self.last_time if gap or unjudged else None
+        self.jumped_from = self.last_time if gap or unjudged or dt > self._jump(config) else None
         self.jump_counted = False
         if gap:
             self.segment += 1

@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["POPULATION_ROWS", "MIN_ROWS", "FIRST_SNAPSHOT", "SNAPSHOT_EVERY", "Prior", "snapshot_points",
-           "summarise", "start_rule"]
+           "summarise", "start_rule", "PopulationPrior"]
 
 #: Pseudo-rows of the population a new track starts with (the weight of the prior, in rows of the track's own).
 POPULATION_ROWS = 30
@@ -34,6 +34,8 @@ MIN_ROWS = 3
 FIRST_SNAPSHOT = 32
 #: ... up to one every this many rows.
 SNAPSHOT_EVERY = 65536
+#: Tracks whose states are read at once for a summary.
+SUMMARY_BATCH = 4096
 
 
 class Prior(NamedTuple):
@@ -95,3 +97,54 @@ def start_rule(rule_state, prior: Prior | None):
         return np.broadcast_to(value, (n, len(value))).copy()
 
     return rule_state._replace(regret=rows(prior.regret), variance=rows(prior.variance), bound=rows(prior.bound))
+
+
+class PopulationPrior:
+    """The part of :class:`~kalmix.streaming.TrackPredictor` that keeps its population prior: every track's learned
+    rows (:attr:`track_rows`), the summaries made so far (:attr:`priors`), new tracks started from the last."""
+
+    @property
+    def prior(self) -> Prior | None:
+        """The population prior a new track starts from now (None: the rule's own start)."""
+        if not self.priors or self.params is None or self.params.rule != "boa":
+            return None
+        return self.priors[-1]
+
+    def with_prior(self, state):
+        """``state`` (new tracks' :class:`~kalmix.core.engine.BankState`) with its rule started from :attr:`prior`."""
+        prior = self.prior
+        return state if prior is None else state._replace(rule=start_rule(state.rule, prior))
+
+    def next_summary(self, n_rows: int) -> int | None:
+        """Of the next ``n_rows`` rows, how many come before a summary point that is not their last row (the
+        rows to step first, then summarise); None when no summary falls inside them."""
+        points = snapshot_points(self.rows, self.rows + n_rows) if self.config.population_prior else []
+        return points[0] - self.rows if points and points[0] - self.rows < n_rows else None
+
+    def count_rows(self, tracks, lengths) -> None:
+        """Count the rows ``tracks`` learned; a new track that started from the prior counts its pseudo-rows too
+        (its state holds them)."""
+        if not self.config.population_prior:
+            return
+        start = POPULATION_ROWS if self.prior is not None else 0
+        for track, n in zip(tracks, lengths):
+            self.track_rows[track] = self.track_rows.get(track, start) + int(n)
+
+    def summarise_if_due(self, n_rows: int) -> None:
+        """After stepping ``n_rows`` rows (the last ones of :attr:`rows`): a summary if a point was reached."""
+        if not self.config.population_prior or not snapshot_points(self.rows - n_rows, self.rows):
+            return
+        if self.params is None or self.params.rule != "boa":
+            return
+        tracks = [t for t in self.states if self.track_rows.get(t, 0) >= MIN_ROWS]
+
+        def parts():   # a batch of tracks at a time: their rule states only are kept
+            for begin in range(0, len(tracks), SUMMARY_BATCH):
+                these = tracks[begin:begin + SUMMARY_BATCH]
+                rule = self.states.gather(these, self._new_states).rule
+                yield rule.regret, rule.variance, rule.bound, [self.track_rows[t] for t in these]
+
+        prior = summarise(parts())
+        if prior is not None:
+            self.priors.append(prior)
+            self.states.share_as_new(self._fresh())

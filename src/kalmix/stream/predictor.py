@@ -16,6 +16,7 @@ from .clocks import TrackClocks
 from .config import StreamConfig
 from .gaps import GapTracker
 from .ids import id_to_json
+from .population import PopulationPrior
 from .row_steps import RowSteps
 from .state_file import StateFile
 from .store import TrackStates
@@ -23,7 +24,7 @@ from .table_steps import TableSteps
 from .times import column_seconds
 
 
-class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, StateFile):
+class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, PopulationPrior, StateFile):
     """One mixture predictor per track id; tracks appear as they come.
 
     Parameters
@@ -83,6 +84,10 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, StateFile):
         self._geo_decided = False
         self._decide_geographic(self.position_names)
         self._unit_source: tuple | None = None   # (track, unit) the time unit was learned from, until judged
+        #: track id -> rows it learned, counting the pseudo-rows of the prior it started from (:mod:`.population`)
+        self.track_rows: dict = {}
+        #: the population priors summarised so far (:mod:`.population`): new tracks start from the last
+        self.priors: list = []
 
     def warm_up(self, measurement_dim: int | None = None) -> None:
         """Load the compiled kernels this predictor's runs use now (or compile them, on a fresh install).
@@ -138,9 +143,10 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, StateFile):
         Cheap: the states are never modified in place, so only references are kept.
         """
         ids = list(self.gaps) if track_ids is None else [id_to_json(t) for t in track_ids]
-        tracks = {t: (self.gaps[t].copy() if t in self.gaps else None, self.states.ref(t)) for t in ids}
+        tracks = {t: (self.gaps[t].copy() if t in self.gaps else None, self.states.ref(t), self.track_rows.get(t))
+                  for t in ids}
         return Checkpoint(self.rows, self.skipped, self.position_names, tracks, self.config.time_unit, self.outliers,
-                          (self.config.length_unit, self.axes, self._geo_decided))
+                          (self.config.length_unit, self.axes, self._geo_decided), len(self.priors))
 
     def rollback(self, checkpoint: "Checkpoint") -> None:
         """Undo everything done since ``checkpoint`` was taken."""
@@ -158,12 +164,20 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, StateFile):
             self.config.time_unit = checkpoint.time_unit
             if self.params is not None:
                 self.params = self._build(self.params.measurement_dim)
-        for track, (gaps, state) in checkpoint.tracks.items():
+        for track, (gaps, state, rows) in checkpoint.tracks.items():
             if gaps is None:
                 self.gaps.pop(track, None)
             else:
                 self.gaps[track] = gaps
             self.states.restore(track, state)
+            if rows is None:
+                self.track_rows.pop(track, None)
+            else:
+                self.track_rows[track] = rows
+        if len(self.priors) != checkpoint.priors:   # summaries made since: new tracks start as they would have
+            del self.priors[checkpoint.priors:]
+            if self.params is not None:
+                self.states.share_as_new(self._fresh())
 
 
 def learned_time_unit(tables, config: StreamConfig, continued: list | None = None) -> float | None:
@@ -217,7 +231,8 @@ class Checkpoint(NamedTuple):
     rows: int
     skipped: int
     position_names: tuple | None
-    tracks: dict   # track id -> (GapTracker copy or None, its state's TrackStates.ref or None)
+    tracks: dict   # track id -> (GapTracker copy or None, its state's TrackStates.ref or None, its learned rows)
     time_unit: float | None = None
     outliers: int = 0
     settings: tuple | None = None   # (length_unit, axes, whether the axes are settled)
+    priors: int = 0                 # population priors summarised by then

@@ -256,8 +256,13 @@ class RowSteps:
         the bank without its lead head, which nothing else reads (the families, rule, screen and
         calibration learn the same bits). Until the time unit is known, rows come one at a time: a row
         that fixes it runs with the bank it fixes, as the rows after it. Changes the predictor only at
-        the end (but for that unit)."""
+        the end (but for that unit). A summary of the population prior due inside the rows splits them there
+        (:mod:`.population`: the rows before it are stepped, then summarised)."""
         n_rows, p = values.shape
+        split = self.next_summary(n_rows)
+        if split is not None:
+            head = self._step_batch(ids[:split], times[:split], values[:split], first)
+            return head + self._step_batch(ids[split:], times[split:], values[split:], first + split)
         trackers: dict = {}
         runs: dict = {}          # track -> [(row, restart, next time)]
         outcome = [None] * n_rows
@@ -348,7 +353,9 @@ class RowSteps:
             for track in tracks:
                 self.gaps[track] = trackers[track]
             self.states.put(tracks, result.state)
+            self.count_rows(tracks, lengths)
             self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
         self.rows += n_rows
         self.skipped += sum(r is None for r in results)
+        self.summarise_if_due(n_rows)
         return results

@@ -17,12 +17,13 @@ from ..core.engine import tree_leaves, tree_map
 from .config import StreamConfig
 from .gaps import GapTracker
 from .ids import id_from_meta, id_to_meta
+from .population import Prior
 
 #: Format version of the state files :meth:`TrackPredictor.save` writes. :meth:`TrackPredictor.load` reads
-#: versions 3 to 12 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
+#: versions 3 to 13 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
 #: versions", says what each version adds).
-STATE_FORMAT_VERSION = 12
-_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12)
+STATE_FORMAT_VERSION = 13
+_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13)
 _MAGIC = "kalmix-track-predictor"
 
 
@@ -40,13 +41,15 @@ class StateFile:
         meta = {"magic": _MAGIC, "format_version": STATE_FORMAT_VERSION, "config": asdict(self.config),
                 "measurement_dim": None if self.params is None else self.params.measurement_dim,
                 "position_names": None if self.position_names is None else list(self.position_names),
-                "tracks": [{"id": id_to_meta(t), "gaps": self.gaps[t].to_json(), "state": t in self.states}
-                           for t in tracks],
+                "tracks": [{"id": id_to_meta(t), "gaps": self.gaps[t].to_json(), "state": t in self.states,
+                            "rows": self.track_rows.get(t, 0)} for t in tracks],
                 "rows": self.rows, "skipped": self.skipped, "outliers": self.outliers,
-                "output": self.output}
+                "output": self.output, "priors": [prior.tracks for prior in self.priors]}
         arrays = {}
         if with_state:
             arrays = dict(tree_leaves(self.states.gather(with_state, self._new_states)))
+        for i, prior in enumerate(self.priors):
+            arrays.update({f"population/{i}/{name}": getattr(prior, name) for name in ("regret", "variance", "bound")})
         write_archive(path, meta, arrays)
 
     @classmethod
@@ -73,6 +76,9 @@ class StateFile:
                     config.setdefault("geographic", False)   # files before version 11 took positions as flat
                 if meta["format_version"] < 12:
                     config.setdefault("gap_reference", "median")   # files before version 12 took the median
+                if meta["format_version"] < 13:   # files before version 13: any step a gap, no population prior
+                    config.setdefault("gap_min_steps", 1)
+                    config.setdefault("population_prior", False)
                 engine = cls(StreamConfig(**config), meta.get("position_names"))
                 engine.rows, engine.skipped = int(meta["rows"]), int(meta["skipped"])
                 engine.outliers = int(meta.get("outliers", 0))
@@ -82,6 +88,13 @@ class StateFile:
                     engine._ensure_params(int(meta["measurement_dim"]))
                 entries = [(id_from_meta(entry["id"]), GapTracker(**entry["gaps"]), bool(entry["state"]))
                            for entry in meta["tracks"]]
+                engine.track_rows = {track: int(entry.get("rows", 0))
+                                     for (track, _, _), entry in zip(entries, meta["tracks"]) if entry.get("rows")}
+                k = None if engine.params is None else engine.params.n_experts
+                engine.priors = [Prior(*(archive.array(f"population/{i}/{name}", (k,), np.float64,
+                                                       label=f"population/{i}/{name}")
+                                         for name in ("regret", "variance", "bound")), int(tracks))
+                                 for i, tracks in enumerate(meta.get("priors", []))]
             except (KeyError, TypeError, ValueError) as error:
                 settings = meta.get("config") if isinstance(meta, dict) else None
                 unit = settings.get("length_unit") if isinstance(settings, dict) else None

@@ -186,15 +186,18 @@ class TableSteps:
         if not pd.api.types.is_numeric_dtype(table["time"]):   # dates and durations: seconds, as files are read
             table = table.assign(time=column_seconds(table["time"]))
 
+        split = None
         if self.config.time_unit is None:
             # rows before the time unit is known run with the bank of a unit of 1, as they would row by row
             split = self._unit_row(table["track_id"].to_numpy(), table["time"].to_numpy(np.float64))
-            if split:
-                head, tail = table.iloc[:split], table.iloc[split:]
-                later = {**next_times, **tail.groupby("track_id", sort=False)["time"].first().to_dict()}
-                first = self._process_table(head, position_names, later, first_row, kept)
-                return pd.concat([first, self._process_table(tail, position_names, next_times, first_row + split,
-                                                             kept)], ignore_index=True)
+        if not split:   # the rows before a summary of the population prior (.population), then the summary
+            split = self.next_summary(len(table))
+        if split:
+            head, tail = table.iloc[:split], table.iloc[split:]
+            later = {**next_times, **tail.groupby("track_id", sort=False)["time"].first().to_dict()}
+            first = self._process_table(head, position_names, later, first_row, kept)
+            return pd.concat([first, self._process_table(tail, position_names, next_times, first_row + split,
+                                                         kept)], ignore_index=True)
         names = list(position_names)   # (process_table gave the default: every other column)
         if self.position_names is None:
             self.position_names = tuple(names)
@@ -269,6 +272,7 @@ class TableSteps:
                 dense = np.where(active[..., None], values[rows], np.nan)
                 dense_times = np.where(active, times[rows], np.nan)
                 result = self._run(dense, dense_times, lengths, state, active & restart[rows])
+                self.count_rows([tracks[c] for c in columns], lengths)
                 self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
                 # a row's next-row forecast is the forecast of the next row, made before it
                 inner = active.copy()
@@ -305,6 +309,7 @@ class TableSteps:
                 by_state[id(held)][2].append(k)
             for held, these, columns in by_state.values():
                 self.states.put(these, held, columns)
+        self.summarise_if_due(n_rows)
         if origins is not None:   # the forecasts back to degrees, each in the frame of the row it was made after
             from ..io.geo import from_local
 
