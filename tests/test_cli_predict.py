@@ -630,7 +630,7 @@ def test_a_gap_rule_that_cuts_tracks_into_pieces_says_what_to_do(cli, tmp_path):
 def test_csv_output_round_trips_every_value_and_quotes_what_needs_it():
     """The Arrow writer: floats round-trip exactly, integral floats keep their ".0" (read back as floats, not
     integers), NaN is an empty field; ids or names with a comma, a quote or a line end are quoted (pandas)."""
-    from kalmix.commands._durable import csv_text
+    from kalmix.commands._output import csv_text
 
     values = [1.0, 0.1, 1e-7, np.nan, 1e20, -0.0, 123456789.12345679, 2.5e-310, 1.7e9, 1e15, -3.0]
     frame = pd.DataFrame({"track_id": [f"t{i}" for i in range(len(values))], "time": values,
@@ -650,7 +650,7 @@ def test_csv_output_round_trips_every_value_and_quotes_what_needs_it():
 def test_jsonl_output_is_each_record_as_json_dumps_writes_it():
     """Column by column, the text of json.dumps on each record (NaN/inf null, floats round-tripping, numpy
     numbers and bools as JSON's, escaped text); dates and bytes (Parquet ids) as ISO text and UTF-8."""
-    from kalmix.commands._durable import json_value, jsonl_text
+    from kalmix.commands._output import json_value, jsonl_text
 
     frame = pd.DataFrame({
         "track_id": ["a", 'q"u', "é", "x\ny"], "time": [0.0, 1e300, -0.0, 5e-324], "segment": np.arange(4),
@@ -716,7 +716,7 @@ def test_jsonl_output_of_a_parquet_file_with_date_ids(cli, tmp_path):
 ])
 def test_csv_output_reads_back_as_pandas_own_for_any_column_type(frame):
     """Columns Arrow would write otherwise (dates, bytes, objects, float16, a lone column) go through pandas."""
-    from kalmix.commands._durable import csv_text
+    from kalmix.commands._output import csv_text
 
     ours = pd.read_csv(io.StringIO(csv_text(frame, header=True)))
     pd.testing.assert_frame_equal(ours, pd.read_csv(io.StringIO(frame.to_csv(index=False))), check_exact=True)

@@ -25,7 +25,8 @@ import click
 import numpy as np
 
 from ._common import silence_stdout
-from ._durable import Interrupted, Output, OutputClosed, count_rows
+from ._durable import Interrupted, count_rows
+from ._output import Output, OutputClosed
 from ._input import input_columns, input_format, sample_reader
 
 #: A chunk is stepped in pieces of about this many rows (each track's rows split in order,
