@@ -158,13 +158,13 @@ def test_line_batches_take_what_has_arrived():
     import os
     import threading
 
-    from kalmix.commands._predict_run import _line_batches
+    from kalmix.commands._stdin_lines import line_batches
 
     read, write = os.pipe()
     os.write(write, "".join(f"{i},x\r\n" for i in range(10)).encode() + "é,last".encode())
     os.close(write)
     with os.fdopen(read, encoding="utf-8") as stream:
-        batches = list(_line_batches(stream, limit=4))
+        batches = list(line_batches(stream, limit=4))
     assert [len(b) for b in batches[:2]] == [4, 4] and max(len(b) for b in batches) == 4
     assert sum(batches, []) == [f"{i},x\r\n" for i in range(10)] + ["é,last"]
 
@@ -181,12 +181,12 @@ def test_line_batches_take_what_has_arrived():
     writer = threading.Thread(target=feed)
     writer.start()
     with os.fdopen(read) as stream:
-        for batch in _line_batches(stream):
+        for batch in line_batches(stream):
             got.append(batch)
             sent.set()
     writer.join()
     assert got == [["0\n"], ["1\n"], ["2\n"]]
-    assert list(_line_batches(io.StringIO("a\nb\n"))) == [["a\n"], ["b\n"]]
+    assert list(line_batches(io.StringIO("a\nb\n"))) == [["a\n"], ["b\n"]]
 
 
 def test_line_batches_split_lines_across_reads_and_stop_at_a_bad_byte():
@@ -196,7 +196,7 @@ def test_line_batches_split_lines_across_reads_and_stop_at_a_bad_byte():
     import os
     import threading
 
-    from kalmix.commands._predict_run import _line_batches, _split_lines
+    from kalmix.commands._stdin_lines import line_batches, split_lines
 
     def batches(chunks, errors="strict"):
         read, write = os.pipe()
@@ -211,7 +211,7 @@ def test_line_batches_split_lines_across_reads_and_stop_at_a_bad_byte():
         with os.fdopen(read, encoding="utf-8", errors=errors) as stream:
             out = []
             try:
-                for batch in _line_batches(stream, limit=3):
+                for batch in line_batches(stream, limit=3):
                     out.append(batch)
             except ValueError as error:
                 out.append(str(error))
@@ -226,7 +226,7 @@ def test_line_batches_split_lines_across_reads_and_stop_at_a_bad_byte():
         edges = [0, *cuts, len(data)]
         partial, lines = [], []
         for a, b in zip(edges[:-1], edges[1:]):   # reads ending anywhere: inside a character, after a newline
-            lines += _split_lines(partial, data[a:b])
+            lines += split_lines(partial, data[a:b])
         lines += [b"".join(partial)]
         assert [line.decode() for line in lines] == io.StringIO(text).readlines()
     got = batches([b"t,x\n0,1\n1,\xff\n2,3\n"])
@@ -243,7 +243,7 @@ def test_line_batches_take_a_lone_carriage_return_as_a_line_end():
     import sys
     import threading
 
-    from kalmix.commands._predict_run import _line_batches
+    from kalmix.commands._stdin_lines import line_batches
 
     def lines(data, cuts):
         read, write = os.pipe()
@@ -257,7 +257,7 @@ def test_line_batches_take_a_lone_carriage_return_as_a_line_end():
         writer = threading.Thread(target=feed)
         writer.start()
         with os.fdopen(read, encoding="utf-8") as stream:
-            got = sum(_line_batches(stream, limit=2), [])
+            got = sum(line_batches(stream, limit=2), [])
         writer.join()
         return got
 

@@ -20,7 +20,6 @@ file, the trackers and the output always describe the same rows.
 from __future__ import annotations
 
 import contextlib
-import gzip
 import os
 import re
 import signal
@@ -34,7 +33,7 @@ try:
 except ImportError:  # pragma: no cover - not POSIX
     fcntl = None
 
-__all__ = ["Interrupted", "SignalGuard", "StateLock", "count_rows", "TEST_HOOK"]
+__all__ = ["Interrupted", "SignalGuard", "StateLock", "TEST_HOOK"]
 
 _STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
 #: Test hook, ``SIGNAME:N``: after the N-th unit of work (a slice of a chunk, a stdin batch) the
@@ -195,15 +194,4 @@ def remove_stale_temporaries(path) -> int:
                 os.unlink(os.path.join(directory, entry))
                 removed += 1
     return removed
-
-
-def count_rows(path: str) -> int:
-    """Data rows of a CSV (``.gz`` too) file: its lines minus the header, in one fast pass."""
-    opener = gzip.open if os.fspath(path).lower().endswith(".gz") else open
-    count, last = 0, b"\n"
-    with opener(path, "rb") as handle:
-        while block := handle.read(1 << 20):
-            count += block.count(b"\n")
-            last = block[-1:]
-    return max(0, count - 1 + (last != b"\n"))
 
