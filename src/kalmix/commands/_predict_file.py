@@ -20,8 +20,7 @@ from ._predict_common import check_resumed, geographic_axes, new_engine, reset_s
 #: bar moves and a stop signal is honoured after each piece, not once per chunk. Each piece
 #: costs a fixed share of Python work (stacking and splitting the tracks' states) and ends
 #: waiting for the engine's slowest group of targets (:func:`kalmix.core.compiled._threads.group_size`),
-#: so larger pieces run faster, with the same output bit for bit; this size keeps the delay of a
-#: stop to about a second.
+#: so larger pieces run faster, with the same output bit for bit; this size keeps a stop prompt.
 PIECE_ROWS = 65_536
 _MAX_PIECES = 64
 

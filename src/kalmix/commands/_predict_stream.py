@@ -15,8 +15,8 @@ from ._stdin_rows import BadLine, RowReader, header_of
 
 
 def warm_up_meanwhile(run, settings, unit) -> None:
-    """Load the compiled kernels in a thread while stdin has nothing for this one (a fraction of a second with
-    numba's cache warm, minutes on a fresh install): a live feed's first line is answered sooner. Only a head start: the
+    """Load the compiled kernels in a thread while stdin has nothing for this one (quick with numba's cache
+    warm, long on a fresh install): a live feed's first line is answered sooner. Only a head start: the
     first run waits for the kernels, or loads them itself if this fails (and a bad setting is reported there,
     not here). (Of no use for a file: the main thread is busy too, and the loading needs the GIL.)"""
     import threading

@@ -39,7 +39,7 @@ def _line_ending(partial: list, data: bytes):
 def line_batches(stream, limit: int = BATCH_LINES, undecodable: bool = False):
     """Lists of the lines of ``stream`` that have arrived: waits for one, then takes those already there.
 
-    A live stream (rows a while apart) gives batches of one line, as before; a pipe that is
+    A live stream (rows a while apart) gives batches of one line; a pipe that is
     ahead (a frame of many tracks, a file piped in) gives up to ``limit`` lines at once, which
     :meth:`~kalmix.streaming.TrackPredictor.step_rows` steps with the same results as row by
     row. "Already there" is asked of the operating system (``select``) on the stream's file
