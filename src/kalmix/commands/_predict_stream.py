@@ -9,7 +9,8 @@ import click
 import numpy as np
 
 from ._input import input_columns
-from ._predict_common import STDIN_WARNINGS, check_resumed, geographic_axes, new_engine, reset_step, track_key
+from ._predict_common import check_resumed, geographic_axes, new_engine, reset_step, track_key
+from ._predict_notes import STDIN_WARNINGS
 from ._stdin_lines import first_line, line_batches
 from ._stdin_rows import BadLine, RowReader, header_of
 
