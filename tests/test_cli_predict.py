@@ -158,13 +158,13 @@ def test_line_batches_take_what_has_arrived():
     import os
     import threading
 
-    from kalmix.commands._predict_run import _line_batches
+    from kalmix.commands._stdin_lines import line_batches
 
     read, write = os.pipe()
     os.write(write, "".join(f"{i},x\r\n" for i in range(10)).encode() + "é,last".encode())
     os.close(write)
     with os.fdopen(read, encoding="utf-8") as stream:
-        batches = list(_line_batches(stream, limit=4))
+        batches = list(line_batches(stream, limit=4))
     assert [len(b) for b in batches[:2]] == [4, 4] and max(len(b) for b in batches) == 4
     assert sum(batches, []) == [f"{i},x\r\n" for i in range(10)] + ["é,last"]
 
@@ -181,12 +181,12 @@ def test_line_batches_take_what_has_arrived():
     writer = threading.Thread(target=feed)
     writer.start()
     with os.fdopen(read) as stream:
-        for batch in _line_batches(stream):
+        for batch in line_batches(stream):
             got.append(batch)
             sent.set()
     writer.join()
     assert got == [["0\n"], ["1\n"], ["2\n"]]
-    assert list(_line_batches(io.StringIO("a\nb\n"))) == [["a\n"], ["b\n"]]
+    assert list(line_batches(io.StringIO("a\nb\n"))) == [["a\n"], ["b\n"]]
 
 
 def test_line_batches_split_lines_across_reads_and_stop_at_a_bad_byte():
@@ -196,7 +196,7 @@ def test_line_batches_split_lines_across_reads_and_stop_at_a_bad_byte():
     import os
     import threading
 
-    from kalmix.commands._predict_run import _line_batches, _split_lines
+    from kalmix.commands._stdin_lines import line_batches, split_lines
 
     def batches(chunks, errors="strict"):
         read, write = os.pipe()
@@ -211,7 +211,7 @@ def test_line_batches_split_lines_across_reads_and_stop_at_a_bad_byte():
         with os.fdopen(read, encoding="utf-8", errors=errors) as stream:
             out = []
             try:
-                for batch in _line_batches(stream, limit=3):
+                for batch in line_batches(stream, limit=3):
                     out.append(batch)
             except ValueError as error:
                 out.append(str(error))
@@ -226,7 +226,7 @@ def test_line_batches_split_lines_across_reads_and_stop_at_a_bad_byte():
         edges = [0, *cuts, len(data)]
         partial, lines = [], []
         for a, b in zip(edges[:-1], edges[1:]):   # reads ending anywhere: inside a character, after a newline
-            lines += _split_lines(partial, data[a:b])
+            lines += split_lines(partial, data[a:b])
         lines += [b"".join(partial)]
         assert [line.decode() for line in lines] == io.StringIO(text).readlines()
     got = batches([b"t,x\n0,1\n1,\xff\n2,3\n"])
@@ -243,7 +243,7 @@ def test_line_batches_take_a_lone_carriage_return_as_a_line_end():
     import sys
     import threading
 
-    from kalmix.commands._predict_run import _line_batches
+    from kalmix.commands._stdin_lines import line_batches
 
     def lines(data, cuts):
         read, write = os.pipe()
@@ -257,7 +257,7 @@ def test_line_batches_take_a_lone_carriage_return_as_a_line_end():
         writer = threading.Thread(target=feed)
         writer.start()
         with os.fdopen(read, encoding="utf-8") as stream:
-            got = sum(_line_batches(stream, limit=2), [])
+            got = sum(line_batches(stream, limit=2), [])
         writer.join()
         return got
 
@@ -630,7 +630,7 @@ def test_a_gap_rule_that_cuts_tracks_into_pieces_says_what_to_do(cli, tmp_path):
 def test_csv_output_round_trips_every_value_and_quotes_what_needs_it():
     """The Arrow writer: floats round-trip exactly, integral floats keep their ".0" (read back as floats, not
     integers), NaN is an empty field; ids or names with a comma, a quote or a line end are quoted (pandas)."""
-    from kalmix.commands._durable import csv_text
+    from kalmix.commands._output import csv_text
 
     values = [1.0, 0.1, 1e-7, np.nan, 1e20, -0.0, 123456789.12345679, 2.5e-310, 1.7e9, 1e15, -3.0]
     frame = pd.DataFrame({"track_id": [f"t{i}" for i in range(len(values))], "time": values,
@@ -650,7 +650,7 @@ def test_csv_output_round_trips_every_value_and_quotes_what_needs_it():
 def test_jsonl_output_is_each_record_as_json_dumps_writes_it():
     """Column by column, the text of json.dumps on each record (NaN/inf null, floats round-tripping, numpy
     numbers and bools as JSON's, escaped text); dates and bytes (Parquet ids) as ISO text and UTF-8."""
-    from kalmix.commands._durable import json_value, jsonl_text
+    from kalmix.commands._output import json_value, jsonl_text
 
     frame = pd.DataFrame({
         "track_id": ["a", 'q"u', "é", "x\ny"], "time": [0.0, 1e300, -0.0, 5e-324], "segment": np.arange(4),
@@ -716,7 +716,7 @@ def test_jsonl_output_of_a_parquet_file_with_date_ids(cli, tmp_path):
 ])
 def test_csv_output_reads_back_as_pandas_own_for_any_column_type(frame):
     """Columns Arrow would write otherwise (dates, bytes, objects, float16, a lone column) go through pandas."""
-    from kalmix.commands._durable import csv_text
+    from kalmix.commands._output import csv_text
 
     ours = pd.read_csv(io.StringIO(csv_text(frame, header=True)))
     pd.testing.assert_frame_equal(ours, pd.read_csv(io.StringIO(frame.to_csv(index=False))), check_exact=True)

@@ -28,8 +28,9 @@ from kalmix import MixturePredictor, make_params
 from kalmix.archive import write_archive
 from kalmix.bank import LENGTH_UNIT_RANGE, MAX_HORIZON
 from kalmix.cli import build
-from kalmix.commands import _predict_run
-from kalmix.commands._durable import TEST_HOOK, count_rows
+from kalmix.commands import _predict_file
+from kalmix.commands._durable import TEST_HOOK
+from kalmix.commands._predict_file import count_rows
 from kalmix.streaming import GapTracker, StreamConfig, TrackPredictor
 
 FAST = ["--experts", "2", "--seed", "1", "--length-unit", "1", "--no-progress"]
@@ -113,7 +114,7 @@ def test_a_stopped_file_run_resumes_to_exactly_the_uninterrupted_output(sig, fee
 def test_any_stop_point_resumes_bit_for_bit(cli, feed_csv, reference, tmp_path_factory, monkeypatch, chunk_rows,
                                             piece_rows, stop_after, sig, fmt, save_every):
     """Stopped after any piece of any chunk, then resumed (maybe stopped again): the same bytes as one run."""
-    monkeypatch.setattr(_predict_run, "PIECE_ROWS", piece_rows)
+    monkeypatch.setattr(_predict_file, "PIECE_ROWS", piece_rows)
     folder = tmp_path_factory.mktemp("any")
     state, out = str(folder / "s.npz"), str(folder / f"out.{fmt}")
     args = ["predict", feed_csv, *FAST, "-H", "3", "--chunk-rows", str(chunk_rows), "--save-every",
@@ -603,7 +604,7 @@ def test_the_progress_bar_has_a_total_and_moves_within_a_chunk(cli, feed_csv, mo
 
     import tqdm
 
-    monkeypatch.setattr(_predict_run, "PIECE_ROWS", 40)
+    monkeypatch.setattr(_predict_file, "PIECE_ROWS", 40)
     monkeypatch.setattr(tqdm, "tqdm", functools.partial(tqdm.tqdm, mininterval=0, miniters=1))  # draw every update
     result = _run(cli, ["predict", feed_csv, *FAST[:-1], "--progress", "--chunk-rows", "1000", "-o", os.devnull])
     assert result.exit_code == 0
@@ -626,14 +627,14 @@ def test_count_rows(tmp_path):
 def test_pieces_keep_every_track_in_order_and_merge_back(lengths, rows):
     chunk = pd.DataFrame({"track_id": np.repeat([f"t{i}" for i in range(len(lengths))], lengths),
                           "time": np.concatenate([np.arange(n) * 0.5 for n in lengths])})
-    parts = _predict_run.pieces(chunk, rows)
-    assert sum(len(p) for p in parts) == len(chunk) and len(parts) <= _predict_run._MAX_PIECES
+    parts = _predict_file.pieces(chunk, rows)
+    assert sum(len(p) for p in parts) == len(chunk) and len(parts) <= _predict_file._MAX_PIECES
     for track, n in zip(chunk["track_id"].unique(), lengths):  # a track with enough rows is in every piece
         assert n < len(parts) or all((p["track_id"] == track).any() for p in parts)
     seen = pd.concat(parts)
     assert seen.groupby("track_id", sort=False)["time"].apply(lambda t: t.is_monotonic_increasing).all()
     shuffled = [p.assign(x=1.0) for p in parts[::-1]]
-    pd.testing.assert_frame_equal(_predict_run.merge(shuffled, chunk)[["track_id", "time"]],
+    pd.testing.assert_frame_equal(_predict_file.merge(shuffled, chunk)[["track_id", "time"]],
                                   chunk.reset_index(drop=True))
 
 
