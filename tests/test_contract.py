@@ -46,8 +46,10 @@ def _assert_identical(one, other):
     for name in one._fields:
         a, b = getattr(one, name), getattr(other, name)
         if name == "state":
-            for (key, x), (_, y) in zip(tree_leaves(a), tree_leaves(b)):
-                assert np.array_equal(x, y, equal_nan=True), key
+            leaves = dict(tree_leaves(b))
+            assert [key for key, _ in tree_leaves(a)] == list(leaves), "the state leaves differ by name or count"
+            for key, x in tree_leaves(a):
+                assert np.array_equal(x, leaves[key], equal_nan=True), key
         elif a is None:
             assert b is None, name
         else:
@@ -71,6 +73,41 @@ def test_contract_with_a_lead_head_and_gap_restarts(data, rule):
     check_bank(bank, z, t, restart=restart)
     check_bank(_bank("kinematic", rule), z, t, restart=restart)
     check_bank(make_bank(2, "kinematic+ar", rule=rule, length_unit=0.3, lead=2.0), z, t, restart=restart)
+
+
+def _without_the_last_leaf(tree):
+    """``tree`` (a state) with its last array replaced by None, so that it has one leaf fewer."""
+    parts = list(tree)
+    last = max(i for i, part in enumerate(parts) if part is not None)
+    parts[last] = _without_the_last_leaf(parts[last]) if isinstance(parts[last], tuple) else None
+    return type(tree)(*parts) if hasattr(tree, "_fields") else tuple(parts)
+
+
+@pytest.mark.parametrize("drop", ["lead output", "trailing state leaf"])
+def test_check_bank_fails_on_a_compiled_run_that_drops_an_output_or_a_state_leaf(monkeypatch, drop):
+    """The contract compares outputs and state leaves by name and count: an engine that left one out (the lead
+    forecasts, the state's last array) fails it, where comparing the pairs that both sides have would not."""
+    from kalmix.core.compiled import engine as ce
+    from kalmix.core.engine import tree_leaves
+
+    run = ce.run
+
+    def dropping(*args, **kwargs):
+        result = run(*args, **kwargs)
+        if not kwargs.get("record_experts"):   # the whole run, the one compared with the reference
+            return result
+        if drop == "lead output":
+            return result._replace(lead=None)
+        state = _without_the_last_leaf(result.state)
+        assert len(tree_leaves(state)) == len(tree_leaves(result.state)) - 1
+        return result._replace(state=state)
+
+    bank = make_bank(2, "kinematic+ar", length_unit=0.3, lead=2.0)
+    z, t = benign_tracks(seed=0, t_count=30, n=2)
+    check_bank(bank, z, t)      # the engine as it is passes
+    monkeypatch.setattr(ce, "run", dropping)
+    with pytest.raises(AssertionError, match="on one side only"):
+        check_bank(bank, z, t)
 
 
 def test_the_lead_calibration_learns_the_miss_of_the_interval_it_issued():
