@@ -72,7 +72,7 @@ def test_horizon_predictions_score_against_later_frames():
     np.testing.assert_array_equal(MixturePredictor(5, seed=0).run(z, horizon=1).predictions, one)
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=40)
 @given(error=st.floats(-1e4, 1e4), k=st.integers(1, 50), scale=st.floats(0.1, 10.0))
 def test_weights_and_posteriors_are_finite_and_normalised_for_huge_errors(error, k, scale):
     rng = np.random.default_rng(k)
