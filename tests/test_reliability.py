@@ -108,7 +108,7 @@ def test_a_stopped_file_run_resumes_to_exactly_the_uninterrupted_output(sig, fee
     assert open(out, "rb").read() == reference("csv", 50)
 
 
-@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=10, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(chunk_rows=st.integers(7, 200), piece_rows=st.integers(3, 120), stop_after=st.integers(1, 12),
        sig=st.sampled_from(SIGNALS), fmt=st.sampled_from(["csv", "jsonl"]), save_every=st.integers(1, 400))
 def test_any_stop_point_resumes_bit_for_bit(cli, feed_csv, reference, tmp_path_factory, monkeypatch, chunk_rows,
@@ -559,7 +559,7 @@ def test_ids_are_text_as_written_in_files_and_on_stdin_and_a_bom_is_ignored(cli,
                                   check_exact=True)
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=40)
 @given(steps=st.lists(st.floats(0.01, 2.0), min_size=3, max_size=40), where=st.integers(0, 39),
        jump=st.floats(1e3, 1e12))
 def test_one_wrong_future_timestamp_loses_no_later_row(steps, where, jump):
@@ -622,7 +622,7 @@ def test_count_rows(tmp_path):
     assert [count_rows(str(tmp_path / n)) for n in ("a.csv", "b.csv.gz", "c.csv")] == [3, 300_000, 0]
 
 
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=30)
 @given(lengths=st.lists(st.integers(1, 30), min_size=1, max_size=8), rows=st.integers(1, 50))
 def test_pieces_keep_every_track_in_order_and_merge_back(lengths, rows):
     chunk = pd.DataFrame({"track_id": np.repeat([f"t{i}" for i in range(len(lengths))], lengths),
