@@ -23,6 +23,8 @@ import numpy as np
 
 from kalmix.bank import DEFAULT_BANK, make_bank
 from kalmix.experiments import evaluate as ev
+from kalmix.experiments._evaluate_mixture import run_bank
+from kalmix.experiments._evaluate_scores import forecast_errors
 from kalmix.experiments.table1 import paper_table
 from kalmix.io.datasets import load_dataset
 from kalmix.streaming import auto_length_unit, auto_time_unit
@@ -45,8 +47,8 @@ def warm_and_cold(table):
     bank = make_bank(streams.values.shape[2], length_unit=unit, time_unit=tunit, **DEFAULT_BANK)
     out = {}
     for label, warm, restart in (("warm", True, True), ("cold", False, True), ("bridged", True, False)):
-        one, _, _, _, _, calibration = ev._run_bank(bank, streams, 1, scored, warm=warm, restart_gaps=restart)
-        err = ev._errors(one, streams.values, 1, scored)
+        one, _, _, _, _, calibration = run_bank(bank, streams, 1, scored, warm=warm, restart_gaps=restart)
+        err = forecast_errors(one, streams.values, 1, scored)
         out[label] = {"rms": float(np.sqrt(np.nanmean(err ** 2))), **calibration["one_step"]}
         print(f"  {label}: one-step RMS {out[label]['rms']:.5g}, coverage {out[label]['coverage_95']:.4f}", flush=True)
     return out

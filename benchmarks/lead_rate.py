@@ -22,6 +22,7 @@ import numpy as np
 from kalmix.bank import DEFAULT_BANK, make_bank
 from kalmix.core.compiled import engine as compiled
 from kalmix.experiments import evaluate as ev
+from kalmix.experiments._evaluate_segments import shift, to_segments, to_tracks, track_layout
 from kalmix.streaming import auto_length_unit, auto_time_unit
 
 from .lead_and_intervals import arguments, over_datasets
@@ -48,14 +49,14 @@ def hindsight(table, h):
     unit = auto_time_unit(np.where(tuning, streams.times, np.nan))
     bank = make_bank(values.shape[2], length_unit=auto_length_unit(np.where(tuning[..., None], values, np.nan)),
                      time_unit=unit, lead=h * unit, **DEFAULT_BANK)
-    tv, tt, tl, restart, rows, columns = ev.track_layout(streams)
-    later = ev._to_tracks(ev._shift(streams.times, h), rows, columns, tt.shape, np.nan)
+    tv, tt, tl, restart, rows, columns = track_layout(streams)
+    later = to_tracks(shift(streams.times, h), rows, columns, tt.shape, np.nan)
     result = compiled.run(bank, tv, tt, lengths=tl, ahead_times=later, ahead_frames=h, restart=restart,
                           record_experts=True)
-    experts = ev._to_segments(result.expert_ahead, rows, columns)      # (T, S, K, p): made after row t
-    lead = ev._to_segments(result.lead, rows, columns)
-    target = ev._shift(values, h)                                        # the row h later
-    ok = (ev._shift(scored, h, False) & np.isfinite(experts).all(axis=(-1, -2)) & np.isfinite(target).all(-1)
+    experts = to_segments(result.expert_ahead, rows, columns)      # (T, S, K, p): made after row t
+    lead = to_segments(result.lead, rows, columns)
+    target = shift(values, h)                                        # the row h later
+    ok = (shift(scored, h, False) & np.isfinite(experts).all(axis=(-1, -2)) & np.isfinite(target).all(-1)
           & np.isfinite(lead).all(-1))
     x, y = experts[ok], target[ok]                                       # (n, K, p), (n, p)
     n, k, p = x.shape

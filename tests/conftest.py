@@ -1,5 +1,15 @@
+import os
+
 import numpy as np
 import pytest
+from hypothesis import settings
+
+# Property tests draw the same examples on every run (a failure in CI is one anyone can rerun), without a
+# deadline (a numba kernel compiles on its first example), and print the blob that reproduces a failure. Every
+# test takes this profile; HYPOTHESIS_PROFILE=explore draws new examples each run, to look for new failures.
+settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True)
+settings.register_profile("explore", deadline=None, print_blob=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
 def smooth_tracks(seed: int, steps: int, targets: int = 1, dim: int = 3, scale: float = 50.0):
@@ -47,7 +57,7 @@ def pytest_configure(config):
         return
     from kalmix import MixturePredictor, StreamConfig, TrackPredictor
 
-    for settings in ({}, {"lead": 1.0}):
-        TrackPredictor(StreamConfig(length_unit=1.0, **settings)).warm_up(2)
+    for options in ({}, {"lead": 1.0}):
+        TrackPredictor(StreamConfig(length_unit=1.0, **options)).warm_up(2)
     for experts in (4, 40):   # the scalar kernel (few experts) and the experts-last one
         MixturePredictor(n_experts=experts, seed=0, backend="numba").run(smooth_tracks(0, 20, dim=2)[:, 0])

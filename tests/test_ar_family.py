@@ -85,7 +85,7 @@ def test_without_a_jump_test_a_zero_running_error_flags_no_jump():
         assert last.error[0, 0] > 0
 
 
-@settings(max_examples=4, deadline=None, derandomize=True)
+@settings(max_examples=4)
 @given(seed=st.integers(0, 2**16), p=st.integers(1, 3))
 def test_ar_family_property_both_engines_on_adversarial_tracks(seed, p):
     """Any seed and dimension: experts and mixture equal on both engines, every forecast finite."""

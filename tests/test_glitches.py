@@ -260,7 +260,7 @@ def test_a_real_relocation_restarts_the_track():
     assert result.state.screen.outliers[0] == 2                     # the third wild row restarts
     late = np.abs(moved - result.forecasts)[130:, 0]
     assert np.all(np.isfinite(late)) and late.max() < 10.0          # tracking again at the new place
-    np.testing.assert_allclose(result.forecasts, engine.run(bank, moved, t).forecasts, rtol=1e-9, atol=1e-6)
+    np.testing.assert_array_equal(result.forecasts, engine.run(bank, moved, t).forecasts)
 
 
 def test_mixed_bank_contract_on_jumps_gaps_constant_input_and_1e200():
@@ -301,7 +301,7 @@ def test_predict_reports_outliers_and_keeps_them_out_of_the_state():
     assert np.abs(after).max() < 1e3
 
 
-@settings(max_examples=4, deadline=None, derandomize=True)
+@settings(max_examples=4)
 @given(seed=st.integers(0, 2**16), p=st.integers(1, 3), rule=st.sampled_from(["boa", "mlpoly", "fixed_share"]))
 def test_mixed_bank_property_both_engines_on_adversarial_tracks(seed, p, rule):
     """Any seed and dimension: a jump of 1e8, a long gap, constant input, 1e200 values; finite, equal."""

@@ -97,3 +97,13 @@ def test_the_private_import_scan_finds_relative_and_absolute_imports(tmp_path):
     (package / "streaming.py").write_text("from kalmix.core.engine import _check\nimport numpy\n")
     assert _private_imports(tmp_path) == {("kalmix.core.engine", "kalmix.streaming", "_leaves"),
                                           ("kalmix.streaming", "kalmix.core.engine", "_check")}
+
+
+def test_property_tests_draw_the_same_examples_on_every_run():
+    """tests/conftest.py loads a Hypothesis profile for the whole suite: derandomized (a failure in CI is one
+    anyone can rerun), no deadline (a kernel compiles on its first example), the reproducing blob printed."""
+    from hypothesis import settings
+
+    if os.environ.get("HYPOTHESIS_PROFILE", "ci") != "ci":
+        pytest.skip(f"another Hypothesis profile is loaded: {os.environ['HYPOTHESIS_PROFILE']}")
+    assert settings.default.derandomize and settings.default.deadline is None and settings.default.print_blob

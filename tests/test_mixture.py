@@ -44,8 +44,8 @@ def test_a_batch_of_streams_equals_single_stream_runs(gating, dynamics):
     batch = run_core(params, z, diagnostics=True)
     for j in range(4):
         single = run_core(params, z[:, j:j + 1], init_state(params, 1, stream_ids=[j]), diagnostics=True)
-        np.testing.assert_allclose(batch.predictions[:, j], single.predictions[:, 0], rtol=1e-12, atol=1e-9)
-        np.testing.assert_allclose(batch.weights[:, j], single.weights[:, 0], rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(batch.predictions[:, j], single.predictions[:, 0])
+        np.testing.assert_array_equal(batch.weights[:, j], single.weights[:, 0])
 
 
 @pytest.mark.parametrize("backend", ["numpy", "auto"])
@@ -69,10 +69,10 @@ def test_horizon_predictions_score_against_later_frames():
     errors = z[3:] - result.predictions[:-3]
     assert np.sqrt(np.mean(errors[50:] ** 2)) < np.sqrt(np.mean((z[3:] - z[:-3])[50:] ** 2))
     one = MixturePredictor(5, seed=0).run(z).predictions
-    np.testing.assert_allclose(MixturePredictor(5, seed=0).run(z, horizon=1).predictions, one)
+    np.testing.assert_array_equal(MixturePredictor(5, seed=0).run(z, horizon=1).predictions, one)
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=40)
 @given(error=st.floats(-1e4, 1e4), k=st.integers(1, 50), scale=st.floats(0.1, 10.0))
 def test_weights_and_posteriors_are_finite_and_normalised_for_huge_errors(error, k, scale):
     rng = np.random.default_rng(k)
@@ -107,7 +107,7 @@ def test_covariances_stay_symmetric_positive_definite_over_long_adversarial_runs
         result = run_core(params, chunk[:, None], state)
         state = result.state
         cov = state.cov
-        np.testing.assert_allclose(cov, np.swapaxes(cov, -1, -2), rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(cov, np.swapaxes(cov, -1, -2))
         assert (np.linalg.eigvalsh(cov) > 0).all()
         assert np.isfinite(result.predictions[np.isfinite(chunk).all(axis=1)]).all()
         assert np.isfinite(state.weights).all() and np.allclose(state.weights.sum(-1), 1)
@@ -128,8 +128,8 @@ def test_bank_recipe_is_the_documented_grid():
     assert len(np.unique(params.process_noise[:, 0])) == 8
     assert len(np.unique(params.measurement_noise[:, 0])) == 5
     single = make_params(3, 1)
-    assert single.process_noise[0, 0] == pytest.approx(np.sqrt(1e-2 * 1e2))
-    assert single.measurement_noise[0, 0] == pytest.approx(np.sqrt(5e-2 * 5))
+    assert single.process_noise[0, 0] == np.sqrt(1e-2 * 1e2)
+    assert single.measurement_noise[0, 0] == np.sqrt(5e-2 * 5)
     np.testing.assert_array_equal(single.initial_velocity, 0.0)
 
 
@@ -142,8 +142,8 @@ def test_missing_measurements_predict_without_learning():
     after = predictor.step([np.nan, np.nan, np.nan])
     np.testing.assert_array_equal(predictor.weights_, weights)
     np.testing.assert_array_equal(predictor.process_noise_, noise)
-    np.testing.assert_allclose(after, predictor.predict(1))
-    np.testing.assert_allclose(before, MixturePredictor(5, seed=0).run(z[:60]).predictions[-1])
+    np.testing.assert_array_equal(after, predictor.predict(1))
+    np.testing.assert_array_equal(before, MixturePredictor(5, seed=0).run(z[:60]).predictions[-1])
     assert np.isfinite(after).all()
     nothing_yet = MixturePredictor(5).step([np.nan, np.nan])
     assert np.isnan(nothing_yet).all()

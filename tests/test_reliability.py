@@ -28,8 +28,9 @@ from kalmix import MixturePredictor, make_params
 from kalmix.archive import write_archive
 from kalmix.bank import LENGTH_UNIT_RANGE, MAX_HORIZON
 from kalmix.cli import build
-from kalmix.commands import _predict_run
-from kalmix.commands._durable import TEST_HOOK, count_rows
+from kalmix.commands import _predict_file
+from kalmix.commands._durable import TEST_HOOK
+from kalmix.commands._predict_file import count_rows
 from kalmix.streaming import GapTracker, StreamConfig, TrackPredictor
 
 FAST = ["--experts", "2", "--seed", "1", "--length-unit", "1", "--no-progress"]
@@ -107,13 +108,13 @@ def test_a_stopped_file_run_resumes_to_exactly_the_uninterrupted_output(sig, fee
     assert open(out, "rb").read() == reference("csv", 50)
 
 
-@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=10, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(chunk_rows=st.integers(7, 200), piece_rows=st.integers(3, 120), stop_after=st.integers(1, 12),
        sig=st.sampled_from(SIGNALS), fmt=st.sampled_from(["csv", "jsonl"]), save_every=st.integers(1, 400))
 def test_any_stop_point_resumes_bit_for_bit(cli, feed_csv, reference, tmp_path_factory, monkeypatch, chunk_rows,
                                             piece_rows, stop_after, sig, fmt, save_every):
     """Stopped after any piece of any chunk, then resumed (maybe stopped again): the same bytes as one run."""
-    monkeypatch.setattr(_predict_run, "PIECE_ROWS", piece_rows)
+    monkeypatch.setattr(_predict_file, "PIECE_ROWS", piece_rows)
     folder = tmp_path_factory.mktemp("any")
     state, out = str(folder / "s.npz"), str(folder / f"out.{fmt}")
     args = ["predict", feed_csv, *FAST, "-H", "3", "--chunk-rows", str(chunk_rows), "--save-every",
@@ -558,7 +559,7 @@ def test_ids_are_text_as_written_in_files_and_on_stdin_and_a_bom_is_ignored(cli,
                                   check_exact=True)
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=40)
 @given(steps=st.lists(st.floats(0.01, 2.0), min_size=3, max_size=40), where=st.integers(0, 39),
        jump=st.floats(1e3, 1e12))
 def test_one_wrong_future_timestamp_loses_no_later_row(steps, where, jump):
@@ -603,7 +604,7 @@ def test_the_progress_bar_has_a_total_and_moves_within_a_chunk(cli, feed_csv, mo
 
     import tqdm
 
-    monkeypatch.setattr(_predict_run, "PIECE_ROWS", 40)
+    monkeypatch.setattr(_predict_file, "PIECE_ROWS", 40)
     monkeypatch.setattr(tqdm, "tqdm", functools.partial(tqdm.tqdm, mininterval=0, miniters=1))  # draw every update
     result = _run(cli, ["predict", feed_csv, *FAST[:-1], "--progress", "--chunk-rows", "1000", "-o", os.devnull])
     assert result.exit_code == 0
@@ -621,19 +622,19 @@ def test_count_rows(tmp_path):
     assert [count_rows(str(tmp_path / n)) for n in ("a.csv", "b.csv.gz", "c.csv")] == [3, 300_000, 0]
 
 
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=30)
 @given(lengths=st.lists(st.integers(1, 30), min_size=1, max_size=8), rows=st.integers(1, 50))
 def test_pieces_keep_every_track_in_order_and_merge_back(lengths, rows):
     chunk = pd.DataFrame({"track_id": np.repeat([f"t{i}" for i in range(len(lengths))], lengths),
                           "time": np.concatenate([np.arange(n) * 0.5 for n in lengths])})
-    parts = _predict_run.pieces(chunk, rows)
-    assert sum(len(p) for p in parts) == len(chunk) and len(parts) <= _predict_run._MAX_PIECES
+    parts = _predict_file.pieces(chunk, rows)
+    assert sum(len(p) for p in parts) == len(chunk) and len(parts) <= _predict_file._MAX_PIECES
     for track, n in zip(chunk["track_id"].unique(), lengths):  # a track with enough rows is in every piece
         assert n < len(parts) or all((p["track_id"] == track).any() for p in parts)
     seen = pd.concat(parts)
     assert seen.groupby("track_id", sort=False)["time"].apply(lambda t: t.is_monotonic_increasing).all()
     shuffled = [p.assign(x=1.0) for p in parts[::-1]]
-    pd.testing.assert_frame_equal(_predict_run.merge(shuffled, chunk)[["track_id", "time"]],
+    pd.testing.assert_frame_equal(_predict_file.merge(shuffled, chunk)[["track_id", "time"]],
                                   chunk.reset_index(drop=True))
 
 

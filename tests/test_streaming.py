@@ -48,14 +48,16 @@ def test_rows_equal_batched_table():
     nxt_std = np.array([r.next_std for r in rows])
     ahead = np.array([r.ahead for r in rows])
     ahead_std = np.array([r.ahead_std for r in rows])
-    np.testing.assert_allclose(ahead, batch[["pred3_x", "pred3_y"]].to_numpy(), atol=1e-9, rtol=0)
-    np.testing.assert_allclose(ahead_std, batch[["std3_x", "std3_y"]].to_numpy(), atol=1e-9, rtol=0)
+    np.testing.assert_array_equal(ahead, batch[["pred3_x", "pred3_y"]].to_numpy())
+    np.testing.assert_array_equal(ahead_std, batch[["std3_x", "std3_y"]].to_numpy())
     step = table.groupby("track_id")["time"].diff().shift(-1).to_numpy()   # to the track's next row
     regular = np.abs(step - 0.1) < 1e-9
     last = np.isnan(step)
     same = regular | last
     same[0] = False   # the stream's first row: no interval known yet, a stream forecasts one time unit (1) on
     assert regular.sum() > 100 and (~same).sum() == 2   # and the row before b's 5 s hole
+    # not bit for bit (1.8e-15 and 1.1e-16 measured): a stream forecasts its last time plus an interval, a file the
+    # next row's time
     np.testing.assert_allclose(nxt[same], batch[["pred_x", "pred_y"]].to_numpy()[same], atol=1e-9, rtol=0)
     np.testing.assert_allclose(nxt_std[same], batch[["std_x", "std_y"]].to_numpy()[same], atol=1e-9, rtol=0)
     assert np.all(np.isfinite(batch[["std_x", "std_y"]].to_numpy()[4:]))
@@ -81,8 +83,8 @@ def test_track_equals_the_reference_engine_on_that_track(bank):
     expected = np.concatenate([result.forecasts[1:, 0], mean])
     expected_std = np.concatenate([result.std[1:, 0], np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))])
     got = batch.loc[batch.track_id == "a"]
-    np.testing.assert_allclose(got[["pred_x", "pred_y"]].to_numpy(), expected, atol=1e-9, rtol=0)
-    np.testing.assert_allclose(got[["std_x", "std_y"]].to_numpy(), expected_std, atol=1e-9, rtol=1e-9)
+    np.testing.assert_array_equal(got[["pred_x", "pred_y"]].to_numpy(), expected)
+    np.testing.assert_array_equal(got[["std_x", "std_y"]].to_numpy(), expected_std)
 
 
 @pytest.mark.parametrize("time_unit", [None, 0.1])
@@ -101,7 +103,7 @@ def test_chunks_equal_one_table_and_interleaved_order(time_unit):
         parts = [engine.process_table(interleaved.iloc[i:i + 23]) for i in range(0, len(interleaved), 23)]
         chunked = pd.concat(parts).sort_values(["track_id", "time"]).reset_index(drop=True)
         pd.testing.assert_frame_equal(chunked, whole.sort_values(["track_id", "time"]).reset_index(drop=True),
-                                      check_exact=False, atol=1e-9, rtol=0)
+                                      check_exact=True)
 
 
 def test_save_and_resume_is_bit_for_bit(tmp_path):

@@ -26,7 +26,7 @@ def test_project_triangulate_round_trip_batched():
     np.testing.assert_allclose(CAMERA.project(CAMERA.triangulate(features)), features, rtol=1e-12)
 
 
-@settings(max_examples=50, deadline=None)
+@settings(max_examples=50)
 @given(
     x=st.floats(-1.0, 1.0),
     y=st.floats(-1.0, 1.0),

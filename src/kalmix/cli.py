@@ -15,7 +15,7 @@ COMMANDS = {
     "reproduce": ("kalmix.commands.reproduce", "reproduce"),
     "servo": ("kalmix.commands.servo", "servo"),
     "predict": ("kalmix.commands.predict", "predict"),
-    "evaluate": ("kalmix.commands.predict", "evaluate"),
+    "evaluate": ("kalmix.commands.evaluate", "evaluate"),
     "bench": ("kalmix.commands.bench", "bench"),
 }
 

@@ -24,7 +24,7 @@ import click
 
 from ._common import position_names
 from ._durable import Interrupted
-from ._predict_run import gap_note
+from ._predict_notes import gap_note
 
 #: Shuffle partitions per worker thread at least (smaller tasks balance the load across workers).
 PARTITIONS_PER_WORKER = 4
@@ -158,7 +158,7 @@ def _note(text):
     click.echo(f"kalmix: {text}", err=True)
 
 
-def _gap_splits(part, track_id) -> int:
+def gap_splits(part, track_id) -> int:
     """New segments the gap rule started in a partition of whole tracks (each track's segments count from 0)."""
     if not len(part):
         return 0
@@ -182,7 +182,7 @@ def _compute(client, frame, columns, fmt, partial, settings, unit, chunk_rows, p
     write = result.to_parquet(partial, write_index=False, compute=False)
     rows_in = frame.map_partitions(len).sum()
     # the gap rule's new segments (a partition holds whole tracks), from the same tasks as the written rows
-    splits = result.map_partitions(_gap_splits, columns.track_id, meta=(None, "int64")).sum()
+    splits = result.map_partitions(gap_splits, columns.track_id, meta=(None, "int64")).sum()
     where = client.scheduler.address if scheduler else "a local cluster"
     _note(f"{frame.npartitions} input partition(s) -> {count} partition(s) by track, {threads} worker thread(s) "
           f"on {where}")

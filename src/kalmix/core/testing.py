@@ -49,12 +49,24 @@ OUTPUTS = ("forecasts", "std", "lead", "lead_std")
 
 
 def _outputs(result):
-    return [(name, getattr(result, name)) for name in OUTPUTS if getattr(result, name) is not None]
+    return {name: getattr(result, name) for name in OUTPUTS if getattr(result, name) is not None}
+
+
+def _same_arrays(got: dict, want: dict, what: str):
+    """Equal, bit for bit, name by name: an array given on one side only (a dropped output, a missing or an
+    extra state leaf) fails as well as a different one, and so does one of another type or shape."""
+    assert list(got) == list(want), f"{what}: {sorted(set(got) ^ set(want))} on one side only"
+    for name, a in got.items():
+        assert np.asarray(a).dtype == np.asarray(want[name]).dtype, f"{what}: {name} of another type"
+        assert np.array_equal(a, want[name], equal_nan=True), f"{what}: {name} differ"
 
 
 def _same(a, b, what):
-    for (name, x), (_, y) in zip(_outputs(a), _outputs(b)):
-        assert np.array_equal(x, y, equal_nan=True), f"{what}: {name} differ"
+    _same_arrays(_outputs(a), _outputs(b), what)
+
+
+def _same_state(a, b, what):
+    _same_arrays(dict(tree_leaves(a)), dict(tree_leaves(b)), what)
 
 
 def _joined(first, second):
@@ -74,6 +86,8 @@ def check_bank(bank: Bank, measurements, times, *, compiled=True, restart=None):
     t_count, n, _ = z.shape
     gaps = (lambda rows: None) if restart is None else (lambda rows: restart[rows])  # noqa: E731
     reference = run(bank, z, times, record_experts=True, restart=gaps(slice(None)))
+    given = ("forecasts", "std") + (() if bank.lead is None else ("lead", "lead_std"))
+    assert tuple(_outputs(reference)) == given, f"outputs {tuple(_outputs(reference))}, not {given}"
     # weights valid
     w, experts = reference.weights, reference.experts
     awake = np.isfinite(experts).all(axis=-1)
@@ -89,8 +103,8 @@ def check_bank(bank: Bank, measurements, times, *, compiled=True, restart=None):
     for j in range(n):
         single = run(bank, z[:, j:j + 1], times[:, j:j + 1],
                      restart=None if restart is None else restart[:, j:j + 1])
-        for (name, a), (_, b) in zip(_outputs(single), _outputs(reference)):
-            assert np.array_equal(a[:, 0], b[:, j], equal_nan=True), f"batch != single ({name})"
+        _same_arrays(_outputs(single), {name: a[:, j:j + 1] for name, a in _outputs(reference).items()},
+                     "batch != single")
     # resume == uninterrupted, bit for bit
     cut = t_count // 3
     first = run(bank, z[:cut], times[:cut], restart=gaps(slice(None, cut)))
@@ -99,8 +113,9 @@ def check_bank(bank: Bank, measurements, times, *, compiled=True, restart=None):
     # a NaN row learns nothing: the rule's and the calibration's states are unchanged
     missing = np.full_like(z[:1], np.nan)
     after = run(bank, missing, times[cut:cut + 1], first.state).state
-    for old, new in zip((*first.state.rule, *first.state.calibration), (*after.rule, *after.calibration)):
-        assert np.array_equal(old, new), "a missing row changed the rule's or the calibration's state"
+    for part in ("rule", "calibration"):
+        _same_state(getattr(after, part), getattr(first.state, part),
+                    f"a missing row changed the {part}'s state")
     for family, old, new in zip(bank.families, first.state.families, after.families):
         if family.kind != "akf":
             for a, b in zip(old, new):
@@ -109,13 +124,11 @@ def check_bank(bank: Bank, measurements, times, *, compiled=True, restart=None):
         from .compiled import engine as ce
 
         fast = ce.run(bank, z, times, restart=gaps(slice(None)), record_experts=True)
-        for (name, a), (_, b) in zip(_outputs(fast), _outputs(reference)):
-            assert np.array_equal(a, b, equal_nan=True), f"compiled != reference ({name}), bit for bit"
-        for name in ("experts", "weights"):
-            assert np.array_equal(getattr(fast, name), getattr(reference, name), equal_nan=True), \
-                f"compiled != reference ({name}), bit for bit"
-        for (key, a), (_, b) in zip(tree_leaves(fast.state), tree_leaves(reference.state)):
-            assert np.array_equal(a, b, equal_nan=True), f"compiled != reference ({key}), bit for bit"
+        _same(fast, reference, "compiled != reference, bit for bit")
+        _same_arrays({name: getattr(fast, name) for name in ("experts", "weights")},
+                     {name: getattr(reference, name) for name in ("experts", "weights")},
+                     "compiled != reference, bit for bit")
+        _same_state(fast.state, reference.state, "compiled != reference, bit for bit")
         head = ce.run(bank, z[:cut], times[:cut], restart=gaps(slice(None, cut)))
         resumed = ce.run(bank, z[cut:], times[cut:], head.state, restart=gaps(slice(cut, None)))
         _same(_joined(head, resumed), fast, "compiled resume")
