@@ -148,3 +148,41 @@ def test_gap_min_steps_is_checked(value, error):
 def test_population_prior_is_checked():
     with pytest.raises(TypeError, match="population_prior: expected True or False, got str"):
         StreamConfig(population_prior="no")
+
+
+def test_the_command_line_takes_the_prior_on_request(tmp_path):
+    from click.testing import CliRunner
+
+    from kalmix.cli import build
+
+    table = _short_tracks(tracks=40)
+    source = tmp_path / "tracks.csv"
+    table.to_csv(source, index=False)
+    runner = CliRunner()
+    outputs = {}
+    for name, flags in (("default", []), ("prior", ["--population-prior"])):
+        result = runner.invoke(build(), ["predict", str(source), "-o", str(tmp_path / f"{name}.csv"),
+                                         "--length-unit", "27", "--state", str(tmp_path / f"{name}.kalmix"), *flags])
+        assert result.exit_code == 0, result.output
+        outputs[name] = pd.read_csv(tmp_path / f"{name}.csv")
+    assert _one_step_rms(table, outputs["prior"]) < 0.5 * _one_step_rms(table, outputs["default"])
+    assert TrackPredictor.load(tmp_path / "prior.kalmix").config.population_prior is True
+    assert TrackPredictor.load(tmp_path / "default.kalmix").priors == []
+    again = runner.invoke(build(), ["predict", str(source), "-o", str(tmp_path / "again.csv"), "--length-unit", "27",
+                                    "--state", str(tmp_path / "default.kalmix"), "--population-prior"])
+    assert again.exit_code == 1 and "--population-prior: the state file" in again.stderr
+    archive = tmp_path / "archive"
+    archive.mkdir()
+    table.to_parquet(archive / "part.parquet")
+    dask = runner.invoke(build(), ["predict", str(archive), "--engine", "dask", "-o", str(tmp_path / "d"),
+                                   "--population-prior"])
+    assert dask.exit_code != 0 and "--population-prior: not with --engine dask" in dask.stderr
+
+
+def test_dask_refuses_the_prior():
+    dd = pytest.importorskip("dask.dataframe")
+    from kalmix.dask_predict import predict_dask
+
+    frame = dd.from_pandas(_short_tracks(tracks=3), npartitions=1)
+    with pytest.raises(ValueError, match="population_prior: not with Dask"):
+        predict_dask(frame, length_unit=27.0, population_prior=True)

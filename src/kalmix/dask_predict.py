@@ -531,6 +531,9 @@ def predict_dask(frame, columns: TrackColumns | None = None, *, length_unit: flo
     if partitions is not None and int(partitions) < 1:
         raise ValueError(f"partitions: expected an integer >= 1, got {partitions}")
     config = StreamConfig(length_unit=1.0 if length_unit is None else length_unit, **settings)  # checked now
+    if config.population_prior:
+        raise ValueError("population_prior: not with Dask (a partition's tracks do not see the other partitions' "
+                         "tracks); run TrackPredictor.process_table on one machine")
     if columns is None:
         columns = detect_columns([str(c) for c in frame.columns])
     check_output_names(columns)

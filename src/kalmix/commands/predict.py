@@ -206,6 +206,11 @@ def _local_only(given, output):
               help="Gap threshold as a multiple of the reference interval (the upper quartile of a track's first "
                    "16 steps).")
 @click.option("--reach", default=None, help=REACH_HELP)
+@click.option("--population-prior", is_flag=True, default=False,
+              help="A new track's aggregation rule starts from what the tracks before it learned, instead of "
+                   "empty: a large gain on files of many short tracks. Its numbers follow the order the rows are "
+                   "stepped (a file chunk by chunk, a chunk's tracks one after another; stdin's rows as they "
+                   "come), so a file and the same rows on stdin can differ. Not with --engine dask.")
 @click.option("--state", "state_path", default=None, type=click.Path(dir_okay=False),
               help="State file: resumed from if it exists, written on exit and every --save-every rows.")
 @click.option("--save-every", default=10_000, show_default=True, type=click.IntRange(min=1),
@@ -238,8 +243,9 @@ def _local_only(given, output):
               help="--engine dask: partitions of the shuffle by track [default: the input's, at least "
                    "4 per worker thread].")
 def predict(input_path, time_column, position_columns, id_column, geographic, horizon, lead, output, bank_kind, rule,
-            time_unit, n_experts, seed, length_unit, max_gap, max_gap_factor, reach, state_path, save_every, chunk_rows,
-            progress, on_bad_row, rejects, mixture_options, engine_kind, backend, scheduler, workers, partitions):
+            time_unit, n_experts, seed, length_unit, max_gap, max_gap_factor, reach, population_prior, state_path,
+            save_every, chunk_rows, progress, on_bad_row, rejects, mixture_options, engine_kind, backend, scheduler,
+            workers, partitions):
     """Predict the next position of every track in INPUT (CSV, Parquet, or - for stdin).
 
     Output: one row per input row, in the input's order, with the input's id and time columns
@@ -290,6 +296,9 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
                          options=options)
             _check_gap_rule(engine.config, state_path, gap, never, max_gap_factor,
                             _given(("max_gap", "max_gap_factor")))
+            if population_prior and not engine.config.population_prior:
+                raise ValueError(f"--population-prior: the state file {state_path} was started without it; "
+                                 "resume without the option, or start a new state file")
         kind = bank_kind or (engine.config.bank if engine is not None else DEFAULT_BANK["kind"])
         if "akf" not in recipe_parts(kind) and (n_experts is not None or options):
             raise ValueError(f"{'--experts' if n_experts is not None else '--option'}: sets the AKF family, "
@@ -302,7 +311,8 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
                              f"got --lead {lead:g} and --horizon {horizon}")
         settings = dict(n_experts=40 if n_experts is None else n_experts, seed=0 if seed is None else seed,
                         horizon=horizon, lead=lead, max_gap=gap, max_gap_factor=math.inf if never else max_gap_factor,
-                        options=options, time_unit=time_unit, reach=reach_setting(reach), geographic=geographic)
+                        options=options, time_unit=time_unit, reach=reach_setting(reach), geographic=geographic,
+                        population_prior=population_prior)
         if bank_kind is not None:
             settings["bank"] = bank_kind
         if rule is not None:
@@ -312,6 +322,9 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
             make_params(1, settings["n_experts"], **options)  # a bad option fails before any output
         if engine_kind == "dask":
             from ._predict_dask import run_dask
+            if population_prior:
+                raise ValueError("--population-prior: not with --engine dask (a partition's tracks do not see the "
+                                 "other partitions' tracks); use --engine local")
             _dask_flat(input_path, time_column, position_columns, geographic)
             id_column = _dask_id(input_path, time_column, position_columns, id_column)
             return run_dask(input_path, output, settings, unit, time_column, position_columns, id_column,
