@@ -120,7 +120,7 @@ class Bank:
 
     A bank and its families' parameters are values: make another (``make_bank``, ``dataclasses.replace``,
     ``params._replace``) rather than change their arrays in place; the compiled engine keeps packed copies
-    of an AKF family's parameters from call to call (:func:`kalmix.core.compiled._akf_pack.pack_akf`).
+    of an AKF family's parameters from call to call (:func:`kalmix.core.compiled.akf_driver.constants`).
     """
 
     measurement_dim: int

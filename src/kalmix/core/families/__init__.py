@@ -45,7 +45,7 @@ KINDS = {
     "ca": FamilyKind(kinematic, "kinematic", order=3),
     "ar": FamilyKind(ar, "ar"),
     "turn": FamilyKind(turn, "turn"),
-    "akf": FamilyKind(akf, "akf", clock="frames"),
+    "akf": FamilyKind(akf, "akf_driver", clock="frames"),
 }
 
 
