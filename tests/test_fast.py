@@ -294,13 +294,13 @@ def test_read_only_inputs_compile_no_second_kernel():
     bank = make_bank(2, "kinematic", length_unit=0.3)
     z, t = benign_tracks(seed=1)
     engine.run(bank, z, t)
-    count = len(kinematic._run_block.signatures)
+    count = len(kinematic.kernel.signatures)
     readonly = np.broadcast_to(t[:, :1], t.shape)
     zr = z.copy()
     zr.flags.writeable = False
     engine.run(bank, zr, readonly, ahead_times=readonly + 1.0)
     engine.run(bank, z, np.array(t), ahead_times=t + 1.0)
-    assert len(kinematic._run_block.signatures) == count
+    assert len(kinematic.kernel.signatures) == count
 
 
 def test_a_failing_warm_up_does_not_break_the_run(monkeypatch, cold_cache):

@@ -63,7 +63,8 @@ import numpy as np
 from . import aggregators, calibration
 from . import lead as lead_head
 from . import screen as glitch
-from .families import akf, ar, kinematic, turn
+from .families import KINDS, FamilyKind
+from .families import parts as family_parts
 
 __all__ = ["Family", "Bank", "BankState", "EngineResult", "StepOutput", "init_bank_state", "run", "step", "forecast",
            "cold_start", "FAMILY_KINDS", "FAMILY_MODULES", "LONG_STEP_KINDS", "span", "within_reach",
@@ -76,15 +77,13 @@ __all__ = ["Family", "Bank", "BankState", "EngineResult", "StepOutput", "init_ba
 #: (1.02**10 000 ~ 1e86), which it does not at 10**6 (NaN).
 MAX_HORIZON = 10_000
 
-#: Family kinds: kinematic CV / CA, adaptive AR of the velocity and coordinated turns in real time,
-#: and the paper's AKF (frame-based).
-FAMILY_KINDS = ("cv", "ca", "ar", "turn", "akf")
+#: Family kinds (:data:`kalmix.core.families.KINDS`, the registry of their parts): kinematic CV / CA, adaptive AR
+#: of the velocity and coordinated turns in real time, and the paper's AKF (frame-based).
+FAMILY_KINDS = tuple(KINDS)
 #: Each kind's module (:mod:`kalmix.core.families`).
-FAMILY_MODULES = {"cv": kinematic, "ca": kinematic, "ar": ar, "turn": turn, "akf": akf}
-#: The kinematic kinds' orders (the compiled kernels are built for these two).
-KINEMATIC_ORDERS = {"cv": 2, "ca": 3}
+FAMILY_MODULES = {name: entry.spec for name, entry in KINDS.items()}
 #: The kinds whose one-step forecasts are used across a step longer than the bank's reach.
-LONG_STEP_KINDS = ("cv",)
+LONG_STEP_KINDS = tuple(name for name, entry in KINDS.items() if entry.long_step)
 
 
 @dataclass(frozen=True, eq=False)
@@ -95,7 +94,7 @@ class Family:
     params: Any   # KinematicParams for cv / ca, ARParams for ar, TurnParams for turn, MixtureParams for akf
 
     def __post_init__(self):
-        order, got = KINEMATIC_ORDERS.get(self.kind), getattr(self.params, "order", None)
+        order, got = family_parts(self.kind).order, getattr(self.params, "order", None)
         if order is not None and got != order:
             raise ValueError(f"a {self.kind!r} family has order {order} (its state: position, velocity"
                              f"{', acceleration' if order == 3 else ''}); got order {got!r}")
@@ -105,8 +104,14 @@ class Family:
         return self.params.n_experts
 
     @property
+    def parts(self) -> FamilyKind:
+        """The kind's parts (:data:`kalmix.core.families.KINDS`)."""
+        return KINDS[self.kind]
+
+    @property
     def module(self):
-        return FAMILY_MODULES[self.kind]
+        """The kind's numpy reference (:mod:`kalmix.core.families`)."""
+        return KINDS[self.kind].spec
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,7 +120,7 @@ class Bank:
 
     A bank and its families' parameters are values: make another (``make_bank``, ``dataclasses.replace``,
     ``params._replace``) rather than change their arrays in place; the compiled engine keeps packed copies
-    of an AKF family's parameters from call to call (:func:`kalmix.core.compiled._akf_pack.pack_akf`).
+    of an AKF family's parameters from call to call (:func:`kalmix.core.compiled.akf_driver.constants`).
     """
 
     measurement_dim: int
@@ -137,7 +142,7 @@ class Bank:
         (an infinite reach, or a bank without experts of :data:`LONG_STEP_KINDS` or without others)."""
         if not np.isfinite(self.reach):
             return None
-        far = np.concatenate([np.full(f.n_experts, f.kind not in LONG_STEP_KINDS) for f in self.families])
+        far = np.concatenate([np.full(f.n_experts, not f.parts.long_step) for f in self.families])
         return far if far.any() and not far.all() else None
 
     @property
@@ -312,24 +317,9 @@ def _check_state(bank: Bank, state, n: int) -> None:
 
 
 def _family_forecast(family: Family, state, time, frames: int):
-    if family.kind == "akf":
-        means, _ = akf.forecast(family.params, state, frames)
-        return np.where(state.initialised[:, None, None], means, np.nan)
-    means, _ = family.module.forecast(family.params, state, time)   # time-based: cv, ca, ar, turn
+    """The family's experts' forecasts at ``time`` / ``frames`` ahead (its clock's), NaN before a target's start."""
+    means, _ = family.module.forecast(family.params, state, time, frames)
     return np.where(state.initialised[:, None, None], means, np.nan)
-
-
-def _family_update(family: Family, state, z, time, learn, active, restart):
-    """Learn the row; a target that ``restart``s starts again from it (as after a time gap)."""
-    if family.kind == "akf":
-        if restart.any():
-            fresh = akf.init_state(family.params, len(restart), z.shape[-1])
-            state = type(state)(*(np.where(restart.reshape((-1,) + (1,) * (o.ndim - 1)), f, o)
-                                  for f, o in zip(fresh, state)))
-        return akf.update(family.params, state, z, learn, active)
-    if restart.any():
-        state = state._replace(initialised=state.initialised & ~restart)
-    return family.module.update(family.params, state, z, time, learn)
 
 
 def expert_forecasts(bank: Bank, state: BankState, time, frames: int = 1) -> np.ndarray:
@@ -368,7 +358,7 @@ def forecast(bank: Bank, state: BankState, time, frames: int = 1, *, lead: bool 
     except (TypeError, ValueError):
         raise ValueError(f"time: expected a number or one per target, shape ({n},), got {time!r:.80}") from None
     bad = np.zeros(n, dtype=bool)
-    if any(family.kind != "akf" for family in bank.families):   # (frame-based families do not read the time)
+    if any(family.parts.clock == "time" for family in bank.families):   # (frame-based ones do not read it)
         bad = ~np.isfinite(time)
         with np.errstate(invalid="ignore"):
             bad |= time < state.screen.time   # a target not started (NaN there) takes any finite time
@@ -466,7 +456,8 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
     if restart.any() and hasattr(bank.rule_module, "restart"):
         rule_state = bank.rule_module.restart(bank.rule_params, rule_state, restart)
     cal_state = calibration.update(bank.calibration_params, state.calibration, weights, mixed, awake, z, go)
-    families = tuple(_family_update(f, s, z, time, learn, active, restart)
+    # a target that restarts starts its families again from this row (as after a time gap)
+    families = tuple(f.module.update(f.params, s, z, time, learn, active, restart)
                      for f, s in zip(bank.families, state.families))
     # a cold restart (the screen's warm-up audit): the row was forecast by the old rule and calibration; what is
     # forecast after it (ahead, lead) and everything later by new ones

@@ -8,13 +8,13 @@ default bank. numba holds a lock while it compiles, so threads cannot share the 
 processes can, through the cache: they write the same cache directory.
 
 :func:`compile_ahead`, called by :func:`kalmix.core.compiled.engine.run` (which passes itself), does
-this once per process when a bank has an AKF family whose kernel is not in the cache yet and the machine
-has at least two cores: a child process compiles the AKF kernel (on one tiny track, with the
-family's parameters) while this process compiles the other kernels of the bank (one tiny run
-of the bank without its AKF family); then this process waits for the child and loads the
-AKF kernel from the cache. Every kernel is compiled once; the numbers are the same (the
-cache holds the same machine code). If the child fails, this process compiles the kernel
-itself. ``KALMIX_BACKGROUND_COMPILE=0`` switches it off.
+this once per process when a bank has a family whose driver compiles apart (its ``COMPILE_APART``:
+the AKF's) and whose kernel is not in the cache yet, and the machine has at least two cores: a child
+process compiles that kernel (on one tiny track, with the family's parameters) while this process
+compiles the other kernels of the bank (one tiny run of the bank without the families that compile
+apart); then this process waits for the child and loads the kernel from the cache. Every kernel
+is compiled once; the numbers are the same (the cache holds the same machine code). If the child
+fails, this process compiles the kernel itself. ``KALMIX_BACKGROUND_COMPILE=0`` switches it off.
 """
 
 from __future__ import annotations
@@ -59,10 +59,16 @@ def _cores() -> int:
         return os.cpu_count() or 1
 
 
-def _akf_kernel(family):
-    from . import akf
+def _kernel(family):
+    from .drivers import driver
 
-    return akf._run_block
+    return driver(family.kind).kernel
+
+
+def _apart(family) -> bool:
+    from .drivers import driver
+
+    return driver(family.kind).COMPILE_APART
 
 
 def kernel_cached(dispatcher) -> bool:
@@ -75,17 +81,19 @@ def kernel_cached(dispatcher) -> bool:
 
 
 def _eligible(bank):
-    """The bank's AKF family, if its kernel should be compiled in a child process; else None."""
+    """The bank's family that compiles apart (the AKF), if its kernel should be compiled in a child process; else
+    None."""
     if os.environ.get("KALMIX_BACKGROUND_COMPILE", "1") == "0" or os.environ.get("NUMBA_DISABLE_JIT") == "1":
         return None
-    akf = [f for f in bank.families if f.kind == "akf"]
-    if not akf or len(bank.families) < 2 or _cores() < 2:
+    apart = [f for f in bank.families if _apart(f)]
+    if not apart or len(bank.families) < 2 or _cores() < 2:
         return None
-    return None if kernel_cached(_akf_kernel(akf[0])) else akf[0]
+    return None if kernel_cached(_kernel(apart[0])) else apart[0]
 
 
 def compile_ahead(bank, run) -> int | None:
-    """Once per process: compile the AKF kernel in a child while this process compiles the others.
+    """Once per process: compile the AKF kernel (a family's that compiles apart) in a child while this process
+    compiles the others.
 
     ``run`` is the compiled engine's :func:`kalmix.core.compiled.engine.run`: this process compiles the bank's
     other kernels by running it on a tiny track. Returns the child's exit status (0: the kernel is in the cache),
@@ -102,14 +110,14 @@ def compile_ahead(bank, run) -> int | None:
         try:
             child = subprocess.Popen([sys.executable, "-c", "from kalmix.core.compiled._warm import _child; _child()"],
                                      stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            child.stdin.write(pickle.dumps((family.params, bank.measurement_dim)))
+            child.stdin.write(pickle.dumps((family.kind, family.params, bank.measurement_dim)))
             child.stdin.close()
         except (OSError, pickle.PicklingError):
             return None
         _children.add(child)
         with compiling():   # the wait for the child is compile time too (the notice, ._notice)
             try:
-                _tiny_run(dataclasses.replace(bank, families=tuple(f for f in bank.families if f.kind != "akf")), run)
+                _tiny_run(dataclasses.replace(bank, families=tuple(f for f in bank.families if not _apart(f))), run)
             except Exception:   # noqa: BLE001 - only a warm-up: the real run compiles what is missing, and reports
                 pass
             except BaseException:   # Ctrl-C or a stop signal: stop now, not after the child's compile
@@ -155,14 +163,16 @@ def _tiny_run(bank, run) -> None:
 
 
 def _child() -> None:
-    """The child process: the AKF family (pickled on stdin) through the compiled engine's AKF driver."""
-    from . import akf as cakf
-    from ..families import akf
-    from ._akf_pack import akf_work, pack_akf
+    """The child process: a family (its kind and parameters pickled on stdin) through its compiled driver, as the
+    engine runs it."""
+    from ..families import parts
+    from .drivers import driver
 
-    params, p = pickle.loads(sys.stdin.buffer.read())
-    z, _ = _tiny_track(p)
+    kind, params, p = pickle.loads(sys.stdin.buffer.read())
+    d = driver(kind)
+    z, t = _tiny_track(p)
     rows, k = len(z), params.n_experts
-    cakf.run_block(0, 1, *pack_akf(params, akf.init_state(params, 1, p)), z, np.ones((rows, 1), dtype=bool),
-                   np.zeros((rows, 1), dtype=bool), np.array([rows], dtype=np.int64), np.full((rows, 1, k, p), np.nan),
-                   0, np.empty((0, 0, 0, 0)), 1, *akf_work(rows, 1, k, p, False))
+    state = d.pack(params, parts(kind).spec.init_state(params, 1, p))
+    d.run_block(0, 1, *d.constants(params), *state, z, t, np.array([rows], dtype=np.int64),
+                np.ones((rows, 1), dtype=bool), np.zeros((rows, 1), dtype=bool), np.full((rows, 1, k, p), np.nan), 0,
+                np.empty((0, 0)), np.empty((0, 0, 0, 0)), 1, *d.work_arrays(rows, 1, params, p, False))

@@ -5,6 +5,8 @@ compiled kernel) in pieces cut at its own restart rows, and its experts' predict
 into the bank's buffer one row later (the forecast of row t is the prediction made after row
 t - 1). The same driver runs on the CPU engine (targets in ranges on threads) and on the GPU
 engine (one thread per target): nothing in it allocates, so its scratch comes from the caller.
+It takes the arguments of every family's driver (:mod:`.kinematic`) and ignores the times;
+its host side (packing, the parts the engines use) is :mod:`.akf_driver`.
 """
 
 from __future__ import annotations
@@ -18,21 +20,21 @@ from ._cache import configure_cache
 
 configure_cache()
 
-__all__ = ["run_block", "scratch"]
+__all__ = ["run_block", "kernel", "scratch"]
 
 
 def scratch(state):
-    """A target's scratch of :func:`_run_block` for a packed state: float, int and bool buffers."""
+    """A target's scratch of :func:`kernel` for a packed state: float, int and bool buffers."""
     k_count, p, dim = state[6].shape[1], state[4].shape[1], state[6].shape[2]
     floats, ints, bools = kernels.scratch_size(k_count, p, dim // p)
     return np.empty(floats), np.empty(ints, dtype=np.int64), np.empty(bools, dtype=np.bool_)
 
 
-def run_block(lo, hi, params, state, fresh, z, learn, restart, lengths, out, offset, ahead, horizon, fed, piece,
-              predictions, recorded, later):
-    """Targets ``lo .. hi - 1`` (scratch allocated here, once a call); see :func:`_run_block`."""
-    _run_block(lo, hi, params, state, fresh, z, learn, restart, lengths, out, offset, ahead, horizon, fed, piece,
-               predictions, recorded, later, *scratch(state))
+def run_block(lo, hi, params, fresh, state, z, times, lengths, learn, restart, out, offset, ahead_times, ahead,
+              horizon, fed, piece, predictions, recorded, later):
+    """Targets ``lo .. hi - 1`` (scratch allocated here, once a call); see :func:`kernel`."""
+    kernel(lo, hi, params, fresh, state, z, times, lengths, learn, restart, out, offset, ahead_times, ahead, horizon,
+           fed, piece, predictions, recorded, later, *scratch(state))
 
 
 @nb.njit(**_JIT)
@@ -71,14 +73,15 @@ def _reset(n, state, fresh):
 
 
 @nb.njit(**_JIT)   # with reference counting: the guard's eigenvalues (numpy) allocate
-def _run_block(lo, hi, params, state, fresh, z, learn, restart, lengths, out, offset, ahead, horizon, fed, piece,
-               predictions, recorded, later, fbuf, ibuf, bbuf):
+def kernel(lo, hi, params, fresh, state, z, times, lengths, learn, restart, out, offset, ahead_times, ahead, horizon,
+           fed, piece, predictions, recorded, later, fbuf, ibuf, bbuf):
     """The AKF family's experts over the rows of a block, targets ``lo .. hi - 1``.
 
-    ``params`` / ``state`` / ``fresh``: packed as :func:`kalmix.core.fast.run_fast` packs them
+    ``params`` / ``fresh`` / ``state``: packed as :func:`kalmix.core.fast.run_fast` packs them
     (``state`` is advanced in place; ``fresh`` is one new target's, for the restart rows).
     ``out (B, N, K_bank, p)`` receives the forecast of every row in columns ``offset ..``, made
-    before it; ``ahead`` (if not empty) the forecast ``horizon`` frames after each row. Only
+    before it; ``ahead`` (if not empty) the forecast ``horizon`` frames after each row (``times``
+    and ``ahead_times``, the time-based families' clock, are not read). Only
     learned rows (``learn``) are fed to the filters; a present row not learned advances them
     one frame. ``fed``, ``piece``, ``predictions``, ``recorded`` and ``later`` are the bank's
     work arrays of the block (each target uses its own column), ``fbuf`` / ``ibuf`` / ``bbuf``

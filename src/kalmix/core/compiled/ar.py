@@ -1,10 +1,10 @@
 """Compiled AR family (:mod:`kalmix.core.families.ar`): same formulas in the same order, targets in ranges on threads.
 
 :func:`run_block` advances every target through its rows of a block: at each row it
-writes every expert's forecast of the row (and its variance) into the bank's shared
-buffers at the family's column ``offset``, then learns the row (a ``restart`` row starts
-the experts again from it); with ``ahead_times`` it also writes the forecast made after
-the row for that time.
+writes every expert's forecast of the row into the bank's shared buffer at the family's
+column ``offset``, then learns the row (a ``restart`` row starts the experts again from it);
+with ``ahead_times`` it also writes the forecast made after the row for that time. The
+module has the parts of every family's driver (:mod:`.kinematic` lists them).
 """
 
 from __future__ import annotations
@@ -17,8 +17,17 @@ import numpy as np
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
 from .kinematic import step_delta   # the same clipped step in time units
+# the parts every time-based family's driver shares
+from .kinematic import check_gpu as check_gpu, pack as pack, unpack as unpack, work_arrays as work_arrays
 
 configure_cache()
+
+#: Relative cost of an expert's row (the engine hands the costliest family to a thread first).
+COST = 2.0
+#: The GPU staged engine's name for this family's stage.
+NAME = "ar"
+#: Whether a fresh install compiles the kernel in a second process (:mod:`._warm`): not this one.
+COMPILE_APART = False
 
 
 @nb.njit(**_JIT)
@@ -201,20 +210,33 @@ def _learn(order, bias, m, forgetting, ridge, persistence, jump_threshold, windo
             history_n[k, c, 0] = v[c]
 
 
+def constants(params) -> tuple:
+    """The family's parameters as :func:`kernel` takes them, before its state."""
+    return (params.order, bool(params.bias), np.asarray(params.forgetting), np.asarray(params.ridge),
+            float(params.length_unit), float(params.time_unit), float(params.persistence),
+            float(params.initial_error), float(params.jump_threshold), float(params.window), float(params.max_step),
+            float(params.max_velocity))
+
+
+def scratch(params, p: int) -> tuple:
+    """One target's scratch of :func:`kernel`."""
+    return _scratch(params.order, bool(params.bias), p, params.n_experts)
+
+
 def run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
               jump_threshold, window, max_step, max_velocity,
               weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
-              z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead):
+              z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon):
     """Targets ``lo .. hi - 1`` through their rows of the block (scratch allocated here, once a call)."""
-    _run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
-               jump_threshold, window, max_step, max_velocity,
-               weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
-               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
-               *scratch(order, bias, z.shape[2], forgetting.shape[0]))
+    kernel(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
+           jump_threshold, window, max_step, max_velocity,
+           weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
+           z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon,
+           *_scratch(order, bias, z.shape[2], forgetting.shape[0]))
 
 
-def scratch(order: int, bias: bool, p: int, k_count: int):
-    """A target's scratch of :func:`_run_block`: x, v, h and :func:`_learn`'s for ``k_count`` experts of
+def _scratch(order: int, bias: bool, p: int, k_count: int):
+    """A target's scratch of :func:`kernel`: x, v, h and :func:`_learn`'s for ``k_count`` experts of
     ``m`` weights (a, rhs, low, y, sol, acc, go, new_scale, informative)."""
     m = order + (1 if bias else 0)
     return (np.empty(m), np.empty(p), np.empty(order), np.empty((m, m, k_count)), np.empty((m, k_count)),
@@ -223,11 +245,13 @@ def scratch(order: int, bias: bool, p: int, k_count: int):
 
 
 @nb.njit(**KERNEL_JIT)
-def _run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
-               jump_threshold, window, max_step, max_velocity,
-               weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
-               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead, x, v, h,
-               a, rhs, low, y, sol, acc, go, new_scale, informative):
+def kernel(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
+           jump_threshold, window, max_step, max_velocity,
+           weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
+           z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon, x, v, h,
+           a, rhs, low, y, sol, acc, go, new_scale, informative):
+    """The driver: targets ``lo .. hi - 1`` through their rows of the block, with their scratch given
+    (``horizon``, the frame-based families' clock, is not read)."""
     # The default bank's orders as constants of the compiled loops, so that LLVM unrolls them (the helpers are
     # not inlined by numba: its inlining of _learn into five copies would multiply the compile time; LLVM
     # inlines them); other orders and the bias as they come. The same operations in the same order: the same
@@ -236,7 +260,7 @@ def _run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, p
     constants = (forgetting, ridge, length_unit, time_unit, persistence, initial_error, jump_threshold, window,
                  max_step, max_velocity)
     state = (weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised)
-    rows = (z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead)
+    rows = (z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead)
     work = (x, v, h, a, rhs, low, y, sol, acc, go, new_scale, informative)
     if not bias and order == 1:
         _drive(lo, hi, 1, False, constants, state, rows, work)
@@ -255,19 +279,17 @@ def _drive(lo, hi, order, bias, constants, state, rows, work):
     (forgetting, ridge, length_unit, time_unit, persistence, initial_error, jump_threshold, window, max_step,
      max_velocity) = constants
     weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised = state
-    z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead = rows
+    z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead = rows
     x, v, h, a, rhs, low, y, sol, acc, go, new_scale, informative = work
     k_count = forgetting.shape[0]
     p = z.shape[2]
     m = order + (1 if bias else 0)
-    want_var = out_var.shape[0] > 0
     want_ahead = out_ahead.shape[0] > 0
     for n in range(lo, hi):
         for t in range(lengths[n]):
             # every expert's forecast of this row, then its learning (a restart row starts it again)
             started = initialised[n]
             delta = step_delta(times[t, n], last_time[n], time_unit, max_step)
-            span = delta * length_unit
             for k in range(k_count):
                 if started:
                     _forecast(order, bias, m, delta, length_unit, max_velocity, weights[n, k], history[n, k],
@@ -275,8 +297,6 @@ def _drive(lo, hi, order, bias, constants, state, rows, work):
                 else:
                     for c in range(p):
                         out[t, n, offset + k, c] = np.nan
-                if want_var:
-                    out_var[t, n, offset + k] = error[n, k] * span * span if started else np.nan
             if learn[t, n]:
                 if restart[t, n] or not started:
                     for k in range(k_count):

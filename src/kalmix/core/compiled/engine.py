@@ -17,20 +17,15 @@ from ..calibration import CalibrationState
 from ..engine import (Bank, BankState, EngineResult, check_restart, check_run_arguments, check_run_options,
                       init_bank_state, tree_map, within_reach)
 from ..lead import LeadState
-from ..mixture import MixtureState
 from ..screen import ScreenState
-from . import akf as cakf
-from . import ar as car
-from . import kinematic as ckin
 from . import lead as clead
 from . import rules as crules
-from . import turn as cturn
 from .calibration import pack_params as pack_calibration
 from . import screen as cscreen
 from ._threads import families_in_parallel, group_size, over_groups, over_targets
 from ._notice import watch as watch_compiles
-from ._akf_pack import akf_work, pack_akf
 from ._warm import compile_ahead
+from .drivers import driver
 
 __all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
 
@@ -83,27 +78,6 @@ def rule_scalars(bank: Bank, params=None):
             float(getattr(params, "clip", np.inf)))
 
 
-def family_module(family):
-    """The compiled module of a kinematic, AR or turn family (its ``run_block`` / ``_run_block`` driver, its
-    ``scratch``)."""
-    return {"ar": car, "turn": cturn}.get(family.kind, ckin)
-
-
-def family_constants(family, array=np.asarray) -> tuple:
-    """A kinematic, AR or turn family's parameters as its driver takes them, before its state; ``array`` places
-    the parameter arrays (the GPU engine copies them to the device)."""
-    fp = family.params
-    if family.kind == "ar":
-        return (fp.order, bool(fp.bias), array(fp.forgetting), array(fp.ridge), float(fp.length_unit),
-                float(fp.time_unit), float(fp.persistence), float(fp.initial_error), float(fp.jump_threshold),
-                float(fp.window), float(fp.max_step), float(fp.max_velocity))
-    if family.kind == "turn":
-        return (array(fp.gain), float(fp.length_unit), float(fp.time_unit), float(fp.window), float(fp.max_step),
-                float(fp.max_velocity))
-    return (fp.order, array(fp.process_noise), array(fp.measurement_noise), array(fp.initial_variance),
-            float(fp.time_unit), float(fp.max_step), float(fp.max_variance))
-
-
 def with_lead(bank: Bank, times, ahead_times, ahead_frames):
     """The ahead times and frames a run computes: the lead head's (by default at ``times`` + its lead) when the
     bank has one, else those asked for."""
@@ -136,8 +110,7 @@ def _kernel_array(a):
 
 def _family_cost(family) -> float:
     """Rough cost of a family's row (relative), to hand the costliest to a thread first."""
-    per_expert = {"akf": 4.0, "ar": 2.0}.get(family.kind, 1.0)
-    return per_expert * family.n_experts
+    return driver(family.kind).COST * family.n_experts
 
 
 def _copy(state):
@@ -174,12 +147,9 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     if with_ahead:
         ahead_times = _kernel_array(np.broadcast_to(np.asarray(ahead_times, dtype=np.float64), (t_count, n)))
 
-    families = []
-    for family, fstate in zip(bank.families, state.families):
-        if family.kind == "akf":
-            families.append(pack_akf(family.params, fstate))
-        else:
-            families.append(type(fstate)(*(np.array(a, copy=True, order="C") for a in fstate)))
+    drivers = [driver(family.kind) for family in bank.families]
+    constants = [d.constants(family.params) for d, family in zip(drivers, bank.families)]
+    families = [d.pack(family.params, fstate) for d, family, fstate in zip(drivers, bank.families, state.families)]
     horizon = ahead_frames if with_ahead else 1
     a, b, c, d, e = pack_rule(bank, state.rule, n)
     rule_args = rule_scalars(bank)
@@ -235,14 +205,10 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         ahead_b = ahead_times[begin:end] if with_ahead else empty2
 
         def run_family(i):
-            family, offset, fs = bank.families[i], offsets[i], families[i]
-            if family.kind == "akf":
-                work = akf_work(rows, n, family.n_experts, p, horizon > 1)
-                over_targets(cakf.run_block, n, *fs, zb, lb, restart, lens, buffer, offset,
-                             ahead_buffer if with_ahead else empty4, horizon, *work)
-            else:
-                over_targets(family_module(family).run_block, n, *family_constants(family), *fs, zb, tb, lens, lb,
-                             restart, buffer, empty3, offset, ahead_b, ahead_buffer if with_ahead else empty4)
+            d, family = drivers[i], bank.families[i]
+            over_targets(d.run_block, n, *constants[i], *families[i], zb, tb, lens, lb, restart, buffer, offsets[i],
+                         ahead_b, ahead_buffer if with_ahead else empty4, horizon,
+                         *d.work_arrays(rows, n, family.params, p, horizon > 1))
 
         # Families are independent and write their own columns of the buffers: with too few targets to split
         # (one stream), they run side by side on the threads instead, the costliest first.
@@ -277,9 +243,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
                          lead_covariance[begin:end] if record_covariance else empty4, cold, initial_variance)
         if record_experts:
             weights_out[begin:end] = w_block
-    for i, family in enumerate(bank.families):
-        if family.kind == "akf":
-            families[i] = MixtureState(*families[i][1])
+    families = [d.unpack(packed, fstate) for d, packed, fstate in zip(drivers, families, state.families)]
     head = None
     if lead is not None:
         head = LeadState(unpack_rule(bank, *lead_rule), CalibrationState(*lead_cal), due, pending, issued)

@@ -35,7 +35,8 @@ from . import rules as crules
 from . import screen as cscreen
 from .calibration import calibrate_row
 from .calibration import pack_params as pack_calibration
-from .gpu_staged import MAX_AKF_STATE, sleep_beyond   # (the reach's sleep, shared with the staged engine)
+from .drivers import driver
+from .gpu_staged import sleep_beyond   # (the reach's sleep, shared with the staged engine)
 
 if not hasattr(np, "row_stack"):  # numba-cuda 0.30 registers an overload of np.row_stack, gone from numpy 2.4+
     np.row_stack = np.vstack
@@ -150,26 +151,16 @@ def _kernel():
 
 def check_bank(bank: Bank) -> None:
     """Raise ``ValueError`` unless the GPU engine can run ``bank``: every family and rule runs there, except
-    AKF families whose guard needs eigenvalues (a prior with more than ``MAX_CLUSTER`` roots at 1) or whose
-    state is over :data:`MAX_AKF_STATE`."""
-    from ..fast import fast_guard
-
+    those its driver's ``check_gpu`` refuses (AKF families whose guard needs eigenvalues, a prior with more
+    than ``MAX_CLUSTER`` roots at 1, or whose state is over :data:`.akf_driver.MAX_GPU_STATE`)."""
     for family in bank.families:
-        if family.kind != "akf":
-            continue
-        fp = family.params
-        if fp.state_dim > MAX_AKF_STATE:
-            raise ValueError(f"backend 'gpu': an AKF family's state (order x coordinates) is at most {MAX_AKF_STATE} "
-                             f"there, got {fp.state_dim}; use the CPU engine")
-        if fp.dynamics == "rls" and not fast_guard(fp):
-            raise ValueError("backend 'gpu': this AKF family's guard needs eigenvalues (its prior puts more than "
-                             "6 roots at 1), which the GPU has not; use the CPU engine or a lower AKF order")
+        driver(family.kind).check_gpu(family.params)
 
 
 def fused(bank: Bank, restart=None) -> bool:
     """Whether the one-kernel engine (:func:`run_fused`, faster) runs ``bank``: kinematic families only, at most
     :data:`MAX_EXPERTS` experts, 1 to 3 coordinates, no lead head, no restart rows given."""
-    return (all(f.kind in ("cv", "ca") for f in bank.families) and bank.n_experts <= MAX_EXPERTS
+    return (all(driver(f.kind) is ckin for f in bank.families) and bank.n_experts <= MAX_EXPERTS
             and bank.measurement_dim <= 3 and bank.lead is None and restart is None)
 
 

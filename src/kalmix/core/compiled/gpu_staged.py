@@ -21,19 +21,15 @@ import numpy as np
 from ..calibration import CalibrationState
 from ..engine import Bank, BankState, EngineResult, check_restart, check_run_options, tree_map
 from ..lead import LeadState
-from ..mixture import MixtureState
 from ..screen import ScreenState
-from . import akf as cakf
-from . import ar as car
-from . import kinematic as ckin
 from . import lead as clead
 from . import rules as crules
 from . import screen as cscreen
-from . import turn as cturn
 from ._cache import JIT as _JIT
+from .akf_driver import MAX_GPU_STATE
 from .calibration import pack_params as pack_calibration
-from ._akf_pack import akf_work, pack_akf
-from .engine import family_constants, family_module, pack_rule, prepare, rule_scalars, unpack_rule, with_lead
+from .drivers import driver
+from .engine import pack_rule, prepare, rule_scalars, unpack_rule, with_lead
 
 try:  # numba-cuda is optional (the 'gpu' extra)
     from numba import boolean, cuda, float64
@@ -42,9 +38,7 @@ except ImportError:  # pragma: no cover - depends on the install
 
 __all__ = ["run", "THREADS_PER_BLOCK", "BUFFER_BYTES", "CHUNK_BYTES"]
 
-#: Largest AKF state (order x coordinates) the GPU's guard takes (its scratch is fixed-size there).
-MAX_AKF_STATE = 32
-_GUARD_ROWS = MAX_AKF_STATE + 1
+_GUARD_ROWS = MAX_GPU_STATE + 1   # the AKF guard's scratch rows (the largest AKF state on the GPU, and one)
 
 if cuda is not None:
     from numba.core.extending import overload
@@ -187,6 +181,11 @@ def _zero(lo, hi, array):
             flat[i] = 0
 
 
+def _device_array(shape, dtype):
+    """An uninitialised device array (the drivers' work arrays: each target's rows written before read)."""
+    return cuda.device_array(shape, dtype=dtype)
+
+
 def _nan(shape, n):
     """A device array of ``shape`` (targets on axis 1) filled with NaN on the device."""
     array = cuda.device_array(shape)
@@ -204,12 +203,14 @@ def _per_target(templates, n):
 
 
 def _dev(tree):
-    """Fresh device copies of a tuple of arrays (scalars stay)."""
-    return tuple(cuda.to_device(np.ascontiguousarray(a)) if isinstance(a, np.ndarray) else a for a in tree)
+    """Fresh device copies of a tuple of arrays, nested tuples too (scalars stay)."""
+    return tuple(_dev(a) if isinstance(a, tuple) else
+                 cuda.to_device(np.ascontiguousarray(a)) if isinstance(a, np.ndarray) else a for a in tree)
 
 
 def _host(tree):
-    return tuple(a.copy_to_host() if hasattr(a, "copy_to_host") else a for a in tree)
+    return tuple(_host(a) if isinstance(a, tuple) else a.copy_to_host() if hasattr(a, "copy_to_host") else a
+                 for a in tree)
 
 
 def bytes_per_target(bank: Bank, t_count: int) -> int:
@@ -221,11 +222,16 @@ def bytes_per_target(bank: Bank, t_count: int) -> int:
     total = [0]
     tree_map(lambda a: total.__setitem__(0, total[0] + a.nbytes), state)
     k, p = bank.n_experts, bank.measurement_dim
-    for family, fstate in zip(bank.families, state.families):
-        if family.kind == "akf":
-            _, packed, _ = pack_akf(family.params, fstate)
-            total[0] += sum(a.nbytes for a in cakf.scratch(packed)) + t_count * family.n_experts * p * 16
+    for family in bank.families:
+        d = driver(family.kind)
+        total[0] += sum(a.nbytes for a in d.scratch(family.params, p))
+        total[0] += sum(a.nbytes for a in d.work_arrays(t_count, 1, family.params, p, True, _sized))
     return int(total[0] + t_count * (10 * p * 8 + 16) + t_count * k * p * 8 * 2 + 4096)
+
+
+def _sized(shape, dtype):
+    """An array of ``shape`` that takes no memory (for its ``nbytes``)."""
+    return np.broadcast_to(np.zeros((), dtype), shape)
 
 
 def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
@@ -280,23 +286,11 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
     d_learn, d_gaps = cuda.to_device(np.ascontiguousarray(learn)), cuda.to_device(np.ascontiguousarray(gaps))
     d_ahead_times = cuda.to_device(np.ascontiguousarray(ahead_times)) if with_ahead else cuda.device_array((0, 0))
 
-    families, scratch, constants = [], [], []
-    for family, fstate in zip(bank.families, state.families):
-        fp = family.params
-        if family.kind == "akf":
-            params, packed, fresh = pack_akf(fp, fstate)
-            families.append((_dev(params), _dev(packed), _dev(fresh)))
-            scratch.append(_per_target(cakf.scratch(packed), n))
-            constants.append(())
-        else:
-            families.append(_dev(fstate))
-            constants.append(family_constants(family, cuda.to_device))
-            if family.kind == "ar":
-                scratch.append(_per_target(car.scratch(fp.order, bool(fp.bias), p, family.n_experts), n))
-            elif family.kind == "turn":
-                scratch.append(_per_target(cturn.scratch(p), n))
-            else:
-                scratch.append(_per_target(ckin.scratch(fp.order, p), n))
+    drivers = [driver(family.kind) for family in bank.families]
+    constants = [_dev(d.constants(family.params)) for d, family in zip(drivers, bank.families)]
+    families = [_dev(d.pack(family.params, fstate)) for d, family, fstate in zip(drivers, bank.families,
+                                                                                  state.families)]
+    scratch = [_per_target(d.scratch(family.params, p), n) for d, family in zip(drivers, bank.families)]
     rule = _dev(pack_rule(bank, state.rule, n))
     rule_args = rule_scalars(bank)
     rule_scratch = _per_target(crules.scratch(k, p), n)
@@ -342,17 +336,10 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
         buffer = _nan((rows, n, k, p), n)
         ahead_buffer = _nan((rows, n, k, p), n) if with_ahead else empty4
         ahead_b = d_ahead_times[begin:end] if with_ahead else empty2
-        for i, family in enumerate(bank.families):
-            fs, offset = families[i], offsets[i]
-            if family.kind == "akf":
-                work = akf_work(rows, n, family.n_experts, p, horizon > 1, lambda shape, dtype: cuda.device_array(
-                    shape, dtype=dtype))
-                _launch(cakf._run_block, n, (*fs, zb, lb, f["restart"], lens, buffer, offset, ahead_buffer, horizon,
-                                             *work), scratch[i], stages=stages, name="akf")
-            else:
-                _launch(family_module(family)._run_block, n, (*constants[i], *fs, zb, tb, lens, lb, f["restart"],
-                                                              buffer, empty3, offset, ahead_b, ahead_buffer),
-                        scratch[i], stages=stages, name=family.kind if family.kind in ("ar", "turn") else "kinematic")
+        for i, (d, family) in enumerate(zip(drivers, bank.families)):
+            work = d.work_arrays(rows, n, family.params, p, horizon > 1, _device_array)
+            _launch(d.kernel, n, (*constants[i], *families[i], zb, tb, lens, lb, f["restart"], buffer, offsets[i],
+                                  ahead_b, ahead_buffer, horizon, *work), scratch[i], stages=stages, name=d.NAME)
         mixed, mixed_ahead = buffer, ahead_buffer
         if far is not None:
             mixed = cuda.device_array(buffer.shape)
@@ -376,9 +363,7 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
                                           initial_variance), rule_scratch, stages=stages, name="lead")
     cuda.synchronize()
     clock["kernel"] += time.perf_counter() - launched
-    out = []
-    for family, fs, fstate in zip(bank.families, families, state.families):
-        out.append(MixtureState(*_host(fs[1])) if family.kind == "akf" else type(fstate)(*_host(fs)))
+    out = [d.unpack(_host(fs), fstate) for d, fs, fstate in zip(drivers, families, state.families)]
     head = None
     if lead is not None:
         head = LeadState(unpack_rule(bank, *_host(lead_rule)), CalibrationState(*_host(lead_cal)), *_host(slots))

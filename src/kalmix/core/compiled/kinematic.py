@@ -1,9 +1,27 @@
 """Compiled kinematic family (:mod:`kalmix.core.families.kinematic`): same formulas, targets in ranges on threads.
 
 :func:`run_block` advances every target through its rows of a block: at each row it
-writes every expert's forecast of the row (and its variance) into the bank's shared
-buffers at the family's column ``offset``, then learns the row (a ``restart`` row starts the filters
-again from it); with ``ahead_times`` it also writes the forecast made after the row for that time.
+writes every expert's forecast of the row into the bank's shared buffer at the family's
+column ``offset``, then learns the row (a ``restart`` row starts the filters again from it);
+with ``ahead_times`` it also writes the forecast made after the row for that time.
+
+A family's driver module (this one, :mod:`.ar`, :mod:`.turn`, :mod:`.akf_driver`; the registry
+:data:`kalmix.core.families.KINDS` names it) has the same parts, which the CPU engine, the GPU
+staged engine and the compile warm-up use alike:
+
+- ``constants(params)``: the parameters as :func:`kernel` takes them, before its state;
+- ``pack(params, state)`` / ``unpack(packed, like)``: the state as the kernel advances it in place
+  (fresh copies) and back;
+- ``scratch(params, p)``: one target's scratch; ``work_arrays(rows, n, params, p, later, allocate)``: a
+  block's work arrays (none here);
+- ``kernel(lo, hi, *constants, *packed, z, times, lengths, learn, restart, out, offset,
+  ahead_times, out_ahead, horizon, *work, *scratch)``: targets ``lo .. hi - 1`` through the
+  block's rows, allocating nothing (one GPU thread runs it with ``lo, hi = j, j + 1``);
+  ``run_block`` the same with its scratch allocated (a time-based family ignores ``horizon``,
+  a frame-based one the times);
+- ``check_gpu(params)``: ``ValueError`` if the GPU cannot run the family; ``COST``: the relative
+  cost of an expert's row; ``NAME``: the GPU stage's name; ``COMPILE_APART``: the kernel compiles
+  in a second process on a fresh install (:mod:`._warm`).
 """
 
 from __future__ import annotations
@@ -19,6 +37,13 @@ from ._cache import KERNEL_JIT, configure_cache
 
 configure_cache()
 _FACT = (1.0, 1.0, 2.0)
+
+#: Relative cost of an expert's row (the engine hands the costliest family to a thread first).
+COST = 1.0
+#: The GPU staged engine's name for this family's stage.
+NAME = "kinematic"
+#: Whether a fresh install compiles the kernel in a second process (:mod:`._warm`): not this one.
+COMPILE_APART = False
 
 
 @nb.njit(**_JIT)
@@ -175,30 +200,63 @@ def step_expert(order, delta, q, r, initial_k, max_variance, started, learn, fre
     return variance
 
 
+def constants(params) -> tuple:
+    """The family's parameters as :func:`kernel` takes them, before its state."""
+    return (params.order, np.asarray(params.process_noise), np.asarray(params.measurement_noise),
+            np.asarray(params.initial_variance), float(params.time_unit), float(params.max_step),
+            float(params.max_variance))
+
+
+def pack(params, state) -> tuple:
+    """A time-based family's state as its kernel advances it in place: fresh C-contiguous copies of its arrays."""
+    return tuple(np.array(a, copy=True, order="C") for a in state)
+
+
+def unpack(packed, like):
+    """The state :func:`pack` packed, as the family's state class (that of ``like``)."""
+    return type(like)(*packed)
+
+
+def work_arrays(rows: int, n: int, params, p: int, later: bool, allocate=np.empty) -> tuple:
+    """A time-based family's kernel has no work arrays of a block."""
+    return ()
+
+
+def check_gpu(params) -> None:
+    """The GPU runs every time-based family."""
+
+
+def scratch(params, p: int) -> tuple:
+    """One target's scratch of :func:`kernel`."""
+    return _scratch(params.order, p)
+
+
 def run_block(lo, hi, order, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
-              z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead):
+              z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon):
     """Targets ``lo .. hi - 1`` through their rows of the block (scratch allocated here, once a call)."""
-    _run_block(lo, hi, order, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
-               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
-               *scratch(order, z.shape[2]))
+    kernel(lo, hi, order, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
+           z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon,
+           *_scratch(order, z.shape[2]))
 
 
-def scratch(order: int, p: int):
-    """A target's scratch of :func:`_run_block`: m_pred, c_pred, f, work, gain, a."""
+def _scratch(order: int, p: int):
+    """A target's scratch of :func:`kernel`: m_pred, c_pred, f, work, gain, a."""
     square = lambda: np.empty((order, order))  # noqa: E731
     return np.empty((order, p)), square(), square(), square(), np.empty(order), square()
 
 
 @nb.njit(**KERNEL_JIT)
-def _run_block(lo, hi, order, q, r, initial, time_unit, max_step, max_variance,
-               mean, cov, last_time, initialised,
-               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead,
-               m_pred, c_pred, f, work, gain, a):
+def kernel(lo, hi, order, q, r, initial, time_unit, max_step, max_variance,
+           mean, cov, last_time, initialised,
+           z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon,
+           m_pred, c_pred, f, work, gain, a):
+    """The driver: targets ``lo .. hi - 1`` through their rows of the block, with their scratch given
+    (``horizon``, the frame-based families' clock, is not read)."""
     # The order (2: CV, 3: CA; kalmix.core.engine.Family refuses others) as a constant of the compiled loops, so
     # that LLVM unrolls them (the helpers are not inlined by numba, whose inlining of two copies would triple the
     # compile time; LLVM inlines them). The same operations in the same order: the same bits.
     args = (q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised, z, times, lengths,
-            learn, restart, out, out_var, offset, ahead_times, out_ahead, m_pred, c_pred, f, work, gain, a)
+            learn, restart, out, offset, ahead_times, out_ahead, m_pred, c_pred, f, work, gain, a)
     if order == 2:
         _drive(lo, hi, 2, args)
     else:
@@ -208,10 +266,9 @@ def _run_block(lo, hi, order, q, r, initial, time_unit, max_step, max_variance,
 @nb.njit(inline="always", **_JIT)
 def _drive(lo, hi, order, args):
     (q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised, z, times, lengths,
-     learn, restart, out, out_var, offset, ahead_times, out_ahead, m_pred, c_pred, f, work, gain, a) = args
+     learn, restart, out, offset, ahead_times, out_ahead, m_pred, c_pred, f, work, gain, a) = args
     k_count = q.shape[0]
     p = z.shape[2]
-    want_var = out_var.shape[0] > 0
     want_ahead = out_ahead.shape[0] > 0
     for n in range(lo, hi):
         for t in range(lengths[n]):
@@ -220,11 +277,8 @@ def _drive(lo, hi, order, args):
             fresh = restart[t, n] or not initialised[n]
             delta = step_delta(times[t, n], last_time[n], time_unit, max_step)
             for k in range(k_count):
-                v = step_expert(order, delta, q[k], r[k], initial[k], max_variance, initialised[n], learning, fresh,
-                                z[t, n], mean[n, k], cov[n, k], out[t, n, offset + k], m_pred, c_pred, f, work,
-                                gain, a)
-                if want_var:
-                    out_var[t, n, offset + k] = v
+                step_expert(order, delta, q[k], r[k], initial[k], max_variance, initialised[n], learning, fresh,
+                            z[t, n], mean[n, k], cov[n, k], out[t, n, offset + k], m_pred, c_pred, f, work, gain, a)
             if learning:
                 initialised[n] = True
                 last_time[n] = times[t, n]

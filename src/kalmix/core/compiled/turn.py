@@ -1,10 +1,10 @@
 """Compiled coordinated-turn family (:mod:`kalmix.core.families.turn`): same formulas in the same order.
 
 :func:`run_block` advances every target through its rows of a block: at each row it
-writes every expert's forecast of the row (and its variance) into the bank's shared
-buffers at the family's column ``offset``, then learns the row (a ``restart`` row starts
-the experts again from it); with ``ahead_times`` it also writes the forecast made after
-the row for that time.
+writes every expert's forecast of the row into the bank's shared buffer at the family's
+column ``offset``, then learns the row (a ``restart`` row starts the experts again from it);
+with ``ahead_times`` it also writes the forecast made after the row for that time. The
+module has the parts of every family's driver (:mod:`.kinematic` lists them).
 """
 
 from __future__ import annotations
@@ -18,8 +18,17 @@ from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
 from .ar import bounded   # NaN -> 0, then clipped to +-bound
 from .kinematic import step_delta   # the same clipped step in time units
+# the parts every time-based family's driver shares
+from .kinematic import check_gpu as check_gpu, pack as pack, unpack as unpack, work_arrays as work_arrays
 
 configure_cache()
+
+#: Relative cost of an expert's row (the engine hands the costliest family to a thread first).
+COST = 1.0
+#: The GPU staged engine's name for this family's stage.
+NAME = "turn"
+#: Whether a fresh install compiles the kernel in a second process (:mod:`._warm`): not this one.
+COMPILE_APART = False
 
 
 @nb.njit(inline="always", **_JIT)
@@ -74,28 +83,39 @@ def forecast_expert(gain, speed, omega, span, known, delta, position_n, b, c, ou
         out[i] = position_n[i] + (length * (b[i] * cos_a + c[i] * sin_a) if known >= 1 else 0.0)
 
 
+def constants(params) -> tuple:
+    """The family's parameters as :func:`kernel` takes them, before its state."""
+    return (np.asarray(params.gain), float(params.length_unit), float(params.time_unit), float(params.window),
+            float(params.max_step), float(params.max_velocity))
+
+
+def scratch(params, p: int) -> tuple:
+    """One target's scratch of :func:`kernel`: b, c, v."""
+    return _scratch(p)
+
+
 def run_block(lo, hi, gain, length_unit, time_unit, window, max_step, max_velocity,
               velocity, previous, span, previous_span, known, error, count, position, last_time, initialised,
-              z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead):
+              z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon):
     """Targets ``lo .. hi - 1`` through their rows of the block (scratch allocated here, once a call)."""
-    _run_block(lo, hi, gain, length_unit, time_unit, window, max_step, max_velocity,
-               velocity, previous, span, previous_span, known, error, count, position, last_time, initialised,
-               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead, *scratch(z.shape[2]))
+    kernel(lo, hi, gain, length_unit, time_unit, window, max_step, max_velocity,
+           velocity, previous, span, previous_span, known, error, count, position, last_time, initialised,
+           z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon, *_scratch(z.shape[2]))
 
 
-def scratch(p: int):
-    """A target's scratch of :func:`_run_block`: b, c, v."""
+def _scratch(p: int):
     return np.empty(p), np.empty(p), np.empty(p)
 
 
 @nb.njit(**KERNEL_JIT)
-def _run_block(lo, hi, gain, length_unit, time_unit, window, max_step, max_velocity,
-               velocity, previous, span, previous_span, known, error, count, position, last_time, initialised,
-               z, times, lengths, learn, restart, out, out_var, offset, ahead_times, out_ahead, b, c, v):
+def kernel(lo, hi, gain, length_unit, time_unit, window, max_step, max_velocity,
+           velocity, previous, span, previous_span, known, error, count, position, last_time, initialised,
+           z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon, b, c, v):
+    """The driver: targets ``lo .. hi - 1`` through their rows of the block, with their scratch given
+    (``horizon``, the frame-based families' clock, is not read)."""
     k_count = gain.shape[0]
     p = z.shape[2]
     bound = max_velocity * length_unit
-    want_var = out_var.shape[0] > 0
     want_ahead = out_ahead.shape[0] > 0
     for n in range(lo, hi):
         for t in range(lengths[n]):
@@ -110,8 +130,6 @@ def _run_block(lo, hi, gain, length_unit, time_unit, window, max_step, max_veloc
                 else:
                     for i in range(p):
                         out[t, n, offset + k, i] = np.nan
-                if want_var:
-                    out_var[t, n, offset + k] = error[n, k] * (delta * delta) if started else np.nan
             if learn[t, n]:
                 if restart[t, n] or not started:
                     for i in range(p):

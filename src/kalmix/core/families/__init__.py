@@ -8,9 +8,50 @@
   forward) in real time, in any dimension;
 - :mod:`.akf`: the paper's state-model adaptive Kalman filters (frame-based).
 
-The compiled versions are in :mod:`kalmix.core.compiled`.
+Every family module has the same functions: ``init_state(params, n_targets, measurement_dim)``,
+``forecast(params, state, time, frames=1) -> (means (N, K, p), variances)`` and
+``update(params, state, measurement, time, learn, active, restart) -> state``. A bank asks for a
+forecast by both clocks at once, the time and the rows ahead; a time-based family reads the time,
+a frame-based one the rows (its :attr:`FamilyKind.clock`). Every state has ``initialised (N,)``.
+
+:data:`KINDS` maps a family kind to its parts; the compiled versions are in
+:mod:`kalmix.core.compiled` (each kind's module there is named in its entry).
 """
+
+from __future__ import annotations
+
+from types import ModuleType
+from typing import NamedTuple
 
 from . import akf, ar, kinematic, turn
 
-__all__ = ["akf", "ar", "kinematic", "turn"]
+__all__ = ["akf", "ar", "kinematic", "turn", "FamilyKind", "KINDS", "parts"]
+
+
+class FamilyKind(NamedTuple):
+    """A family kind's parts: what a bank and its engines need to know of it."""
+
+    spec: ModuleType            # init_state, forecast, update: the numpy reference
+    compiled: str               # its compiled driver, the module kalmix.core.compiled.<compiled> (needs numba)
+    clock: str = "time"         # "time": forecasts at a time; "frames": so many rows ahead, whatever the time
+    order: int | None = None    # the state's order the kind fixes (its compiled kernels are built for it)
+    long_step: bool = False     # forecasts across a step longer than the bank's reach (kalmix.core.engine)
+
+
+#: Family kinds and their parts: kinematic CV / CA, adaptive AR of the velocity and coordinated turns in real
+#: time, and the paper's AKF (frame-based).
+KINDS = {
+    "cv": FamilyKind(kinematic, "kinematic", order=2, long_step=True),
+    "ca": FamilyKind(kinematic, "kinematic", order=3),
+    "ar": FamilyKind(ar, "ar"),
+    "turn": FamilyKind(turn, "turn"),
+    "akf": FamilyKind(akf, "akf_driver", clock="frames"),
+}
+
+
+def parts(name: str) -> FamilyKind:
+    """The parts of the family kind ``name``; ``ValueError`` naming the kinds for another."""
+    try:
+        return KINDS[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"kind: expected one of {', '.join(map(repr, KINDS))}, got {name!r}") from None

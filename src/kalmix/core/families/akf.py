@@ -9,8 +9,10 @@ paper's own mixture, :func:`kalmix.core.mixture.step`).
 
 The AKF is frame-based: a row is one frame, whatever its time stamp, and a present
 but not learned row (missing, or rejected as a glitch) advances the filters one frame
-without learning. ``forecast`` ignores ``time`` and gives the prediction ``frames``
-frames ahead of the last row.
+without learning. It takes the arguments every family takes and reads the frame clock
+in them: ``forecast`` ignores ``time`` and gives the prediction ``frames`` frames ahead
+of the last row; ``update`` ignores ``time`` and advances the ``active`` targets (those
+with a row) one frame.
 """
 
 from __future__ import annotations
@@ -26,8 +28,9 @@ def init_state(params: MixtureParams, n_targets: int, measurement_dim: int) -> M
     return _init(params, n_targets, stream_ids=np.zeros(n_targets, dtype=np.int64))
 
 
-def forecast(params: MixtureParams, state: MixtureState, frames: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Experts' predictions ``frames`` ahead ``(N, K, p)`` and their variances ``(N, K, p)``.
+def forecast(params: MixtureParams, state: MixtureState, time, frames: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Experts' predictions ``frames`` ahead ``(N, K, p)`` and their variances ``(N, K, p)`` (``time`` is not
+    read: a frame-based family counts rows).
 
     The variance is that of the next frame's innovation, :math:`\\kappa^2 P_{11} + R`.
     """
@@ -41,9 +44,18 @@ def forecast(params: MixtureParams, state: MixtureState, frames: int = 1) -> tup
     return means, variances
 
 
-def update(params: MixtureParams, state: MixtureState, measurement, learn, active) -> MixtureState:
-    """One frame for the ``active`` targets: learn ``measurement`` where ``learn``, else predict only."""
+def update(params: MixtureParams, state: MixtureState, measurement, time, learn, active,
+           restart=None) -> MixtureState:
+    """One frame for the ``active`` targets: learn ``measurement`` where ``learn``, else predict only
+    (``time`` is not read). A target that ``restart (N,)``s starts again as new at this frame."""
+    if restart is not None and restart.any():
+        fresh = init_state(params, len(restart), measurement.shape[-1])
+        state = MixtureState(*(np.where(restart.reshape(_column(o)), f, o) for f, o in zip(fresh, state)))
     z = np.where(learn[:, None], measurement, np.nan)
     new, _ = step(params, state, z)
-    shape = lambda a: (-1,) + (1,) * (a.ndim - 1)  # noqa: E731
-    return MixtureState(*(np.where(active.reshape(shape(n)), n, o) for n, o in zip(new, state)))
+    return MixtureState(*(np.where(active.reshape(_column(n)), n, o) for n, o in zip(new, state)))
+
+
+def _column(array) -> tuple:
+    """The shape that broadcasts a per-target ``(N,)`` mask over ``array (N, ...)``."""
+    return (-1,) + (1,) * (array.ndim - 1)

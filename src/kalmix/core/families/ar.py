@@ -51,7 +51,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._libm import ordered_sum
-from .kinematic import step_delta   # the same clipped step in time units (params.time_unit, max_step; state.last_time)
+from .kinematic import restarted, step_delta   # the same clipped step in time units; the same restart
 
 __all__ = ["ARParams", "ARState", "init_state", "forecast", "update", "ITERATED_STEPS"]
 
@@ -142,8 +142,9 @@ def _velocity_forecast(params: ARParams, state: ARState) -> np.ndarray:
     return np.clip(np.where(np.isnan(v), 0.0, v), -params.max_velocity, params.max_velocity)
 
 
-def forecast(params: ARParams, state: ARState, time) -> tuple[np.ndarray, np.ndarray]:
-    """Each expert's predicted measurement at ``time (N,)`` and its variance per coordinate.
+def forecast(params: ARParams, state: ARState, time, frames: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Each expert's predicted measurement at ``time (N,)`` and its variance per coordinate (``frames`` is not
+    read: a time-based family forecasts at ``time``).
 
     Returns
     -------
@@ -227,12 +228,14 @@ def _fit(params: ARParams, state: ARState, x, v):
     return info, target, scale, weight, weights
 
 
-def update(params: ARParams, state: ARState, measurement: np.ndarray, time, learn: np.ndarray) -> ARState:
+def update(params: ARParams, state: ARState, measurement: np.ndarray, time, learn: np.ndarray, active=None,
+           restart=None) -> ARState:
     """Learn ``measurement (N, p)`` at ``time (N,)`` for the targets where ``learn (N,)``.
 
-    A target not yet started starts at the measurement (prior weights, zero history).
-    Targets outside ``learn`` are unchanged.
+    A target not yet started (or that ``restart (N,)``s) starts at the measurement (prior weights,
+    zero history). Targets outside ``learn`` are unchanged (``active`` is not read).
     """
+    state = restarted(state, restart)
     time = np.asarray(time, dtype=np.float64)
     z = np.where(learn[:, None], measurement, 0.0)
     delta = step_delta(params, state, time)

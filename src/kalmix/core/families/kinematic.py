@@ -45,7 +45,7 @@ from .._libm import ordered_matmul as _matmul
 from .._libm import ordered_sum
 
 __all__ = ["KinematicParams", "KinematicState", "init_state", "forecast", "update", "transition", "process_noise",
-           "RESTART_NIS"]
+           "RESTART_NIS", "restarted"]
 
 
 class KinematicParams(NamedTuple):
@@ -158,8 +158,9 @@ def _predict(params: KinematicParams, state: KinematicState, delta: np.ndarray):
     return mean, _symmetrise(cov)
 
 
-def forecast(params: KinematicParams, state: KinematicState, time) -> tuple[np.ndarray, np.ndarray]:
-    """Each expert's predicted measurement at ``time (N,)`` and its variance per coordinate.
+def forecast(params: KinematicParams, state: KinematicState, time, frames: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Each expert's predicted measurement at ``time (N,)`` and its variance per coordinate (``frames``, the
+    frame-based families' horizon, is not read: a time-based family forecasts at ``time``).
 
     Returns
     -------
@@ -171,13 +172,23 @@ def forecast(params: KinematicParams, state: KinematicState, time) -> tuple[np.n
     return mean[..., 0, :], variance
 
 
-def update(params: KinematicParams, state: KinematicState, measurement: np.ndarray, time,
-           learn: np.ndarray) -> KinematicState:
+def restarted(state, restart):
+    """A time-based family's ``state`` with the targets that ``restart (N,)`` (or None) as not started: each
+    starts again at its next learned row (this one, if learned)."""
+    if restart is None or not restart.any():
+        return state
+    return state._replace(initialised=state.initialised & ~restart)
+
+
+def update(params: KinematicParams, state: KinematicState, measurement: np.ndarray, time, learn: np.ndarray,
+           active=None, restart=None) -> KinematicState:
     """Assimilate ``measurement (N, p)`` at ``time (N,)`` for the targets where ``learn (N,)``.
 
-    A target not yet started starts at the measurement; the others get the Joseph-form
-    Kalman update of the extrapolated state. Targets outside ``learn`` are unchanged.
+    A target not yet started (or that ``restart (N,)``s) starts at the measurement; the others get
+    the Joseph-form Kalman update of the extrapolated state. Targets outside ``learn`` are unchanged
+    (``active`` is not read: a row not learned changes nothing in a time-based family).
     """
+    state = restarted(state, restart)
     time = np.asarray(time, dtype=np.float64)
     z = np.where(learn[:, None], measurement, 0.0)
     mean, cov = _predict(params, state, step_delta(params, state, time))

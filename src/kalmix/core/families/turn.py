@@ -47,7 +47,7 @@ import numpy as np
 
 from .._libm import atan2, cos, sin
 from .ar import ordered_dot   # a sum over the last axis in the kernel's order
-from .kinematic import step_delta   # the same clipped step in time units (params.time_unit, max_step; state.last_time)
+from .kinematic import restarted, step_delta   # the same clipped step in time units; the same restart
 
 __all__ = ["TurnParams", "TurnState", "init_state", "forecast", "update", "turn_geometry"]
 
@@ -137,8 +137,9 @@ def _means(params: TurnParams, state: TurnState, delta) -> np.ndarray:
     return state.position[:, None, :] + np.where(moving, length[..., None] * direction, 0.0)
 
 
-def forecast(params: TurnParams, state: TurnState, time) -> tuple[np.ndarray, np.ndarray]:
-    """Each expert's predicted measurement at ``time (N,)`` and its variance per coordinate.
+def forecast(params: TurnParams, state: TurnState, time, frames: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Each expert's predicted measurement at ``time (N,)`` and its variance per coordinate (``frames`` is not
+    read: a time-based family forecasts at ``time``).
 
     Returns
     -------
@@ -149,12 +150,15 @@ def forecast(params: TurnParams, state: TurnState, time) -> tuple[np.ndarray, np
     return _means(params, state, delta), state.error * (delta * delta)[:, None]
 
 
-def update(params: TurnParams, state: TurnState, measurement: np.ndarray, time, learn: np.ndarray) -> TurnState:
+def update(params: TurnParams, state: TurnState, measurement: np.ndarray, time, learn: np.ndarray, active=None,
+           restart=None) -> TurnState:
     """Learn ``measurement (N, p)`` at ``time (N,)`` for the targets where ``learn (N,)``.
 
-    A target not yet started starts at the measurement. A row at the time of the last one
-    (no step) moves the position and keeps the velocities. Targets outside ``learn`` are unchanged.
+    A target not yet started (or that ``restart (N,)``s) starts at the measurement. A row at the
+    time of the last one (no step) moves the position and keeps the velocities. Targets outside
+    ``learn`` are unchanged (``active`` is not read).
     """
+    state = restarted(state, restart)
     time = np.asarray(time, dtype=np.float64)
     z = np.where(learn[:, None], measurement, 0.0)
     delta = step_delta(params, state, time)
