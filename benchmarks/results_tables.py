@@ -810,6 +810,36 @@ def speed(results: Results) -> list:
                   notes=notes)]
 
 
+def akf_kernels(results: Results) -> list:
+    """The compiled AKF kernels of one or more source trees: seconds by bank size and workload, compile times."""
+    name = "akf_kernels.json"
+    data = results(name)
+    columns = [(label, kernel) for label, tree in data["trees"].items() for kernel in tree["kernels"]]
+    header = ["workload", "experts"] + [f"{label}: {kernel.replace('_', '-')} kernel, s" for label, kernel in columns]
+    cells = {}
+    for label, tree in data["trees"].items():
+        for row in tree["speed"]:
+            cells[(row["workload"], row["targets"], row["rows"], row["experts"], label, row["kernel"])] = row["seconds"]
+    rows = []
+    for workload, targets, steps, k in dict.fromkeys(key[:4] for key in cells):
+        size = f"{targets:,} target{'s' if targets > 1 else ''} × {steps:,} rows"
+        rows.append([size, str(k)] + [num(cells.get((workload, targets, steps, k, label, kernel)), 3)
+                                      for label, kernel in columns])
+    compiled = {(label, c["kernel"]): c for label, tree in data["trees"].items() for c in tree.get("compile", [])}
+    if compiled:
+        rows.append(["compile from an empty cache", ""] + [num(compiled.get(column, {}).get("compile_seconds"), 3)
+                                                           for column in columns])
+    loads = [c["load_1min_before"] for c in compiled.values()]
+    notes = [f"{_machine(data)}" + (f"; the compiles ran at a 1-minute load of {min(loads):.1f} to "
+                                    f"{max(loads):.1f}." if loads else "."),
+             "The paper mixture's AKF step (`make_params(3, K)`: RLS dynamics, the fixed-share gate, noise "
+             "feedback), one thread, the best of 3 warm calls; every kernel's predictions are the same bits."]
+    trees = ", ".join(f"{label} = {tree.get('commit') or 'a source tree'}" for label, tree in data["trees"].items())
+    notes.append(f"Trees: {trees}.")
+    return [Table(header=header, rows=rows, sources=(name,), notes=notes,
+                  command=data.get("command") or "python -m benchmarks.akf_kernels --json benchmarks/results/" + name)]
+
+
 def dask(results: Results) -> list:
     tables = []
     for name in sorted(n for n in results.names() if n.startswith("dask_scaling")):
@@ -891,6 +921,7 @@ SECTIONS = {
     "irregular": irregular,
     "model-zoo": model_zoo,
     "speed": speed,
+    "akf-kernels": akf_kernels,
     "dask": dask,
     "gpu": gpu,
 }
