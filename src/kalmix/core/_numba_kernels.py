@@ -431,7 +431,7 @@ def _moves_on(j, n, p, delta, history, gm, miss_limit, feature_limit):
 def translate_statistics(gm, cr, n, p, delta):
     """One fit's statistics ``gm (d, d)``, ``cr (p, d)`` for features moved by ``-delta``, in place, each entry
     from the old values in the spec's order: ``S <- M S M^T``, ``M_xy <- (M_xy - delta r) M^T``
-    (:func:`kalmix.core.mixture._translated`; the scalar kernel moves each expert's with it)."""
+    (:func:`kalmix.core.mixture._translated`)."""
     corner = gm[n, n]
     for i in range(p):   # the cross statistics first: they read the old constant row of S
         moved = cr[i, n] - delta[i] * corner
