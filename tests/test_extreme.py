@@ -126,9 +126,9 @@ def test_posterior_survives_overflowed_scores_and_normalises_at_any_magnitude():
 
 
 def test_compiled_constants_are_the_spec_constants():
-    from kalmix.core import _numba_kernels
+    from kalmix.core import _numba_akf_gate
 
-    assert _numba_kernels.LOG_FLOOR == gating.LOG_FLOOR and _numba_kernels.ERROR_CAP == gating.ERROR_CAP
+    assert _numba_akf_gate.LOG_FLOOR == gating.LOG_FLOOR and _numba_akf_gate.ERROR_CAP == gating.ERROR_CAP
 
 
 def test_cholesky_solve_rows_solves_and_gives_nan_rather_than_raising():
