@@ -16,15 +16,22 @@ lengths, horizon, params, state, records)`` :func:`kalmix.core.fast.run_fast` ca
 - **compile**: the first call of ``run_targets`` (one target x 4 rows) in a new process with an empty
   ``KALMIX_CACHE_DIR``: numba's compile of the kernel and everything it calls.
 
+With ``--cold``, each tree's **cold start** too: ``kalmix predict examples/boats.csv`` (``python -m kalmix.cli``)
+with an empty ``KALMIX_CACHE_DIR``, i.e. what a fresh install costs before its first result (the default bank:
+every kernel compiles, the AKF family's in a second process), then the same command again (warm): wall seconds
+and the CPU seconds of the command and its compile process.
+
 ``os.getloadavg()`` is recorded beside every figure: compile times on a busy machine grow with its load.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import platform
+import resource
 import subprocess
 import sys
 import tempfile
@@ -117,6 +124,32 @@ def worker_compile(name: str) -> dict:
 
 # -- the driver ----------------------------------------------------------------------------------------------
 
+def _predict(src: str, cache: str, out: str) -> dict:
+    """``kalmix predict examples/boats.csv`` in a new process: wall and CPU seconds (its children's included)."""
+    env = {**os.environ, "PYTHONPATH": src, "KALMIX_CACHE_DIR": cache}
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    before, load = resource.getrusage(resource.RUSAGE_CHILDREN), os.getloadavg()[0]
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "kalmix.cli", "predict", str(ROOT / "examples" / "boats.csv"), "-o", out,
+                    "--no-progress"], cwd=ROOT, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    seconds = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return {"seconds": seconds, "cpu_seconds": cpu, "load_1min_before": load, "load_1min_after": os.getloadavg()[0]}
+
+
+def cold_start(src: str) -> dict:
+    with tempfile.TemporaryDirectory() as directory:
+        cache = os.path.join(directory, "cache")
+        cold = _predict(src, cache, os.path.join(directory, "cold.csv"))
+        warm = _predict(src, cache, os.path.join(directory, "warm.csv"))
+        with open(os.path.join(directory, "cold.csv"), "rb") as one, open(os.path.join(directory, "warm.csv"),
+                                                                           "rb") as two:
+            first, second = one.read(), two.read()
+    return {"file": "examples/boats.csv", "cold": cold, "warm": warm, "same_output": first == second,
+            "output_sha256": hashlib.sha256(first).hexdigest()}
+
+
 def _worker(src: str, args: list, env: dict | None = None) -> dict:
     env = {**os.environ, **(env or {}), "PYTHONPATH": src, "NUMBA_NUM_THREADS": "1"}
     done = subprocess.run([sys.executable, "-m", "benchmarks.akf_kernels", "--worker", *args], cwd=ROOT, env=env,
@@ -137,22 +170,33 @@ def main(argv=None) -> dict:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="small sizes (a smoke test)")
     parser.add_argument("--no-compile", action="store_true", help="skip the compile times")
+    parser.add_argument("--no-speed", action="store_true", help="skip the speed figures")
+    parser.add_argument("--cold", action="store_true", help="also time kalmix predict from an empty cache (minutes)")
     parser.add_argument("--json", default=None)
     parser.add_argument("--worker", nargs="+", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worker:
         task = args.worker[0]
-        result = worker_speed(args.repeat, args.quick) if task == "speed" else worker_compile(args.worker[1])
+        if task == "speed":
+            result = worker_speed(args.repeat, args.quick)
+        elif task == "kernels":
+            result = {"kernels": [name for name, _ in _available()]}
+        else:
+            result = worker_compile(args.worker[1])
         print(json.dumps(result))
         return result
     trees = dict(tree.split("=", 1) for tree in (args.tree or [f"this={ROOT / 'src'}"]))
     results = {"machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
                            "load_average_before": os.getloadavg()},
-               "command": "python -m benchmarks.akf_kernels " + " ".join(f"--tree {t}" for t in args.tree or []),
+               "command": " ".join(["python -m benchmarks.akf_kernels"] + [f"--tree {t}" for t in args.tree or []]
+                                   + ["--cold"] * args.cold + (["--json", args.json] if args.json else [])),
                "trees": {label: {"commit": _commit(src)} for label, src in trees.items()}}
     speed_args = ["speed", "--repeat", str(args.repeat)] + (["--quick"] if args.quick else [])
     for label, src in trees.items():   # the trees take turns
-        results["trees"][label].update(_worker(src, speed_args))
+        if not args.no_speed:
+            results["trees"][label].update(_worker(src, speed_args))
+        else:
+            results["trees"][label]["kernels"] = _worker(src, ["kernels"])["kernels"]
     if not args.no_compile:
         for label, src in trees.items():
             compiles = []
@@ -161,6 +205,10 @@ def main(argv=None) -> dict:
                     compiles.append(_worker(src, ["compile", name], env={"KALMIX_CACHE_DIR": cache}))
                 print(label, json.dumps(compiles[-1]), file=sys.stderr, flush=True)
             results["trees"][label]["compile"] = compiles
+    if args.cold:
+        for label, src in trees.items():
+            results["trees"][label]["cold_start"] = cold_start(src)
+            print(label, "cold start", json.dumps(results["trees"][label]["cold_start"]), file=sys.stderr, flush=True)
     results["machine"]["load_average_after"] = os.getloadavg()
     if args.json:
         with open(args.json, "w") as handle:

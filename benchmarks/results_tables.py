@@ -836,8 +836,20 @@ def akf_kernels(results: Results) -> list:
              "feedback), one thread, the best of 3 warm calls; every kernel's predictions are the same bits."]
     trees = ", ".join(f"{label} = {tree.get('commit') or 'a source tree'}" for label, tree in data["trees"].items())
     notes.append(f"Trees: {trees}.")
-    return [Table(header=header, rows=rows, sources=(name,), notes=notes,
-                  command=data.get("command") or "python -m benchmarks.akf_kernels --json benchmarks/results/" + name)]
+    command = data.get("command") or "python -m benchmarks.akf_kernels --json benchmarks/results/" + name
+    tables = [Table(header=header, rows=rows, sources=(name,), notes=notes, command=command)]
+    cold = [(label, tree["cold_start"]) for label, tree in data["trees"].items() if "cold_start" in tree]
+    if cold:
+        rows = [[label, num(c["cold"]["seconds"], 3), num(c["cold"]["cpu_seconds"], 3),
+                 f"{c['cold']['load_1min_before']:.1f}", num(c["warm"]["seconds"], 3)] for label, c in cold]
+        same = len({c["output_sha256"] for _, c in cold}) == 1 and all(c["same_output"] for _, c in cold)
+        tables.append(Table(
+            header=["tree", "cold start, s", "its CPU s", "1-minute load", "warm, s"], rows=rows, sources=(name,),
+            command=command, title=f"`kalmix predict {cold[0][1]['file']}` from an empty compiled cache",
+            notes=["CPU seconds: the command's and its compile process's, what a machine of its own would wait on "
+                   "one core; the wall seconds grow with the load of a shared machine."
+                   + (" Every tree wrote the same bytes." if same else "")]))
+    return tables
 
 
 def dask(results: Results) -> list:
