@@ -11,8 +11,9 @@ lengths, horizon, params, state, records)`` :func:`kalmix.core.fast.run_fast` ca
 - **speed**: the paper mixture's AKF step (``make_params(3, K)``: RLS dynamics, the fixed-share gate, eq. 11/12
   noise feedback) at K = 1, 2, 4, 8, 16 and 40 experts on one target x 20,000 rows and on 1,000 targets x
   200 rows, one thread (one ``run_targets`` call over every target), compiled code warm (a first call
-  untimed), the best of ``--repeat`` calls; target-steps and expert-steps per second. Every kernel's
-  predictions are checked to be the same bits as the first kernel's;
+  untimed), the best of ``--repeat`` calls in CPU seconds (a shared machine's load stretches wall seconds
+  far more); target-steps and expert-steps per second. Each workload and bank size runs every tree in turn
+  (a fresh process each), and the predictions' hashes show that every kernel gives the same bits;
 - **compile**: the first call of ``run_targets`` (one target x 4 rows) in a new process with an empty
   ``KALMIX_CACHE_DIR``: numba's compile of the kernel and everything it calls.
 
@@ -65,7 +66,7 @@ def _available() -> list:
 
 
 def _call(kernel, params, z, horizon=1):
-    """One ``run_targets`` call over every target of ``z``; its seconds and predictions."""
+    """One ``run_targets`` call over every target of ``z``; its CPU seconds and predictions."""
     from kalmix.core import fast, init_state
 
     packed_params = fast.pack_params(params)
@@ -75,35 +76,31 @@ def _call(kernel, params, z, horizon=1):
     records = (predictions, False, np.empty((0, 0, 0)), np.empty((0, 0)), np.empty((0, 0, 0, 0)),
                np.empty((0, 0, 0, 0)), False, np.empty((0, 0, 0, 0)))
     lengths = np.full(n, t_count, dtype=np.int64)
-    start = time.perf_counter()
+    start = time.process_time()
     kernel.run_targets(0, n, z, lengths, horizon, packed_params, packed_state, records)
-    return time.perf_counter() - start, predictions
+    return time.process_time() - start, predictions
 
 
-def worker_speed(repeats: int, quick: bool) -> dict:
+def worker_speed(repeats: int, workload: str, k: int) -> dict:
+    """Every kernel of this tree on one workload and bank size; the predictions' hash (trees compare them)."""
     import importlib
 
     from kalmix.bank import make_params
 
     kernels = [(name, importlib.import_module(module)) for name, module in _available()]
     rows = []
-    for workload, targets, steps in (QUICK_WORKLOADS if quick else WORKLOADS):
-        z = np.ascontiguousarray(tracks(steps, targets))
-        for k in EXPERTS:
-            params = make_params(3, k)
-            reference = None
-            for name, kernel in kernels:
-                _call(kernel, params, z[:4])   # compiled (or loaded) outside the timing
-                load = os.getloadavg()[0]
-                best, predictions = min((_call(kernel, params, z) for _ in range(repeats)), key=lambda r: r[0])
-                if reference is None:
-                    reference = predictions
-                same = bool(np.array_equal(predictions, reference, equal_nan=True))
-                rows.append({"kernel": name, "workload": workload, "targets": targets, "rows": steps,
-                             "experts": k, "seconds": best, "target_steps_per_s": targets * steps / best,
-                             "expert_steps_per_s": targets * steps * k / best, "same_bits_as_first": same,
-                             "load_1min": load})
-                print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
+    targets, steps = dict((w, (t, s)) for w, t, s in WORKLOADS + tuple(("quick_" + w, t, s)
+                                                                        for w, t, s in QUICK_WORKLOADS))[workload]
+    z = np.ascontiguousarray(tracks(steps, targets))
+    params = make_params(3, k)
+    for name, kernel in kernels:
+        _call(kernel, params, z[:4])   # compiled (or loaded) outside the timing
+        load = os.getloadavg()[0]
+        best, predictions = min((_call(kernel, params, z) for _ in range(repeats)), key=lambda r: r[0])
+        rows.append({"kernel": name, "workload": workload, "targets": targets, "rows": steps, "experts": k,
+                     "seconds": best, "target_steps_per_s": targets * steps / best,
+                     "expert_steps_per_s": targets * steps * k / best,
+                     "predictions_sha256": hashlib.sha256(predictions.tobytes()).hexdigest(), "load_1min": load})
     return {"kernels": [name for name, _ in kernels], "speed": rows}
 
 
@@ -117,9 +114,10 @@ def worker_compile(name: str) -> dict:
     kernel = importlib.import_module(dict(KERNELS)[name])
     imported = time.perf_counter() - start
     load = os.getloadavg()[0]
+    cpu = time.process_time()
     seconds, _ = _call(kernel, make_params(3, 4), np.ascontiguousarray(tracks(4, 1)))
-    return {"kernel": name, "compile_seconds": seconds, "import_seconds": imported, "load_1min_before": load,
-            "load_1min_after": os.getloadavg()[0]}
+    return {"kernel": name, "compile_seconds": seconds, "compile_cpu_seconds": time.process_time() - cpu,
+            "import_seconds": imported, "load_1min_before": load, "load_1min_after": os.getloadavg()[0]}
 
 
 # -- the driver ----------------------------------------------------------------------------------------------
@@ -178,7 +176,7 @@ def main(argv=None) -> dict:
     if args.worker:
         task = args.worker[0]
         if task == "speed":
-            result = worker_speed(args.repeat, args.quick)
+            result = worker_speed(args.repeat, args.worker[1], int(args.worker[2]))
         elif task == "kernels":
             result = {"kernels": [name for name, _ in _available()]}
         else:
@@ -189,14 +187,20 @@ def main(argv=None) -> dict:
     results = {"machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
                            "load_average_before": os.getloadavg()},
                "command": " ".join(["python -m benchmarks.akf_kernels"] + [f"--tree {t}" for t in args.tree or []]
+                                   + ["--quick"] * args.quick + ["--no-speed"] * args.no_speed + ["--no-compile"] * args.no_compile
                                    + ["--cold"] * args.cold + (["--json", args.json] if args.json else [])),
                "trees": {label: {"commit": _commit(src)} for label, src in trees.items()}}
-    speed_args = ["speed", "--repeat", str(args.repeat)] + (["--quick"] if args.quick else [])
-    for label, src in trees.items():   # the trees take turns
-        if not args.no_speed:
-            results["trees"][label].update(_worker(src, speed_args))
-        else:
-            results["trees"][label]["kernels"] = _worker(src, ["kernels"])["kernels"]
+    for label, src in trees.items():
+        results["trees"][label].update(_worker(src, ["kernels"]))
+        results["trees"][label]["speed"] = []
+    if not args.no_speed:
+        for workload, _, _ in WORKLOADS:
+            for k in EXPERTS:
+                for label, src in trees.items():   # the trees take turns
+                    name = ("quick_" if args.quick else "") + workload
+                    rows = _worker(src, ["speed", name, str(k), "--repeat", str(args.repeat)])["speed"]
+                    results["trees"][label]["speed"] += rows
+                    print(label, json.dumps(rows), file=sys.stderr, flush=True)
     if not args.no_compile:
         for label, src in trees.items():
             compiles = []

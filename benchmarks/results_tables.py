@@ -816,10 +816,11 @@ def akf_kernels(results: Results) -> list:
     data = results(name)
     columns = [(label, kernel) for label, tree in data["trees"].items() for kernel in tree["kernels"]]
     header = ["workload", "experts"] + [f"{label}: {kernel.replace('_', '-')} kernel, s" for label, kernel in columns]
-    cells = {}
+    cells, hashes = {}, {}
     for label, tree in data["trees"].items():
         for row in tree["speed"]:
             cells[(row["workload"], row["targets"], row["rows"], row["experts"], label, row["kernel"])] = row["seconds"]
+            hashes.setdefault((row["workload"], row["experts"]), set()).add(row.get("predictions_sha256"))
     rows = []
     for workload, targets, steps, k in dict.fromkeys(key[:4] for key in cells):
         size = f"{targets:,} target{'s' if targets > 1 else ''} × {steps:,} rows"
@@ -827,16 +828,25 @@ def akf_kernels(results: Results) -> list:
                                       for label, kernel in columns])
     compiled = {(label, c["kernel"]): c for label, tree in data["trees"].items() for c in tree.get("compile", [])}
     if compiled:
-        rows.append(["compile from an empty cache", ""] + [num(compiled.get(column, {}).get("compile_seconds"), 3)
-                                                           for column in columns])
+        rows.append(["compile from an empty cache: s", ""] + [num(compiled.get(column, {}).get("compile_seconds"), 3)
+                                                              for column in columns])
+        if any("compile_cpu_seconds" in c for c in compiled.values()):
+            rows.append(["the same: CPU s", ""] + [num(compiled.get(column, {}).get("compile_cpu_seconds"), 3)
+                                                   for column in columns])
     loads = [c["load_1min_before"] for c in compiled.values()]
     notes = [f"{_machine(data)}" + (f"; the compiles ran at a 1-minute load of {min(loads):.1f} to "
                                     f"{max(loads):.1f}." if loads else "."),
              "The paper mixture's AKF step (`make_params(3, K)`: RLS dynamics, the fixed-share gate, noise "
-             "feedback), one thread, the best of 3 warm calls; every kernel's predictions are the same bits."]
+             "feedback), one thread, CPU seconds, the best of 3 warm calls, the trees in turn."
+             + (" Every kernel's predictions are the same bits." if hashes and all(
+                 len(h) == 1 and None not in h for h in hashes.values()) else "")]
     trees = ", ".join(f"{label} = {tree.get('commit') or 'a source tree'}" for label, tree in data["trees"].items())
     notes.append(f"Trees: {trees}.")
     command = data.get("command") or "python -m benchmarks.akf_kernels --json benchmarks/results/" + name
+    if data.get("compile_command"):
+        command = (command, data["compile_command"])
+    if data.get("note"):
+        notes.append(data["note"])
     tables = [Table(header=header, rows=rows, sources=(name,), notes=notes, command=command)]
     cold = [(label, tree["cold_start"]) for label, tree in data["trees"].items() if "cold_start" in tree]
     if cold:
