@@ -814,6 +814,58 @@ def speed(results: Results) -> list:
                   notes=notes)]
 
 
+def akf_kernels(results: Results) -> list:
+    """The compiled AKF kernels of one or more source trees: seconds by bank size and workload, compile times."""
+    name = "akf_kernels.json"
+    data = results(name)
+    columns = [(label, kernel) for label, tree in data["trees"].items() for kernel in tree["kernels"]]
+    header = ["workload", "experts"] + [f"{label}: {kernel.replace('_', '-')} kernel, s" for label, kernel in columns]
+    cells, hashes = {}, {}
+    for label, tree in data["trees"].items():
+        for row in tree["speed"]:
+            cells[(row["workload"], row["targets"], row["rows"], row["experts"], label, row["kernel"])] = row["seconds"]
+            hashes.setdefault((row["workload"], row["experts"]), set()).add(row.get("predictions_sha256"))
+    rows = []
+    for workload, targets, steps, k in dict.fromkeys(key[:4] for key in cells):
+        size = f"{targets:,} target{'s' if targets > 1 else ''} × {steps:,} rows"
+        rows.append([size, str(k)] + [num(cells.get((workload, targets, steps, k, label, kernel)), 3)
+                                      for label, kernel in columns])
+    compiled = {(label, c["kernel"]): c for label, tree in data["trees"].items() for c in tree.get("compile", [])}
+    if compiled:
+        rows.append(["compile from an empty cache: s", ""] + [num(compiled.get(column, {}).get("compile_seconds"), 3)
+                                                              for column in columns])
+        if any("compile_cpu_seconds" in c for c in compiled.values()):
+            rows.append(["the same: CPU s", ""] + [num(compiled.get(column, {}).get("compile_cpu_seconds"), 3)
+                                                   for column in columns])
+    loads = [c["load_1min_before"] for c in compiled.values()]
+    notes = [f"{_machine(data)}" + (f"; the compiles ran at a 1-minute load of {min(loads):.1f} to "
+                                    f"{max(loads):.1f}." if loads else "."),
+             "The paper mixture's AKF step (`make_params(3, K)`: RLS dynamics, the fixed-share gate, noise "
+             "feedback), one thread, CPU seconds, the best of 3 warm calls, the trees in turn."
+             + (" Every kernel's predictions are the same bits." if hashes and all(
+                 len(h) == 1 and None not in h for h in hashes.values()) else "")]
+    trees = ", ".join(f"{label} = {tree.get('commit') or 'a source tree'}" for label, tree in data["trees"].items())
+    notes.append(f"Trees: {trees}.")
+    command = data.get("command") or "python -m benchmarks.akf_kernels --json benchmarks/results/" + name
+    if data.get("compile_command"):
+        command = (command, data["compile_command"])
+    if data.get("note"):
+        notes.append(data["note"])
+    tables = [Table(header=header, rows=rows, sources=(name,), notes=notes, command=command)]
+    cold = [(label, tree["cold_start"]) for label, tree in data["trees"].items() if "cold_start" in tree]
+    if cold:
+        rows = [[label, num(c["cold"]["seconds"], 3), num(c["cold"]["cpu_seconds"], 3),
+                 f"{c['cold']['load_1min_before']:.1f}", num(c["warm"]["seconds"], 3)] for label, c in cold]
+        same = len({c["output_sha256"] for _, c in cold}) == 1 and all(c["same_output"] for _, c in cold)
+        tables.append(Table(
+            header=["tree", "cold start, s", "its CPU s", "1-minute load", "warm, s"], rows=rows, sources=(name,),
+            command=command, title=f"`kalmix predict {cold[0][1]['file']}` from an empty compiled cache",
+            notes=["CPU seconds: the command's and its compile process's, what a machine of its own would wait on "
+                   "one core; the wall seconds grow with the load of a shared machine."
+                   + (" Every tree wrote the same bytes." if same else "")]))
+    return tables
+
+
 def dask(results: Results) -> list:
     tables = []
     for name in sorted(n for n in results.names() if n.startswith("dask_scaling")):
@@ -895,6 +947,7 @@ SECTIONS = {
     "irregular": irregular,
     "model-zoo": model_zoo,
     "speed": speed,
+    "akf-kernels": akf_kernels,
     "dask": dask,
     "gpu": gpu,
 }

@@ -1,10 +1,9 @@
 """Extreme input on the paper mixture (issue 15, class 5): finite on both paths, and the paths agree.
 
 Jumps of 1e8, NaN gaps of 500-5000 frames, constant input and values of 1e200, through
-``MixturePredictor`` with the numpy reference and the compiled kernels (K = 4: the scalar kernel,
-K = 9: the experts-last one). Before the fix the compiled path returned NaN for every row after
-a 1e8 jump and the reference raised LinAlgError (Cholesky of the RLS statistics), and the two
-differed by up to 2e-6 after long gaps.
+``MixturePredictor`` with the numpy reference and the compiled kernel (K = 4 and 9). Before the fix the
+compiled path returned NaN for every row after a 1e8 jump and the reference raised LinAlgError (Cholesky of
+the RLS statistics), and the two differed by up to 2e-6 after long gaps.
 """
 
 import numpy as np
@@ -17,7 +16,7 @@ from kalmix.core.kalman import cholesky_solve_rows
 
 pytest.importorskip("numba")
 
-SIZES = (4, 9)   # the scalar kernel and the experts-last kernel
+SIZES = (4, 9)
 
 
 def _walk(seed, t_count, p=2):
@@ -127,9 +126,9 @@ def test_posterior_survives_overflowed_scores_and_normalises_at_any_magnitude():
 
 
 def test_compiled_constants_are_the_spec_constants():
-    from kalmix.core import _numba_kernels
+    from kalmix.core import _numba_akf_gate
 
-    assert _numba_kernels.LOG_FLOOR == gating.LOG_FLOOR and _numba_kernels.ERROR_CAP == gating.ERROR_CAP
+    assert _numba_akf_gate.LOG_FLOOR == gating.LOG_FLOOR and _numba_akf_gate.ERROR_CAP == gating.ERROR_CAP
 
 
 def test_cholesky_solve_rows_solves_and_gives_nan_rather_than_raising():

@@ -14,8 +14,8 @@ pytest.importorskip("numba")
 
 from kalmix.core.compiled._warm import kernel_cached as _REAL_KERNEL_CACHED  # noqa: E402 (before any patch)
 
-# banks small enough for the scalar kernel and large enough for the experts-last one
-SIZES = (fast.VECTOR_MIN_EXPERTS - 2, fast.VECTOR_MIN_EXPERTS + 1)
+# a bank narrower than a vector of experts and one wider (the kernel's loops over the experts have a remainder)
+SIZES = (6, 9)
 
 
 def _close(reference, compiled, name):
@@ -56,7 +56,7 @@ def test_compiled_loop_equals_the_numpy_reference(dynamics, gating, n_experts):
 @pytest.mark.parametrize("n_experts", SIZES)
 @pytest.mark.parametrize("dynamics", ["rls", "literal", "fixed"])
 def test_without_a_gate_the_experts_are_those_of_a_gated_mixture_and_nothing_is_learned(dynamics, n_experts):
-    """``gating="none"`` (a bank's AKF family) skips the gate's work in both kernels and the numpy spec: the
+    """``gating="none"`` (a bank's AKF family) skips the gate's work in the kernel and the numpy spec: the
     experts are bit for bit those of a gated mixture without noise feedback, and the weights, the
     responsibilities and the rate stay where they started."""
     z = _data(11)
@@ -221,15 +221,6 @@ def test_other_sizes_including_the_eigenvalue_guard(p, order, degree, n_experts)
     degree = min(order - 1, 1) if degree is None else degree
     assert fast.fast_guard(params) == (p * (degree + 1) <= 6)
     _compare(run_core(params, z, backend="numpy"), run_core(params, z, backend="numba"))
-
-
-def test_kernel_is_chosen_by_bank_size():
-    from kalmix.core import _numba_kernels, _numba_scalar
-
-    assert fast._kernels(1) is _numba_scalar
-    assert fast._kernels(fast.VECTOR_MIN_EXPERTS - 1) is _numba_scalar
-    assert fast._kernels(fast.VECTOR_MIN_EXPERTS) is _numba_kernels
-    assert fast._kernels(40) is _numba_kernels
 
 
 @pytest.fixture

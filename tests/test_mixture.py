@@ -175,12 +175,12 @@ def _steady(t_count, speed, noise, seed=0):
     return truth, truth + rng.normal(0, noise, truth.shape)
 
 
-@pytest.mark.parametrize("k_count", [3, 40])   # the scalar kernel, the experts-last one
+@pytest.mark.parametrize("k_count", [3, 40])
 def test_a_target_moving_on_past_the_feature_limit_keeps_its_dynamics(k_count):
     """A smooth target crossing the feature limit (100 feature units, 1e4 length units) every 2,500
     rows had its RLS dynamics reset there: errors up to 10 sigma for ~20 rows each time. The re-anchor now
-    translates the statistics, the history and the drift: errors after each crossing are as elsewhere, and both
-    kernels give the reference's bits."""
+    translates the statistics, the history and the drift: errors after each crossing are as elsewhere, and the
+    compiled kernel gives the reference's bits."""
     truth, z = _steady(3000, 2.0, 0.5)
     params = make_params(2, k_count, seed=1, feature_scale=5.0)   # the limit: 500 units, crossed every 250 rows
     reference = run_core(params, z[:, None, :], backend="numpy")

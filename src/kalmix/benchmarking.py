@@ -350,10 +350,6 @@ def plot(results: dict, path) -> None:
     ax.semilogx(d["experts"], d["ns_per_expert_step_vs_k"], "o-", base=2)
     ax.set_xlabel("experts K (one stream)")
     ax.set_ylabel("ns per expert-step")
-    from .core.fast import VECTOR_MIN_EXPERTS
-
-    ax.axvline(VECTOR_MIN_EXPERTS, color="grey", ls=":", label="scalar kernel | experts-last kernel")
-    ax.legend()
     ax.set_title("(d) cost per expert vs K")
     ax.set_ylim(bottom=0)
     ax = axes[2]

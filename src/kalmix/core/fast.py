@@ -9,11 +9,9 @@ the C library's exp / expm1 / log). Targets are independent, so they run on thre
 in ranges, without synchronisation. Results are the numpy reference's bits (tested:
 every output and state field).
 
-Two kernels, chosen by the bank size: from ``VECTOR_MIN_EXPERTS`` experts on, the
-experts-last kernel (:mod:`._numba_kernels`) keeps each target's expert state with the
-expert index last and vectorises every inner loop across the experts; smaller banks
-(plain filtering, K = 1) use the scalar kernel (:mod:`._numba_scalar`), one expert at
-a time. Both are tested against the numpy reference.
+One kernel (:mod:`._numba_kernels`, the AKF family's too) for every bank size: it keeps each
+target's expert state with the expert index last and vectorises every inner loop across the
+experts.
 
 numba is an optional extra (``pip install 'kalmix[fast]'``): it is imported on first
 use; :func:`numba_available` says whether it can be. Without it, ``run_core`` uses the
@@ -40,24 +38,6 @@ from .compiled._threads import over_targets
 __all__ = ["numba_available", "run_fast", "step_fast", "pack_params", "pack_state", "fast_guard"]
 
 _GATING_INPUTS = ("bias", "position", "velocity")
-
-
-
-
-# Below this many experts the scalar kernel (one expert at a time) is faster than the
-# experts-last kernel, whose vector loops then carry mostly overhead.
-VECTOR_MIN_EXPERTS = 8
-
-
-def _kernels(n_experts: int):
-    """The compiled kernel module for a bank of ``n_experts``: experts-last or scalar."""
-    if n_experts >= VECTOR_MIN_EXPERTS:
-        from . import _numba_kernels
-
-        return _numba_kernels
-    from . import _numba_scalar
-
-    return _numba_scalar
 
 
 def pack_params(params: MixtureParams) -> tuple:
@@ -131,10 +111,10 @@ def run_fast(
     """
     import numba
 
+    from . import _numba_kernels as kernels
     from .compiled._notice import watch
 
     watch()   # a fresh install: say so while the kernels compile (kalmix.core.compiled._notice)
-    kernels = _kernels(params.n_experts)
     measurements = np.ascontiguousarray(measurements, dtype=np.float64)
     t_count, n = measurements.shape[:2]
     if state is None:

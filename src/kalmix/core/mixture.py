@@ -221,8 +221,8 @@ def _where(mask: np.ndarray, new: np.ndarray, old: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- the experts' Kalman filter
-# C = [I 0]: the measurement is the first p state entries. Written in the compiled kernels' operations and
-# order (kalmix.core._numba_kernels: _kalman_update, _predict_companion / _predict_full, _add_process_noise;
+# C = [I 0]: the measurement is the first p state entries. Written in the compiled kernel's operations and
+# order (kalmix.core._numba_akf_filter: kalman_update, predict_companion / predict_full, add_process_noise;
 # kalmix.core.kalman.cholesky_inverse), vectorised over targets and experts, so that both engines give
 # the same bits; kalmix.core.kalman holds the general batched filter.
 def _mirror_upper(matrix: np.ndarray) -> np.ndarray:

@@ -16,7 +16,8 @@ JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 KERNEL_JIT = dict(JIT, _nrt=False)
 #: Every file whose code ends up in a compiled kernel.
 KERNEL_SOURCES = (
-    "_numba_linalg.py", "_numba_kernels.py", "_numba_scalar.py",
+    "_numba_linalg.py", "_numba_kernels.py", "_numba_akf_gate.py", "_numba_akf_rls.py", "_numba_akf_filter.py",
+    "_numba_akf_target.py",
     "compiled/kinematic.py", "compiled/ar.py", "compiled/turn.py", "compiled/rules.py", "compiled/screen.py",
     "compiled/_cache.py", "compiled/calibration.py", "compiled/lead.py", "compiled/akf.py",
 )
