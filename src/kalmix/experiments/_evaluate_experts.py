@@ -1,7 +1,10 @@
 """One expert of a bank, by its index: its name in ``kalmix evaluate``'s output and a bank of it alone (the best
-expert in hindsight, :func:`kalmix.experiments._evaluate_mixture.run_bank`)."""
+expert in hindsight, :func:`kalmix.experiments._evaluate_mixture.run_bank`). Each family names and slices its own
+experts (:data:`kalmix.core.families.KINDS`)."""
 
 from __future__ import annotations
+
+from ..core.families import parts
 
 
 def _locate(bank, expert):
@@ -13,14 +16,7 @@ def _locate(bank, expert):
 
 def expert_name(bank, expert):
     family, i = _locate(bank, expert)
-    if family.kind == "akf":
-        return f"akf[{i}]"
-    if family.kind == "ar":
-        fp = family.params
-        return f"ar{fp.order}(forgetting={fp.forgetting[i]:.4g}, ridge={fp.ridge[i]:.3g})"
-    if family.kind == "turn":
-        return f"turn(gain={family.params.gain[i]:.3g})"
-    return (f"{family.kind}(q={family.params.process_noise[i]:.3g}, r={family.params.measurement_noise[i]:.3g})")
+    return parts(family.kind).spec.expert_name(family.params, i, family.kind)
 
 
 def single_expert_bank(bank, expert):
@@ -30,19 +26,5 @@ def single_expert_bank(bank, expert):
     from ..core.engine import Family
 
     family, i = _locate(bank, expert)
-    if family.kind == "akf":
-        params = family.params
-        per_expert = {name: getattr(params, name)[i:i + 1] for name in (
-            "forgetting", "ridge", "process_noise", "measurement_noise", "initial_variance", "initial_velocity",
-            "expert_scale")}
-        single = replace(params, **per_expert)
-    elif family.kind == "ar":
-        single = family.params._replace(forgetting=family.params.forgetting[i:i + 1],
-                                        ridge=family.params.ridge[i:i + 1])
-    elif family.kind == "turn":
-        single = family.params._replace(gain=family.params.gain[i:i + 1])
-    else:
-        single = family.params._replace(process_noise=family.params.process_noise[i:i + 1],
-                                        measurement_noise=family.params.measurement_noise[i:i + 1],
-                                        initial_variance=family.params.initial_variance[i:i + 1])
+    single = parts(family.kind).spec.one_expert(family.params, i)
     return replace(bank, families=(Family(family.kind, single),), lead=None)

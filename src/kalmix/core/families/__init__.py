@@ -9,8 +9,9 @@
 - :mod:`.akf`: the paper's state-model adaptive Kalman filters (frame-based).
 
 Every family module has the same functions: ``init_state(params, n_targets, measurement_dim)``,
-``forecast(params, state, time, frames=1) -> (means (N, K, p), variances)`` and
-``update(params, state, measurement, time, learn, active, restart) -> state``. A bank asks for a
+``forecast(params, state, time, frames=1) -> (means (N, K, p), variances)``,
+``update(params, state, measurement, time, learn, active, restart) -> state``, and for reports
+``expert_name(params, i, kind)`` and ``one_expert(params, i)`` (the parameters of expert ``i`` alone). A bank asks for a
 forecast by both clocks at once, the time and the rows ahead; a time-based family reads the time,
 a frame-based one the rows (its :attr:`FamilyKind.clock`). Every state has ``initialised (N,)``.
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..mixture import MixtureParams, MixtureState, init_state as _init, predict, step
 
-__all__ = ["init_state", "forecast", "update"]
+__all__ = ["init_state", "forecast", "update", "expert_name", "one_expert"]
 
 
 def init_state(params: MixtureParams, n_targets: int, measurement_dim: int) -> MixtureState:
@@ -54,6 +54,20 @@ def update(params: MixtureParams, state: MixtureState, measurement, time, learn,
     z = np.where(learn[:, None], measurement, np.nan)
     new, _ = step(params, state, z)
     return MixtureState(*(np.where(active.reshape(_column(n)), n, o) for n, o in zip(new, state)))
+
+
+def expert_name(params: MixtureParams, i: int, kind: str = "akf") -> str:
+    """Expert ``i``'s name in reports (``akf[3]``)."""
+    return f"{kind}[{i}]"
+
+
+def one_expert(params: MixtureParams, i: int) -> MixtureParams:
+    """The parameters of expert ``i`` alone."""
+    from dataclasses import replace
+
+    return replace(params, **{name: getattr(params, name)[i:i + 1] for name in (
+        "forgetting", "ridge", "process_noise", "measurement_noise", "initial_variance", "initial_velocity",
+        "expert_scale")})
 
 
 def _column(array) -> tuple:

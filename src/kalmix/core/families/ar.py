@@ -53,7 +53,7 @@ import numpy as np
 from .._libm import ordered_sum
 from .kinematic import restarted, step_delta   # the same clipped step in time units; the same restart
 
-__all__ = ["ARParams", "ARState", "init_state", "forecast", "update", "ITERATED_STEPS"]
+__all__ = ["ARParams", "ARState", "init_state", "forecast", "update", "expert_name", "one_expert", "ITERATED_STEPS"]
 
 #: Most rows of an iterated forecast (a longer time ahead is cut into this many equal steps).
 ITERATED_STEPS = 64
@@ -97,6 +97,16 @@ class ARState(NamedTuple):
     position: np.ndarray     # (N, p) last learned measurement
     last_time: np.ndarray    # (N,) its time (NaN before the first)
     initialised: np.ndarray  # (N,) bool
+
+
+def expert_name(params: ARParams, i: int, kind: str = "ar") -> str:
+    """Expert ``i``'s name in reports (``ar2(forgetting=0.99, ridge=0.01)``)."""
+    return f"{kind}{params.order}(forgetting={params.forgetting[i]:.4g}, ridge={params.ridge[i]:.3g})"
+
+
+def one_expert(params: ARParams, i: int) -> ARParams:
+    """The parameters of expert ``i`` alone."""
+    return params._replace(forgetting=params.forgetting[i:i + 1], ridge=params.ridge[i:i + 1])
 
 
 def prior_weights(params: ARParams) -> np.ndarray:

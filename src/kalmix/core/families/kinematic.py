@@ -45,7 +45,7 @@ from .._libm import ordered_matmul as _matmul
 from .._libm import ordered_sum
 
 __all__ = ["KinematicParams", "KinematicState", "init_state", "forecast", "update", "transition", "process_noise",
-           "RESTART_NIS", "restarted"]
+           "RESTART_NIS", "restarted", "expert_name", "one_expert"]
 
 
 class KinematicParams(NamedTuple):
@@ -86,6 +86,18 @@ def init_state(params: KinematicParams, n_targets: int, measurement_dim: int) ->
         last_time=np.full(n_targets, np.nan),
         initialised=np.zeros(n_targets, dtype=bool),
     )
+
+
+def expert_name(params: KinematicParams, i: int, kind: str = "cv") -> str:
+    """Expert ``i``'s name in reports (``cv(q=0.1, r=1)``)."""
+    return f"{kind}(q={params.process_noise[i]:.3g}, r={params.measurement_noise[i]:.3g})"
+
+
+def one_expert(params: KinematicParams, i: int) -> KinematicParams:
+    """The parameters of expert ``i`` alone."""
+    return params._replace(process_noise=params.process_noise[i:i + 1],
+                           measurement_noise=params.measurement_noise[i:i + 1],
+                           initial_variance=params.initial_variance[i:i + 1])
 
 
 def step_delta(params: KinematicParams, state: KinematicState, time) -> np.ndarray:

@@ -49,7 +49,7 @@ from .._libm import atan2, cos, sin
 from .ar import ordered_dot   # a sum over the last axis in the kernel's order
 from .kinematic import restarted, step_delta   # the same clipped step in time units; the same restart
 
-__all__ = ["TurnParams", "TurnState", "init_state", "forecast", "update", "turn_geometry"]
+__all__ = ["TurnParams", "TurnState", "init_state", "forecast", "update", "expert_name", "one_expert", "turn_geometry"]
 
 
 class TurnParams(NamedTuple):
@@ -94,6 +94,16 @@ def init_state(params: TurnParams, n_targets: int, measurement_dim: int) -> Turn
         last_time=np.full(n_targets, np.nan),
         initialised=np.zeros(n_targets, dtype=bool),
     )
+
+
+def expert_name(params: TurnParams, i: int, kind: str = "turn") -> str:
+    """Expert ``i``'s name in reports (``turn(gain=0.5)``)."""
+    return f"{kind}(gain={params.gain[i]:.3g})"
+
+
+def one_expert(params: TurnParams, i: int) -> TurnParams:
+    """The parameters of expert ``i`` alone."""
+    return params._replace(gain=params.gain[i:i + 1])
 
 
 def turn_geometry(state: TurnState):
