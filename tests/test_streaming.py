@@ -861,3 +861,31 @@ def test_the_store_keeps_a_part_alike_along_an_axis_once_and_gives_back_the_same
     assert one[signed].tobytes() == leaves[signed][3:4].tobytes()
     assert dict(tree_leaves(store["t7"]))[payload].tobytes() == leaves[payload][7:8].tobytes()
 
+
+def test_a_store_that_compacts_keeps_every_tracks_bits_a_batch_at_a_time():
+    """Blocks whose tracks moved on hold dead rows; past twice the tracks' rows (plus the slack) the store copies
+    the live rows into new blocks, COMPACT_BATCH tracks at a time: every track reads back its own bits."""
+    from kalmix.core.engine import tree_leaves, tree_map
+    from kalmix.stream.store import TrackStates
+
+    engine = TrackPredictor(StreamConfig(length_unit=1.0, time_unit=1.0))
+    engine._ensure_params(2)
+    store = TrackStates()
+    store.COMPACT_SLACK, store.COMPACT_BATCH = 8, 16
+    compactions = []
+    compact = store._compact
+    store._compact = lambda: (compactions.append(store._rows), compact())
+    rng = np.random.default_rng(9)
+    want = {}
+    for step in range(12):
+        tracks = [f"t{i}" for i in rng.choice(100, size=30, replace=False)]
+        state = tree_map(lambda a: rng.normal(size=a.shape) if a.dtype.kind == "f" else a, engine._new_states(30))
+        store.put(tracks, state)
+        for c, track in enumerate(tracks):
+            want[track] = [a[c:c + 1].copy() for _, a in tree_leaves(state)]
+        assert store._rows <= 2 * len(store) + store.COMPACT_SLACK
+    assert compactions and len(store) == len(want)
+    assert all(entry[0].rows <= 30 for entry in store._live.values())   # (compacted blocks of at most 16 rows)
+    for track, leaves in want.items():
+        got = [a for _, a in tree_leaves(store[track])]
+        assert all(a.dtype == b.dtype and a.tobytes() == b.tobytes() for a, b in zip(got, leaves)), track

@@ -106,11 +106,15 @@ class TrackStates(Mapping):
     (:meth:`put`): no per-track arrays, and a leaf alike in every row of a block (as new, or a
     regularly sampled track's covariances) is kept once. Blocks are never changed, so a reference
     (:meth:`ref`) stays valid for :meth:`TrackPredictor.rollback`; once the blocks hold twice as many rows
-    as there are tracks (plus :data:`COMPACT_SLACK`), the tracks' rows are copied into one new block.
+    as there are tracks (plus :data:`COMPACT_SLACK`), the tracks' rows are copied into new blocks of
+    :data:`COMPACT_BATCH` tracks, block by block (so that each old block is freed as soon as its tracks have
+    moved, and no more than a batch of states is ever unpacked at once).
     """
 
     #: rows a store may hold beyond twice its tracks' before it compacts
     COMPACT_SLACK = 1024
+    #: tracks a compaction copies at a time
+    COMPACT_BATCH = 1024
 
     def __init__(self):
         self._where: dict = {}    # track -> (block, row), or None (a track known to have no state)
@@ -216,11 +220,14 @@ class TrackStates(Mapping):
             self._template = (tree_map(lambda a: None if a is None else 0, state), {})
         if columns is not None and list(columns) != list(range(len(state.screen.time))):
             state = tree_map(lambda a: a[np.asarray(columns)], state)
+        self._store(tracks, state)
+        if self._rows > 2 * len(self._where) + self.COMPACT_SLACK:
+            self._compact()
+
+    def _store(self, tracks, state: BankState) -> None:
         block = _Block(state, self._template[1])
         for c, track in enumerate(tracks):
             self._set(track, (block, c))
-        if self._rows > 2 * len(self._where) + self.COMPACT_SLACK:
-            self._compact()
 
     def shares_as_new(self) -> bool:
         return self._template is not None and bool(self._template[1])
@@ -233,6 +240,9 @@ class TrackStates(Mapping):
         self._template[1].update({i: array[:1].copy() for i, (_, array) in enumerate(tree_leaves(state))})
 
     def _compact(self) -> None:
-        tracks = [t for t, ref in self._where.items() if ref is not None]
-        state = self._rebuild([self._where[t] for t in tracks], len(tracks))
-        self.put(tracks, state)
+        order = {key: k for k, key in enumerate(self._live)}   # the tracks block by block, each block's in row order
+        tracks = sorted((t for t, ref in self._where.items() if ref is not None),
+                        key=lambda t: (order[id(self._where[t][0])], self._where[t][1]))
+        for begin in range(0, len(tracks), self.COMPACT_BATCH):
+            batch = tracks[begin:begin + self.COMPACT_BATCH]
+            self._store(batch, self._rebuild([self._where[t] for t in batch], len(batch)))
