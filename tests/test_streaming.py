@@ -834,3 +834,82 @@ def test_idle_tracks_keep_no_per_track_copy_of_leaves_alike_in_every_track(tmp_p
     for track in ("t0", f"t{n - 1}"):
         for a, b in zip(_leaves_of(engine.states[track]), _leaves_of(loaded.states[track])):
             assert a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+def test_the_store_keeps_a_part_alike_along_an_axis_once_and_gives_back_the_same_bits():
+    """A leaf whose every track holds one value along an axis (bit for bit: a -0.0 among 0.0s, or another NaN
+    payload, is not alike) is kept at length 1 on that axis; a block of many tracks is kept read only, apart
+    from the engine's arrays; every track's state reads back with the bits it was stored with."""
+    from kalmix.core.engine import tree_leaves, tree_map
+    from kalmix.stream.store import OWN_MEMORY_BYTES, TrackStates
+
+    engine = TrackPredictor(StreamConfig(length_unit=1.0, time_unit=1.0))
+    engine._ensure_params(2)
+    n = 400
+    rng = np.random.default_rng(5)
+    other_nan = np.array([0x7FF8000000000001], dtype=np.int64).view(np.float64)[0]
+
+    count = iter(range(10**6))
+
+    def fill(array):   # every other leaf alike along its axes after the first, the others all different
+        if array.dtype.kind != "f" or array.ndim < 2:
+            return array
+        if next(count) % 2:
+            return rng.normal(size=array.shape)
+        return np.broadcast_to(rng.normal(size=(n,) + (1,) * (array.ndim - 1)), array.shape).copy()
+
+    state = tree_map(fill, engine._new_states(n))
+    leaves = dict(tree_leaves(state))
+    alike = [name for name, a in leaves.items() if a.ndim >= 2 and a.shape[1] > 1 and a.dtype.kind == "f"
+             and (a == a[:, :1]).all()]
+    signed, payload = alike[0], alike[1]
+    leaves[signed][:, 0] = 0.0
+    leaves[signed][3, 1] = -0.0   # not alike to 0.0 bit for bit
+    leaves[payload][:, 0] = np.nan
+    leaves[payload][7, -1] = other_nan
+    store = TrackStates()
+    tracks = [f"t{i}" for i in range(n)]
+    store.put(tracks, state)
+    block = store.ref("t0")[0]
+    kept = dict(zip(leaves, block.leaves))
+    assert sum(a.nbytes for a in block.leaves if len(a) > 1) >= OWN_MEMORY_BYTES   # (a block of its own memory)
+    assert all(not a.flags.writeable for a in block.leaves if len(a) > 1)
+    cut = [name for name in alike if name not in (signed, payload)]
+    assert cut and all(kept[name].shape[1] == 1 for name in cut)
+    assert kept[signed].shape[1] == leaves[signed].shape[1] and kept[payload].shape[1] == leaves[payload].shape[1]
+    back = dict(tree_leaves(store.gather(tracks, engine._new_states)))
+    for name, array in leaves.items():
+        assert back[name].dtype == array.dtype and back[name].tobytes() == array.tobytes(), name
+    one = dict(tree_leaves(store["t3"]))
+    assert np.signbit(one[signed][0, 1]).all() and not np.signbit(one[signed][0, 0]).any()
+    assert one[signed].tobytes() == leaves[signed][3:4].tobytes()
+    assert dict(tree_leaves(store["t7"]))[payload].tobytes() == leaves[payload][7:8].tobytes()
+
+
+def test_a_store_that_compacts_keeps_every_tracks_bits_a_batch_at_a_time():
+    """Blocks whose tracks moved on hold dead rows; past twice the tracks' rows (plus the slack) the store copies
+    the live rows into new blocks, COMPACT_BATCH tracks at a time: every track reads back its own bits."""
+    from kalmix.core.engine import tree_leaves, tree_map
+    from kalmix.stream.store import TrackStates
+
+    engine = TrackPredictor(StreamConfig(length_unit=1.0, time_unit=1.0))
+    engine._ensure_params(2)
+    store = TrackStates()
+    store.COMPACT_SLACK, store.COMPACT_BATCH = 8, 16
+    compactions = []
+    compact = store._compact
+    store._compact = lambda: (compactions.append(store._rows), compact())
+    rng = np.random.default_rng(9)
+    want = {}
+    for step in range(12):
+        tracks = [f"t{i}" for i in rng.choice(100, size=30, replace=False)]
+        state = tree_map(lambda a: rng.normal(size=a.shape) if a.dtype.kind == "f" else a, engine._new_states(30))
+        store.put(tracks, state)
+        for c, track in enumerate(tracks):
+            want[track] = [a[c:c + 1].copy() for _, a in tree_leaves(state)]
+        assert store._rows <= 2 * len(store) + store.COMPACT_SLACK
+    assert compactions and len(store) == len(want)
+    assert all(entry[0].rows <= 30 for entry in store._live.values())   # (compacted blocks of at most 16 rows)
+    for track, leaves in want.items():
+        got = [a for _, a in tree_leaves(store[track])]
+        assert all(a.dtype == b.dtype and a.tobytes() == b.tobytes() for a, b in zip(got, leaves)), track

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import mmap
 from collections.abc import Mapping
 
 import numpy as np
@@ -20,16 +21,64 @@ def _same_rows(array: np.ndarray) -> bool:
     return bool((flat == flat[:1]).all())
 
 
+#: A block whose own rows (the leaves not shared) hold at least this many bytes keeps them in a memory map of its
+#: own: the engine's arrays of a run live only until the next, and the allocator would keep the holes they leave
+#: among the blocks' (which live as long as their tracks) as memory of the process.
+OWN_MEMORY_BYTES = 1 << 20
+
+
+def _own_memory(arrays: list) -> list:
+    """Read-only copies of ``arrays`` in one anonymous memory map (unmapped when the last of them is freed)."""
+    offsets, total = [], 0
+    for array in arrays:
+        offsets.append(total)
+        total += -(-array.nbytes // 64) * 64
+    memory = np.frombuffer(mmap.mmap(-1, max(total, 1)), dtype=np.uint8)
+    copies = []
+    for array, at in zip(arrays, offsets):
+        copy = memory[at:at + array.nbytes].view(array.dtype).reshape(array.shape)
+        copy[...] = array
+        copy.flags.writeable = False
+        copies.append(copy)
+    return copies
+
+
+def _bits(array: np.ndarray) -> np.ndarray | None:
+    """``array`` viewed as unsigned integers of its item size (floats compared bit for bit: NaN payloads and the
+    sign of zero included); None for an item size that has none."""
+    if array.dtype.kind not in "fc":
+        return array
+    if array.dtype.itemsize not in (1, 2, 4, 8):
+        return None
+    return array.view(f"u{array.dtype.itemsize}")
+
+
+def _alike_along(array: np.ndarray) -> np.ndarray:
+    """``array`` (rows of tracks) with each axis after the first along which every row holds one value (bit for bit)
+    cut to its first entry, keeping the axis (length 1): what broadcasts back to ``array``. Young tracks' experts
+    of one family are alike (the autoregressive ones, before their histories fill)."""
+    bits = _bits(array)
+    if bits is None:
+        return array
+    cut = [slice(None)] * array.ndim
+    for axis in range(1, array.ndim):
+        if array.shape[axis] > 1 and bool((bits == bits.take([0], axis=axis)).all()):
+            cut[axis] = slice(0, 1)
+    return array[tuple(cut)]
+
+
 class _Block:
     """Rows of many tracks' states, read only: per leaf (in :func:`tree_leaves` order) an ``(n, ...)`` array, or a
     ``(1, ...)`` one that every row shares (a leaf whose rows are all alike, e.g. as new: the AKF family's
-    regression statistics before it learns)."""
+    regression statistics before it learns); an axis along which every row holds one value is kept at length 1
+    (it broadcasts to ``shapes``, each leaf's shape after the first axis)."""
 
-    __slots__ = ("leaves", "rows", "__weakref__")
+    __slots__ = ("leaves", "shapes", "rows", "__weakref__")
 
     def __init__(self, state: BankState, template=None):
         leaves = [array for _, array in tree_leaves(state)]
         self.rows = len(leaves[0]) if leaves else 0
+        self.shapes = [array.shape[1:] for array in leaves]
         shared = template or {}
         self.leaves = []
         for i, array in enumerate(leaves):
@@ -41,7 +90,12 @@ class _Block:
                 else:
                     self.leaves.append(first.copy())
             else:
-                self.leaves.append(array)
+                cut = _alike_along(array)
+                self.leaves.append(cut if cut.shape == array.shape else cut.copy())
+        own = [i for i, array in enumerate(self.leaves) if len(array) > 1]
+        if sum(self.leaves[i].nbytes for i in own) >= OWN_MEMORY_BYTES:
+            for i, copy in zip(own, _own_memory([self.leaves[i] for i in own])):
+                self.leaves[i] = copy
 
 
 class TrackStates(Mapping):
@@ -52,11 +106,15 @@ class TrackStates(Mapping):
     (:meth:`put`): no per-track arrays, and a leaf alike in every row of a block (as new, or a
     regularly sampled track's covariances) is kept once. Blocks are never changed, so a reference
     (:meth:`ref`) stays valid for :meth:`TrackPredictor.rollback`; once the blocks hold twice as many rows
-    as there are tracks (plus :data:`COMPACT_SLACK`), the tracks' rows are copied into one new block.
+    as there are tracks (plus :data:`COMPACT_SLACK`), the tracks' rows are copied into new blocks of
+    :data:`COMPACT_BATCH` tracks, block by block (so that each old block is freed as soon as its tracks have
+    moved, and no more than a batch of states is ever unpacked at once).
     """
 
     #: rows a store may hold beyond twice its tracks' before it compacts
     COMPACT_SLACK = 1024
+    #: tracks a compaction copies at a time
+    COMPACT_BATCH = 1024
 
     def __init__(self):
         self._where: dict = {}    # track -> (block, row), or None (a track known to have no state)
@@ -147,7 +205,7 @@ class TrackStates(Mapping):
         groups = [(block, np.array(columns), np.array(rows)) for block, columns, rows in blocks.values()]
         for i in range(len(groups[0][0].leaves)):
             parts = [block.leaves[i] for block, _, _ in groups]
-            array = np.empty((n,) + parts[0].shape[1:], dtype=np.result_type(*parts))   # (as np.concatenate)
+            array = np.empty((n,) + groups[0][0].shapes[i], dtype=np.result_type(*parts))   # (as np.concatenate)
             for (block, columns, rows), part in zip(groups, parts):
                 array[columns] = part if len(part) == 1 else part[rows]
             out.append(array)
@@ -162,11 +220,14 @@ class TrackStates(Mapping):
             self._template = (tree_map(lambda a: None if a is None else 0, state), {})
         if columns is not None and list(columns) != list(range(len(state.screen.time))):
             state = tree_map(lambda a: a[np.asarray(columns)], state)
+        self._store(tracks, state)
+        if self._rows > 2 * len(self._where) + self.COMPACT_SLACK:
+            self._compact()
+
+    def _store(self, tracks, state: BankState) -> None:
         block = _Block(state, self._template[1])
         for c, track in enumerate(tracks):
             self._set(track, (block, c))
-        if self._rows > 2 * len(self._where) + self.COMPACT_SLACK:
-            self._compact()
 
     def shares_as_new(self) -> bool:
         return self._template is not None and bool(self._template[1])
@@ -179,6 +240,9 @@ class TrackStates(Mapping):
         self._template[1].update({i: array[:1].copy() for i, (_, array) in enumerate(tree_leaves(state))})
 
     def _compact(self) -> None:
-        tracks = [t for t, ref in self._where.items() if ref is not None]
-        state = self._rebuild([self._where[t] for t in tracks], len(tracks))
-        self.put(tracks, state)
+        order = {key: k for k, key in enumerate(self._live)}   # the tracks block by block, each block's in row order
+        tracks = sorted((t for t, ref in self._where.items() if ref is not None),
+                        key=lambda t: (order[id(self._where[t][0])], self._where[t][1]))
+        for begin in range(0, len(tracks), self.COMPACT_BATCH):
+            batch = tracks[begin:begin + self.COMPACT_BATCH]
+            self._store(batch, self._rebuild([self._where[t] for t in batch], len(batch)))

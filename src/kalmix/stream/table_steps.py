@@ -14,8 +14,8 @@ from .times import column_seconds
 
 #: Most tracks :meth:`TrackPredictor.process_table` steps in one run of the engine: their states are stacked for
 #: the run and the run returns as many, so a table of many tracks goes a batch at a time (the same bits), in
-#: bounded memory.
-TRACK_BATCH = 2048
+#: bounded memory (as :data:`kalmix.dask_predict.BATCH_TRACKS`).
+TRACK_BATCH = 1024
 
 
 def _stack(states: list) -> BankState:
@@ -251,6 +251,7 @@ class TableSteps:
             new_tracks = [track not in self.states for track in tracks]
             stacked = self._states_or_fresh(tracks)
             where = [(stacked, c) for c in range(len(tracks))]   # each track's state: (a stacked state, its column)
+            del stacked   # (``where`` alone holds the states: each run's input is freed as soon as it has run)
             # a track's rows are stepped in pieces that end before a time gap: the forecast across the gap is made
             # by _forecast_far (only the constant-velocity experts extrapolate so far), the rest as in one run
             pieces = [np.split(run, np.flatnonzero(gap_rows[run[1:]]) + 1) for run in runs]
@@ -274,6 +275,9 @@ class TableSteps:
                 result = self._run(dense, dense_times, lengths, state, active & restart[rows])
                 self.count_rows([tracks[c] for c in columns], lengths)
                 self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
+                for k, c in enumerate(columns):
+                    where[c] = (result.state, k)
+                state = held = None   # (before the forecasts' runs below)
                 # a row's next-row forecast is the forecast of the next row, made before it
                 inner = active.copy()
                 inner[lengths - 1, np.arange(len(columns))] = False
@@ -299,8 +303,6 @@ class TableSteps:
                     if wave == 0:
                         first = rows[0, [k for k, c in enumerate(columns) if new_tracks[c]]]
                         out["lead"][first] = out["lead_std"][first] = np.nan
-                for k, c in enumerate(columns):
-                    where[c] = (result.state, k)
             by_state: dict = {}   # each track's rows stored with the others' of the same state
             for c, track in enumerate(tracks):
                 held, k = where[c]
