@@ -831,12 +831,10 @@ def akf_kernels(results: Results) -> list:
         rows.append([size, str(k)] + [num(cells.get((workload, targets, steps, k, label, kernel)), 3)
                                       for label, kernel in columns])
     compiled = {(label, c["kernel"]): c for label, tree in data["trees"].items() for c in tree.get("compile", [])}
-    if compiled:
-        rows.append(["compile from an empty cache: s", ""] + [num(compiled.get(column, {}).get("compile_seconds"), 3)
-                                                              for column in columns])
-        if any("compile_cpu_seconds" in c for c in compiled.values()):
-            rows.append(["the same: CPU s", ""] + [num(compiled.get(column, {}).get("compile_cpu_seconds"), 3)
-                                                   for column in columns])
+    for key, label in (("compile_seconds", "compile from an empty cache: s"),
+                       ("compile_cpu_seconds", "compile from an empty cache: CPU s")):
+        if any(key in c for c in compiled.values()):
+            rows.append([label, ""] + [num(compiled.get(column, {}).get(key), 3) for column in columns])
     loads = [c["load_1min_before"] for c in compiled.values()]
     notes = [f"{_machine(data)}" + (f"; the compiles ran at a 1-minute load of {min(loads):.1f} to "
                                     f"{max(loads):.1f}." if loads else "."),

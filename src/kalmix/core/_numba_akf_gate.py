@@ -1,4 +1,5 @@
-"""The gate of the compiled AKF kernel (:mod:`._numba_kernels`): eq. 8-10, the fixed-share and random gates.
+"""The gate of the compiled AKF kernel (:mod:`._numba_kernels`): eq. 8-10, the fixed-share and random gates, and
+the noise feedback of eq. 11/12.
 
 Each function does, for one target, the operations of :mod:`kalmix.core.gating` in the same order
 (the log-sum-exp with the largest score split out, the C library's exp / expm1 / log, the splitmix64

@@ -1,4 +1,6 @@
-"""Small dense algebra for K experts at once, experts last (numba; used by the compiled loop).
+"""Small dense algebra for K experts at once, experts last (numba; used by the compiled AKF kernel).
+
+The Cholesky factor, inverse and solve of the compiled AKF kernel (their numpy spec: :mod:`kalmix.core.kalman`).
 
 Every array here carries the expert index as its last axis (a structure of arrays:
 ``cov[r, c, k]`` is entry (r, c) of expert k's covariance), and every inner loop runs
