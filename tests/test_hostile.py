@@ -736,17 +736,20 @@ def test_a_short_first_step_does_not_make_every_later_row_a_gap():
     """A second frame 10 ms after the first, then 33 ms frames: the reference interval was that first
     step alone, every later step was a gap (3 x 10 ms < 33 ms) and a gap never entered the reference, so the track
     restarted at every row, for good, in step_row and process_table alike. While the reference is incomplete a
-    gap's step now enters it: one early restart, then the track goes on. A real gap still splits."""
+    gap's step now enters it: with every step judged (``gap_min_steps`` 1), one early restart, then the track goes
+    on; by default a track's first 4 steps are not judged, and it is never cut. A real gap still splits."""
     times = [0.0, 0.010] + [0.010 + k / 30 for k in range(1, 300)]
-    predictor = TrackPredictor(StreamConfig(length_unit=0.01))
-    rows = [predictor.step_row("cam", t, [2 * t, 1.0]) for t in times]
-    assert rows[-1].segment == 1 and max(r.segment for r in rows) == 1
     table = pd.DataFrame({"track_id": "cam", "time": times, "x": [2 * t for t in times], "y": 1.0})
-    out = TrackPredictor(StreamConfig(length_unit=0.01)).process_table(table, ["x", "y"])
-    assert out["segment"].max() == 1
     gapped = times[:100] + [t + 5.0 for t in times[100:]]   # 5 s lost after 100 rows
-    again = TrackPredictor(StreamConfig(length_unit=0.01))
-    assert [again.step_row("cam", t, [2 * t, 1.0]) for t in gapped][-1].segment == 2
+    for min_steps, early in ((1, 1), (4, 0)):
+        config = StreamConfig(length_unit=0.01, gap_min_steps=min_steps)
+        predictor = TrackPredictor(config)
+        rows = [predictor.step_row("cam", t, [2 * t, 1.0]) for t in times]
+        assert rows[-1].segment == early and max(r.segment for r in rows) == early
+        out = TrackPredictor(config).process_table(table, ["x", "y"])
+        assert out["segment"].max() == early
+        again = TrackPredictor(config)
+        assert [again.step_row("cam", t, [2 * t, 1.0]) for t in gapped][-1].segment == early + 1
     # a row coming back inside an early gap is a wrong timestamp, as after any gap (the first version
     # judged it as a first step is judged and skipped the row at 8)
     from kalmix.streaming import GapTracker
