@@ -14,7 +14,10 @@ summary made there; before the first point, from an empty state (the rule's own 
 every track with at least :data:`MIN_ROWS` learned rows. Defined by rows, not by calls, it gives the same
 numbers whether a file is read in one table, in chunks, or row by row.
 
-Only BOA (the default rule) has a prior; a bank with another rule starts every track empty.
+Off by default (``StreamConfig(population_prior=True)``, ``kalmix predict --population-prior``): ``kalmix
+predict`` steps a file chunk by chunk, each chunk's tracks one after another, and stdin's rows as they come, so
+with a prior the same rows in a file and on stdin could give different numbers. Only BOA (the default rule) has
+a prior; a bank with another rule starts every track empty.
 """
 
 from __future__ import annotations
