@@ -100,8 +100,9 @@ class GapTracker:
                 return False
             return None
         unjudged = not self.intervals and config.max_gap is None
-        gap = dt > self.threshold(config)
-        self.jumped_from = self.last_time if gap or unjudged or dt > self._jump(config) else None
+        jump = dt > self._jump(config)   # (the reference interval, once a row)
+        gap = jump and (config.max_gap is not None or len(self.intervals) >= config.gap_min_steps)   # threshold()
+        self.jumped_from = self.last_time if jump or unjudged else None
         self.jump_counted = False
         if gap:
             self.segment += 1
