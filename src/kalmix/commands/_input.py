@@ -69,6 +69,20 @@ def input_columns(header, time_column, position_columns, id_column, sample=None)
     return columns
 
 
+def track_file(path, time_column, position_columns, id_column):
+    """The format and the columns of the track file ``path`` (CSV or Parquet) as the options name them;
+    ``FileNotFoundError`` / ``ValueError`` naming INPUT for a missing file or a directory."""
+    from ..io.tables import read_header
+
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"INPUT: no such file {path!r}")
+    if os.path.isdir(path):
+        raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {path!r}")
+    fmt = input_format(path)
+    return fmt, input_columns(read_header(path, fmt), time_column, position_columns, id_column,
+                              sample_reader(path, fmt))
+
+
 def _without_empty_positions(columns, sample):
     """``columns`` without the detected position columns that are empty in every row of the input's first rows
     (an exported ``z`` of 2-D tracks), with a note naming them: each row would be a missing measurement and

@@ -11,7 +11,7 @@ import warnings
 import click
 import numpy as np
 
-from ._input import input_columns, input_format, sample_reader
+from ._input import track_file
 from ._predict_common import check_resumed, geographic_axes, new_engine, reset_step, track_key
 
 
@@ -147,15 +147,9 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     from tqdm import tqdm
 
     from ..io import iter_track_chunks
-    from ..io.tables import DroppedRowWarning, read_header
+    from ..io.tables import DroppedRowWarning
 
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"INPUT: no such file {path!r}")
-    if os.path.isdir(path):
-        raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {path!r}")
-    in_fmt = input_format(path)
-    columns = input_columns(read_header(path, in_fmt), time_column, position_columns, id_column,
-                            sample_reader(path, in_fmt))
+    in_fmt, columns = track_file(path, time_column, position_columns, id_column)
     check_resumed(run.engine, columns)
     run.open_output()
     show = sys.stderr.isatty() if progress is None else progress

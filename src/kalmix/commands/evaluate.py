@@ -17,7 +17,7 @@ import numpy as np
 from ..archive import save_figure
 from ..bank import DEFAULT_BANK, MAX_HORIZON, MAX_SEED
 from ._common import figure_format_problem, user_errors as _user_errors
-from ._input import input_columns, input_format, sample_reader
+from ._input import track_file
 from ._options import (GAP_HELP, REACH_HELP, check_directory, column_options, distinct_files, parse_length_unit,
                        parse_max_gap, parse_mixture_options, parse_reach, reach_setting)
 
@@ -129,15 +129,9 @@ def _read_table(input_path, dataset, time_column, position_columns, id_column, g
     import warnings
 
     from ..io import read_tracks
-    from ..io.tables import BadRowWarning, read_header
+    from ..io.tables import BadRowWarning
 
-    if not os.path.exists(input_path):
-        raise FileNotFoundError(f"INPUT: no such file {input_path!r}")
-    if os.path.isdir(input_path):
-        raise ValueError(f"INPUT: expected a track file (CSV or Parquet), got the directory {input_path!r}")
-    fmt = input_format(input_path)
-    columns = input_columns(read_header(input_path, fmt), time_column, position_columns, id_column,
-                            sample_reader(input_path, fmt))
+    fmt, columns = track_file(input_path, time_column, position_columns, id_column)
     with warnings.catch_warnings():   # said below, as kalmix predict says it
         warnings.simplefilter("ignore", BadRowWarning)
         table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True, on_bad_row="skip")
