@@ -15,10 +15,11 @@ import numpy as np
 
 from ..calibration import CalibrationState
 from ..engine import (Bank, BankState, EngineResult, check_restart, check_run_arguments, check_run_options,
-                      init_bank_state, tree_map, within_reach)
+                      init_bank_state, tree_map)
 from ..lead import LeadState
 from ..screen import ScreenState
 from . import lead as clead
+from . import reach as creach
 from . import rules as crules
 from .calibration import pack_params as pack_calibration
 from . import screen as cscreen
@@ -168,7 +169,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     sums = [np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k))] if score is not None else None
 
     offsets = [cols.start for cols in bank.slices()]
-    reaching = bank.far_experts() is not None   # else no expert ever sleeps for a long step
+    far = bank.far_experts()   # None: no expert ever sleeps for a long step
     costliest_first = sorted(range(len(bank.families)), key=lambda i: -_family_cost(bank.families[i]))
     side_by_side = families_in_parallel(n) and t_count * n >= SIDE_BY_SIDE_MIN_ROWS
     per_row = (n if _block_targets is None else _block_targets) * k * p * 8 * (2 if with_ahead else 1)
@@ -214,9 +215,13 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
                 _accumulate_ahead(sums[2], sums[3], ahead_buffer, z, begin, end, ahead_frames, score_ahead)
         # the one-step weights see the experts within reach (the spec's within_reach); the lead head all of them
         mixed, mixed_ahead = buffer, ahead_buffer
-        if reaching:
-            mixed = within_reach(bank, buffer, tb - before)
-            mixed_ahead = within_reach(bank, ahead_buffer, ahead_b - after) if with_ahead else None
+        if far is not None:
+            mixed = np.empty_like(buffer)
+            over_targets(creach.kernel, n, far, float(bank.reach), buffer, tb, before, lens, mixed)
+            if with_ahead:
+                mixed_ahead = np.empty_like(ahead_buffer)
+                over_targets(creach.kernel, n, far, float(bank.reach), ahead_buffer, ahead_b, after, lens,
+                             mixed_ahead)
         w_block = np.full((rows, n, k), np.nan) if record_experts else empty3
         go = lb & ~restart & ~cold
         over_targets(crules.run_block, n, rule_params, rule, *cal_args, *cal, mixed, zb, lens, go,

@@ -36,7 +36,7 @@ from . import screen as cscreen
 from .calibration import calibrate_row
 from .calibration import pack_params as pack_calibration
 from .drivers import driver
-from .gpu_staged import sleep_beyond   # (the reach's sleep, shared with the staged engine)
+from .reach import sleep_beyond
 
 if not hasattr(np, "row_stack"):  # numba-cuda 0.30 registers an overload of np.row_stack, gone from numpy 2.4+
     np.row_stack = np.vstack
@@ -51,7 +51,7 @@ MAX_EXPERTS = 64
 THREADS_PER_BLOCK = 128
 _kernel_cache = {}
 forecast_expert, step_expert, delta_of = ckin.forecast_expert, ckin.step_expert, ckin.step_delta
-screen_row = cscreen.screen_row
+screen_row, last_learned = cscreen.screen_row, cscreen.last_learned
 forecast_row, write_row, learn_rule, cold_row = crules.forecast_row, crules.write_row, crules.learn_row, crules.cold_row
 restart_row, rule_column = crules.restart_row, crules.column
 
@@ -99,7 +99,7 @@ def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, 
     var_n = variance[:, :, n]
     errors_n = n_errors[:, n]
     for t in range(lengths[n]):
-        before = seen[n] if points[n] >= 2.0 else math.nan   # the spec's engine.span
+        before = last_learned(seen, points, n)   # the spec's engine.span
         code = screen_row(threshold, max_rejects, warmup, window, position, velocity, seen, spread, count,
                           rejects, outliers, points, low, high, n, z[t, n], times[t, n], learn[t, n], False)
         # every expert's forecast of the row, and its learning from the same extrapolation
@@ -132,7 +132,7 @@ def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, 
                 else:
                     for ci in range(p):
                         x[k, ci] = math.nan
-            sleep_beyond(far, x, ahead_times[t, n] - (seen[n] if points[n] >= 2.0 else math.nan), reach)
+            sleep_beyond(far, x, ahead_times[t, n] - last_learned(seen, points, n), reach)
             awake_count = forecast_row(rule_params, rule, x, awake, w, logw, mix, var_n, ls[0], cal_max_variance,
                                        sigma)
             write_row(awake_count, mix, sigma, out_ahead[t, n], out_ahead_std[t, n])
@@ -201,6 +201,13 @@ def _pack_families(bank: Bank, states, n: int, p: int):
             first.last_time.astype(np.float64).copy(), first.initialised.astype(np.bool_).copy())
 
 
+def _far(bank: Bank) -> np.ndarray:
+    """The experts that sleep across a step over the reach (:meth:`~kalmix.core.engine.Bank.far_experts`; none when
+    it says none ever does)."""
+    far = bank.far_experts()
+    return np.zeros(bank.n_experts, dtype=np.bool_) if far is None else far
+
+
 def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
         ahead_times=None, ahead_frames: int = 1, threads_per_block: int = THREADS_PER_BLOCK,
         timings: dict | None = None) -> EngineResult:
@@ -232,7 +239,7 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
     # the rule's per-expert arrays (N, K) as (K, N), its per-target ones (N,) as they are
     rule_dev = type(rule)(*(cuda.to_device(soa(a) if a.ndim == 2 else a) for a in rule))
     device = {name: cuda.to_device(value) for name, value in dict(
-        orders=orders, far=orders != 2, q=q, r=r, initial=initial, tu=tu, mean=soa(mean), cov=soa(cov),
+        orders=orders, far=_far(bank), q=q, r=r, initial=initial, tu=tu, mean=soa(mean), cov=soa(cov),
         last_time=last_time,
         initialised=initialised, z=z, times=times, lengths=lengths,
         learn=np.ascontiguousarray(learn), ahead_times=ahead_host, variance=soa(cal[0]), n_errors=soa(cal[1]),

@@ -23,6 +23,7 @@ from ..engine import Bank, BankState, EngineResult, check_restart, check_run_opt
 from ..lead import LeadState
 from ..screen import ScreenState
 from . import lead as clead
+from . import reach as creach
 from . import rules as crules
 from . import screen as cscreen
 from ._cache import JIT as _JIT
@@ -123,39 +124,6 @@ def _both(lo, hi, a, b, lengths, out):
     for j in range(lo, hi):
         for t in range(lengths[j]):
             out[t, j] = a[t, j] and b[t, j]
-
-
-@nb.njit(inline="always", **_JIT)
-def sleep_beyond(far, x, span, reach):
-    """The spec's :func:`kalmix.core.engine.within_reach` on one target's row ``x (K, p)``: across a ``span`` over
-    ``reach`` the ``far`` experts sleep (NaN) if an expert not far has a forecast."""
-    if not span > reach:
-        return
-    k_count, p = x.shape
-    near = False
-    for k in range(k_count):
-        if not far[k]:
-            finite = True
-            for ci in range(p):
-                finite = finite and math.isfinite(x[k, ci])
-            near = near or finite
-    if near:
-        for k in range(k_count):
-            if far[k]:
-                for ci in range(p):
-                    x[k, ci] = math.nan
-
-
-@nb.njit(**_JIT)
-def _reach(lo, hi, far, reach, experts, times, last, lengths, out):
-    """:func:`kalmix.core.engine.within_reach`: ``out`` is ``experts`` with the ``far`` experts asleep on the rows
-    whose span ``times - last`` is over the reach (:func:`sleep_beyond`, as the fused kernel of :mod:`.gpu`)."""
-    for j in range(lo, hi):
-        for t in range(lengths[j]):
-            for k in range(experts.shape[2]):
-                for ci in range(experts.shape[3]):
-                    out[t, j, k, ci] = experts[t, j, k, ci]
-            sleep_beyond(far, out[t, j], times[t, j] - last[t, j], reach)
 
 
 @nb.njit(**_JIT)
@@ -348,11 +316,12 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
         mixed, mixed_ahead = buffer, ahead_buffer
         if far is not None:
             mixed = cuda.device_array(buffer.shape)
-            _launch(_reach, n, (d_far, float(bank.reach), buffer, tb, before, lens, mixed), stages=stages)
+            _launch(creach.kernel, n, (d_far, float(bank.reach), buffer, tb, before, lens, mixed), stages=stages,
+                    name="reach")
             if with_ahead:
                 mixed_ahead = cuda.device_array(buffer.shape)
-                _launch(_reach, n, (d_far, float(bank.reach), ahead_buffer, ahead_b, after, lens, mixed_ahead),
-                        stages=stages)
+                _launch(creach.kernel, n, (d_far, float(bank.reach), ahead_buffer, ahead_b, after, lens, mixed_ahead),
+                        stages=stages, name="reach")
         _launch(crules.kernel, n, (rule_params, rule, *cal_args, *cal, mixed, zb, lens, f["go"],
                                        forecasts[begin:end], std[begin:end], empty4, empty3, mixed_ahead,
                                        ahead[begin:end] if with_ahead else empty3,
