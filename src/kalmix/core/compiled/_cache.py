@@ -10,7 +10,7 @@ from pathlib import Path
 _CORE = Path(__file__).resolve().parent.parent
 #: numba options of every compiled-engine function.
 JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
-#: The drivers over targets (``_run_block``): no reference counting. They allocate nothing (their scratch
+#: The drivers over targets (each family's ``kernel``): no reference counting. They allocate nothing (their scratch
 #: comes from the caller), and without it the array views of their inner loops cost nothing: the kinematic
 #: family's driver ran 2.5x faster on one thread (10,000 targets x 50 rows).
 KERNEL_JIT = dict(JIT, _nrt=False)
@@ -19,7 +19,7 @@ KERNEL_SOURCES = (
     "_numba_linalg.py", "_numba_kernels.py", "_numba_akf_gate.py", "_numba_akf_rls.py", "_numba_akf_filter.py",
     "_numba_akf_target.py",
     "compiled/kinematic.py", "compiled/ar.py", "compiled/turn.py", "compiled/rules.py", "compiled/screen.py",
-    "compiled/_cache.py", "compiled/calibration.py", "compiled/lead.py", "compiled/akf.py",
+    "compiled/_cache.py", "compiled/calibration.py", "compiled/lead.py", "compiled/akf.py", "compiled/reach.py",
 )
 #: The GPU engine's modules: their CPU-side numba functions are cached too. What they import from the spec
 #: modules (state classes) is used on the host only, so the import check leaves them out.

@@ -15,10 +15,11 @@ import numpy as np
 
 from ..calibration import CalibrationState
 from ..engine import (Bank, BankState, EngineResult, check_restart, check_run_arguments, check_run_options,
-                      init_bank_state, tree_map, within_reach)
+                      init_bank_state, tree_map)
 from ..lead import LeadState
 from ..screen import ScreenState
 from . import lead as clead
+from . import reach as creach
 from . import rules as crules
 from .calibration import pack_params as pack_calibration
 from . import screen as cscreen
@@ -27,7 +28,7 @@ from ._notice import watch as watch_compiles
 from ._warm import compile_ahead
 from .drivers import driver
 
-__all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule"]
+__all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule", "pack_rule_params"]
 
 #: Upper bound of the per-block expert buffer(s): large enough that the per-block Python work is small beside
 #: the kernels' (below a few MiB it is not), small enough to stay a modest share of memory.
@@ -44,38 +45,25 @@ TARGET_GROUP = 256
 SIDE_BY_SIDE_MIN_ROWS = 16
 
 
-def pack_rule(bank: Bank, state, n: int):
-    """The rule's state as the five arrays of :mod:`.rules` (fresh copies)."""
-    k = bank.n_experts
-    a, b, c = np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k))
-    d, e = np.zeros(n), np.zeros(n)
-    if bank.rule == "boa":
-        a[:], b[:], c[:] = state.regret, state.variance, state.bound
-        d[:], e[:] = state.error_scale, state.error_count
-    elif bank.rule == "mlpoly":
-        a[:], b[:], d[:] = state.regret, state.variance, state.bound
-    else:
-        a[:], d[:], e[:] = state.log_weights, state.squared, state.count
-    return a, b, c, d, e
+def pack_rule(bank: Bank, state):
+    """The rule's state as its kernels take it (its class in :data:`.rules.COMPILED_RULES`, the spec's fields):
+    fresh C-contiguous float copies, advanced in place."""
+    kind = crules.COMPILED_RULES[bank.rule].state
+    return kind(**{name: np.array(getattr(state, name), dtype=np.float64, copy=True, order="C")
+                   for name in kind._fields})
 
 
-def unpack_rule(bank: Bank, a, b, c, d, e):
-    module = bank.rule_module
-    if bank.rule == "boa":
-        return module.State(a, b, c, d, e)
-    if bank.rule == "mlpoly":
-        return module.State(a, b, d)
-    return module.State(a, d, e)
+def unpack_rule(bank: Bank, packed):
+    """The state :func:`pack_rule` packed, as the rule's spec state."""
+    return bank.rule_module.State(**packed._asdict())
 
 
-def rule_scalars(bank: Bank, params=None):
-    """The rule's scalars as the kernels take them: code, forgetting, share, scale, scale_factor, bound_forgetting,
-    delay, clip (of ``params``, default the bank's one-step rule's)."""
+def pack_rule_params(bank: Bank, params=None):
+    """The rule's parameters as its kernels take them (its class in :data:`.rules.COMPILED_RULES`) of ``params``,
+    by default the bank's one-step rule's."""
     params = bank.rule_params if params is None else params
-    return (crules.RULE_CODES[bank.rule], float(getattr(params, "forgetting", 1.0)), float(params.share),
-            float(getattr(params, "scale", 0.0)), float(getattr(params, "scale_factor", 0.0)),
-            float(getattr(params, "bound_forgetting", 1.0)), float(getattr(params, "delay", 1.0)),
-            float(getattr(params, "clip", np.inf)))
+    kind = crules.COMPILED_RULES[bank.rule].params
+    return kind(**{name: float(getattr(params, name)) for name in kind._fields})
 
 
 def with_lead(bank: Bank, times, ahead_times, ahead_frames):
@@ -151,14 +139,14 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     constants = [d.constants(family.params) for d, family in zip(drivers, bank.families)]
     families = [d.pack(family.params, fstate) for d, family, fstate in zip(drivers, bank.families, state.families)]
     horizon = ahead_frames if with_ahead else 1
-    a, b, c, d, e = pack_rule(bank, state.rule, n)
-    rule_args = rule_scalars(bank)
+    rule = pack_rule(bank, state.rule)
+    rule_params = pack_rule_params(bank)
     cal_args = pack_calibration(bank.calibration_params)
     initial_variance = float(bank.calibration_params.initial_variance)
     cal = _copy(state.calibration)
     if lead is not None:
-        lead_rule = pack_rule(bank, state.lead.rule, n)
-        lead_args = rule_scalars(bank, bank.lead_rule_params)
+        lead_rule = pack_rule(bank, state.lead.rule)
+        lead_params = pack_rule_params(bank, bank.lead_rule_params)
         lead_cal = _copy(state.lead.calibration)
         due = np.array(state.lead.due, dtype=np.float64, copy=True, order="C")
         pending = np.array(state.lead.pending, dtype=np.float64, copy=True, order="C")
@@ -181,7 +169,7 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     sums = [np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k))] if score is not None else None
 
     offsets = [cols.start for cols in bank.slices()]
-    reaching = bank.far_experts() is not None   # else no expert ever sleeps for a long step
+    far = bank.far_experts()   # None: no expert ever sleeps for a long step
     costliest_first = sorted(range(len(bank.families)), key=lambda i: -_family_cost(bank.families[i]))
     side_by_side = families_in_parallel(n) and t_count * n >= SIDE_BY_SIDE_MIN_ROWS
     per_row = (n if _block_targets is None else _block_targets) * k * p * 8 * (2 if with_ahead else 1)
@@ -227,17 +215,21 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
                 _accumulate_ahead(sums[2], sums[3], ahead_buffer, z, begin, end, ahead_frames, score_ahead)
         # the one-step weights see the experts within reach (the spec's within_reach); the lead head all of them
         mixed, mixed_ahead = buffer, ahead_buffer
-        if reaching:
-            mixed = within_reach(bank, buffer, tb - before)
-            mixed_ahead = within_reach(bank, ahead_buffer, ahead_b - after) if with_ahead else None
+        if far is not None:
+            mixed = np.empty_like(buffer)
+            over_targets(creach.kernel, n, far, float(bank.reach), buffer, tb, before, lens, mixed)
+            if with_ahead:
+                mixed_ahead = np.empty_like(ahead_buffer)
+                over_targets(creach.kernel, n, far, float(bank.reach), ahead_buffer, ahead_b, after, lens,
+                             mixed_ahead)
         w_block = np.full((rows, n, k), np.nan) if record_experts else empty3
         go = lb & ~restart & ~cold
-        over_targets(crules.run_block, n, *rule_args, a, b, c, d, e, *cal_args, *cal, mixed, zb, lens, go,
+        over_targets(crules.run_block, n, rule_params, rule, *cal_args, *cal, mixed, zb, lens, go,
                      forecasts[begin:end], std[begin:end], covariance[begin:end] if record_covariance else empty4,
                      w_block, mixed_ahead if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3,
                      ahead_std[begin:end] if with_ahead else empty3, cold, restart, initial_variance)
         if lead is not None:
-            over_targets(clead.run_block, n, *lead_args, *lead_rule, *cal_args, *lead_cal, ahead_b,
+            over_targets(clead.run_block, n, lead_params, lead_rule, *cal_args, *lead_cal, ahead_b,
                          float(lead.tolerance), due, pending, issued, ahead_buffer, zb, tb, lens, go, lb & started,
                          restart, lead_out[begin:end], lead_std[begin:end],
                          lead_covariance[begin:end] if record_covariance else empty4, cold, initial_variance)
@@ -246,8 +238,8 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     families = [d.unpack(packed, fstate) for d, packed, fstate in zip(drivers, families, state.families)]
     head = None
     if lead is not None:
-        head = LeadState(unpack_rule(bank, *lead_rule), CalibrationState(*lead_cal), due, pending, issued)
-    final = BankState(tuple(families), unpack_rule(bank, a, b, c, d, e), scr, CalibrationState(*cal), head)
+        head = LeadState(unpack_rule(bank, lead_rule), CalibrationState(*lead_cal), due, pending, issued)
+    final = BankState(tuple(families), unpack_rule(bank, rule), scr, CalibrationState(*cal), head)
     if sums is not None:
         experts_out, weights_out, ahead_experts_out = sums[0], sums[1], sums[2] if with_ahead else None
     return EngineResult(forecasts, final, ahead, experts_out, weights_out, ahead_experts_out, std, ahead_std,

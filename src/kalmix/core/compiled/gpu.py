@@ -36,7 +36,7 @@ from . import screen as cscreen
 from .calibration import calibrate_row
 from .calibration import pack_params as pack_calibration
 from .drivers import driver
-from .gpu_staged import sleep_beyond   # (the reach's sleep, shared with the staged engine)
+from .reach import sleep_beyond
 
 if not hasattr(np, "row_stack"):  # numba-cuda 0.30 registers an overload of np.row_stack, gone from numpy 2.4+
     np.row_stack = np.vstack
@@ -51,9 +51,9 @@ MAX_EXPERTS = 64
 THREADS_PER_BLOCK = 128
 _kernel_cache = {}
 forecast_expert, step_expert, delta_of = ckin.forecast_expert, ckin.step_expert, ckin.step_delta
-screen_row = cscreen.screen_row
+screen_row, last_learned = cscreen.screen_row, cscreen.last_learned
 forecast_row, write_row, learn_rule, cold_row = crules.forecast_row, crules.write_row, crules.learn_row, crules.cold_row
-restart_row = crules.restart_row
+restart_row, rule_column = crules.restart_row, crules.column
 
 
 def gpu_available() -> bool:
@@ -64,11 +64,10 @@ def gpu_available() -> bool:
 
 
 def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, mean, cov, last_time, initialised,
-           rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
-           threshold, max_rejects, warmup, window, position, velocity, seen, spread, count, rejects, outliers,
-           points, low, high, cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale,
-           cal_initial, variance, n_errors, log_scale, z, times, lengths, learn, out, out_std, ahead_times, out_ahead,
-           out_ahead_std):
+           rule_params, rule_state, threshold, max_rejects, warmup, window, position, velocity, seen, spread, count,
+           rejects, outliers, points, low, high, cal_window, cal_rate, cal_level, z_level, cal_max_variance,
+           max_log_scale, cal_initial, variance, n_errors, log_scale, z, times, lengths, learn, out, out_std,
+           ahead_times, out_ahead, out_ahead_std):
     n = cuda.grid(1)
     if n >= z.shape[1]:
         return
@@ -95,13 +94,12 @@ def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, 
     rr = r_all[:k_count]
     mix = mix_all[:p]
     sigma = cov_all[:p, :p]
-    dn = d[n:n + 1]
-    en = e[n:n + 1]
+    rule = rule_column(rule_state, n)   # this target's rule state (the target last on the device)
     ls = log_scale[n:n + 1]
     var_n = variance[:, :, n]
     errors_n = n_errors[:, n]
     for t in range(lengths[n]):
-        before = seen[n] if points[n] >= 2.0 else math.nan   # the spec's engine.span
+        before = last_learned(seen, points, n)   # the spec's engine.span
         code = screen_row(threshold, max_rejects, warmup, window, position, velocity, seen, spread, count,
                           rejects, outliers, points, low, high, n, z[t, n], times[t, n], learn[t, n], False)
         # every expert's forecast of the row, and its learning from the same extrapolation
@@ -115,18 +113,16 @@ def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, 
             initialised[n] = True
             last_time[n] = times[t, n]
         sleep_beyond(far, x, times[t, n] - before, reach)
-        awake_count = forecast_row(rule, forgetting, share, delay, a[:, n], b[:, n], c[:, n], dn[0], x, awake, w,
-                                   logw, mix, var_n, ls[0], cal_max_variance, sigma)
+        awake_count = forecast_row(rule_params, rule, x, awake, w, logw, mix, var_n, ls[0], cal_max_variance, sigma)
         write_row(awake_count, mix, sigma, out[t, n], out_std[t, n])
         if code == 1 and awake_count > 0:
             calibrate_row(x, z[t, n], awake, awake_count, mix, sigma, var_n, errors_n, ls, cal_window, cal_rate,
                           cal_level, z_level, cal_max_variance, max_log_scale)
-            learn_rule(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a[:, n], b[:, n],
-                       c[:, n], dn, en, x, z[t, n], awake, awake_count, w, mix, rr)
+            learn_rule(rule_params, rule, x, z[t, n], awake, awake_count, w, mix, rr)
         if code == 2:   # a restart: the experts start again, and so does BOA's error scale
-            restart_row(rule, dn, en)
+            restart_row(rule)
         if code == 4:   # a cold restart: forecast by the old rule and calibration, which start again
-            cold_row(a[:, n], b[:, n], c[:, n], dn, en, var_n, errors_n, ls, cal_initial)
+            cold_row(rule, var_n, errors_n, ls, cal_initial)
         if want_ahead:
             for k in range(k_count):
                 if initialised[n]:
@@ -136,9 +132,9 @@ def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, 
                 else:
                     for ci in range(p):
                         x[k, ci] = math.nan
-            sleep_beyond(far, x, ahead_times[t, n] - (seen[n] if points[n] >= 2.0 else math.nan), reach)
-            awake_count = forecast_row(rule, forgetting, share, delay, a[:, n], b[:, n], c[:, n], dn[0], x, awake, w,
-                                       logw, mix, var_n, ls[0], cal_max_variance, sigma)
+            sleep_beyond(far, x, ahead_times[t, n] - last_learned(seen, points, n), reach)
+            awake_count = forecast_row(rule_params, rule, x, awake, w, logw, mix, var_n, ls[0], cal_max_variance,
+                                       sigma)
             write_row(awake_count, mix, sigma, out_ahead[t, n], out_ahead_std[t, n])
 
 
@@ -205,6 +201,13 @@ def _pack_families(bank: Bank, states, n: int, p: int):
             first.last_time.astype(np.float64).copy(), first.initialised.astype(np.bool_).copy())
 
 
+def _far(bank: Bank) -> np.ndarray:
+    """The experts that sleep across a step over the reach (:meth:`~kalmix.core.engine.Bank.far_experts`; none when
+    it says none ever does)."""
+    far = bank.far_experts()
+    return np.zeros(bank.n_experts, dtype=np.bool_) if far is None else far
+
+
 def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
         ahead_times=None, ahead_frames: int = 1, threads_per_block: int = THREADS_PER_BLOCK,
         timings: dict | None = None) -> EngineResult:
@@ -216,7 +219,7 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
     import time
 
     start = time.perf_counter()
-    from .engine import rule_scalars, pack_rule, prepare, unpack_rule
+    from .engine import pack_rule, pack_rule_params, prepare, unpack_rule
 
     if not fused(bank):
         raise ValueError("run_fused: kinematic banks of at most 64 experts, 1 to 3 coordinates, no lead head")
@@ -224,7 +227,7 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
     t_count, n, p = z.shape
     (orders, q, r, initial, tu, max_step, max_variance, mean, cov, last_time,
      initialised) = _pack_families(bank, state.families, n, p)
-    a, b, c, d, e = pack_rule(bank, state.rule, n)
+    rule = pack_rule(bank, state.rule)
     scr = [np.array(x, dtype=np.float64, copy=True, order="C") for x in state.screen]
     cal = [np.array(x, dtype=np.float64, copy=True, order="C") for x in state.calibration]
     sp = bank.screen_params
@@ -233,10 +236,12 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
                   if with_ahead else np.empty((0, 0)))
     # target index last on the device: neighbouring threads read neighbouring addresses (coalesced)
     soa = lambda array: np.ascontiguousarray(np.moveaxis(array, 0, -1))  # noqa: E731
+    # the rule's per-expert arrays (N, K) as (K, N), its per-target ones (N,) as they are
+    rule_dev = type(rule)(*(cuda.to_device(soa(a) if a.ndim == 2 else a) for a in rule))
     device = {name: cuda.to_device(value) for name, value in dict(
-        orders=orders, far=orders != 2, q=q, r=r, initial=initial, tu=tu, mean=soa(mean), cov=soa(cov),
+        orders=orders, far=_far(bank), q=q, r=r, initial=initial, tu=tu, mean=soa(mean), cov=soa(cov),
         last_time=last_time,
-        initialised=initialised, a=soa(a), b=soa(b), c=soa(c), d=d, e=e, z=z, times=times, lengths=lengths,
+        initialised=initialised, z=z, times=times, lengths=lengths,
         learn=np.ascontiguousarray(learn), ahead_times=ahead_host, variance=soa(cal[0]), n_errors=soa(cal[1]),
         log_scale=cal[2]).items()}
     screen_dev = [cuda.to_device(x) for x in scr]
@@ -250,7 +255,7 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
     kernel[blocks, threads_per_block](
         device["orders"], device["far"], device["q"], device["r"], device["initial"], device["tu"], max_step,
         max_variance, float(bank.reach), device["mean"], device["cov"], device["last_time"], device["initialised"],
-        *rule_scalars(bank), device["a"], device["b"], device["c"], device["d"], device["e"],
+        pack_rule_params(bank), rule_dev,
         float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window), *screen_dev,
         *pack_calibration(bank.calibration_params), float(bank.calibration_params.initial_variance),
         device["variance"], device["n_errors"], device["log_scale"],
@@ -274,8 +279,8 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
         families.append(KinematicState(np.ascontiguousarray(mean[:, cols, :dd]),
                                        np.ascontiguousarray(cov[:, cols, :dd, :dd]), last_time.copy(),
                                        initialised.copy()))
-    rule_state = unpack_rule(bank, *(aos(device[k].copy_to_host()) for k in "abc"),
-                             *(device[k].copy_to_host() for k in "de"))
+    rule_state = unpack_rule(bank, type(rule)(*(aos(a.copy_to_host()) if a.ndim == 2 else a.copy_to_host()
+                                                for a in rule_dev)))
     screen_state = ScreenState(*(x.copy_to_host() for x in screen_dev))
     calibration = CalibrationState(aos(device["variance"].copy_to_host()), aos(device["n_errors"].copy_to_host()),
                                    device["log_scale"].copy_to_host())

@@ -1,7 +1,7 @@
 """GPU engine for every bank (numba-cuda, fp64): the CPU engine's stages, one GPU thread per target.
 
 The CPU engine (:mod:`.engine`) runs a block of rows stage by stage (glitch screen, each
-family's experts, the rule, the lead head), each stage a driver ``_run_block(lo, hi, ...)``
+family's experts, the rule, the lead head), each stage a driver ``kernel(lo, hi, ...)``
 over a range of targets. Here each stage is one kernel launch whose thread ``j`` calls the
 **same driver** with ``lo, hi = j, j + 1`` and its own slice of the scratch, so the numbers
 are the CPU engine's and there is no third copy of the algorithms. The state stays on the
@@ -23,13 +23,14 @@ from ..engine import Bank, BankState, EngineResult, check_restart, check_run_opt
 from ..lead import LeadState
 from ..screen import ScreenState
 from . import lead as clead
+from . import reach as creach
 from . import rules as crules
 from . import screen as cscreen
 from ._cache import JIT as _JIT
 from .akf_driver import MAX_GPU_STATE
 from .calibration import pack_params as pack_calibration
 from .drivers import driver
-from .engine import pack_rule, prepare, rule_scalars, unpack_rule, with_lead
+from .engine import pack_rule, pack_rule_params, prepare, unpack_rule, with_lead
 
 try:  # numba-cuda is optional (the 'gpu' extra)
     from numba import boolean, cuda, float64
@@ -125,39 +126,6 @@ def _both(lo, hi, a, b, lengths, out):
             out[t, j] = a[t, j] and b[t, j]
 
 
-@nb.njit(inline="always", **_JIT)
-def sleep_beyond(far, x, span, reach):
-    """The spec's :func:`kalmix.core.engine.within_reach` on one target's row ``x (K, p)``: across a ``span`` over
-    ``reach`` the ``far`` experts sleep (NaN) if an expert not far has a forecast."""
-    if not span > reach:
-        return
-    k_count, p = x.shape
-    near = False
-    for k in range(k_count):
-        if not far[k]:
-            finite = True
-            for ci in range(p):
-                finite = finite and math.isfinite(x[k, ci])
-            near = near or finite
-    if near:
-        for k in range(k_count):
-            if far[k]:
-                for ci in range(p):
-                    x[k, ci] = math.nan
-
-
-@nb.njit(**_JIT)
-def _reach(lo, hi, far, reach, experts, times, last, lengths, out):
-    """:func:`kalmix.core.engine.within_reach`: ``out`` is ``experts`` with the ``far`` experts asleep on the rows
-    whose span ``times - last`` is over the reach (:func:`sleep_beyond`, as the fused kernel of :mod:`.gpu`)."""
-    for j in range(lo, hi):
-        for t in range(lengths[j]):
-            for k in range(experts.shape[2]):
-                for ci in range(experts.shape[3]):
-                    out[t, j, k, ci] = experts[t, j, k, ci]
-            sleep_beyond(far, out[t, j], times[t, j] - last[t, j], reach)
-
-
 @nb.njit(**_JIT)
 def _fill(lo, hi, value, array):
     """``array[:, j] = value`` (a C-contiguous ``(T, N, ...)`` array)."""
@@ -203,14 +171,19 @@ def _per_target(templates, n):
 
 
 def _dev(tree):
-    """Fresh device copies of a tuple of arrays, nested tuples too (scalars stay)."""
-    return tuple(_dev(a) if isinstance(a, tuple) else
-                 cuda.to_device(np.ascontiguousarray(a)) if isinstance(a, np.ndarray) else a for a in tree)
+    """Fresh device copies of a (named) tuple of arrays, nested ones too (scalars stay)."""
+    return _same_type(tree, [_dev(a) if isinstance(a, tuple) else
+                             cuda.to_device(np.ascontiguousarray(a)) if isinstance(a, np.ndarray) else a for a in tree])
 
 
 def _host(tree):
-    return tuple(_host(a) if isinstance(a, tuple) else a.copy_to_host() if hasattr(a, "copy_to_host") else a
-                 for a in tree)
+    return _same_type(tree, [_host(a) if isinstance(a, tuple) else
+                             a.copy_to_host() if hasattr(a, "copy_to_host") else a for a in tree])
+
+
+def _same_type(tree, items):
+    """``items`` as a tuple of ``tree``'s type (a named tuple stays one)."""
+    return type(tree)(*items) if hasattr(tree, "_fields") else tuple(items)
 
 
 def bytes_per_target(bank: Bank, t_count: int) -> int:
@@ -291,15 +264,15 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
     families = [_dev(d.pack(family.params, fstate)) for d, family, fstate in zip(drivers, bank.families,
                                                                                   state.families)]
     scratch = [_per_target(d.scratch(family.params, p), n) for d, family in zip(drivers, bank.families)]
-    rule = _dev(pack_rule(bank, state.rule, n))
-    rule_args = rule_scalars(bank)
+    rule = _dev(pack_rule(bank, state.rule))
+    rule_params = pack_rule_params(bank)
     rule_scratch = _per_target(crules.scratch(k, p), n)
     cal_args = pack_calibration(bank.calibration_params)
     initial_variance = float(bank.calibration_params.initial_variance)
     cal = _dev(state.calibration)
     if lead is not None:
-        lead_rule = _dev(pack_rule(bank, state.lead.rule, n))
-        lead_args = rule_scalars(bank, bank.lead_rule_params)
+        lead_rule = _dev(pack_rule(bank, state.lead.rule))
+        lead_params = pack_rule_params(bank, bank.lead_rule_params)
         lead_cal = _dev(state.lead.calibration)
         slots = _dev((state.lead.due, state.lead.pending, state.lead.issued))
     scr = _dev(state.screen)
@@ -343,12 +316,13 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
         mixed, mixed_ahead = buffer, ahead_buffer
         if far is not None:
             mixed = cuda.device_array(buffer.shape)
-            _launch(_reach, n, (d_far, float(bank.reach), buffer, tb, before, lens, mixed), stages=stages)
+            _launch(creach.kernel, n, (d_far, float(bank.reach), buffer, tb, before, lens, mixed), stages=stages,
+                    name="reach")
             if with_ahead:
                 mixed_ahead = cuda.device_array(buffer.shape)
-                _launch(_reach, n, (d_far, float(bank.reach), ahead_buffer, ahead_b, after, lens, mixed_ahead),
-                        stages=stages)
-        _launch(crules._run_block, n, (*rule_args, *rule, *cal_args, *cal, mixed, zb, lens, f["go"],
+                _launch(creach.kernel, n, (d_far, float(bank.reach), ahead_buffer, ahead_b, after, lens, mixed_ahead),
+                        stages=stages, name="reach")
+        _launch(crules.kernel, n, (rule_params, rule, *cal_args, *cal, mixed, zb, lens, f["go"],
                                        forecasts[begin:end], std[begin:end], empty4, empty3, mixed_ahead,
                                        ahead[begin:end] if with_ahead else empty3,
                                        ahead_std[begin:end] if with_ahead else empty3, f["cold"], f["restart"],
@@ -357,7 +331,7 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
         if lead is not None:
             keep = cuda.device_array(lb.shape, dtype=np.bool_)
             _launch(_both, n, (lb, f["started"], lens, keep), stages=stages)
-            _launch(clead._run_block, n, (*lead_args, *lead_rule, *cal_args, *lead_cal, ahead_b,
+            _launch(clead.kernel, n, (lead_params, lead_rule, *cal_args, *lead_cal, ahead_b,
                                           float(lead.tolerance), *slots, ahead_buffer, zb, tb, lens, f["go"], keep,
                                           f["restart"], lead_out[begin:end], lead_std[begin:end], empty4, f["cold"],
                                           initial_variance), rule_scratch, stages=stages, name="lead")
@@ -366,8 +340,8 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
     out = [d.unpack(_host(fs), fstate) for d, fs, fstate in zip(drivers, families, state.families)]
     head = None
     if lead is not None:
-        head = LeadState(unpack_rule(bank, *_host(lead_rule)), CalibrationState(*_host(lead_cal)), *_host(slots))
-    final = BankState(tuple(out), unpack_rule(bank, *_host(rule)), ScreenState(*_host(scr)),
+        head = LeadState(unpack_rule(bank, _host(lead_rule)), CalibrationState(*_host(lead_cal)), *_host(slots))
+    final = BankState(tuple(out), unpack_rule(bank, _host(rule)), ScreenState(*_host(scr)),
                       CalibrationState(*_host(cal)), head)
     get = lambda a: None if a is None else a.copy_to_host()  # noqa: E731
     return EngineResult(get(forecasts), final, get(ahead), None, None, None, get(std), get(ahead_std), get(lead_out),

@@ -1,23 +1,26 @@
 """Compiled aggregation rules (:mod:`kalmix.core.aggregators`): same formulas, targets in ranges on threads.
 
-Every rule's state is packed into the same five arrays (``a, b, c`` of shape ``(N, K)``,
-``d, e`` of shape ``(N,)``) so that one driver, :func:`run_block`, serves them all:
+Each rule has its own parameters and state as the kernels take them, named tuples with the
+spec's names (:class:`BoaParams` / :class:`BoaState`, :class:`MLPolyParams` / :class:`MLPolyState`,
+:class:`FixedShareParams` / :class:`FixedShareState`; :data:`COMPILED_RULES` maps a rule's name to
+them), and its row functions: its weights, its learning, what a restart and a cold restart change.
+One driver, :func:`run_block`, serves them all: it calls :func:`weights_row`, :func:`learn_row`,
+:func:`restart_row`, :func:`cold_row` and :func:`target`, which numba resolves by the state's type
+when it compiles (an ``overload`` each), so each rule has its own compiled driver and no branch on
+a rule code; with the JIT off (the CUDA simulator) they dispatch in Python.
 
-=============  ===============  ===============  =============  ===========  =========
-rule           a                b                c              d            e
-=============  ===============  ===============  =============  ===========  =========
-boa            regret           variance         bound          error_scale  error_count
-mlpoly         regret           variance         --             bound        --
-fixed_share    log_weights      --               --             squared      count
-=============  ===============  ===============  =============  ===========  =========
+A per-target state (:func:`target`) is the rule's state class holding one target's views: the
+``(K,)`` rows of the ``(N, K)`` arrays and one-element slices of the ``(N,)`` ones (written in place).
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
+from numba.extending import overload
 
 from ..aggregators import boa as _boa
 from ._cache import JIT as _JIT
@@ -30,8 +33,68 @@ configure_cache()
 CLIP_WARMUP = float(_boa.CLIP_WARMUP)
 CLIP_MEMORY = float(_boa.CLIP_MEMORY)
 
-#: Rule codes of the driver, in the order of :data:`kalmix.core.aggregators.RULES`.
-RULE_CODES = {"boa": 0, "mlpoly": 1, "fixed_share": 2}
+
+class BoaParams(NamedTuple):
+    """BOA's parameters as its kernel reads them (:class:`kalmix.core.aggregators.boa.Params`)."""
+
+    forgetting: float
+    share: float
+    bound_forgetting: float
+    delay: float
+    clip: float
+
+
+class BoaState(NamedTuple):
+    """BOA's state (:class:`kalmix.core.aggregators.boa.State`)."""
+
+    regret: np.ndarray        # (N, K)
+    variance: np.ndarray      # (N, K)
+    bound: np.ndarray         # (N, K)
+    error_scale: np.ndarray   # (N,)
+    error_count: np.ndarray   # (N,)
+
+
+class MLPolyParams(NamedTuple):
+    """ML-Poly's parameters (:class:`kalmix.core.aggregators.mlpoly.Params`)."""
+
+    forgetting: float
+    share: float
+
+
+class MLPolyState(NamedTuple):
+    """ML-Poly's state (:class:`kalmix.core.aggregators.mlpoly.State`)."""
+
+    regret: np.ndarray     # (N, K)
+    variance: np.ndarray   # (N, K)
+    bound: np.ndarray      # (N,)
+
+
+class FixedShareParams(NamedTuple):
+    """Fixed share's parameters (:class:`kalmix.core.aggregators.fixed_share.Params`)."""
+
+    share: float
+    scale: float
+    scale_factor: float
+
+
+class FixedShareState(NamedTuple):
+    """Fixed share's state (:class:`kalmix.core.aggregators.fixed_share.State`)."""
+
+    log_weights: np.ndarray   # (N, K)
+    squared: np.ndarray       # (N,)
+    count: np.ndarray         # (N,)
+
+
+class CompiledRule(NamedTuple):
+    """A rule's parameters and state classes as its kernels take them."""
+
+    params: type
+    state: type
+
+
+#: Each rule's compiled parameters and state, by its name in :data:`kalmix.core.aggregators.RULES`.
+COMPILED_RULES = {"boa": CompiledRule(BoaParams, BoaState), "mlpoly": CompiledRule(MLPolyParams, MLPolyState),
+                  "fixed_share": CompiledRule(FixedShareParams, FixedShareState)}
 
 
 @nb.njit(inline="always", **_JIT)
@@ -72,45 +135,6 @@ def _share(w, awake, count, share):
             w[k] = (1.0 - share) * w[k] + (share / max(count, 1) if awake[k] else 0.0)
 
 
-@nb.njit(**_JIT)
-def _weights(rule, forgetting, share, delay, a, b, c, d, awake, count, w, logw):
-    k_count = w.shape[0]
-    if rule == 0:  # BOA
-        top = 0.0
-        log_k = math.log(max(k_count, 2)) / delay
-        for k in range(k_count):
-            if b[k] > 0:
-                eta = min(1.0 / (2.0 * c[k]), math.sqrt(log_k / b[k]))
-                logw[k] = eta
-                if eta > top:
-                    top = eta
-            else:
-                logw[k] = -1.0
-        fallback = top if top > 0 else 1.0
-        for k in range(k_count):
-            eta = logw[k] if logw[k] >= 0 else fallback
-            logw[k] = math.log(eta) + eta * a[k]
-        _softmax(logw, awake, w)
-        _share(w, awake, count, share)
-    elif rule == 1:  # ML-Poly
-        total = 0.0
-        for k in range(k_count):
-            denominator = b[k] + d
-            if awake[k] and denominator > 0:
-                w[k] = max(a[k], 0.0) / denominator
-            else:
-                w[k] = 0.0
-            total += w[k]
-        for k in range(k_count):
-            if total > 0:
-                w[k] = w[k] / total
-            else:
-                w[k] = 1.0 / max(count, 1) if awake[k] else 0.0
-        _share(w, awake, count, share)
-    else:  # fixed share: the shared weights are stored
-        _softmax(a, awake, w)
-
-
 @nb.njit(inline="always", **_JIT)
 def _mix(x, w, awake, out):
     for ci in range(x.shape[1]):
@@ -121,100 +145,331 @@ def _mix(x, w, awake, out):
         out[ci] = acc
 
 
-@nb.njit(**_JIT)
-def learn_row(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e, x, y, awake,
-              count, w, mix, r):
-    k_count = w.shape[0]
-    p = x.shape[1]
-    if rule == 0 or rule == 1:
-        # BOA's clip (see the spec, kalmix.core.aggregators.boa): the error shrunk to clip x its running RMS
-        factor = 1.0
-        squared = 0.0
-        clipping = rule == 0 and math.isfinite(clip)
-        if clipping:
-            for ci in range(p):
-                squared += (mix[ci] - y[ci]) * (mix[ci] - y[ci])
-            if not math.isfinite(squared):
-                return  # an overflowing squared error norm teaches nothing
-            norm = math.sqrt(squared)
-            if e[0] >= CLIP_WARMUP and d[0] > 0:
-                limit = clip * math.sqrt(d[0])
-                if norm > limit:
-                    factor = limit / norm
-        biggest = 0.0
-        for k in range(k_count):
-            if awake[k]:
-                acc = 0.0
-                for ci in range(p):
-                    acc += (mix[ci] - y[ci]) * (mix[ci] - x[k, ci])
-                r[k] = 2.0 * acc   # the whole regret (BOA's range bound takes it)
-            else:
-                r[k] = 0.0
-            if not math.isfinite(r[k] * r[k]):
-                biggest = np.inf
-            elif r[k] * r[k] > biggest:
-                biggest = r[k] * r[k]
-        if not math.isfinite(biggest):
-            return  # an overflowing regret teaches nothing
-        if clipping:
-            e[0] = min(e[0] + 1.0, CLIP_MEMORY)
-            d[0] = d[0] + (squared - d[0]) / e[0]
-        rho = forgetting
-        if rule == 0:
-            log_k = math.log(max(k_count, 2)) / delay
-            for k in range(k_count):
-                if awake[k]:
-                    rk = r[k] * factor   # the regret of the clipped error (the whole one's, scaled)
-                    variance = rho * b[k] + rk * rk
-                    bound = max(bound_forgetting * c[k], abs(r[k]))
-                    eta = min(1.0 / (2.0 * bound), math.sqrt(log_k / variance)) if variance > 0 else 0.0
-                    a[k] = rho * a[k] + rk - eta * rk * rk
-                    b[k] = variance
-                    c[k] = bound
+@nb.njit(inline="always", **_JIT)
+def _regrets(x, y, mix, awake, r):
+    """The linearised regrets ``r (K,)`` of the awake experts (0 for the others); returns the largest squared
+    one (inf if one overflows)."""
+    biggest = 0.0
+    for k in range(r.shape[0]):
+        if awake[k]:
+            acc = 0.0
+            for ci in range(x.shape[1]):
+                acc += (mix[ci] - y[ci]) * (mix[ci] - x[k, ci])
+            r[k] = 2.0 * acc   # the whole regret (BOA's range bound takes it)
         else:
-            for k in range(k_count):
-                if awake[k]:
-                    a[k] = rho * a[k] + r[k]
-                    b[k] = rho * b[k] + r[k] * r[k]
-            d[0] = max(rho * d[0], biggest)
-    else:
-        if count == 0:
-            return
-        sq = 0.0
-        for ci in range(p):
-            sq += (mix[ci] - y[ci]) ** 2
-        worst = sq
-        for k in range(k_count):
-            if awake[k]:
-                loss = 0.0
-                for ci in range(p):
-                    loss += (y[ci] - x[k, ci]) ** 2
-                if not math.isfinite(loss):
-                    worst = np.inf
-                worst = max(worst, loss)
-        if not math.isfinite(worst) or not math.isfinite(d[0] + sq / p):
-            return  # an overflowing loss (or running sum of losses) teaches nothing, as in the spec
-        d[0] += sq / p
-        e[0] += 1.0
-        variance = scale * scale if scale > 0 else scale_factor * d[0] / e[0]
-        for k in range(k_count):
-            if awake[k]:
-                loss = 0.0
-                for ci in range(p):
-                    loss += (y[ci] - x[k, ci]) ** 2
-                r[k] = a[k] - (loss / (2.0 * variance) if variance > 0 else 0.0)
-        _softmax(r, awake, w)
-        for k in range(k_count):
-            if awake[k]:
-                a[k] = math.log((1.0 - share) * w[k] + share / count)
+            r[k] = 0.0
+        if not math.isfinite(r[k] * r[k]):
+            biggest = np.inf
+        elif r[k] * r[k] > biggest:
+            biggest = r[k] * r[k]
+    return biggest
+
+
+# ---------------------------------------------------------------------------------------------------- BOA
+@nb.njit(inline="always", **_JIT)
+def boa_target(state, n):
+    return BoaState(state.regret[n], state.variance[n], state.bound[n], state.error_scale[n:n + 1],
+                    state.error_count[n:n + 1])
 
 
 @nb.njit(inline="always", **_JIT)
-def forecast_row(rule, forgetting, share, delay, a, b, c, d, x, awake, w, logw, mix, variance, log_scale, max_variance,
-                 cov):
+def boa_column(state, n):
+    return BoaState(state.regret[:, n], state.variance[:, n], state.bound[:, n], state.error_scale[n:n + 1],
+                    state.error_count[n:n + 1])
+
+
+@nb.njit(**_JIT)
+def boa_weights(params, s, awake, count, w, logw):
+    k_count = w.shape[0]
+    top = 0.0
+    log_k = math.log(max(k_count, 2)) / params.delay
+    for k in range(k_count):
+        if s.variance[k] > 0:
+            eta = min(1.0 / (2.0 * s.bound[k]), math.sqrt(log_k / s.variance[k]))
+            logw[k] = eta
+            if eta > top:
+                top = eta
+        else:
+            logw[k] = -1.0
+    fallback = top if top > 0 else 1.0
+    for k in range(k_count):
+        eta = logw[k] if logw[k] >= 0 else fallback
+        logw[k] = math.log(eta) + eta * s.regret[k]
+    _softmax(logw, awake, w)
+    _share(w, awake, count, params.share)
+
+
+@nb.njit(**_JIT)
+def boa_learn(params, s, x, y, awake, count, w, mix, r):
+    k_count = w.shape[0]
+    p = x.shape[1]
+    # the clip (see the spec, kalmix.core.aggregators.boa): the error shrunk to clip x its running RMS
+    factor = 1.0
+    squared = 0.0
+    clipping = math.isfinite(params.clip)
+    if clipping:
+        for ci in range(p):
+            squared += (mix[ci] - y[ci]) * (mix[ci] - y[ci])
+        if not math.isfinite(squared):
+            return  # an overflowing squared error norm teaches nothing
+        norm = math.sqrt(squared)
+        if s.error_count[0] >= CLIP_WARMUP and s.error_scale[0] > 0:
+            limit = params.clip * math.sqrt(s.error_scale[0])
+            if norm > limit:
+                factor = limit / norm
+    biggest = _regrets(x, y, mix, awake, r)
+    if not math.isfinite(biggest):
+        return  # an overflowing regret teaches nothing
+    if clipping:
+        s.error_count[0] = min(s.error_count[0] + 1.0, CLIP_MEMORY)
+        s.error_scale[0] = s.error_scale[0] + (squared - s.error_scale[0]) / s.error_count[0]
+    rho = params.forgetting
+    log_k = math.log(max(k_count, 2)) / params.delay
+    for k in range(k_count):
+        if awake[k]:
+            rk = r[k] * factor   # the regret of the clipped error (the whole one's, scaled)
+            variance = rho * s.variance[k] + rk * rk
+            bound = max(params.bound_forgetting * s.bound[k], abs(r[k]))
+            eta = min(1.0 / (2.0 * bound), math.sqrt(log_k / variance)) if variance > 0 else 0.0
+            s.regret[k] = rho * s.regret[k] + rk - eta * rk * rk
+            s.variance[k] = variance
+            s.bound[k] = bound
+
+
+@nb.njit(inline="always", **_JIT)
+def boa_restart(s):
+    """The experts start again: so does the error scale (the spec's ``boa.restart``)."""
+    s.error_scale[0] = 0.0
+    s.error_count[0] = 0.0
+
+
+@nb.njit(inline="always", **_JIT)
+def boa_cold(s):
+    for k in range(s.regret.shape[0]):
+        s.regret[k] = 0.0
+        s.variance[k] = 0.0
+        s.bound[k] = 0.0
+    s.error_scale[0] = 0.0
+    s.error_count[0] = 0.0
+
+
+# ---------------------------------------------------------------------------------------------------- ML-Poly
+@nb.njit(inline="always", **_JIT)
+def mlpoly_target(state, n):
+    return MLPolyState(state.regret[n], state.variance[n], state.bound[n:n + 1])
+
+
+@nb.njit(inline="always", **_JIT)
+def mlpoly_column(state, n):
+    return MLPolyState(state.regret[:, n], state.variance[:, n], state.bound[n:n + 1])
+
+
+@nb.njit(**_JIT)
+def mlpoly_weights(params, s, awake, count, w, logw):
+    k_count = w.shape[0]
+    total = 0.0
+    for k in range(k_count):
+        denominator = s.variance[k] + s.bound[0]
+        if awake[k] and denominator > 0:
+            w[k] = max(s.regret[k], 0.0) / denominator
+        else:
+            w[k] = 0.0
+        total += w[k]
+    for k in range(k_count):
+        if total > 0:
+            w[k] = w[k] / total
+        else:
+            w[k] = 1.0 / max(count, 1) if awake[k] else 0.0
+    _share(w, awake, count, params.share)
+
+
+@nb.njit(**_JIT)
+def mlpoly_learn(params, s, x, y, awake, count, w, mix, r):
+    biggest = _regrets(x, y, mix, awake, r)
+    if not math.isfinite(biggest):
+        return  # an overflowing regret teaches nothing
+    rho = params.forgetting
+    for k in range(w.shape[0]):
+        if awake[k]:
+            s.regret[k] = rho * s.regret[k] + r[k]
+            s.variance[k] = rho * s.variance[k] + r[k] * r[k]
+    s.bound[0] = max(rho * s.bound[0], biggest)
+
+
+@nb.njit(inline="always", **_JIT)
+def mlpoly_restart(s):
+    """The experts start again: ML-Poly keeps its state."""
+
+
+@nb.njit(inline="always", **_JIT)
+def mlpoly_cold(s):
+    for k in range(s.regret.shape[0]):
+        s.regret[k] = 0.0
+        s.variance[k] = 0.0
+    s.bound[0] = 0.0
+
+
+# ---------------------------------------------------------------------------------------------------- fixed share
+@nb.njit(inline="always", **_JIT)
+def fixed_share_target(state, n):
+    return FixedShareState(state.log_weights[n], state.squared[n:n + 1], state.count[n:n + 1])
+
+
+@nb.njit(inline="always", **_JIT)
+def fixed_share_column(state, n):
+    return FixedShareState(state.log_weights[:, n], state.squared[n:n + 1], state.count[n:n + 1])
+
+
+@nb.njit(**_JIT)
+def fixed_share_weights(params, s, awake, count, w, logw):
+    _softmax(s.log_weights, awake, w)   # the shared weights are stored
+
+
+@nb.njit(**_JIT)
+def fixed_share_learn(params, s, x, y, awake, count, w, mix, r):
+    k_count = w.shape[0]
+    p = x.shape[1]
+    if count == 0:
+        return
+    sq = 0.0
+    for ci in range(p):
+        sq += (mix[ci] - y[ci]) ** 2
+    worst = sq
+    for k in range(k_count):
+        if awake[k]:
+            loss = 0.0
+            for ci in range(p):
+                loss += (y[ci] - x[k, ci]) ** 2
+            if not math.isfinite(loss):
+                worst = np.inf
+            worst = max(worst, loss)
+    if not math.isfinite(worst) or not math.isfinite(s.squared[0] + sq / p):
+        return  # an overflowing loss (or running sum of losses) teaches nothing, as in the spec
+    s.squared[0] += sq / p
+    s.count[0] += 1.0
+    scale = params.scale
+    variance = scale * scale if scale > 0 else params.scale_factor * s.squared[0] / s.count[0]
+    for k in range(k_count):
+        if awake[k]:
+            loss = 0.0
+            for ci in range(p):
+                loss += (y[ci] - x[k, ci]) ** 2
+            r[k] = s.log_weights[k] - (loss / (2.0 * variance) if variance > 0 else 0.0)
+    _softmax(r, awake, w)
+    for k in range(k_count):
+        if awake[k]:
+            s.log_weights[k] = math.log((1.0 - params.share) * w[k] + params.share / count)
+
+
+@nb.njit(inline="always", **_JIT)
+def fixed_share_restart(s):
+    """The experts start again: fixed share keeps its state."""
+
+
+@nb.njit(inline="always", **_JIT)
+def fixed_share_cold(s):
+    for k in range(s.log_weights.shape[0]):
+        s.log_weights[k] = 0.0
+    s.squared[0] = 0.0
+    s.count[0] = 0.0
+
+
+class _Rows(NamedTuple):
+    """A rule's row functions."""
+
+    target: object   # (state, n) -> target n's state (views of the (N, ...) arrays)
+    column: object   # the same for a state with the target last ((K, N) arrays: the fused GPU kernel's)
+    weights: object  # (params, s, awake, count, w, logw): the weights of the awake experts into w
+    learn: object    # (params, s, x, y, awake, count, w, mix, r): learn a row's forecasts x and measurement y
+    restart: object  # (s): what a restart row (the experts start again) changes
+    cold: object     # (s): the state as new (the screen's cold restart)
+
+
+_ROWS = {BoaState: _Rows(boa_target, boa_column, boa_weights, boa_learn, boa_restart, boa_cold),
+         MLPolyState: _Rows(mlpoly_target, mlpoly_column, mlpoly_weights, mlpoly_learn, mlpoly_restart,
+                            mlpoly_cold),
+         FixedShareState: _Rows(fixed_share_target, fixed_share_column, fixed_share_weights, fixed_share_learn,
+                                fixed_share_restart, fixed_share_cold)}
+
+
+def _rows(state_type):
+    """The row functions of a rule's state type (a numba type when compiling, a class in Python)."""
+    return _ROWS[getattr(state_type, "instance_class", state_type)]
+
+
+# The generic row functions: in Python (the JIT off) they call the state's rule's; compiled, numba resolves the
+# call by the state's type (each overload returns that rule's function).
+def target(state, n):
+    """Target ``n``'s state: the rule's state class holding views of its rows."""
+    return _rows(type(state)).target(state, n)
+
+
+def column(state, n):
+    """:func:`target` for a state with the target last (``(K, N)`` arrays)."""
+    return _rows(type(state)).column(state, n)
+
+
+def weights_row(params, s, awake, count, w, logw):
+    """The rule's weights of one target's awake experts into ``w (K,)``."""
+    _rows(type(s)).weights(params, s, awake, count, w, logw)
+
+
+def learn_row(params, s, x, y, awake, count, w, mix, r):
+    """The rule learns one target's row: the experts' forecasts ``x (K, p)``, the measurement ``y (p,)``."""
+    _rows(type(s)).learn(params, s, x, y, awake, count, w, mix, r)
+
+
+def restart_row(s):
+    """A restart row (the experts start again): what it changes in the rule (BOA's error scale starts again)."""
+    _rows(type(s)).restart(s)
+
+
+def rule_cold_row(s):
+    """One target's rule state as new (every rule's state starts at 0)."""
+    _rows(type(s)).cold(s)
+
+
+@overload(target, jit_options=_JIT)
+def _target(state, n):
+    function = _rows(state).target
+    return lambda state, n: function(state, n)
+
+
+@overload(column, jit_options=_JIT)
+def _column(state, n):
+    function = _rows(state).column
+    return lambda state, n: function(state, n)
+
+
+@overload(weights_row, jit_options=_JIT)
+def _weights_row(params, s, awake, count, w, logw):
+    function = _rows(s).weights
+    return lambda params, s, awake, count, w, logw: function(params, s, awake, count, w, logw)
+
+
+@overload(learn_row, jit_options=_JIT)
+def _learn_row(params, s, x, y, awake, count, w, mix, r):
+    function = _rows(s).learn
+    return lambda params, s, x, y, awake, count, w, mix, r: function(params, s, x, y, awake, count, w, mix, r)
+
+
+@overload(restart_row, jit_options=_JIT)
+def _restart_row(s):
+    function = _rows(s).restart
+    return lambda s: function(s)
+
+
+@overload(rule_cold_row, jit_options=_JIT)
+def _rule_cold_row(s):
+    function = _rows(s).cold
+    return lambda s: function(s)
+
+
+@nb.njit(inline="always", **_JIT)
+def forecast_row(params, s, x, awake, w, logw, mix, variance, log_scale, max_variance, cov):
     """Weights, mixture and covariance of one target's forecasts ``x (K, p)``; returns the awake count."""
     count = _awake(x, awake)
-    _weights(rule, forgetting, share, delay, a, b, c, d, awake, count, w, logw)
+    weights_row(params, s, awake, count, w, logw)
     _mix(x, w, awake, mix)
     moments_row(x, w, awake, count, mix, variance, log_scale, max_variance, cov)
     return count
@@ -243,60 +498,46 @@ def scratch(k_count: int, p: int):
 
 
 @nb.njit(inline="always", **_JIT)
-def restart_row(rule, d, e):
-    """A restart row (the experts start again): BOA's error scale starts again (the spec's ``boa.restart``)."""
-    if rule == 0:
-        d[0] = 0.0
-        e[0] = 0.0
-
-
-@nb.njit(inline="always", **_JIT)
-def cold_row(a, b, c, d, e, variance, n_errors, log_scale, initial_variance):
-    """One target's rule and calibration as new (every rule's state starts at 0): the screen's cold restart."""
-    for k in range(a.shape[0]):
-        a[k] = 0.0
-        b[k] = 0.0
-        c[k] = 0.0
+def cold_row(s, variance, n_errors, log_scale, initial_variance):
+    """One target's rule and calibration as new (the variances at ``initial_variance``): the screen's cold
+    restart."""
+    rule_cold_row(s)
+    for k in range(n_errors.shape[0]):
         n_errors[k] = 0.0
         for ci in range(variance.shape[1]):
             variance[k, ci] = initial_variance
-    d[0] = 0.0
-    e[0] = 0.0
     log_scale[0] = 0.0
 
 
-def run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
-              window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
-              experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
+def run_block(lo, hi, params, state, window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors,
+              log_scale, experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
               out_ahead_std, cold, restart, initial_variance):
     """Mixture forecast of every row (weights before the row) and its covariance, then learn the row
     where ``learn`` (the rule and the calibration); ``out_cov`` and the others are optional (size 0).
-    A ``cold`` row (the screen's cold restart) is forecast by the old rule and calibration, which then
-    start again (the variances at ``initial_variance``) before its ahead forecast; a ``restart`` row (the
-    experts start again) starts BOA's error scale again. Targets ``lo .. hi - 1``."""
-    _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
-               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
-               experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
-               out_ahead_std, cold, restart, float(initial_variance), *scratch(experts.shape[2], z.shape[2]))
+    ``params`` / ``state``: the rule's (:data:`COMPILED_RULES`). A ``cold`` row (the screen's cold
+    restart) is forecast by the old rule and calibration, which then start again (the variances at
+    ``initial_variance``) before its ahead forecast; a ``restart`` row (the experts start again)
+    changes what :func:`restart_row` says (BOA's error scale starts again). Targets ``lo .. hi - 1``."""
+    kernel(lo, hi, params, state, window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors,
+           log_scale, experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
+           out_ahead_std, cold, restart, float(initial_variance), *scratch(experts.shape[2], z.shape[2]))
 
 
 @nb.njit(**KERNEL_JIT)
-def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a, b, c, d, e,
-               window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors, log_scale,
-               experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
-               out_ahead_std, cold, restart, initial_variance, awake, w, logw, r, mix, cov):
+def kernel(lo, hi, params, state, window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors,
+           log_scale, experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
+           out_ahead_std, cold, restart, initial_variance, awake, w, logw, r, mix, cov):
+    """:func:`run_block` with its scratch given (one GPU thread runs it with ``lo, hi = j, j + 1``)."""
     k_count = experts.shape[2]
     want_weights = out_weights.shape[0] > 0
     want_ahead = out_ahead.shape[0] > 0
     want_cov = out_cov.shape[0] > 0
     for n in range(lo, hi):
-        dn = d[n:n + 1]
-        en = e[n:n + 1]
+        s = target(state, n)
         ls = log_scale[n:n + 1]
         for t in range(lengths[n]):
             x = experts[t, n]
-            count = forecast_row(rule, forgetting, share, delay, a[n], b[n], c[n], dn[0], x, awake, w, logw, mix,
-                                 variance[n], ls[0], max_variance, cov)
+            count = forecast_row(params, s, x, awake, w, logw, mix, variance[n], ls[0], max_variance, cov)
             write_row(count, mix, cov, out[t, n], out_std[t, n])
             if want_cov:
                 copy_matrix(cov, out_cov[t, n])
@@ -306,13 +547,12 @@ def _run_block(lo, hi, rule, forgetting, share, scale, scale_factor, bound_forge
             if learn[t, n] and count > 0:
                 calibrate_row(x, z[t, n], awake, count, mix, cov, variance[n], n_errors[n], ls, window, rate,
                               level, z_level, max_variance, max_log_scale)
-                learn_row(rule, forgetting, share, scale, scale_factor, bound_forgetting, delay, clip, a[n], b[n], c[n],
-                          dn, en, x, z[t, n], awake, count, w, mix, r)
+                learn_row(params, s, x, z[t, n], awake, count, w, mix, r)
             if restart[t, n]:
-                restart_row(rule, dn, en)
+                restart_row(s)
             if cold[t, n]:
-                cold_row(a[n], b[n], c[n], dn, en, variance[n], n_errors[n], ls, initial_variance)
+                cold_row(s, variance[n], n_errors[n], ls, initial_variance)
             if want_ahead:
-                count_ahead = forecast_row(rule, forgetting, share, delay, a[n], b[n], c[n], dn[0], ahead_experts[t, n],
-                                           awake, w, logw, mix, variance[n], ls[0], max_variance, cov)
+                count_ahead = forecast_row(params, s, ahead_experts[t, n], awake, w, logw, mix, variance[n], ls[0],
+                                           max_variance, cov)
                 write_row(count_ahead, mix, cov, out_ahead[t, n], out_ahead_std[t, n])

@@ -115,6 +115,13 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
     return COLD if points[n] < 0 else ACCEPT
 
 
+@nb.njit(inline="always", **_JIT)
+def last_learned(last_time, points, n):
+    """The time of target ``n``'s last learned row, NaN while it has fewer than two since its (re)start: what the
+    spec's :func:`kalmix.core.engine.span` measures from."""
+    return last_time[n] if points[n] >= 2.0 else np.nan
+
+
 @nb.njit(**KERNEL_JIT)
 def screen_block(lo, hi, threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
                  outliers, points, low, high, z, times, lengths, present, gaps, accept, restart, started, cold,
@@ -126,11 +133,11 @@ def screen_block(lo, hi, threshold, max_rejects, warmup, window, position, veloc
     for n in range(lo, hi):
         for t in range(lengths[n]):
             started[t, n] = points[n] >= 1.0
-            before[t, n] = last_time[n] if points[n] >= 2.0 else np.nan
+            before[t, n] = last_learned(last_time, points, n)
             code = screen_row(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count,
                               rejects, outliers, points, low, high, n, z[t, n], times[t, n], present[t, n],
                               gaps[t, n])
             accept[t, n] = code == ACCEPT or code == RESTART or code == COLD
             restart[t, n] = code == RESTART or code == GAP
             cold[t, n] = code == COLD
-            after[t, n] = last_time[n] if points[n] >= 2.0 else np.nan
+            after[t, n] = last_learned(last_time, points, n)
