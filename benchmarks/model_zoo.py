@@ -11,8 +11,8 @@ and scores, on the same rows, the one-step forecast of
   reference is an IMM with the true models and switching probabilities, which is **near-optimal, not optimal**
   (the exact filter needs a Gaussian per mode history);
 - **kalmix** as a user runs it: ``kalmix predict`` on a CSV of the tracks written to a temporary directory, with
-  its defaults (automatic length and time units, the gap rule, the default bank), in a subprocess; and the same
-  with ``--max-gap none``, and with ``--population-prior`` (new tracks start from the tracks before them);
+  its defaults (automatic length and time units, the gap rule, the default bank, the population prior), in a
+  subprocess; and the same with ``--max-gap none``, and with ``--no-population-prior`` (every track starts empty);
 - **no prediction**: the last measurement, a floor every predictor should beat.
 
 One-step RMS: of the Euclidean per-row distance between forecast and measurement, and per coordinate (the
@@ -443,9 +443,10 @@ def score(s: Scenario, tracks, predictors: dict, stds: dict):
     return out, counted
 
 
-#: The ``kalmix predict`` runs of every scenario: the defaults, without the gap rule, with the population prior.
+#: The ``kalmix predict`` runs of every scenario: the defaults, without the gap rule, without the population
+#: prior.
 RUNS = (("kalmix", ()), ("kalmix --max-gap none", ("--max-gap", "none")),
-        ("kalmix --population-prior", ("--population-prior",)))
+        ("kalmix --no-population-prior", ("--no-population-prior",)))
 
 
 def run_scenario(s: Scenario, directory: Path, source: Path | None = None, log=print) -> dict:
@@ -485,8 +486,8 @@ def run_scenario(s: Scenario, directory: Path, source: Path | None = None, log=p
         p = entry["predictors"]
         log(f"{s.name} [{group}, {entry['rows']} rows]: optimum {p['optimum']['rms_per_coordinate']:.4g}, "
             f"kalmix {p['kalmix']['rms_per_coordinate']:.4g} ({p['kalmix']['ratio_to_optimum']:.3f}x), "
-            f"--max-gap none {p['kalmix --max-gap none']['ratio_to_optimum']:.3f}x, --population-prior "
-            f"{p['kalmix --population-prior']['ratio_to_optimum']:.3f}x, no prediction "
+            f"--max-gap none {p['kalmix --max-gap none']['ratio_to_optimum']:.3f}x, --no-population-prior "
+            f"{p['kalmix --no-population-prior']['ratio_to_optimum']:.3f}x, no prediction "
             f"{p['no prediction']['ratio_to_optimum']:.3f}x; coverage kalmix "
             f"{100 * p['kalmix']['coverage_95']:.1f} %, optimum {100 * p['optimum']['coverage_95']:.1f} %")
     return result

@@ -716,8 +716,8 @@ def model_zoo(results: Results) -> list:
                          f"{scored['rows']:,}", f"{num(p['optimum']['rms_per_coordinate'])} {unit}",
                          f"{num(p['kalmix']['rms_per_coordinate'])} {unit}", _times(p["kalmix"]["ratio_to_optimum"]),
                          _times(p["kalmix --max-gap none"]["ratio_to_optimum"]),
-                         _times(p["kalmix --population-prior"]["ratio_to_optimum"])
-                         if "kalmix --population-prior" in p else "",
+                         _times(p["kalmix --no-population-prior"]["ratio_to_optimum"])
+                         if "kalmix --no-population-prior" in p else "",
                          _times(p["no prediction"]["ratio_to_optimum"]), percent(p["kalmix"]["coverage_95"])])
         segments = entry["kalmix_runs"]["kalmix"]["segments"]
         notes += _zoo_notes(entry)
@@ -728,7 +728,7 @@ def model_zoo(results: Results) -> list:
         "working_tree_changes") else ""
     first = Table(
         header=["scenario", "reference", "scored rows", "reference RMS", "kalmix RMS", "kalmix / reference",
-                "--max-gap none / reference", "--population-prior / reference", "no prediction / reference",
+                "--max-gap none / reference", "--no-population-prior / reference", "no prediction / reference",
                 "kalmix coverage"],
         rows=rows, sources=("model_zoo.json",), command=command,
         title="One-step RMS against the optimal predictor",
@@ -737,8 +737,9 @@ def model_zoo(results: Results) -> list:
                 "the true model, noises, time steps and prior: the optimal one-step predictor, so a ratio under 1 "
                 "could only be chance. *For the Markov switching scenario it is an IMM with the true models and "
                 "switching matrix, near-optimal, not optimal. kalmix: `kalmix predict` with its defaults on a CSV "
-                "of the tracks (automatic units, the default gap rule), with `--max-gap none`, and with "
-                "`--population-prior` (a new track starts from what the tracks before it learned). No prediction: "
+                "of the tracks (automatic units, the default gap rule, the population prior: a new track starts "
+                "from what the tracks before it learned), with `--max-gap none`, and with `--no-population-prior` "
+                "(every track starts empty). No prediction: "
                 "the last measurement. Coverage: share of the measurements inside kalmix's forecast ± 1.96 std, "
                 "per coordinate (95 % is right). With a 3-day silence the first row after it is "
                 "scored on its own, not in the scenario's main row." + at)] + notes)

@@ -25,7 +25,8 @@ predictions = predict_dask(frame, columns, prepared=True, length_unit=0.1, horiz
 predictions.to_parquet("predictions/", write_index=False)   # computed here, one file per partition
 result = pd.read_parquet("predictions/").sort_values(["track_id", "time"], ignore_index=True)
 
-one_machine = TrackPredictor(StreamConfig(length_unit=0.1, horizon=10)).process_table(
+# Dask runs without the population prior (a partition does not see the other partitions' tracks)
+one_machine = TrackPredictor(StreamConfig(length_unit=0.1, horizon=10, population_prior=False)).process_table(
     rows.sort_values(["track_id", "time"], kind="stable"), ["x", "y"])
 print(f"{fmt} archive: {len(result)} predictions, columns {list(result.columns)}")
 forecasts = ["pred_x", "pred_y", "std_x", "std_y", "pred10_x", "pred10_y", "std10_x", "std10_y"]

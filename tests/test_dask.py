@@ -104,7 +104,8 @@ def test_dask_equals_single_machine_predict_over_many_files(cli, cluster, tmp_pa
     assert len(files_per_track) == 15 and files_per_track.min() >= 2
     whole = _write(parts, str(tmp_path / "archive"), fmt)
     options = [*FAST, "--chunk-rows", "500"]
-    single = _run(cli, ["predict", whole, *options, "-o", str(tmp_path / "single.parquet")])
+    # (a cluster runs without the population prior: its partitions do not see each other's tracks)
+    single = _run(cli, ["predict", whole, *options, "--no-population-prior", "-o", str(tmp_path / "single.parquet")])
     assert single.exit_code == 0, single.output
     result = _run(cli, ["predict", str(tmp_path / "archive"), "--engine", "dask",
                         "--scheduler", cluster.scheduler_address, *options, "-o", str(tmp_path / "out")])
@@ -133,7 +134,7 @@ def test_the_gap_note_is_said_as_on_one_machine(cli, cluster, tmp_path):
         frames.append(pd.DataFrame({"vessel": f"v{k}", "t": t, "x": np.cumsum(rng.normal(size=120)),
                                     "y": np.cumsum(rng.normal(size=120))}))
     whole = _write(_split(pd.concat(frames, ignore_index=True), 3), str(tmp_path / "archive"), "parquet")
-    single = _run(cli, ["predict", whole, *FAST, "-o", str(tmp_path / "single.parquet")])
+    single = _run(cli, ["predict", whole, *FAST, "--no-population-prior", "-o", str(tmp_path / "single.parquet")])
     result = _run(cli, ["predict", str(tmp_path / "archive"), "--engine", "dask", "--scheduler",
                         cluster.scheduler_address, *FAST, "-o", str(tmp_path / "out")])
     assert single.exit_code == 0 and result.exit_code == 0, result.output
@@ -179,7 +180,8 @@ def test_time_unit_learned_in_a_later_chunk_and_one_track_in_row_order(cli, clus
     data = pd.DataFrame(rows, columns=["vessel", "t", "x", "y"]).sort_values("t", kind="stable")
     options = [*FAST, "--chunk-rows", "12"]
     whole = _write(_split(data, 5), str(tmp_path / "archive"), "csv")
-    single = _run(cli, ["predict", whole, *options, "-o", str(tmp_path / "single.parquet")])
+    # (a cluster runs without the population prior: its partitions do not see each other's tracks)
+    single = _run(cli, ["predict", whole, *options, "--no-population-prior", "-o", str(tmp_path / "single.parquet")])
     result = _run(cli, ["predict", str(tmp_path / "archive"), "--engine", "dask", "--scheduler",
                         cluster.scheduler_address, *options, "-o", str(tmp_path / "out")])
     assert single.exit_code == 0 and result.exit_code == 0, result.output
@@ -206,7 +208,7 @@ def test_python_api_on_a_dask_dataframe(cli, cluster, tmp_path):
     data.to_parquet(tmp_path / "whole.parquet", index=False)
     single = _run(cli, ["predict", str(tmp_path / "whole.parquet"), "--experts", "4", "--seed", "1", "-H", "3",
                         "--no-progress", "--id", "ship", "--time", "clock", "--position", "east,north",
-                        "-o", str(tmp_path / "single.parquet")])
+                        "--no-population-prior", "-o", str(tmp_path / "single.parquet")])
     assert single.exit_code == 0, single.output
     frame = dd.from_pandas(data, npartitions=7, sort=False)
     columns = TrackColumns(time="clock", positions=("east", "north"), track_id="ship")
@@ -303,7 +305,8 @@ def test_a_stop_signal_leaves_nothing_and_the_same_command_runs_again(cli, clust
     assert again.exit_code == 0, again.output
     single = str(tmp_path / "single.parquet")
     whole = str(tmp_path / "whole.csv")
-    assert _run(cli, ["predict", whole, *FAST, "--length-unit", "0.05", "-o", single]).exit_code == 0
+    assert _run(cli, ["predict", whole, *FAST, "--length-unit", "0.05", "--no-population-prior", "-o",
+                      single]).exit_code == 0
     _compare(pd.read_parquet(single), pd.read_parquet(out))
 
 

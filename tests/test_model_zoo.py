@@ -34,7 +34,7 @@ def test_quick_run_scores_both_scenarios_on_the_same_rows(quick):
         assert scored["rows"] == 5 * (200 - 40)   # every row after the 20 % burn-in, for every predictor
         assert entry["unforecast_rows"]["optimum"] == 0 and entry["unforecast_rows"]["kalmix"] == 0
         assert set(scored["predictors"]) == {"optimum", "no prediction", "kalmix", "kalmix --max-gap none",
-                                             "kalmix --population-prior"}
+                                             "kalmix --no-population-prior"}
 
 
 def test_the_optimum_beats_no_prediction_and_kalmix_ratio_is_recorded(quick):
@@ -42,7 +42,7 @@ def test_the_optimum_beats_no_prediction_and_kalmix_ratio_is_recorded(quick):
     for name, entry in saved["scenarios"].items():
         p = entry["scores"]["scored"]["predictors"]
         assert p["optimum"]["rms_euclidean"] <= p["no prediction"]["rms_euclidean"], name
-        for run in ("kalmix", "kalmix --max-gap none", "kalmix --population-prior"):
+        for run in ("kalmix", "kalmix --max-gap none", "kalmix --no-population-prior"):
             ratio = p[run]["ratio_to_optimum"]
             assert math.isfinite(ratio) and ratio == pytest.approx(p[run]["rms_euclidean"]
                                                                    / p["optimum"]["rms_euclidean"])

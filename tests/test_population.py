@@ -94,7 +94,7 @@ def test_new_tracks_start_from_the_population_and_predict_better():
     Kalman filter with the true model: ~0.1 km); the rows before the first summary are the same either way."""
     table = _short_tracks()
     with_prior = TrackPredictor(StreamConfig(length_unit=27.0, population_prior=True))
-    without = TrackPredictor(StreamConfig(length_unit=27.0))   # (off by default)
+    without = TrackPredictor(StreamConfig(length_unit=27.0, population_prior=False))
     a, b = with_prior.process_table(table, ["x", "y"]), without.process_table(table, ["x", "y"])
     first = table.index[:population.FIRST_SNAPSHOT]   # rows before the first summary: no prior yet
     np.testing.assert_array_equal(a.loc[first, ["pred_x", "pred_y"]], b.loc[first, ["pred_x", "pred_y"]])
@@ -150,7 +150,7 @@ def test_population_prior_is_checked():
         StreamConfig(population_prior="no")
 
 
-def test_the_command_line_takes_the_prior_on_request(tmp_path):
+def test_the_command_line_has_the_prior_by_default(tmp_path):
     from click.testing import CliRunner
 
     from kalmix.cli import build
@@ -160,17 +160,23 @@ def test_the_command_line_takes_the_prior_on_request(tmp_path):
     table.to_csv(source, index=False)
     runner = CliRunner()
     outputs = {}
-    for name, flags in (("default", []), ("prior", ["--population-prior"])):
+    for name, flags in (("default", []), ("prior", ["--population-prior"]), ("none", ["--no-population-prior"])):
         result = runner.invoke(build(), ["predict", str(source), "-o", str(tmp_path / f"{name}.csv"),
                                          "--length-unit", "27", "--state", str(tmp_path / f"{name}.kalmix"), *flags])
         assert result.exit_code == 0, result.output
         outputs[name] = pd.read_csv(tmp_path / f"{name}.csv")
-    assert _one_step_rms(table, outputs["prior"]) < 0.5 * _one_step_rms(table, outputs["default"])
-    assert TrackPredictor.load(tmp_path / "prior.kalmix").config.population_prior is True
-    assert TrackPredictor.load(tmp_path / "default.kalmix").priors == []
+    pd.testing.assert_frame_equal(outputs["default"], outputs["prior"])
+    assert _one_step_rms(table, outputs["prior"]) < 0.5 * _one_step_rms(table, outputs["none"])
+    assert TrackPredictor.load(tmp_path / "default.kalmix").config.population_prior is True
+    assert TrackPredictor.load(tmp_path / "none.kalmix").priors == []
+    # a resumed run goes on as it started, and says so if asked otherwise
     again = runner.invoke(build(), ["predict", str(source), "-o", str(tmp_path / "again.csv"), "--length-unit", "27",
-                                    "--state", str(tmp_path / "default.kalmix"), "--population-prior"])
+                                    "--state", str(tmp_path / "none.kalmix"), "--population-prior"])
     assert again.exit_code == 1 and "--population-prior: the state file" in again.stderr
+    assert "started without the population prior" in again.stderr
+    again = runner.invoke(build(), ["predict", str(source), "-o", str(tmp_path / "again.csv"), "--length-unit", "27",
+                                    "--state", str(tmp_path / "default.kalmix"), "--no-population-prior"])
+    assert again.exit_code == 1 and "started with the population prior" in again.stderr
     archive = tmp_path / "archive"
     archive.mkdir()
     table.to_parquet(archive / "part.parquet")
@@ -179,10 +185,40 @@ def test_the_command_line_takes_the_prior_on_request(tmp_path):
     assert dask.exit_code != 0 and "--population-prior: not with --engine dask" in dask.stderr
 
 
-def test_dask_refuses_the_prior():
-    dd = pytest.importorskip("dask.dataframe")
-    from kalmix.dask_predict import predict_dask
+def test_a_file_its_chunks_and_stdin_learn_in_the_order_the_rows_came(tmp_path):
+    """Rows of interleaved tracks (a feed sorted by time): the population is summarised after the same rows of
+    the file, whatever its chunks (each chunk is stepped track by track), and on stdin; the lead forecasts (made
+    alike in files and on stdin) and the learned state are the same bits."""
+    from click.testing import CliRunner
 
-    frame = dd.from_pandas(_short_tracks(tracks=3), npartitions=1)
-    with pytest.raises(ValueError, match="population_prior: not with Dask"):
-        predict_dask(frame, length_unit=27.0, population_prior=True)
+    from kalmix.cli import build
+
+    table = _short_tracks(tracks=40).sort_values("time", kind="stable")
+    source = tmp_path / "tracks.csv"
+    table.to_csv(source, index=False)
+    runner = CliRunner()
+    fixed = ["--length-unit", "27", "--time-unit", "1800", "--lead", "1800"]
+    outputs, states = {}, {}
+    for name, flags in (("one", []), ("chunks", ["--chunk-rows", "45"]), ("more", ["--chunk-rows", "100"])):
+        result = runner.invoke(build(), ["predict", str(source), "-o", str(tmp_path / f"{name}.csv"), *fixed,
+                                         "--state", str(tmp_path / f"{name}.kalmix"), *flags])
+        assert result.exit_code == 0, result.output
+        outputs[name] = pd.read_csv(tmp_path / f"{name}.csv")
+    result = runner.invoke(build(), ["predict", "-", "-o", str(tmp_path / "stdin.csv"), *fixed,
+                                     "--state", str(tmp_path / "stdin.kalmix")], input=source.read_text())
+    assert result.exit_code == 0, result.output
+    outputs["stdin"] = pd.read_csv(tmp_path / "stdin.csv")
+    for name in outputs:
+        states[name] = TrackPredictor.load(tmp_path / f"{name}.kalmix")
+    whole = states["one"]
+    assert len(whole.priors) == 3   # after rows 64, 128 and 256 of 480 (at row 32 no track has learned 3 rows)
+    for name in ("chunks", "more"):
+        pd.testing.assert_frame_equal(outputs[name], outputs["one"])
+    lead = ["lead_x", "lead_y", "lead_std_x", "lead_std_y"]
+    pd.testing.assert_frame_equal(outputs["stdin"][lead], outputs["one"][lead])
+    for name in ("chunks", "more", "stdin"):
+        assert len(states[name].priors) == len(whole.priors)
+        for a, b in zip(whole.priors, states[name].priors):
+            np.testing.assert_array_equal(a.regret, b.regret)
+            np.testing.assert_array_equal(a.bound, b.bound)
+        _same_states(whole, states[name])

@@ -514,7 +514,8 @@ def predict_dask(frame, columns: TrackColumns | None = None, *, length_unit: flo
     **settings
         :class:`kalmix.streaming.StreamConfig` arguments (``n_experts``, ``seed``, ``horizon``,
         ``max_gap``, ``max_gap_factor``, ``options``, ``bank``, ``rule``, ``time_unit``); None
-        ``time_unit`` is learned as ``kalmix predict`` learns it.
+        ``time_unit`` is learned as ``kalmix predict`` learns it. Without the population prior
+        (``population_prior`` False, refused if True): a partition's tracks do not see the others'.
 
     Returns
     -------
@@ -530,6 +531,7 @@ def predict_dask(frame, columns: TrackColumns | None = None, *, length_unit: flo
         raise ValueError(f"chunk_rows, batch_tracks: expected integers >= 1, got {chunk_rows}, {batch_tracks}")
     if partitions is not None and int(partitions) < 1:
         raise ValueError(f"partitions: expected an integer >= 1, got {partitions}")
+    settings = {"population_prior": False, **settings}
     config = StreamConfig(length_unit=1.0 if length_unit is None else length_unit, **settings)  # checked now
     if config.population_prior:
         raise ValueError("population_prior: not with Dask (a partition's tracks do not see the other partitions' "

@@ -185,7 +185,8 @@ def _compute(client, frame, columns, fmt, partial, settings, unit, chunk_rows, p
     splits = result.map_partitions(gap_splits, columns.track_id, meta=(None, "int64")).sum()
     where = client.scheduler.address if scheduler else "a local cluster"
     _note(f"{frame.npartitions} input partition(s) -> {count} partition(s) by track, {threads} worker thread(s) "
-          f"on {where}")
+          f"on {where}; without the population prior (a partition does not see the other partitions' tracks): "
+          "the numbers of --engine local --no-population-prior")
     futures = client.compute([write, rows_in, splits])
     submitted = time.perf_counter()
     try:

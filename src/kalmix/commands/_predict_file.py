@@ -226,14 +226,16 @@ def _step_chunk(run, chunk, names, later, clocks, columns, bar) -> None:
     mark = engine.checkpoint(pd.unique(chunk["track_id"]))
     committed = False
     try:
-        parts, unit_at, arrived = _unit_parts(engine, chunk)
+        parts, unit_at, arrived, summaries = _parts(engine, chunk)
         frames = []
         for k, (piece, times) in enumerate(zip(parts, next_row_times(parts, later))):
             if k == unit_at:
                 engine.learn_time_unit(arrived)
             frames.append(engine.process_table(piece, names, times))
             bar.update(len(piece))
-            if k >= (unit_at or 0):   # the rows before the time unit's step go with the next part
+            # a unit of work done (a stop may come here): not the rows before the time unit's step, which go with
+            # the next part, nor a part cut at a population summary
+            if k >= (unit_at or 0) and k not in summaries:
                 run.guard.tick()
         _keep_clocks(engine, clocks, pd.unique(chunk["track_id"]))
         written: list = []
@@ -304,26 +306,43 @@ def _write_unstepped(run, chunk, columns, settings) -> None:
         run.commit(0)
 
 
-def _unit_parts(engine, chunk):
-    """A chunk's parts to step in turn (:func:`pieces`), and, while the time unit is unknown and a step of
-    the chunk fixes it, the part before which to fix it and the rows from that step on in file order.
+def _parts(engine, chunk):
+    """A chunk's parts to step in turn (each cut into :func:`pieces`), the part before which to fix the time unit
+    (None: none), the rows from that step on in file order, and the parts that end where a population summary
+    falls.
 
-    A stream learns the unit at the first step to arrive, so the rows before that step in file
-    order are one part, stepped in file order with the unit unknown; then the unit is fixed
-    from that step (:meth:`TrackPredictor.learn_time_unit`), and the rest is stepped track by
-    track: the numbers of a stream of the file's rows.
+    A stream does something at given rows of its arrival order: it learns the time unit at the first
+    step to arrive (:meth:`TrackPredictor.time_unit_row`), and it summarises its population prior
+    after fixed counts of rows (:mod:`kalmix.stream.population`). So the chunk is cut in file order
+    there, and every row before a cut is stepped (track by track) before any after it: the numbers of
+    a stream of the file's rows.
     """
     from ..io import in_file_order
+    from ..stream.times import column_seconds
 
-    arrived = in_file_order(chunk[["track_id", "time"]]) if engine.config.time_unit is None else None
-    row = None if arrived is None else engine.time_unit_row(arrived)
+    unknown = engine.config.time_unit is None
+    summarised = engine.summary_within(len(chunk))
+    arrived = in_file_order(chunk[["track_id", "time"]]) if unknown or summarised else None
+    cuts = set(engine.summary_cuts(arrived["track_id"].to_numpy(), column_seconds(arrived["time"]))
+               if summarised else ())
+    summaries = set(cuts)
+    row = engine.time_unit_row(arrived) if unknown else None
+    if row:
+        cuts.add(row)
+    if not cuts:
+        return pieces(chunk), row, None if row is None else arrived, set()
+    parts, ends = [], set()
+    for begin, end in zip([0, *sorted(cuts)], [*sorted(cuts), len(chunk)]):
+        mask = np.zeros(len(chunk), dtype=bool)
+        mask[arrived.index[begin:end]] = True
+        if begin == row:
+            unit_at = len(parts)
+        parts.extend(pieces(chunk[mask]))
+        if end in summaries:
+            ends.add(len(parts) - 1)
     if row is None:
-        return pieces(chunk), None, None
-    if not row:
-        return pieces(chunk), 0, arrived
-    before = np.zeros(len(chunk), dtype=bool)
-    before[arrived.index[:row]] = True
-    return [chunk.loc[arrived.index[:row]], *pieces(chunk[~before])], 1, arrived.iloc[row:]
+        return parts, None, None, ends
+    return parts, 0 if row == 0 else unit_at, arrived.iloc[row:], ends
 
 
 def _lookahead(chunks) -> list[dict]:

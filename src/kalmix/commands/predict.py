@@ -206,11 +206,11 @@ def _local_only(given, output):
               help="Gap threshold as a multiple of the reference interval (the upper quartile of a track's first "
                    "16 steps).")
 @click.option("--reach", default=None, help=REACH_HELP)
-@click.option("--population-prior", is_flag=True, default=False,
-              help="A new track's aggregation rule starts from what the tracks before it learned, instead of "
-                   "empty: a large gain on files of many short tracks. Its numbers follow the order the rows are "
-                   "stepped (a file chunk by chunk, a chunk's tracks one after another; stdin's rows as they "
-                   "come), so a file and the same rows on stdin can differ. Not with --engine dask.")
+@click.option("--population-prior/--no-population-prior", default=None,
+              help="A new track's aggregation rule starts from what the tracks before it learned (in the order the "
+                   "rows came: a file, its chunks and the same rows on stdin learn alike), instead of empty: a large "
+                   "gain on files of many short tracks [default: on; a resumed --state run as it started; "
+                   "--engine dask: off].")
 @click.option("--state", "state_path", default=None, type=click.Path(dir_okay=False),
               help="State file: resumed from if it exists, written on exit and every --save-every rows.")
 @click.option("--save-every", default=10_000, show_default=True, type=click.IntRange(min=1),
@@ -296,9 +296,11 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
                          options=options)
             _check_gap_rule(engine.config, state_path, gap, never, max_gap_factor,
                             _given(("max_gap", "max_gap_factor")))
-            if population_prior and not engine.config.population_prior:
-                raise ValueError(f"--population-prior: the state file {state_path} was started without it; "
-                                 "resume without the option, or start a new state file")
+            if population_prior is not None and population_prior != engine.config.population_prior:
+                flag = "--population-prior" if population_prior else "--no-population-prior"
+                raise ValueError(f"{flag}: the state file {state_path} was started "
+                                 f"{'without' if population_prior else 'with'} the population prior; resume without "
+                                 "the option, or start a new state file")
         kind = bank_kind or (engine.config.bank if engine is not None else DEFAULT_BANK["kind"])
         if "akf" not in recipe_parts(kind) and (n_experts is not None or options):
             raise ValueError(f"{'--experts' if n_experts is not None else '--option'}: sets the AKF family, "
@@ -312,7 +314,7 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
         settings = dict(n_experts=40 if n_experts is None else n_experts, seed=0 if seed is None else seed,
                         horizon=horizon, lead=lead, max_gap=gap, max_gap_factor=math.inf if never else max_gap_factor,
                         options=options, time_unit=time_unit, reach=reach_setting(reach), geographic=geographic,
-                        population_prior=population_prior)
+                        population_prior=True if population_prior is None else population_prior)
         if bank_kind is not None:
             settings["bank"] = bank_kind
         if rule is not None:
@@ -325,6 +327,7 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
             if population_prior:
                 raise ValueError("--population-prior: not with --engine dask (a partition's tracks do not see the "
                                  "other partitions' tracks); use --engine local")
+            settings["population_prior"] = False   # (said with the cluster's first line, _predict_dask)
             _dask_flat(input_path, time_column, position_columns, geographic)
             id_column = _dask_id(input_path, time_column, position_columns, id_column)
             return run_dask(input_path, output, settings, unit, time_column, position_columns, id_column,

@@ -102,6 +102,21 @@ class TrackClocks:
                 return i, track, trackers[track].intervals[0]
         return None
 
+    def stepped_rows(self, ids, times) -> np.ndarray:
+        """``(n,)`` bool: which of these rows, in this order and continuing the tracks seen, the gap rule would
+        step rather than skip (a time not after its track's last, or not finite). Nothing is changed."""
+        times = np.asarray(times, dtype=np.float64)
+        if not isinstance(ids, np.ndarray):   # (a stream's keys)
+            ids, given = np.empty(len(ids), dtype=object), ids
+            ids[:] = given
+        index, uniques = factorize_ids(ids)
+        keep = np.ones(len(times), dtype=bool)
+        for u, rows in enumerate(_by_key(index, np.arange(len(times)), len(uniques))):
+            known = self.gaps.get(id_to_json(uniques[u]))
+            gaps = GapTracker() if known is None else known.copy()
+            keep[rows] = gaps.advance_many(times[rows], self.config)[0] >= 0
+        return keep
+
     def _unit_row(self, ids, times) -> int | None:
         """The row of a table at which the time unit would be learned (None: not in this table)."""
         found = self._first_step(ids, times)

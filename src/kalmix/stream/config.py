@@ -61,7 +61,8 @@ class StreamConfig:
         60 minutes would restart at its third row). Files before format version 13 resume with 1.
     population_prior : bool
         Whether a new track's rule starts from what the tracks before it learned
-        (:mod:`kalmix.stream.population`), or empty. Files before format version 13 resume without it.
+        (:mod:`kalmix.stream.population`), or empty. Files before format version 13 resume without it;
+        :func:`kalmix.dask_predict.dask_predict` runs without it.
     options : dict
         Other arguments of :func:`kalmix.bank.make_params` (the AKF family).
     bank : str
@@ -101,7 +102,7 @@ class StreamConfig:
     max_gap_factor: float = 3.0
     gap_reference: str = "upper quartile"
     gap_min_steps: int = 4
-    population_prior: bool = False
+    population_prior: bool = True
     options: dict = field(default_factory=dict)
     bank: str = DEFAULT_BANK["kind"]
     rule: str = DEFAULT_BANK["rule"]

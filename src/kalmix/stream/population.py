@@ -8,16 +8,17 @@ pseudo-rows after :data:`POPULATION_ROWS` of them, and more and more after that.
 
 **Which tracks, when.** The population is summarised at fixed points of the stream: after its first
 :data:`FIRST_SNAPSHOT` rows, then after twice as many, and so on up to every :data:`SNAPSHOT_EVERY` rows
-(the rows given, in the order they came, counted from the first row the predictor ever saw, across
-chunks, calls and resumed state files). A track whose first row comes after a point starts from the
-summary made there; before the first point, from an empty state (the rule's own start). The summary takes
-every track with at least :data:`MIN_ROWS` learned rows. Defined by rows, not by calls, it gives the same
-numbers whether a file is read in one table, in chunks, or row by row.
+(the rows stepped, in the order they came, counted from the first row the predictor ever saw, across
+chunks, calls and resumed state files; a row skipped for its time does not count). A track whose first row
+comes after a point starts from the summary made there; before the first point, from an empty state (the
+rule's own start). The summary takes every track with at least :data:`MIN_ROWS` learned rows. Defined by
+rows, not by calls, it gives the same numbers whether a file is read in one table, in chunks, or row by row.
 
-Off by default (``StreamConfig(population_prior=True)``, ``kalmix predict --population-prior``): ``kalmix
-predict`` steps a file chunk by chunk, each chunk's tracks one after another, and stdin's rows as they come, so
-with a prior the same rows in a file and on stdin could give different numbers. Only BOA (the default rule) has
-a prior; a bank with another rule starts every track empty.
+On by default (``StreamConfig(population_prior=False)``, ``kalmix predict --no-population-prior`` start every
+track empty); not with Dask, whose partitions do not see each other's tracks. ``kalmix predict`` steps a file
+chunk by chunk, each chunk's tracks one after another: it cuts a chunk in file order where a summary falls
+(:meth:`PopulationPrior.summary_cuts`), so that a file, any of its chunkings and the same rows on stdin learn the
+same bits. Only BOA (the default rule) has a prior; a bank with another rule starts every track empty.
 """
 
 from __future__ import annotations
@@ -118,11 +119,25 @@ class PopulationPrior:
         prior = self.prior
         return state if prior is None else state._replace(rule=start_rule(state.rule, prior))
 
-    def next_summary(self, n_rows: int) -> int | None:
-        """Of the next ``n_rows`` rows, how many come before a summary point that is not their last row (the
-        rows to step first, then summarise); None when no summary falls inside them."""
-        points = snapshot_points(self.rows, self.rows + n_rows) if self.config.population_prior else []
-        return points[0] - self.rows if points and points[0] - self.rows < n_rows else None
+    @property
+    def stepped(self) -> int:
+        """Rows stepped so far (given and not skipped): the clock of the summaries."""
+        return self.rows - self.skipped
+
+    def summary_within(self, n_rows: int) -> bool:
+        """Whether a summary may fall within the next ``n_rows`` rows (if all are stepped)."""
+        return bool(self.config.population_prior and snapshot_points(self.stepped, self.stepped + n_rows))
+
+    def summary_cuts(self, ids, times) -> list[int]:
+        """Of these rows, in arrival order (continuing the tracks seen), the counts after which a summary is
+        made before the next row: the places to cut them, where the rows before a cut must all be stepped before
+        any after it (the last row, after which the summary comes anyway, is not a cut). Skipped rows do not
+        count: a resumed run given again the rows it did skips them."""
+        if not self.summary_within(len(times)):
+            return []
+        ends = np.flatnonzero(self.stepped_rows(ids, times)) + 1   # rows given up to each stepped row
+        points = snapshot_points(self.stepped, self.stepped + len(ends))
+        return [int(ends[p - self.stepped - 1]) for p in points if ends[p - self.stepped - 1] < len(times)]
 
     def count_rows(self, tracks, lengths) -> None:
         """Count the rows ``tracks`` learned; a new track that started from the prior counts its pseudo-rows too
@@ -133,9 +148,9 @@ class PopulationPrior:
         for track, n in zip(tracks, lengths):
             self.track_rows[track] = self.track_rows.get(track, start) + int(n)
 
-    def summarise_if_due(self, n_rows: int) -> None:
-        """After stepping ``n_rows`` rows (the last ones of :attr:`rows`): a summary if a point was reached."""
-        if not self.config.population_prior or not snapshot_points(self.rows - n_rows, self.rows):
+    def summarise_if_due(self, before: int) -> None:
+        """After stepping rows (:attr:`stepped` was ``before``): a summary if a point was reached."""
+        if not self.config.population_prior or not snapshot_points(before, self.stepped):
             return
         if self.params is None or self.params.rule != "boa":
             return

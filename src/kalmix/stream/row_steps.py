@@ -259,8 +259,9 @@ class RowSteps:
         the end (but for that unit). A summary of the population prior due inside the rows splits them there
         (:mod:`.population`: the rows before it are stepped, then summarised)."""
         n_rows, p = values.shape
-        split = self.next_summary(n_rows)
-        if split is not None:
+        cuts = self.summary_cuts(ids, times)
+        if cuts:
+            split = cuts[0]
             head = self._step_batch(ids[:split], times[:split], values[:split], first)
             return head + self._step_batch(ids[split:], times[split:], values[split:], first + split)
         trackers: dict = {}
@@ -355,7 +356,8 @@ class RowSteps:
             self.states.put(tracks, result.state)
             self.count_rows(tracks, lengths)
             self.outliers += int(result.state.screen.outliers.sum() - state.screen.outliers.sum())
+        before = self.stepped
         self.rows += n_rows
         self.skipped += sum(r is None for r in results)
-        self.summarise_if_due(n_rows)
+        self.summarise_if_due(before)
         return results

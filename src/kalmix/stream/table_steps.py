@@ -191,7 +191,8 @@ class TableSteps:
             # rows before the time unit is known run with the bank of a unit of 1, as they would row by row
             split = self._unit_row(table["track_id"].to_numpy(), table["time"].to_numpy(np.float64))
         if not split:   # the rows before a summary of the population prior (.population), then the summary
-            split = self.next_summary(len(table))
+            cuts = self.summary_cuts(table["track_id"].to_numpy(), table["time"].to_numpy(np.float64))
+            split = cuts[0] if cuts else None
         if split:
             head, tail = table.iloc[:split], table.iloc[split:]
             later = {**next_times, **tail.groupby("track_id", sort=False)["time"].first().to_dict()}
@@ -229,6 +230,7 @@ class TableSteps:
         ids = table["track_id"].to_numpy()
         self._ensure_params(values.shape[1])
         n_rows, p = values.shape
+        before = self.stepped
         self.rows += n_rows
 
         tracks, runs, segments, gap_rows, keep = self._gap_rule(ids, times, first_row)
@@ -311,7 +313,7 @@ class TableSteps:
                 by_state[id(held)][2].append(k)
             for held, these, columns in by_state.values():
                 self.states.put(these, held, columns)
-        self.summarise_if_due(n_rows)
+        self.summarise_if_due(before)
         if origins is not None:   # the forecasts back to degrees, each in the frame of the row it was made after
             from ..io.geo import from_local
 
