@@ -369,7 +369,7 @@ DEFAULT_RULE_OPTIONS = {"boa": {"bound_forgetting": 0.99, "clip": 3.0}}
 #: make_bank's ``reach`` (time units): off by default, as no value wins everywhere. A reach helps on tracks
 #: sampled at irregular intervals and bridged across their gaps (``--max-gap none``); it hurts where staying
 #: near the last position across a gap beats extrapolating a velocity (a lost player), and it worsens H-step
-#: forecasts made with the one-step weights (the lead head is not affected); see
+#: forecasts made with the one-step weights (the lead head's weights are not affected); see
 #: benchmarks/results/irregular_sampling.json. Use reach 8 on tracks sampled at irregular intervals.
 DEFAULT_REACH = None
 
