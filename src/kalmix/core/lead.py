@@ -26,6 +26,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from . import calibration
+from .aggregators import boa
+from .constraints import Real
 
 __all__ = ["LeadParams", "LeadState", "init", "learn", "forecast", "push"]
 
@@ -36,6 +38,9 @@ class LeadParams(NamedTuple):
     tolerance: float     # a row within this of a forecast's time scores it
     capacity: int = 16   # pending forecasts kept per target
     delay: float = 1.0   # the rule's delay factor (BOA: its learning rate / sqrt(delay)); make_bank: ``frames``
+
+    #: What the fields a caller sets may be (:mod:`kalmix.core.constraints`); ``delay`` is BOA's.
+    CONSTRAINTS = {"time": Real(gt=0, hint="time-column units"), "delay": boa.Params.CONSTRAINTS["delay"]}
 
 
 class LeadState(NamedTuple):
