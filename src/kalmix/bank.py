@@ -23,7 +23,6 @@ from .core.lead import LeadParams
 from .core.screen import ScreenParams
 from .mixture_recipe import (
     FORGETTING_LEVELS,
-    LENGTH_UNIT,
     LENGTH_UNIT_RANGE,
     MAX_SEED,
     MEASUREMENT_NOISE_RANGE,
@@ -127,11 +126,11 @@ def recipe_parts(kind: str) -> set:
     return parts
 
 
-#: What each of :func:`make_bank`'s own arguments may be; those of the families, the rule and the heads are
-#: declared by their components (their ``Params.CONSTRAINTS``).
+#: What each of :func:`make_bank`'s own arguments may be (the ``length_unit``: :func:`check_length_unit`); those of
+#: the families, the rule and the heads are declared by their components (their ``Params.CONSTRAINTS``).
 ARGUMENT_CONSTRAINTS = {"measurement_dim": Integer(ge=1), "kind": Choice(BANK_KINDS), "rule": Choice(tuple(RULES)),
-                        "length_unit": LENGTH_UNIT, "time_unit": Real(gt=0), "seed": Integer(ge=0),
-                        "n_akf": Integer(ge=1), "reach": Real(gt=0)}
+                        "time_unit": Real(gt=0), "seed": Integer(ge=0), "n_akf": Integer(ge=1),
+                        "reach": Real(gt=0)}
 #: A bank's AR orders: an AR family's order, written as an integer or a whole float (2.0).
 AR_ORDER_LEVELS = Levels(dataclasses.replace(ARParams.CONSTRAINTS["order"], integral_floats=True))
 #: ``ar_options``: the AR family's fields that have a default.
@@ -247,10 +246,10 @@ def make_bank(
         Off by default (:data:`DEFAULT_REACH`: what it wins and loses); 8 suits tracks sampled
         at irregular intervals and not cut at gaps (``--max-gap none``).
     """
-    given = dict(measurement_dim=measurement_dim, kind=kind, rule=rule, length_unit=length_unit,
-                 time_unit=time_unit, seed=seed, n_akf=n_akf)
+    given = dict(measurement_dim=measurement_dim, kind=kind, rule=rule, time_unit=time_unit, seed=seed, n_akf=n_akf)
     args = {name: validate(name, value, ARGUMENT_CONSTRAINTS[name]) for name, value in given.items()}
-    p, unit, tunit = args["measurement_dim"], args["length_unit"], args["time_unit"]
+    p, tunit = args["measurement_dim"], args["time_unit"]
+    unit = check_length_unit(length_unit)   # the range the families' numbers stay finite in
     validate("process_levels", process_levels, KinematicParams.CONSTRAINTS["process_noise"])
     validate("measurement_levels", measurement_levels, KinematicParams.CONSTRAINTS["measurement_noise"])
     module = RULES[rule]

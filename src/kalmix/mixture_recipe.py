@@ -25,9 +25,6 @@ __all__ = ["make_params", "noise_grid", "check_length_unit", "LENGTH_UNIT_RANGE"
 #: tested at both ends for the default bank and the paper's mixture). Far outside it the variance
 #: products overflow or vanish and the predictions depart from scale-equivariance.
 LENGTH_UNIT_RANGE = (1e-60, 1e60)
-#: What a ``length_unit`` may be.
-LENGTH_UNIT = Real(ge=LENGTH_UNIT_RANGE[0], le=LENGTH_UNIT_RANGE[1], noun="a number",
-                   hint="the typical measurement-noise size in data units")
 
 #: Process-noise levels of the grid span this range (measurement units squared per frame).
 PROCESS_NOISE_RANGE = (1e-2, 1e2)
@@ -43,7 +40,9 @@ RIDGE_LEVELS = (1e-3, 1e-2, 1e-1)
 #: from it. ``prior_degree`` depends on ``order`` and is checked apart.
 ARGUMENT_CONSTRAINTS = {
     **MixtureParams.CONSTRAINTS,
-    "n_experts": Integer(ge=1), "seed": MixtureParams.CONSTRAINTS["random_seed"], "length_unit": LENGTH_UNIT,
+    "n_experts": Integer(ge=1), "seed": MixtureParams.CONSTRAINTS["random_seed"],
+    "length_unit": Real(ge=LENGTH_UNIT_RANGE[0], le=LENGTH_UNIT_RANGE[1], noun="a number",
+                        hint="the typical measurement-noise size in data units"),
     "forgetting_levels": MixtureParams.CONSTRAINTS["forgetting"], "ridge_levels": MixtureParams.CONSTRAINTS["ridge"],
     **dict.fromkeys(("process_noise_range", "measurement_noise_range", "initial_variance_range"), Pair(Real(gt=0))),
     "initial_velocity_spread": Real(ge=0), "expert_scale": Real(gt=0),
@@ -52,7 +51,7 @@ ARGUMENT_CONSTRAINTS = {
 
 def check_length_unit(value, name: str = "length_unit") -> float:
     """``value`` as a float in :data:`LENGTH_UNIT_RANGE`; ``TypeError``/``ValueError`` naming ``name``."""
-    return validate(name, value, LENGTH_UNIT)
+    return validate(name, value, ARGUMENT_CONSTRAINTS["length_unit"])
 
 
 def _levels(low: float, high: float, count: int) -> np.ndarray:
