@@ -41,6 +41,8 @@ import numpy as np
 
 from . import calibration
 from ._libm import exp, ordered_sum
+from .aggregators import boa
+from .constraints import Real
 
 __all__ = ["LeadParams", "LeadState", "init", "init_blend", "learn", "forecast", "blend", "push"]
 
@@ -51,6 +53,9 @@ class LeadParams(NamedTuple):
     tolerance: float     # a row within this of a forecast's time scores it
     capacity: int = 16   # pending forecasts kept per target
     delay: float = 1.0   # the rule's delay factor (BOA: its learning rate / sqrt(delay)); make_bank: ``frames``
+
+    #: What the fields a caller sets may be (:mod:`kalmix.core.constraints`); ``delay`` is BOA's.
+    CONSTRAINTS = {"time": Real(gt=0, hint="time-column units"), "delay": boa.Params.CONSTRAINTS["delay"]}
 
 
 class LeadState(NamedTuple):
