@@ -289,7 +289,7 @@ def one_step(results: Results) -> list:
 
 
 def lead(results: Results) -> list:
-    """H-step RMS of the mixture (lead weights) against every tuned peer's."""
+    """H-step RMS of the mixture (the lead head's forecasts) against every tuned peer's."""
     data = results("lead_vs_peers.json")
     rows = []
     for dataset in DATASETS:
@@ -301,7 +301,7 @@ def lead(results: Results) -> list:
                          num(entry["best_peer_rms"]),
                          ratio(entry["ratio"])])
     _blank_repeats(rows)
-    return [Table(header=["recording", "H", "kalmix (lead weights)", "best tuned peer", "its RMS", "ratio"],
+    return [Table(header=["recording", "H", "kalmix (lead head)", "best tuned peer", "its RMS", "ratio"],
                   rows=rows, sources=("lead_vs_peers.json",),
                   command="python -m benchmarks.lead_vs_peers --json benchmarks/results/lead_vs_peers.json",
                   notes=[("What `kalmix evaluate -H H` prints: RMS per coordinate of the forecasts H rows ahead "
@@ -384,15 +384,16 @@ def intervals(results: Results) -> list:
 
 
 def lead_weights(results: Results) -> list:
-    """H-step RMS with the lead head's weights and with the one-step weights."""
+    """H-step RMS of the lead head's forecasts and of the one-step weights'."""
     def build(label, h, entry):
         lead_rms, one_rms = entry["lead_weights_rms"], entry["one_step_weights_rms"]
         return [label, h, num(lead_rms), num(one_rms), change(lead_rms / one_rms - 1)]
 
     rows, sources, notes = _lead_and_intervals_rows(results, build)
-    notes.insert(0, "The same H-step forecasts of the default bank's experts, weighted by the lead head (learned on "
-                    "H-step errors) or by the one-step rule.")
-    return [Table(header=["recording", "H", "lead weights", "one-step weights", "change"], rows=rows,
+    notes.insert(0, "The same H-step forecasts of the default bank's experts, weighted by the lead head (its weights "
+                    "learned on H-step errors, blended with the one-step weights' forecast by the same rule on the "
+                    "same delayed errors) or by the one-step rule.")
+    return [Table(header=["recording", "H", "lead head", "one-step weights", "change"], rows=rows,
                   sources=sources, command=LEAD_AND_INTERVALS_COMMAND, notes=notes)]
 
 

@@ -72,7 +72,7 @@ def test_loading_a_corrupt_foreign_or_mismatched_file_gives_a_clear_error(tmp_pa
     ({"gating": "magic"}, ValueError, r"gating: expected one of 'fixed_share', 'paper', 'random', 'none', got 'magic'"),
     ({"dynamics": "kalman"}, ValueError, r"dynamics: expected one of 'rls', 'literal', 'fixed', got 'kalman'"),
     ({"gate_share": 1.5}, ValueError, r"gate_share: expected a finite number in \[0, 1.0\], got 1.5"),
-    ({"temperature": "hot"}, TypeError, r"temperature: expected a real number, got str 'hot'"),
+    ({"temperature": "hot"}, TypeError, r"temperature: expected a finite number > 0, got str 'hot'"),
     ({"order": 0}, ValueError, r"order: expected an integer >= 1, got 0"),
 ])
 def test_bad_parameters_are_named_with_expected_and_received(kwargs, error, message):

@@ -47,15 +47,16 @@ def test_across_a_long_step_only_the_cv_experts_weigh(run):
 
 
 def test_the_reach_changes_only_the_one_step_weights():
-    """Same experts (the families learn every row as before) and the same lead head; better one-step forecasts
-    here, where the AR / CA / turn / AKF experts extrapolate their fits across 20 units."""
+    """Same experts (the families learn every row as before) and the same lead weights (the lead forecasts blend
+    them with the one-step weights', which the reach changes); better one-step forecasts here, where the AR / CA /
+    turn / AKF experts extrapolate their fits across 20 units."""
     z, t = _sparse_track(seed=1, rows=200)
     common = dict(**DEFAULT_BANK, length_unit=0.5, time_unit=1.0, n_akf=4, lead=3.0)
     near, everyone = (ce.run(make_bank(2, reach=reach, **common), z, t, record_experts=True)
                       for reach in (REACH, None))
     assert np.array_equal(near.experts, everyone.experts, equal_nan=True)
-    assert np.array_equal(near.lead, everyone.lead, equal_nan=True)
-    assert np.array_equal(near.lead_std, everyone.lead_std, equal_nan=True)
+    for mine, theirs in zip(near.state.lead.rule, everyone.state.lead.rule):
+        assert np.array_equal(mine, theirs)
     step = np.diff(t, axis=0, prepend=np.nan)
     late = (np.arange(len(t))[:, None] > 40) & np.isfinite(near.forecasts).all(-1)
     rms = lambda f, rows: float(np.sqrt(np.mean((f - z)[rows] ** 2)))  # noqa: E731

@@ -443,12 +443,13 @@ def test_the_length_unit_range_is_scale_equivariant_at_both_ends(unit):
 
 def test_a_state_file_with_a_unit_outside_this_versions_range_says_so(tmp_path, monkeypatch):
     """The range was 1e+-100: a state file saved with 1e-80 was called "incomplete or corrupt"."""
-    import kalmix.bank
+    import kalmix.mixture_recipe
     import kalmix.stream.state_file
 
     engine = TrackPredictor(StreamConfig(length_unit=1e-50, n_experts=2))
     engine.step_row("a", 0.0, [1e-50, 2e-50])
-    monkeypatch.setattr(kalmix.bank, "LENGTH_UNIT_RANGE", (1e-100, 1e100))
+    wider = dataclasses.replace(kalmix.mixture_recipe.ARGUMENT_CONSTRAINTS["length_unit"], ge=1e-100, le=1e100)
+    monkeypatch.setitem(kalmix.mixture_recipe.ARGUMENT_CONSTRAINTS, "length_unit", wider)
     monkeypatch.setattr(kalmix.stream.state_file, "LENGTH_UNIT_RANGE", (1e-100, 1e100))
     engine.config = dataclasses.replace(engine.config, length_unit=1e-80)   # as an older version saved it
     engine.save(tmp_path / "s.kmx")

@@ -35,6 +35,8 @@ OLDER_MEMBERS = ("state/lead/issued", "state/screen/low", "state/screen/high")
 #: BOA's running error scale, which files before version 10 lack (their BOA did not clip).
 CLIP_MEMBERS = ("state/rule/error_scale", "state/rule/error_count", "state/lead/rule/error_scale",
                 "state/lead/rule/error_count")
+#: The lead head's blend and the forecasts it blended, which files before version 14 lack.
+BLEND_MEMBERS = ("state/lead/blend/", "state/lead/candidates")
 
 
 def test_rows_equal_batched_table():
@@ -127,7 +129,10 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     no ``geographic`` setting (positions were flat); before version 12 the gap rule's reference interval was the
     median of a track's first steps (``gap_reference`` "median", a setting those files lack); before version 13
     any step of a track could be a gap (``gap_min_steps`` 1) and no track started from a population prior
-    (``population_prior`` False, and no learned rows or priors in the file)."""
+    (``population_prior`` False, and no learned rows or priors in the file). Before version 14 there was no blend
+    of the lead forecasts: such a file resumes with the blend started again, so ``whole`` is then the run whose
+    blend starts again at the save (the same file as version 13, resumed; the uninterrupted run but for the lead
+    forecasts after the save: test_version_13_files_resume_with_the_blend_started_again)."""
     import json
 
     if version < 9:
@@ -149,7 +154,9 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     first.save(tmp_path / "s.npz")
     saved = dict(np.load(tmp_path / "s.npz"))
     meta = json.loads(str(saved["meta"]))
-    assert meta["format_version"] == STATE_FORMAT_VERSION == 13
+    assert meta["format_version"] == STATE_FORMAT_VERSION == 14
+    if version < 14:
+        whole = part + _rows(_without_blend(tmp_path, saved, dict(meta, format_version=13)), table.iloc[cut:])
     meta["format_version"] = version
     if version < 13:
         assert meta.pop("priors") == []   # (population_prior False)
@@ -159,11 +166,27 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
         del meta["config"][name]
     if version < 10 and "rule_options" in meta["config"]:
         del meta["config"]["rule_options"]["clip"]
-    older = {name: value for name, value in saved.items() if name not in members and name != "meta"}
+    older = {name: value for name, value in saved.items() if name not in members and name != "meta"
+             and not (version < 14 and name.startswith(BLEND_MEMBERS))}
     np.savez(tmp_path / "older.npz", **older, meta=np.array(json.dumps(meta)))
     second = TrackPredictor.load(tmp_path / "older.npz")
     assert second.loaded_version == version
     return whole, part + _rows(second, table.iloc[cut:]), second, saved
+
+
+def _without_blend(tmp_path, saved, meta):
+    """The predictor of the archive ``saved`` without the blend's members, loaded with ``meta``."""
+    import json
+
+    kept = {name: value for name, value in saved.items() if not name.startswith(BLEND_MEMBERS) and name != "meta"}
+    np.savez(tmp_path / "without_blend.npz", **kept, meta=np.array(json.dumps(meta)))
+    return TrackPredictor.load(tmp_path / "without_blend.npz")
+
+
+def _saved(predictor, path):
+    """``predictor``'s state file, as arrays."""
+    predictor.save(path)
+    return dict(np.load(path))
 
 
 def _next(rows):
@@ -255,6 +278,35 @@ def test_version_9_files_resume_without_the_clip(tmp_path):
     assert (saved["state/rule/error_count"] > 0).all()
     assert (saved["state/lead/rule/error_count"] == 0).all()   # the lead head learns its errors whole
     assert TrackPredictor.load(tmp_path / "today.npz").params.rule_params.clip == 3.0
+
+
+def test_version_13_files_resume_with_the_blend_started_again(tmp_path):
+    """Version 13 files had no blend of the lead forecasts (nor the two forecasts kept with a pending one): such a
+    file resumes with the blend at its start (even weights; the forecasts pending at the save teach it nothing).
+    The one-step forecasts and the lead weights go on as uninterrupted, bit for bit; the lead forecasts after the
+    save differ (they blend the same two forecasts with other weights) but stay finite where those were."""
+    import json
+
+    table, cut = _table(), 70
+    whole = TrackPredictor(StreamConfig(**CONFIG))
+    uninterrupted = _rows(whole, table)
+    first = TrackPredictor(StreamConfig(**CONFIG))
+    part = _rows(first, table.iloc[:cut])
+    saved = _saved(first, tmp_path / "s.npz")
+    assert np.isfinite(saved["state/lead/candidates"]).any()   # forecasts were pending at the save
+    assert (saved["state/lead/blend/variance"] > 0).any()      # and the blend had learned
+    meta = json.loads(str(saved["meta"]))
+    second = _without_blend(tmp_path, saved, dict(meta, format_version=13))
+    assert second.loaded_version == 13
+    resumed = part + _rows(second, table.iloc[cut:])
+    assert np.array_equal(_next(resumed), _next(uninterrupted), equal_nan=True)
+    ends = _saved(second, tmp_path / "resumed.npz"), _saved(whole, tmp_path / "whole.npz")
+    for name in [name for name in ends[1] if name.startswith("state/lead/rule/")]:
+        assert np.array_equal(ends[0][name], ends[1][name], equal_nan=True), name
+    assert not np.array_equal(ends[0]["state/lead/blend/regret"], ends[1]["state/lead/blend/regret"])
+    ahead, expected = (np.array([r.ahead for r in rows]) for rows in (resumed, uninterrupted))
+    assert np.array_equal(ahead[:cut], expected[:cut], equal_nan=True)
+    assert np.array_equal(np.isnan(ahead), np.isnan(expected)) and not np.array_equal(ahead, expected, equal_nan=True)
 
 
 def test_load_rejects_other_files(tmp_path):

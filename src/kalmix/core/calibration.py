@@ -33,6 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._libm import exp, ordered_sum
+from .constraints import Real
 
 __all__ = ["CalibrationParams", "CalibrationState", "init", "moments", "update", "z_score"]
 
@@ -44,6 +45,9 @@ class CalibrationParams(NamedTuple):
     level: float = 0.95             # the central interval whose coverage is calibrated
     max_variance: float = 1e300
     max_log_scale: float = 30.0
+
+    #: What the fields a caller sets may be (:mod:`kalmix.core.constraints`).
+    CONSTRAINTS = {"level": Real(gt=0, lt=1, noun="a probability")}
 
 
 class CalibrationState(NamedTuple):

@@ -33,8 +33,8 @@ same numbers fast, and is what every command uses):
 - a bank with a lead (:mod:`kalmix.core.lead`) also gives ``lead[t]`` / ``lead_std[t]``,
   the forecast made after row ``t`` for ``times[t] + lead`` (or ``ahead_times[t]`` when
   given; ``lead.frames`` rows for frame-based families, whatever ``ahead_frames``) with the
-  weights and intervals learned on lead errors; ``ahead`` is then the same forecast with
-  the one-step weights.
+  weights and intervals learned on lead errors (blended with the one-step weights' forecast,
+  :func:`kalmix.core.lead.blend`); ``ahead`` is then the same forecast with the one-step weights.
 
 An expert sleeps (is left out of the weights and of the rule's learning) while its
 forecast is not finite, e.g. before its first measurement.
@@ -161,6 +161,13 @@ class Bank:
             return params
         return params._replace(delay=params.delay * self.lead.delay,
                                **({"clip": math.inf} if "clip" in params._fields else {}))
+
+    @property
+    def blend_rule_params(self):
+        """The rule parameters of the lead head's blend (:func:`kalmix.core.lead.blend`): the lead head's
+        (:attr:`lead_rule_params`, BOA's ``clip`` off) at the one-step rule's ``delay``, not the lead's."""
+        params = self.lead_rule_params
+        return params._replace(delay=self.rule_params.delay) if "delay" in params._fields else params
 
     def slices(self) -> list[slice]:
         """Each family's columns in the ``(N, K, p)`` expert axis."""
@@ -339,8 +346,9 @@ def forecast(bank: Bank, state: BankState, time, frames: int = 1, *, lead: bool 
     """Predict without learning: the mixture's mean ``(N, p)`` and covariance ``(N, p, p)`` at ``time (N,)``.
 
     Time-based families extrapolate to ``time``, frame-based ones ``frames`` rows ahead.
-    The one-step weights and calibration are used, or the lead head's (``lead=True``,
-    for a bank with a lead). The state is not changed.
+    The one-step weights and calibration are used, or the lead head's (``lead=True``, for a bank
+    with a lead: its forecast blended with the one-step weights', :func:`kalmix.core.lead.blend`).
+    The state is not changed.
 
     ``frames`` is an integer in [1, MAX_HORIZON]; ``time`` a finite time (or one per target), at
     or after each target's last learned row; ``ValueError`` naming the argument otherwise.
@@ -367,9 +375,10 @@ def forecast(bank: Bank, state: BankState, time, frames: int = 1, *, lead: bool 
         raise ValueError(f"time: expected finite times at or after each target's last learned row, got "
                          f"{float(time[i])!r} for target {i} (last learned row at {float(state.screen.time[i])!r})")
     experts = expert_forecasts(bank, state, time, frames)
-    if not lead:
-        experts = within_reach(bank, experts, span(state.screen, time))
-    _, mean, cov = lead_head.forecast(bank, state.lead if lead else state, experts, lead=lead)
+    _, mean, cov = lead_head.forecast(bank, state, within_reach(bank, experts, span(state.screen, time)))
+    if lead:
+        _, lead_mean, lead_cov = lead_head.forecast(bank, state.lead, experts, lead=True)
+        mean, cov, _ = lead_head.blend(bank, state.lead, lead_mean, lead_cov, mean)
     return mean, cov
 
 
@@ -405,6 +414,8 @@ class StepOutput(NamedTuple):
     ahead_experts: np.ndarray | None = None   # (N, K, p) after the row, for the lead (bank.lead) or ahead time
     lead: np.ndarray | None = None            # (N, p) lead forecast (bank.lead)
     lead_covariance: np.ndarray | None = None
+    ahead: np.ndarray | None = None           # (N, p) the one-step weights' forecast of ``ahead_experts``
+    ahead_covariance: np.ndarray | None = None
 
 
 def cold_start(bank: Bank, state: BankState, cold) -> BankState:
@@ -423,7 +434,8 @@ def cold_start(bank: Bank, state: BankState, cold) -> BankState:
     cal = lambda old: fresh(calibration.init(bank.calibration_params, n, k, p), old)  # noqa: E731
     head = state.lead
     if head is not None:
-        head = head._replace(rule=rule(head.rule), calibration=cal(head.calibration))
+        head = head._replace(rule=rule(head.rule), calibration=cal(head.calibration),
+                             blend=fresh(lead_head.init_blend(bank, n), head.blend))
     return state._replace(rule=rule(state.rule), calibration=cal(state.calibration), lead=head)
 
 
@@ -467,13 +479,18 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
         target = time + bank.lead.time if ahead_time is None else np.broadcast_to(ahead_time, (n,))
         head = lead_head.learn(bank, new.lead, z, time, go)
         later = expert_forecasts(bank, new, target, bank.lead.frames)
+        _, one_mix, one_cov = lead_head.forecast(bank, new, within_reach(bank, later, span(new.screen, target)))
         _, lead_mix, lead_cov = lead_head.forecast(bank, head, later, lead=True)
+        lead_mix, lead_cov, candidates = lead_head.blend(bank, head, lead_mix, lead_cov, one_mix)
         head = lead_head.push(bank, head, later, target, learn & (state.screen.points >= 1), restart, lead_mix,
-                              _std(lead_cov))
+                              _std(lead_cov), candidates)
         new = new._replace(lead=head)
-        out = out._replace(ahead_experts=later, lead=lead_mix, lead_covariance=lead_cov)
+        out = out._replace(ahead_experts=later, lead=lead_mix, lead_covariance=lead_cov, ahead=one_mix,
+                           ahead_covariance=one_cov)
     elif ahead_time is not None:
-        out = out._replace(ahead_experts=expert_forecasts(bank, new, ahead_time, ahead_frames))
+        later = expert_forecasts(bank, new, ahead_time, ahead_frames)
+        _, one_mix, one_cov = lead_head.forecast(bank, new, within_reach(bank, later, span(new.screen, ahead_time)))
+        out = out._replace(ahead_experts=later, ahead=one_mix, ahead_covariance=one_cov)
     return new, out
 
 
@@ -515,11 +532,8 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
             experts_out[t] = np.where(on[..., None], out.experts, np.nan)
             weights_out[t] = np.where(on, out.weights, np.nan)
         if with_ahead:
-            target = (times[t] + bank.lead.time) if ahead_times is None else ahead_times[t]
-            mixed = within_reach(bank, out.ahead_experts, span(state.screen, target))
-            _, mean, cov = lead_head.forecast(bank, state, mixed)
-            ahead[t] = np.where(on, mean, np.nan)
-            ahead_std[t] = np.where(on, _std(cov), np.nan)
+            ahead[t] = np.where(on, out.ahead, np.nan)
+            ahead_std[t] = np.where(on, _std(out.ahead_covariance), np.nan)
             if ahead_experts is not None:
                 ahead_experts[t] = np.where(on[..., None], out.ahead_experts, np.nan)
         if lead is not None:

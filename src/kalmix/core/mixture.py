@@ -43,13 +43,16 @@ import numpy as np
 from . import dynamics as dyn
 from . import gating as gate
 from ._libm import first_max, ordered_matmul, ordered_sum
+from .constraints import Boolean, Choice, Integer, Levels, Real
 from .kalman import cholesky_inverse
 
 __all__ = ["MixtureParams", "MixtureState", "StepOutput", "RunResult", "init_state", "step", "predict",
-           "observation_matrix"]
+           "observation_matrix", "MAX_SEED"]
 
 DYNAMICS = ("rls", "literal", "fixed")
 GATINGS = ("fixed_share", "paper", "random", "none")
+#: Largest seed: the compiled kernels hold it in a signed 64-bit integer.
+MAX_SEED = 2**63 - 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -95,6 +98,18 @@ class MixtureParams:
     max_variance: float = 1e8       # cap of P's largest variance (normalised features^2)
     feature_limit: float = 100.0    # |s| beyond it moves the origin (normalised features)
     miss_limit: float = 10.0        # an expert missing a measurement by more restarts (features)
+
+    #: What the fields a caller sets may be (:mod:`kalmix.core.constraints`); ``forgetting`` and ``ridge`` per expert.
+    CONSTRAINTS = {
+        "measurement_dim": Integer(ge=1), "order": Integer(ge=1), "dynamics": Choice(DYNAMICS),
+        "gating": Choice(GATINGS), "gating_input": Choice(gate.GATING_INPUTS), "adapt_noise": Boolean(),
+        "feature_scale": Real(gt=0), "forgetting": Levels(Real(gt=0, le=1.0)), "ridge": Levels(Real(gt=0)),
+        "random_seed": Integer(ge=0, le=MAX_SEED),
+        **dict.fromkeys(("velocity_scale", "spectral_radius_bound", "temperature", "eta_decay_steps"), Real(gt=0)),
+        **dict.fromkeys(("eta_initial", "eta_minimum", "eta_sensitivity", "process_noise_shrink",
+                         "measurement_noise_shrink"), Real(ge=0)),
+        **dict.fromkeys(("gate_share", "noise_floor", "noise_reinflation"), Real(ge=0, le=1.0)),
+    }
 
     @property
     def n_experts(self) -> int:

@@ -48,6 +48,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._libm import ordered_sum
+from .constraints import Integer, Real
 
 __all__ = ["ScreenParams", "ScreenState", "init", "screen", "ZERO"]
 
@@ -61,6 +62,9 @@ class ScreenParams(NamedTuple):
     max_rejects: int = 3
     warmup: int = 5
     window: int = 50
+
+    #: What the fields a caller sets may be (:mod:`kalmix.core.constraints`).
+    CONSTRAINTS = {"threshold": Real(gt=1, inf_ok=True, hint="inf: no screen"), "max_rejects": Integer(ge=1)}
 
 
 class ScreenState(NamedTuple):

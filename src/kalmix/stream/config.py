@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
-import math
 import numbers
 import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..bank import ARGUMENT_CONSTRAINTS as BANK_ARGUMENTS
 from ..bank import DEFAULT_BANK, DEFAULT_REACH, check_horizon, check_length_unit, make_bank, make_params, short_lead
+from ..core.constraints import validate
+from ..core.lead import LeadParams
 
 #: How a track's reference interval is taken from its first steps (:class:`StreamConfig`'s ``gap_reference``).
 GAP_REFERENCES = ("upper quartile", "median")
@@ -124,12 +126,10 @@ class StreamConfig:
         if self.bank not in BANK_KINDS:
             raise ValueError(f"bank: expected one of {', '.join(BANK_KINDS)}, got {self.bank!r}")
         if self.lead is not None:
-            if not (math.isfinite(self.lead) and self.lead > 0):
-                raise ValueError(f"lead: expected a finite time > 0 (time-column units), got {self.lead!r}")
+            self.lead = validate("lead", self.lead, LeadParams.CONSTRAINTS["time"])
             if self.horizon > 1:
                 raise ValueError(f"lead and horizon: give one of them (a horizon H is the lead of H time units), "
                                  f"got lead={self.lead!r} and horizon={self.horizon!r}")
-            self.lead = float(self.lead)
         if self.lead_delay is not None:
             self.lead_delay = float(self.lead_delay)   # a numpy scalar saves as its own type
         if self.max_gap is not None and not self.max_gap > 0:
@@ -159,8 +159,8 @@ class StreamConfig:
                             f"{type(self.geographic).__name__} {self.geographic!r:.80}")
         if self.geographic is not None:
             self.geographic = bool(self.geographic)
-        if self.time_unit is not None and not (math.isfinite(self.time_unit) and self.time_unit > 0):
-            raise ValueError(f"time_unit: expected a finite number > 0, got {self.time_unit!r}")
+        if self.time_unit is not None:
+            validate("time_unit", self.time_unit, BANK_ARGUMENTS["time_unit"])
         if not isinstance(self.options, dict):
             raise TypeError(f"options: expected a dict of make_params arguments, got {self.options!r}")
         if not isinstance(self.rule_options, dict):

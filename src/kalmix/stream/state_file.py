@@ -20,10 +20,10 @@ from .ids import id_from_meta, id_to_meta
 from .population import Prior
 
 #: Format version of the state files :meth:`TrackPredictor.save` writes. :meth:`TrackPredictor.load` reads
-#: versions 3 to 13 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
+#: versions 3 to 14 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
 #: versions", says what each version adds).
-STATE_FORMAT_VERSION = 13
-_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13)
+STATE_FORMAT_VERSION = 14
+_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14)
 _MAGIC = "kalmix-track-predictor"
 
 
@@ -114,7 +114,9 @@ class StateFile:
                                       or (version <= 5 and name == "state/lead/issued")
                                   or (version <= 6 and name in ("state/screen/low", "state/screen/high"))
                                   or (version <= 9
-                                      and name.startswith(("state/rule/error_", "state/lead/rule/error_"))))
+                                      and name.startswith(("state/rule/error_", "state/lead/rule/error_")))
+                                  or (version <= 13
+                                      and name.startswith(("state/lead/blend/", "state/lead/candidates"))))
                 stacked = {name: (np.broadcast_to(expected, (count, *expected.shape[1:])) if fresh(name)
                                   else archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name))
                            for name, expected in tree_leaves(template)}

@@ -56,6 +56,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..constraints import Real
 from ._common import log, mixture_and_regret, normalise_awake, ordered_sum
 
 __all__ = ["Params", "State", "init", "weights", "update", "learning_rates", "clip_factor", "restart", "CLIP_WARMUP",
@@ -74,6 +75,11 @@ class Params(NamedTuple):
     bound_forgetting: float = 1.0   # beta in (0, 1]
     delay: float = 1.0        # D >= 1: forecasts issued per feedback (the lead head's frames)
     clip: float = math.inf    # c > 0: errors longer than c running RMS are shrunk to it (inf: off)
+
+    #: What each field may be (:mod:`kalmix.core.constraints`).
+    CONSTRAINTS = {"forgetting": Real(gt=0, le=1.0), "share": Real(ge=0, lt=1), "bound_forgetting": Real(gt=0, le=1.0),
+                   "delay": Real(ge=1, hint="rows between a forecast and its score"),
+                   "clip": Real(gt=0, inf_ok=True, hint="inf: off")}
 
 
 class State(NamedTuple):

@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..constraints import Real
 from ._common import log, normalise_awake, ordered_sum
 
 __all__ = ["Params", "State", "init", "weights", "update"]
@@ -28,6 +29,10 @@ class Params(NamedTuple):
     share: float = 0.02          # alpha
     scale: float = 0.0           # sigma > 0: fixed scale; 0: online scale
     scale_factor: float = 4.0    # c
+
+    #: What each field may be (:mod:`kalmix.core.constraints`).
+    CONSTRAINTS = {"share": Real(ge=0, lt=1), "scale": Real(ge=0, hint="0: the online scale"),
+                   "scale_factor": Real(gt=0)}
 
 
 class State(NamedTuple):

@@ -18,14 +18,18 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..constraints import Real
 from ._common import linearised_regret, ordered_sum
 
 __all__ = ["Params", "State", "init", "weights", "update"]
 
 
 class Params(NamedTuple):
-    forgetting: float = 1.0
-    share: float = 0.0
+    forgetting: float = 1.0   # rho in (0, 1]
+    share: float = 0.0        # alpha in [0, 1)
+
+    #: What each field may be (:mod:`kalmix.core.constraints`).
+    CONSTRAINTS = {"forgetting": Real(gt=0, le=1.0), "share": Real(ge=0, lt=1)}
 
 
 class State(NamedTuple):

@@ -151,6 +151,9 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
         due = np.array(state.lead.due, dtype=np.float64, copy=True, order="C")
         pending = np.array(state.lead.pending, dtype=np.float64, copy=True, order="C")
         issued = np.array(state.lead.issued, dtype=np.float64, copy=True, order="C")
+        candidates = np.array(state.lead.candidates, dtype=np.float64, copy=True, order="C")
+        blend = pack_rule(bank, state.lead.blend)
+        blend_params = pack_rule_params(bank, bank.blend_rule_params)
     scr = ScreenState(*(np.array(x, dtype=np.float64, copy=True, order="C") for x in state.screen))
     sp = bank.screen_params
     screen_args = (float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window))
@@ -229,16 +232,18 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
                      w_block, mixed_ahead if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3,
                      ahead_std[begin:end] if with_ahead else empty3, cold, restart, initial_variance)
         if lead is not None:
-            over_targets(clead.run_block, n, lead_params, lead_rule, *cal_args, *lead_cal, ahead_b,
-                         float(lead.tolerance), due, pending, issued, ahead_buffer, zb, tb, lens, go, lb & started,
-                         restart, lead_out[begin:end], lead_std[begin:end],
-                         lead_covariance[begin:end] if record_covariance else empty4, cold, initial_variance)
+            over_targets(clead.run_block, n, lead_params, lead_rule, blend_params, blend, *cal_args, *lead_cal,
+                         ahead_b, float(lead.tolerance), due, pending, issued, candidates, ahead_buffer,
+                         ahead[begin:end], zb, tb, lens, go, lb & started, restart, lead_out[begin:end],
+                         lead_std[begin:end], lead_covariance[begin:end] if record_covariance else empty4, cold,
+                         initial_variance)
         if record_experts:
             weights_out[begin:end] = w_block
     families = [d.unpack(packed, fstate) for d, packed, fstate in zip(drivers, families, state.families)]
     head = None
     if lead is not None:
-        head = LeadState(unpack_rule(bank, lead_rule), CalibrationState(*lead_cal), due, pending, issued)
+        head = LeadState(unpack_rule(bank, lead_rule), CalibrationState(*lead_cal), due, pending, issued,
+                         unpack_rule(bank, blend), candidates)
     final = BankState(tuple(families), unpack_rule(bank, rule), scr, CalibrationState(*cal), head)
     if sums is not None:
         experts_out, weights_out, ahead_experts_out = sums[0], sums[1], sums[2] if with_ahead else None

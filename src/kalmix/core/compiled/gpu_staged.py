@@ -274,7 +274,10 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
         lead_rule = _dev(pack_rule(bank, state.lead.rule))
         lead_params = pack_rule_params(bank, bank.lead_rule_params)
         lead_cal = _dev(state.lead.calibration)
-        slots = _dev((state.lead.due, state.lead.pending, state.lead.issued))
+        slots = _dev((state.lead.due, state.lead.pending, state.lead.issued, state.lead.candidates))
+        blend = _dev(pack_rule(bank, state.lead.blend))
+        blend_params = pack_rule_params(bank, bank.blend_rule_params)
+        blend_scratch = _per_target(clead.blend_scratch(p), n)
     scr = _dev(state.screen)
     sp = bank.screen_params
     screen_args = (float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window))
@@ -331,16 +334,19 @@ def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames,
         if lead is not None:
             keep = cuda.device_array(lb.shape, dtype=np.bool_)
             _launch(_both, n, (lb, f["started"], lens, keep), stages=stages)
-            _launch(clead.kernel, n, (lead_params, lead_rule, *cal_args, *lead_cal, ahead_b,
-                                          float(lead.tolerance), *slots, ahead_buffer, zb, tb, lens, f["go"], keep,
-                                          f["restart"], lead_out[begin:end], lead_std[begin:end], empty4, f["cold"],
-                                          initial_variance), rule_scratch, stages=stages, name="lead")
+            _launch(clead.kernel, n, (lead_params, lead_rule, blend_params, blend, *cal_args, *lead_cal, ahead_b,
+                                      float(lead.tolerance), *slots, ahead_buffer, ahead[begin:end], zb, tb, lens,
+                                      f["go"], keep, f["restart"], lead_out[begin:end], lead_std[begin:end], empty4,
+                                      f["cold"], initial_variance),
+                    (*rule_scratch, *blend_scratch), stages=stages, name="lead")
     cuda.synchronize()
     clock["kernel"] += time.perf_counter() - launched
     out = [d.unpack(_host(fs), fstate) for d, fs, fstate in zip(drivers, families, state.families)]
     head = None
     if lead is not None:
-        head = LeadState(unpack_rule(bank, _host(lead_rule)), CalibrationState(*_host(lead_cal)), *_host(slots))
+        due, pending, issued, candidates = _host(slots)
+        head = LeadState(unpack_rule(bank, _host(lead_rule)), CalibrationState(*_host(lead_cal)), due, pending,
+                         issued, unpack_rule(bank, _host(blend)), candidates)
     final = BankState(tuple(out), unpack_rule(bank, _host(rule)), ScreenState(*_host(scr)),
                       CalibrationState(*_host(cal)), head)
     get = lambda a: None if a is None else a.copy_to_host()  # noqa: E731

@@ -7,46 +7,89 @@ import math
 import numba as nb
 import numpy as np
 
-from ._cache import KERNEL_JIT, configure_cache
+from ._cache import JIT, KERNEL_JIT, configure_cache
 from .calibration import calibrate_issued_row
-from .rules import cold_row, copy_matrix, forecast_row, learn_row, scratch, target, write_row
+from .rules import (cold_row, copy_matrix, forecast_row, learn_row, rule_cold_row, scratch, target, weigh_row,
+                    write_row)
 
 configure_cache()
 
-__all__ = ["run_block", "kernel"]
+__all__ = ["run_block", "kernel", "blend_scratch"]
 
 
-def run_block(lo, hi, params, state, window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors,
-              log_scale, due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep,
-              restart, out, out_std, out_cov, cold, initial_variance):
+def blend_scratch(p: int):
+    """A target's scratch of the blend (:func:`kalmix.core.lead.blend`): awake, w, logw, r, mix of its two
+    forecasts, and the two ``(2, p)``."""
+    return (np.empty(2, dtype=np.bool_), np.empty(2), np.empty(2), np.empty(2), np.empty(p), np.empty((2, p)))
+
+
+def run_block(lo, hi, params, state, blend_params, blend_state, window, rate, level, z_level, max_variance,
+              max_log_scale, variance, n_errors, log_scale, due_times, tolerance, due, pending, issued, candidates,
+              ahead_experts, ahead_mean, z, times, lengths, learn, keep, restart, out, out_std, out_cov, cold,
+              initial_variance):
     """For every row: score the pending forecasts due at its time (``learn & ~restart`` rows), forecast
-    ``due_times`` from ``ahead_experts`` with the lead weights, keep that forecast if a slot is free
-    (``keep & ~restart`` rows: learned, not a target's first) with the interval it was issued with
-    (``issued``: its mean and standard deviations, the miss the calibration learns from). On a ``cold``
-    row (the screen's cold restart, which scores nothing) the lead rule and calibration first start
-    again (the variances at ``initial_variance``). ``params`` / ``state``: the lead rule's
+    ``due_times`` from ``ahead_experts`` with the lead weights, blend that with the one-step weights'
+    ``ahead_mean`` under the blend's rule (``blend_params`` / ``blend_state``), keep that forecast if a slot
+    is free (``keep & ~restart`` rows: learned, not a target's first) with the interval it was issued with
+    (``issued``: its mean and standard deviations, the miss the calibration learns from) and the two
+    forecasts blended (``candidates``). On a ``cold`` row (the screen's cold restart, which scores nothing)
+    the lead rule, the blend and the calibration first start again (the variances at ``initial_variance``).
+    ``params`` / ``state``: the lead rule's, ``blend_params`` / ``blend_state`` the blend's, of the same rule
     (:data:`.rules.COMPILED_RULES`). Targets ``lo .. hi - 1``."""
-    kernel(lo, hi, params, state, window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors,
-           log_scale, due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep,
-           restart, out, out_std, out_cov, cold, float(initial_variance), *scratch(ahead_experts.shape[2], z.shape[2]))
+    p = z.shape[2]
+    kernel(lo, hi, params, state, blend_params, blend_state, window, rate, level, z_level, max_variance,
+           max_log_scale, variance, n_errors, log_scale, due_times, tolerance, due, pending, issued, candidates,
+           ahead_experts, ahead_mean, z, times, lengths, learn, keep, restart, out, out_std, out_cov, cold,
+           float(initial_variance), *scratch(ahead_experts.shape[2], p), *blend_scratch(p))
+
+
+@nb.njit(inline="always", **JIT)
+def _clear(due, pending, issued, candidates, s):
+    due[s] = np.nan
+    pending[s] = np.nan
+    issued[s] = np.nan
+    candidates[s] = np.nan
+
+
+@nb.njit(inline="always", **JIT)
+def _blend(params, s, count, mix, cov, ahead_mean, log_scale, max_variance, awake2, w2, logw2, mix2, two):
+    """The spec's :func:`kalmix.core.lead.blend` of one target: ``mix2`` the blended mean, ``cov`` moved about it;
+    returns the count of the two that are finite."""
+    p = mix.shape[0]
+    for ci in range(p):
+        two[0, ci] = mix[ci] if count > 0 else np.nan
+        two[1, ci] = ahead_mean[ci]
+    count2 = weigh_row(params, s, two, awake2, w2, logw2, mix2)
+    if awake2[0]:
+        factor = math.exp(2.0 * log_scale)
+        for i in range(p):
+            for j in range(p):
+                value = cov[i, j] + factor * ((mix[i] - mix2[i]) * (mix[j] - mix2[j]))
+                if math.isnan(value):
+                    value = max_variance
+                cov[i, j] = min(max(value, -max_variance), max_variance)
+    return count2
 
 
 @nb.njit(**KERNEL_JIT)
-def kernel(lo, hi, params, state, window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors,
-           log_scale, due_times, tolerance, due, pending, issued, ahead_experts, z, times, lengths, learn, keep,
-           restart, out, out_std, out_cov, cold, initial_variance, awake, w, logw, r, mix, cov):
+def kernel(lo, hi, params, state, blend_params, blend_state, window, rate, level, z_level, max_variance,
+           max_log_scale, variance, n_errors, log_scale, due_times, tolerance, due, pending, issued, candidates,
+           ahead_experts, ahead_mean, z, times, lengths, learn, keep, restart, out, out_std, out_cov, cold,
+           initial_variance, awake, w, logw, r, mix, cov, awake2, w2, logw2, r2, mix2, two):
     """:func:`run_block` with its scratch given (one GPU thread runs it with ``lo, hi = j, j + 1``)."""
     p = z.shape[2]
     slots = due.shape[1]
     want_cov = out_cov.shape[0] > 0
     for n in range(lo, hi):
         rule = target(state, n)   # (s counts the slots)
+        mixer = target(blend_state, n)
         ls = log_scale[n:n + 1]
         for t in range(lengths[n]):
             now = times[t, n]
             y = z[t, n]
             if cold[t, n]:
                 cold_row(rule, variance[n], n_errors[n], ls, initial_variance)
+                rule_cold_row(mixer)
             go = learn[t, n] and not restart[t, n]
             if go:
                 for s in range(slots):
@@ -59,6 +102,10 @@ def kernel(lo, hi, params, state, window, rate, level, z_level, max_variance, ma
                                                  n_errors[n], ls, window, rate, level, z_level, max_variance,
                                                  max_log_scale)
                             learn_row(params, rule, x, y, awake, count, w, mix, r)
+                        x2 = candidates[n, s]
+                        count2 = weigh_row(blend_params, mixer, x2, awake2, w2, logw2, mix2)
+                        if count2 > 0:
+                            learn_row(blend_params, mixer, x2, y, awake2, count2, w2, mix2, r2)
                 kept = 0
                 for s in range(slots):
                     if not due[n, s] <= now + tolerance:
@@ -66,26 +113,26 @@ def kernel(lo, hi, params, state, window, rate, level, z_level, max_variance, ma
                             due[n, kept] = due[n, s]
                             copy_matrix(pending[n, s], pending[n, kept])
                             copy_matrix(issued[n, s], issued[n, kept])
+                            copy_matrix(candidates[n, s], candidates[n, kept])
                         kept += 1
                 for s in range(kept, slots):
-                    due[n, s] = np.nan
-                    pending[n, s] = np.nan
-                    issued[n, s] = np.nan
+                    _clear(due[n], pending[n], issued[n], candidates[n], s)
             xa = ahead_experts[t, n]
             count = forecast_row(params, rule, xa, awake, w, logw, mix, variance[n], ls[0], max_variance, cov)
-            write_row(count, mix, cov, out[t, n], out_std[t, n])
+            count2 = _blend(blend_params, mixer, count, mix, cov, ahead_mean[t, n], ls[0], max_variance, awake2, w2,
+                            logw2, mix2, two)
+            write_row(count2, mix2, cov, out[t, n], out_std[t, n])
             if want_cov:
                 copy_matrix(cov, out_cov[t, n])
             if restart[t, n]:
                 for s in range(slots):
-                    due[n, s] = np.nan
-                    pending[n, s] = np.nan
-                    issued[n, s] = np.nan
+                    _clear(due[n], pending[n], issued[n], candidates[n], s)
             if keep[t, n] and not restart[t, n] and count > 0 and math.isfinite(due_times[t, n]):
                 for s in range(slots):
                     if math.isnan(due[n, s]):
                         due[n, s] = due_times[t, n]
                         copy_matrix(xa, pending[n, s])
+                        copy_matrix(two, candidates[n, s])
                         for ci in range(p):
                             issued[n, s, 0, ci] = out[t, n, ci]
                             issued[n, s, 1, ci] = out_std[t, n, ci]

@@ -466,11 +466,18 @@ def _rule_cold_row(s):
 
 
 @nb.njit(inline="always", **_JIT)
-def forecast_row(params, s, x, awake, w, logw, mix, variance, log_scale, max_variance, cov):
-    """Weights, mixture and covariance of one target's forecasts ``x (K, p)``; returns the awake count."""
+def weigh_row(params, s, x, awake, w, logw, mix):
+    """Weights and mixture of one target's forecasts ``x (K, p)``; returns the awake count."""
     count = _awake(x, awake)
     weights_row(params, s, awake, count, w, logw)
     _mix(x, w, awake, mix)
+    return count
+
+
+@nb.njit(inline="always", **_JIT)
+def forecast_row(params, s, x, awake, w, logw, mix, variance, log_scale, max_variance, cov):
+    """Weights, mixture and covariance of one target's forecasts ``x (K, p)``; returns the awake count."""
+    count = weigh_row(params, s, x, awake, w, logw, mix)
     moments_row(x, w, awake, count, mix, variance, log_scale, max_variance, cov)
     return count
 

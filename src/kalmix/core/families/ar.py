@@ -51,6 +51,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._libm import ordered_sum
+from ..constraints import Boolean, Integer, Levels, Real
 from .kinematic import restarted, step_delta   # the same clipped step in time units; the same restart
 
 __all__ = ["ARParams", "ARState", "init_state", "forecast", "update", "expert_name", "one_expert", "ITERATED_STEPS"]
@@ -74,6 +75,13 @@ class ARParams(NamedTuple):
     window: float = 50.0           # samples of the running error
     max_step: float = 1e6          # longest step, in time units
     max_velocity: float = 1e8      # velocity clip, length units per time unit
+
+    #: What the fields a caller sets may be (:mod:`kalmix.core.constraints`): ``forgetting`` and ``ridge`` per
+    #: expert; the fields with a default are a bank's ``ar_options``.
+    CONSTRAINTS = {"order": Integer(ge=1), "forgetting": Levels(Real(gt=0, le=1.0)), "ridge": Levels(Real(gt=0)),
+                   "persistence": Real(ge=0), "bias": Boolean(), "initial_error": Real(gt=0),
+                   "jump_threshold": Real(gt=0, inf_ok=True, hint="inf: no jump test"), "window": Real(ge=1),
+                   "max_step": Real(gt=0), "max_velocity": Real(gt=0)}
 
     @property
     def n_experts(self) -> int:

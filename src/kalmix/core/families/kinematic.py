@@ -43,6 +43,7 @@ import numpy as np
 
 from .._libm import ordered_matmul as _matmul
 from .._libm import ordered_sum
+from ..constraints import Levels, Real
 
 __all__ = ["KinematicParams", "KinematicState", "init_state", "forecast", "update", "transition", "process_noise",
            "RESTART_NIS", "restarted", "expert_name", "one_expert"]
@@ -58,6 +59,9 @@ class KinematicParams(NamedTuple):
     time_unit: float                # the time step unit (the typical sampling interval)
     max_step: float = 1e6           # longest step, in time units
     max_variance: float = 1e300     # position-variance cap (length^2)
+
+    #: What the fields a caller sets may be (:mod:`kalmix.core.constraints`): the noise levels, per expert.
+    CONSTRAINTS = {"process_noise": Levels(Real(gt=0)), "measurement_noise": Levels(Real(gt=0))}
 
     @property
     def n_experts(self) -> int:

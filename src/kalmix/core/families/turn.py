@@ -46,6 +46,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .._libm import atan2, cos, sin
+from ..constraints import Levels, Real
 from .ar import ordered_dot   # a sum over the last axis in the kernel's order
 from .kinematic import restarted, step_delta   # the same clipped step in time units; the same restart
 
@@ -61,6 +62,9 @@ class TurnParams(NamedTuple):
     window: float = 50.0           # samples of the running error
     max_step: float = 1e6          # longest step, in time units
     max_velocity: float = 1e8      # velocity clip, length units per time unit
+
+    #: What the fields a caller sets may be (:mod:`kalmix.core.constraints`).
+    CONSTRAINTS = {"gain": Levels(Real(ge=0))}
 
     @property
     def n_experts(self) -> int:
