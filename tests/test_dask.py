@@ -223,6 +223,16 @@ def test_python_api_on_a_dask_dataframe(cli, cluster, tmp_path):
     assert np.nanmax(np.abs(a.iloc[:, 3:].to_numpy() - b.iloc[:, 3:].to_numpy())) <= TOL
 
 
+def test_the_python_api_runs_without_the_population_prior_and_refuses_it(tmp_path):
+    """A partition does not see the other partitions' tracks: no population prior, and asking for one is an error
+    (before any work)."""
+    data = _reports(seed=2, n_tracks=4)
+    _write(_split(data, 2), str(tmp_path / "archive"), "parquet")
+    frame, columns, _ = read_archive(str(tmp_path / "archive"), track_id="vessel")
+    with pytest.raises(ValueError, match="population_prior: not with Dask"):
+        predict_dask(frame, columns, prepared=True, length_unit=0.05, n_experts=4, population_prior=True)
+
+
 def test_a_lost_worker_is_replaced_and_its_partitions_recomputed_identically(cluster, tmp_path):
     """A worker process dies (os._exit) after it computed predictions: Dask recomputes what it held."""
     data = _reports(seed=2, n_tracks=10)

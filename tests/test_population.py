@@ -222,3 +222,73 @@ def test_a_file_its_chunks_and_stdin_learn_in_the_order_the_rows_came(tmp_path):
             np.testing.assert_array_equal(a.regret, b.regret)
             np.testing.assert_array_equal(a.bound, b.bound)
         _same_states(whole, states[name])
+
+
+def _same_priors_and_states(a, b):
+    assert len(a.priors) == len(b.priors) > 0
+    for x, y in zip(a.priors, b.priors):
+        np.testing.assert_array_equal(x.regret, y.regret)
+        np.testing.assert_array_equal(x.variance, y.variance)
+        np.testing.assert_array_equal(x.bound, y.bound)
+    assert sorted(a.states) == sorted(b.states)
+    for track in a.states:
+        for (name, x), (_, y) in zip(tree_leaves(a.states[track]), tree_leaves(b.states[track])):
+            np.testing.assert_array_equal(x, y, err_msg=f"{track} {name}")
+
+
+def test_a_summary_does_not_depend_on_the_order_the_tracks_are_stored_in():
+    """A new track cut by a time gap in its first table is stored after the tracks that began with it (``A, C,
+    B``), row by row in arrival order (``A, B, C``): the summary adds the tracks up in one order all the same,
+    so its bits (and those of a track that starts from it) are the same."""
+    rng = np.random.default_rng(5)
+    rows = []
+
+    def track(name, times):
+        v, x0 = rng.normal(0, 5, 2), rng.normal(0, 1000, 2)
+        rows.extend((name, t, *(x0 + v * t + rng.normal(0, 10, 2))) for t in times)
+
+    for k in range(4):
+        track(f"p{k}", 1000.0 * np.arange(4))
+    track("A", 1000.0 * np.arange(3))
+    track("B", np.r_[1000.0 * np.arange(6), 200000.0 + 1000.0 * np.arange(3)])   # a gap: B restarts
+    track("C", 1000.0 * np.arange(4))   # its last row is the stream's 32nd: the first summary
+    track("D", 1000.0 * np.arange(5))   # starts from it
+    table = pd.DataFrame(rows, columns=["track_id", "time", "x", "y"])
+    config = StreamConfig(length_unit=27.0, time_unit=1000.0, n_experts=2)
+    whole, by_row = TrackPredictor(config), TrackPredictor(config)
+    whole.process_table(table, ["x", "y"])
+    for r in table.itertuples():
+        by_row.step_row(r.track_id, r.time, [r.x, r.y])
+    assert list(whole.states) != list(by_row.states)   # stored in another order
+    _same_priors_and_states(whole, by_row)
+
+
+def test_a_parquet_file_sorted_by_id_learns_as_its_rows_came(tmp_path):
+    """A Parquet chunk holds its tracks sorted by id, here the reverse of the order they came in: whole, one row
+    at a time and as CSV it learns the same bits."""
+    from click.testing import CliRunner
+
+    from kalmix.cli import build
+
+    rng = np.random.default_rng(3)
+    rows = []
+    for k in range(20):   # track k starts at k * 1500 s; the ids sort opposite to arrival
+        t = k * 1500.0 + np.r_[0, np.cumsum(rng.uniform(600, 3600, 9))]
+        v, x0 = rng.normal(0, 5, 2), rng.normal(0, 1000, 2)
+        rows += [(f"z{99 - k}", s, *(x0 + v * s + rng.normal(0, 10, 2))) for s in t]
+    table = pd.DataFrame(rows, columns=["track_id", "time", "x", "y"]).sort_values("time", kind="stable")
+    table.to_parquet(tmp_path / "feed.parquet", index=False)
+    table.to_csv(tmp_path / "feed.csv", index=False)
+    runner = CliRunner()
+    fixed = ["--experts", "2", "--length-unit", "27", "--time-unit", "1800"]
+    runs = {"whole": ("feed.parquet", []), "rows": ("feed.parquet", ["--chunk-rows", "1"]), "csv": ("feed.csv", [])}
+    outputs, states = {}, {}
+    for name, (source, flags) in runs.items():
+        result = runner.invoke(build(), ["predict", str(tmp_path / source), "-o", str(tmp_path / f"{name}.csv"),
+                                         *fixed, "--state", str(tmp_path / f"{name}.kalmix"), *flags])
+        assert result.exit_code == 0, result.output
+        outputs[name] = pd.read_csv(tmp_path / f"{name}.csv")
+        states[name] = TrackPredictor.load(tmp_path / f"{name}.kalmix")
+    for name in ("rows", "csv"):
+        pd.testing.assert_frame_equal(outputs[name], outputs["whole"])
+        _same_priors_and_states(states["whole"], states[name])

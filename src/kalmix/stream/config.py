@@ -64,7 +64,7 @@ class StreamConfig:
     population_prior : bool
         Whether a new track's rule starts from what the tracks before it learned
         (:mod:`kalmix.stream.population`), or empty. Files before format version 13 resume without it;
-        :func:`kalmix.dask_predict.dask_predict` runs without it.
+        :func:`kalmix.dask_predict.predict_dask` runs without it.
     options : dict
         Other arguments of :func:`kalmix.bank.make_params` (the AKF family).
     bank : str

@@ -51,6 +51,11 @@ class Prior(NamedTuple):
     tracks: int            # tracks summarised
 
 
+def _canonical(track) -> tuple:
+    """A key that orders every track id (text, numbers, dates) the same way, whatever its type."""
+    return type(track).__name__, repr(track)
+
+
 def snapshot_points(done: int, upto: int) -> list[int]:
     """The summary points ``P`` with ``done < P <= upto`` (rows of the stream, see the module)."""
     points = []
@@ -68,8 +73,8 @@ def snapshot_points(done: int, upto: int) -> list[int]:
 
 def summarise(parts) -> Prior | None:
     """The prior from ``parts``, an iterable of ``(regret (n, K), variance (n, K), bound (n, K), rows (n,))``:
-    BOA states of tracks and the rows each learned, in the order the tracks came. None when no track has
-    :data:`MIN_ROWS` rows."""
+    BOA states of tracks and the rows each learned (the sums' bits depend on the order of the tracks). None when
+    no track has :data:`MIN_ROWS` rows."""
     regret = variance = None
     bounds = []
     count = 0
@@ -154,7 +159,9 @@ class PopulationPrior:
             return
         if self.params is None or self.params.rule != "boa":
             return
-        tracks = [t for t in self.states if self.track_rows.get(t, 0) >= MIN_ROWS]
+        # in one order whatever order the tracks were stored in (a Parquet chunk sorted by id, a new track cut by a
+        # gap, a resumed state file): a floating-point sum depends on the order of its terms
+        tracks = sorted((t for t in self.states if self.track_rows.get(t, 0) >= MIN_ROWS), key=_canonical)
 
         def parts():   # a batch of tracks at a time: their rule states only are kept
             for begin in range(0, len(tracks), SUMMARY_BATCH):
