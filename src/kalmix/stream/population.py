@@ -31,7 +31,7 @@ __all__ = ["POPULATION_ROWS", "MIN_ROWS", "FIRST_SNAPSHOT", "SNAPSHOT_EVERY", "P
            "summarise", "start_rule", "PopulationPrior"]
 
 #: Pseudo-rows of the population a new track starts with (the weight of the prior, in rows of the track's own).
-POPULATION_ROWS = 30
+POPULATION_ROWS = 100
 #: A track takes part in the population once it has learned this many rows.
 MIN_ROWS = 3
 #: The first summary is made after this many rows of the stream; the next after twice as many, and so on ...
