@@ -23,7 +23,8 @@ The numbers are the same on both: the same drivers, the same operations.
 
 from __future__ import annotations
 
-from typing import Callable, Protocol
+import functools
+from typing import Callable, NamedTuple, Protocol
 
 import numpy as np
 
@@ -54,8 +55,9 @@ class Backend(Protocol):
     block_targets: int
 
     def put(self, tree):
-        """Host arrays that the call owns (fresh, C-contiguous), a (named) tuple of them, nested, or one array: as
-        the stages take them (scalars and None stay)."""
+        """Host arrays, C-contiguous (a (named) tuple of them, nested, or one array) as the stages take them; scalars
+        and None stay. (The CPU's are the very arrays: what a stage advances in place comes as fresh copies,
+        :func:`fresh` and the drivers' ``pack``.)"""
 
     def host(self, tree):
         """:meth:`put`'s inverse: numpy arrays."""
@@ -121,9 +123,64 @@ def fresh(arrays):
     return type(arrays)(*copies) if hasattr(arrays, "_fields") else tuple(copies)
 
 
-def _family_cost(family) -> float:
-    """Rough cost of a family's row (relative), to hand the costliest to a thread first."""
-    return driver(family.kind).COST * family.n_experts
+class _Packed(NamedTuple):
+    """A call's state as the stages advance it in place: fresh copies, where the backend keeps its arrays."""
+
+    families: list
+    rule: tuple
+    calibration: CalibrationState
+    screen: ScreenState
+    lead_rule: tuple | None
+    lead_calibration: CalibrationState | None
+    lead_slots: tuple | None   # the lead head's due, pending, issued
+
+
+def _pack(bank: Bank, state: BankState, drivers, put) -> _Packed:
+    families = [put(d.pack(family.params, fstate)) for d, family, fstate in zip(drivers, bank.families,
+                                                                                 state.families)]
+    head = state.lead
+    lead = (None, None, None)
+    if bank.lead is not None:
+        lead = (put(pack_rule(bank, head.rule)), put(fresh(head.calibration)),
+                put(fresh((head.due, head.pending, head.issued))))
+    return _Packed(families, put(pack_rule(bank, state.rule)), put(fresh(state.calibration)), put(fresh(state.screen)),
+                   *lead)
+
+
+def _unpack(bank: Bank, packed: _Packed, state: BankState, drivers, host) -> BankState:
+    families = [d.unpack(host(fs), fstate) for d, fs, fstate in zip(drivers, packed.families, state.families)]
+    head = None
+    if bank.lead is not None:
+        head = LeadState(unpack_rule(bank, host(packed.lead_rule)), CalibrationState(*host(packed.lead_calibration)),
+                         *host(packed.lead_slots))
+    return BankState(tuple(families), unpack_rule(bank, host(packed.rule)), ScreenState(*host(packed.screen)),
+                     CalibrationState(*host(packed.calibration)), head)
+
+
+class _Masks(NamedTuple):
+    """A block's rows, ``(rows, N)`` each, as the stages pass them on: the screen's verdicts (``accept``,
+    ``restart``, ``started``, ``cold``) and spans (``before``, ``after``: :func:`.screen.screen_block`), the rows
+    that learn (``learned``, ``go``: :func:`.masks.learning_rows`), the lead head's ``keep``. Each target's rows
+    are written before they are read."""
+
+    accept: object
+    restart: object
+    started: object
+    cold: object
+    learned: object
+    go: object
+    keep: object
+    before: object
+    after: object
+
+    @classmethod
+    def allocate(cls, backend: Backend, block: int, n: int, lead: bool) -> _Masks:
+        flag = lambda: backend.empty((block, n), np.bool_)  # noqa: E731
+        return cls(flag(), flag(), flag(), flag(), flag(), flag(), flag() if lead else None,
+                   backend.empty((block, n)), backend.empty((block, n)))
+
+    def first(self, rows: int) -> _Masks:
+        return _Masks(*(None if a is None else a[:rows] for a in self))
 
 
 def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, learn, gaps, ahead_times,
@@ -142,41 +199,36 @@ def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, 
     t_count, n, p = z.shape
     k = bank.n_experts
     lead = bank.lead
-    put = backend.put
+    put, nan, empty = backend.put, backend.nan, backend.empty
     ahead_times, ahead_frames = with_lead(bank, times, ahead_times, ahead_frames)
     with_ahead = ahead_times is not None
     horizon = ahead_frames if with_ahead else 1
-    empty4, empty3, empty2 = backend.empty((0, 0, 0, 0)), backend.empty((0, 0, 0)), backend.empty((0, 0))
+    empty4, empty3, empty2 = empty((0, 0, 0, 0)), empty((0, 0, 0)), empty((0, 0))
     z, times, learn = put(z), put(times), put(learn)
     gaps = put(np.zeros((t_count, n), dtype=bool) if gaps is None else gaps)
     if with_ahead:
         ahead_times = put(kernel_array(np.broadcast_to(np.asarray(ahead_times, dtype=np.float64), (t_count, n))))
 
-    # the state, packed as the stages advance it in place (fresh copies), and each stage's scratch
+    # the parameters, the state and each stage's scratch
     drivers = [driver(family.kind) for family in bank.families]
     constants = [put(d.constants(family.params)) for d, family in zip(drivers, bank.families)]
-    families = [put(d.pack(family.params, fstate)) for d, family, fstate in zip(drivers, bank.families,
-                                                                                 state.families)]
-    scratch = [backend.scratch(lambda d=d, family=family: d.scratch(family.params, p))
+    scratch = [backend.scratch(functools.partial(d.scratch, family.params, p))
                for d, family in zip(drivers, bank.families)]
     offsets = [cols.start for cols in bank.slices()]
-    rule, rule_params = put(pack_rule(bank, state.rule)), pack_rule_params(bank)
-    rule_scratch = backend.scratch(lambda: crules.scratch(k, p))
+    # (rough relative costs of a family's row: the costliest goes to a thread first when they run side by side)
+    costliest_first = sorted(range(len(drivers)), key=lambda i: -drivers[i].COST * bank.families[i].n_experts)
+    packed = _pack(bank, state, drivers, put)
+    rule_params = pack_rule_params(bank)
+    lead_params = pack_rule_params(bank, bank.lead_rule_params) if lead is not None else None
+    rule_scratch = backend.scratch(functools.partial(crules.scratch, k, p))
     cal_args = pack_calibration(bank.calibration_params)
     initial_variance = float(bank.calibration_params.initial_variance)
-    cal = put(fresh(state.calibration))
-    if lead is not None:
-        lead_rule, lead_params = put(pack_rule(bank, state.lead.rule)), pack_rule_params(bank, bank.lead_rule_params)
-        lead_cal = put(fresh(state.lead.calibration))
-        slots = put(fresh((state.lead.due, state.lead.pending, state.lead.issued)))
-    screen = put(fresh(state.screen))
     sp = bank.screen_params
     screen_args = (float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window))
     far = bank.far_experts()   # None: no expert ever sleeps for a long step
     far = None if far is None else put(far)
 
     # the outputs
-    nan = backend.nan
     forecasts, std = nan((t_count, n, p)), nan((t_count, n, p))
     ahead, ahead_std = (nan((t_count, n, p)), nan((t_count, n, p))) if with_ahead else (None, None)
     lead_out, lead_std = (nan((t_count, n, p)), nan((t_count, n, p))) if lead is not None else (None, None)
@@ -186,41 +238,34 @@ def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, 
     weights = nan((t_count, n, k)) if record_experts else None
     ahead_experts = nan((t_count, n, k, p)) if record_experts and with_ahead else None
 
-    # a block's masks (written by the screen and masks.learning_rows, each target's rows before they are read)
     per_row = backend.block_targets * k * p * 8 * (2 if with_ahead else 1)
     block = int(max(1, min(t_count, backend.buffer_bytes // max(per_row, 1))))
-    flag = lambda: backend.empty((block, n), np.bool_)  # noqa: E731
-    accept_, restart_, started_, cold_, learned_, go_ = flag(), flag(), flag(), flag(), flag(), flag()
-    keep_ = flag() if lead is not None else None
-    before_, after_ = backend.empty((block, n)), backend.empty((block, n))
-    costliest_first = sorted(range(len(bank.families)), key=lambda i: -_family_cost(bank.families[i]))
+    masks = _Masks.allocate(backend, block, n, lead is not None)
     with backend.timed():
         for begin in range(0, t_count, block):
             end = min(begin + block, t_count)
-            rows = end - begin
-            rows_of = slice(begin, end)
-            lens = put(np.clip(lengths - begin, 0, rows).astype(np.int64))
-            zb, tb = z[rows_of], times[rows_of]
-            accept, restart, started, cold = accept_[:rows], restart_[:rows], started_[:rows], cold_[:rows]
-            learned, go, before, after = learned_[:rows], go_[:rows], before_[:rows], after_[:rows]
-            backend.launch("screen", cscreen.screen_block, (*screen_args, *screen, zb, tb, lens, learn[rows_of],
-                                                            gaps[rows_of], accept, restart, started, cold, before,
-                                                            after))
-            backend.launch("learning rows", learning_rows, (learn[rows_of], accept, restart, cold, lens, learned, go))
+            rows = slice(begin, end)
+            lens = put(np.clip(lengths - begin, 0, end - begin).astype(np.int64))
+            zb, tb, ahead_b = z[rows], times[rows], ahead_times[rows] if with_ahead else empty2
+            m = masks.first(end - begin)
+            backend.launch("screen", cscreen.screen_block, (*screen_args, *packed.screen, zb, tb, lens, learn[rows],
+                                                            gaps[rows], m.accept, m.restart, m.started, m.cold,
+                                                            m.before, m.after))
+            backend.launch("learning rows", learning_rows, (learn[rows], m.accept, m.restart, m.cold, lens, m.learned,
+                                                            m.go))
 
             # each family writes its experts' forecasts of the block into its columns of one buffer
-            buffer = experts[rows_of] if record_experts else nan((rows, n, k, p))
+            buffer = experts[rows] if record_experts else nan((end - begin, n, k, p))
             ahead_buffer = empty4
             if with_ahead:
-                ahead_buffer = ahead_experts[rows_of] if record_experts else nan((rows, n, k, p))
-            ahead_b = ahead_times[rows_of] if with_ahead else empty2
+                ahead_buffer = ahead_experts[rows] if record_experts else nan((end - begin, n, k, p))
 
             def run_family(i):
                 d, family = drivers[i], bank.families[i]
-                backend.launch(d.NAME, d.kernel, (*constants[i], *families[i], zb, tb, lens, learned, restart, buffer,
-                                                  offsets[i], ahead_b, ahead_buffer, horizon,
-                                                  *d.work_arrays(rows, n, family.params, p, horizon > 1,
-                                                                 backend.empty)), scratch[i])
+                work = d.work_arrays(end - begin, n, family.params, p, horizon > 1, empty)
+                backend.launch(d.NAME, d.kernel, (*constants[i], *packed.families[i], zb, tb, lens, m.learned,
+                                                  m.restart, buffer, offsets[i], ahead_b, ahead_buffer, horizon,
+                                                  *work), scratch[i])
 
             backend.each_family(run_family, costliest_first)
             if observe is not None:
@@ -229,31 +274,26 @@ def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, 
             # the one-step weights see the experts within reach (the spec's within_reach); the lead head all of them
             mixed, mixed_ahead = buffer, ahead_buffer
             if far is not None:
-                mixed = backend.empty(buffer.shape)
-                backend.launch("reach", creach.kernel, (far, float(bank.reach), buffer, tb, before, lens, mixed))
+                mixed = empty(buffer.shape)
+                backend.launch("reach", creach.kernel, (far, float(bank.reach), buffer, tb, m.before, lens, mixed))
                 if with_ahead:
-                    mixed_ahead = backend.empty(ahead_buffer.shape)
-                    backend.launch("reach", creach.kernel, (far, float(bank.reach), ahead_buffer, ahead_b, after, lens,
-                                                            mixed_ahead))
+                    mixed_ahead = empty(ahead_buffer.shape)
+                    backend.launch("reach", creach.kernel, (far, float(bank.reach), ahead_buffer, ahead_b, m.after,
+                                                            lens, mixed_ahead))
             backend.launch("rules", crules.kernel, (
-                rule_params, rule, *cal_args, *cal, mixed, zb, lens, go, forecasts[rows_of], std[rows_of],
-                covariance[rows_of] if record_covariance else empty4, weights[rows_of] if record_experts else empty3,
-                mixed_ahead, ahead[rows_of] if with_ahead else empty3, ahead_std[rows_of] if with_ahead else empty3,
-                cold, restart, initial_variance), rule_scratch)
+                rule_params, packed.rule, *cal_args, *packed.calibration, mixed, zb, lens, m.go, forecasts[rows],
+                std[rows], covariance[rows] if record_covariance else empty4,
+                weights[rows] if record_experts else empty3, mixed_ahead, ahead[rows] if with_ahead else empty3,
+                ahead_std[rows] if with_ahead else empty3, m.cold, m.restart, initial_variance), rule_scratch)
             if lead is not None:
-                backend.launch("keep", both, (learned, started, lens, keep_[:rows]))
+                backend.launch("keep", both, (m.learned, m.started, lens, m.keep))
                 backend.launch("lead", clead.kernel, (
-                    lead_params, lead_rule, *cal_args, *lead_cal, ahead_b, float(lead.tolerance), *slots, ahead_buffer,
-                    zb, tb, lens, go, keep_[:rows], restart, lead_out[rows_of], lead_std[rows_of],
-                    lead_covariance[rows_of] if record_covariance else empty4, cold, initial_variance), rule_scratch)
+                    lead_params, packed.lead_rule, *cal_args, *packed.lead_calibration, ahead_b, float(lead.tolerance),
+                    *packed.lead_slots, ahead_buffer, zb, tb, lens, m.go, m.keep, m.restart, lead_out[rows],
+                    lead_std[rows], lead_covariance[rows] if record_covariance else empty4, m.cold, initial_variance),
+                    rule_scratch)
 
     host = backend.host
-    families = [d.unpack(host(packed), fstate) for d, packed, fstate in zip(drivers, families, state.families)]
-    head = None
-    if lead is not None:
-        head = LeadState(unpack_rule(bank, host(lead_rule)), CalibrationState(*host(lead_cal)), *host(slots))
-    final = BankState(tuple(families), unpack_rule(bank, host(rule)), ScreenState(*host(screen)),
-                      CalibrationState(*host(cal)), head)
-    return EngineResult(host(forecasts), final, host(ahead), host(experts), host(weights), host(ahead_experts),
-                        host(std), host(ahead_std), host(lead_out), host(lead_std), host(covariance),
-                        host(lead_covariance))
+    return EngineResult(host(forecasts), _unpack(bank, packed, state, drivers, host), host(ahead), host(experts),
+                        host(weights), host(ahead_experts), host(std), host(ahead_std), host(lead_out),
+                        host(lead_std), host(covariance), host(lead_covariance))

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..engine import (Bank, BankState, EngineResult, check_restart, check_run_arguments, check_run_options,
                       init_bank_state, tree_map)
-from ._threads import families_in_parallel, group_size, over_groups, over_targets
+from ._threads import families_in_parallel, group_size, over_groups, over_targets, splits
 from ._notice import watch as watch_compiles
 from ._warm import compile_ahead
 from .block import kernel_array, pack_rule, pack_rule_params, run_rows, unpack_rule, with_lead
@@ -63,6 +63,7 @@ class CpuBackend:
         self.n = n
         self.buffer_bytes = BUFFER_BYTES
         self.block_targets = n if block_targets is None else block_targets
+        self.split = splits(n)   # else every stage runs in this thread (a stream, a group of targets)
         self.side_by_side = families_in_parallel(n) and t_count * n >= SIDE_BY_SIDE_MIN_ROWS
 
     @staticmethod
@@ -87,9 +88,14 @@ class CpuBackend:
 
     def launch(self, name, kernel, args, scratch=None):
         if scratch is None:
-            over_targets(kernel, self.n, *args)
-        else:
+            if self.split:
+                over_targets(kernel, self.n, *args)
+            else:
+                kernel(0, self.n, *args)
+        elif self.split:
             over_targets(_with_scratch, self.n, kernel, scratch, *args)
+        else:
+            kernel(0, self.n, *args, *scratch())
 
     def each_family(self, run, order):
         # families are independent and write their own columns of the buffers: side by side, the costliest first

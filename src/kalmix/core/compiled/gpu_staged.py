@@ -30,7 +30,7 @@ try:  # numba-cuda is optional (the 'gpu' extra)
 except ImportError:  # pragma: no cover - depends on the install
     cuda = None
 
-__all__ = ["run", "THREADS_PER_BLOCK", "BUFFER_BYTES", "CHUNK_BYTES"]
+__all__ = ["run", "GpuBackend", "THREADS_PER_BLOCK", "BUFFER_BYTES", "CHUNK_BYTES"]
 
 _GUARD_ROWS = MAX_GPU_STATE + 1   # the AKF guard's scratch rows (the largest AKF state on the GPU, and one)
 
@@ -214,11 +214,11 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
 
 
 def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames, gaps, clock, stages) -> EngineResult:
-    return run_rows(bank, _Device(z.shape[1], clock, stages), z, times, state, lengths, learn, gaps, ahead_times,
+    return run_rows(bank, GpuBackend(z.shape[1], clock, stages), z, times, state, lengths, learn, gaps, ahead_times,
                     ahead_frames)
 
 
-class _Device:
+class GpuBackend:
     """The block driver's backend on the GPU (:class:`.block.Backend`): device arrays; a stage one kernel launch,
     thread ``j`` running the driver on target ``j`` with its own scratch. ``clock["kernel"]`` adds the seconds of
     the block loop; ``stages``, if given, each stage's (the launches then wait for each other)."""
