@@ -74,8 +74,9 @@ class Backend(Protocol):
     def launch(self, name: str, kernel, args: tuple, scratch=None) -> None:
         """``kernel(lo, hi, *args, *scratch)`` over every target (``scratch`` from :meth:`scratch`, or none)."""
 
-    def each_family(self, run: Callable[[int], None], order: list) -> None:
-        """``run(i)`` for each family index of ``order`` (the costliest first), in turn or side by side."""
+    def each_family(self, run: Callable[[int], None], costs: list) -> None:
+        """``run(i)`` for each family ``i`` (``costs[i]``: the rough relative cost of its row), in turn in the bank's
+        order or side by side."""
 
     def timed(self):
         """A context manager around the block loop (the GPU's kernel clock)."""
@@ -215,8 +216,7 @@ def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, 
     scratch = [backend.scratch(functools.partial(d.scratch, family.params, p))
                for d, family in zip(drivers, bank.families)]
     offsets = [cols.start for cols in bank.slices()]
-    # (rough relative costs of a family's row: the costliest goes to a thread first when they run side by side)
-    costliest_first = sorted(range(len(drivers)), key=lambda i: -drivers[i].COST * bank.families[i].n_experts)
+    costs = [d.COST * family.n_experts for d, family in zip(drivers, bank.families)]
     packed = _pack(bank, state, drivers, put)
     rule_params = pack_rule_params(bank)
     lead_params = pack_rule_params(bank, bank.lead_rule_params) if lead is not None else None
@@ -267,7 +267,7 @@ def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, 
                                                   m.restart, buffer, offsets[i], ahead_b, ahead_buffer, horizon,
                                                   *work), scratch[i])
 
-            backend.each_family(run_family, costliest_first)
+            backend.each_family(run_family, costs)
             if observe is not None:
                 observe(begin, end, buffer, ahead_buffer if with_ahead else None)
 

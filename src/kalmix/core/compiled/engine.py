@@ -97,12 +97,12 @@ class CpuBackend:
         else:
             kernel(0, self.n, *args, *scratch())
 
-    def each_family(self, run, order):
+    def each_family(self, run, costs):
         # families are independent and write their own columns of the buffers: side by side, the costliest first
         if self.side_by_side:
-            over_groups(run, order)
+            over_groups(run, sorted(range(len(costs)), key=lambda i: -costs[i]))
         else:
-            for i in order:
+            for i in range(len(costs)):
                 run(i)
 
     @staticmethod

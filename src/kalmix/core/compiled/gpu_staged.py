@@ -253,8 +253,8 @@ class GpuBackend:
         _launch(kernel, self.n, args, () if scratch is None else scratch, self.stages, name)
 
     @staticmethod
-    def each_family(run, order):
-        for i in order:
+    def each_family(run, costs):
+        for i in range(len(costs)):
             run(i)
 
     @contextlib.contextmanager
