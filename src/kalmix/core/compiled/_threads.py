@@ -16,7 +16,7 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["over_targets", "over_groups", "families_in_parallel", "group_size", "MIN_CHUNK"]
+__all__ = ["over_targets", "splits", "over_groups", "families_in_parallel", "group_size", "MIN_CHUNK"]
 
 #: Fewest targets a thread is given: below twice this, the kernel runs in the calling thread.
 MIN_CHUNK = 16
@@ -42,12 +42,18 @@ def _executor() -> ThreadPoolExecutor:
         return _pool
 
 
+def splits(n_targets: int) -> bool:
+    """Whether :func:`over_targets` spreads ``n_targets`` over threads here (else it runs the kernel in the
+    calling thread, as one range)."""
+    return n_targets >= 2 * MIN_CHUNK and not getattr(_local, "inline", False) and _threads() > 1
+
+
 def over_targets(kernel, n_targets: int, *args) -> None:
     """``kernel(lo, hi, *args)`` over ``[0, n_targets)`` in contiguous ranges, on up to numba's thread count."""
-    threads = _threads()
-    if threads == 1 or n_targets < 2 * MIN_CHUNK or getattr(_local, "inline", False):
+    if not splits(n_targets):
         kernel(0, n_targets, *args)
         return
+    threads = _threads()
     # a few ranges per thread, taken in turn, so that targets of unequal lengths still share the work; as many
     # for each thread (7 ranges on 2 threads would leave one thread 4/7 of the work), each of at least
     # MIN_CHUNK targets

@@ -1,34 +1,28 @@
-"""The compiled loop over time of a bank: :func:`kalmix.core.engine.run` with the same numbers, fast.
+"""The compiled engine on the CPU: :func:`kalmix.core.engine.run` with the same numbers, fast.
 
-Families do not depend on the rule's output, so a block of rows is run family by
-family (each writes its experts' forecasts into one ``(B, N, K, p)`` buffer), then the
-rule runs over the block. Blocks are sized so the buffer stays under
-:data:`BUFFER_BYTES`; the state carries over between blocks exactly, so the result does
-not depend on the block size.
+The block driver (:func:`.block.run_rows`) runs the bank's stages a block of rows at a time; this
+module's backend keeps the arrays in numpy and runs each stage over ranges of targets on threads
+(:mod:`._threads`). Blocks are sized so the experts' forecasts of a block stay under
+:data:`BUFFER_BYTES`; more targets than :data:`TARGET_GROUP` run in groups, each through all its
+rows. The result does not depend on the block size nor on the groups.
 """
 
 from __future__ import annotations
 
+import contextlib
 import threading
 
 import numpy as np
 
-from ..calibration import CalibrationState
 from ..engine import (Bank, BankState, EngineResult, check_restart, check_run_arguments, check_run_options,
                       init_bank_state, tree_map)
-from ..lead import LeadState
-from ..screen import ScreenState
-from . import lead as clead
-from . import reach as creach
-from . import rules as crules
-from .calibration import pack_params as pack_calibration
-from . import screen as cscreen
-from ._threads import families_in_parallel, group_size, over_groups, over_targets
+from ._threads import families_in_parallel, group_size, over_groups, over_targets, splits
 from ._notice import watch as watch_compiles
 from ._warm import compile_ahead
-from .drivers import driver
+from .block import kernel_array, pack_rule, pack_rule_params, run_rows, unpack_rule, with_lead
 
-__all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule", "pack_rule_params"]
+__all__ = ["run", "BUFFER_BYTES", "pack_rule", "unpack_rule", "pack_rule_params", "with_lead", "prepare",
+           "CpuBackend"]
 
 #: Upper bound of the per-block expert buffer(s): large enough that the per-block Python work is small beside
 #: the kernels' (below a few MiB it is not), small enough to stay a modest share of memory.
@@ -45,64 +39,80 @@ TARGET_GROUP = 256
 SIDE_BY_SIDE_MIN_ROWS = 16
 
 
-def pack_rule(bank: Bank, state):
-    """The rule's state as its kernels take it (its class in :data:`.rules.COMPILED_RULES`, the spec's fields):
-    fresh C-contiguous float copies, advanced in place."""
-    kind = crules.COMPILED_RULES[bank.rule].state
-    return kind(**{name: np.array(getattr(state, name), dtype=np.float64, copy=True, order="C")
-                   for name in kind._fields})
-
-
-def unpack_rule(bank: Bank, packed):
-    """The state :func:`pack_rule` packed, as the rule's spec state."""
-    return bank.rule_module.State(**packed._asdict())
-
-
-def pack_rule_params(bank: Bank, params=None):
-    """The rule's parameters as its kernels take them (its class in :data:`.rules.COMPILED_RULES`) of ``params``,
-    by default the bank's one-step rule's."""
-    params = bank.rule_params if params is None else params
-    kind = crules.COMPILED_RULES[bank.rule].params
-    return kind(**{name: float(getattr(params, name)) for name in kind._fields})
-
-
-def with_lead(bank: Bank, times, ahead_times, ahead_frames):
-    """The ahead times and frames a run computes: the lead head's (by default at ``times`` + its lead) when the
-    bank has one, else those asked for."""
-    lead = bank.lead
-    if lead is None:
-        return ahead_times, ahead_frames
-    return (times + lead.time if ahead_times is None else ahead_times), lead.frames
-
-
 def prepare(bank: Bank, measurements, times, state, lengths, learn):
     """Contiguous float inputs, a fresh state if none, lengths, and the rows to learn (present ones only)."""
     z, times, lengths = check_run_arguments(bank, measurements, times, state, lengths)
     learn, _, _ = check_run_options(z.shape[:2], learn, None, 1)
-    z = _kernel_array(z)
+    z = kernel_array(z)
     t_count, n, _ = z.shape
-    times = _kernel_array(times)
+    times = kernel_array(times)
     state = init_bank_state(bank, n) if state is None else state
     lengths = (np.full(n, t_count, dtype=np.int64) if lengths is None
-               else _kernel_array(np.asarray(lengths, dtype=np.int64)))
+               else kernel_array(np.asarray(lengths, dtype=np.int64)))
     present = np.isfinite(z).all(axis=-1) & (np.arange(t_count)[:, None] < lengths[None, :])
     learn = present if learn is None else (np.asarray(learn, dtype=bool) & present)
     return z, times, state, lengths, learn
 
 
-def _kernel_array(a):
-    """``a`` C-contiguous and writable (copied if not): a read-only array (a broadcast time column) is another
-    type for numba, and would compile every kernel it reaches a second time."""
-    return np.require(a, requirements=["C", "W"])
+class CpuBackend:
+    """The block driver's backend on the CPU (:class:`.block.Backend`): numpy arrays; a stage over ranges of
+    targets on threads, its scratch allocated a range at a time; with too few targets to split (one stream),
+    the families side by side on the threads instead."""
+
+    def __init__(self, n: int, t_count: int, block_targets: int | None = None):
+        self.n = n
+        self.buffer_bytes = BUFFER_BYTES
+        self.block_targets = n if block_targets is None else block_targets
+        self.split = splits(n)   # else every stage runs in this thread (a stream, a group of targets)
+        self.side_by_side = families_in_parallel(n) and t_count * n >= SIDE_BY_SIDE_MIN_ROWS
+
+    @staticmethod
+    def put(tree):
+        return tree
+
+    @staticmethod
+    def host(tree):
+        return tree
+
+    @staticmethod
+    def nan(shape):
+        return np.full(shape, np.nan)
+
+    @staticmethod
+    def empty(shape, dtype=np.float64):
+        return np.empty(shape, dtype=dtype)
+
+    @staticmethod
+    def scratch(make):
+        return make
+
+    def launch(self, name, kernel, args, scratch=None):
+        if scratch is None:
+            if self.split:
+                over_targets(kernel, self.n, *args)
+            else:
+                kernel(0, self.n, *args)
+        elif self.split:
+            over_targets(_with_scratch, self.n, kernel, scratch, *args)
+        else:
+            kernel(0, self.n, *args, *scratch())
+
+    def each_family(self, run, costs):
+        # families are independent and write their own columns of the buffers: side by side, the costliest first
+        if self.side_by_side:
+            over_groups(run, sorted(range(len(costs)), key=lambda i: -costs[i]))
+        else:
+            for i in range(len(costs)):
+                run(i)
+
+    @staticmethod
+    def timed():
+        return contextlib.nullcontext()
 
 
-def _family_cost(family) -> float:
-    """Rough cost of a family's row (relative), to hand the costliest to a thread first."""
-    return driver(family.kind).COST * family.n_experts
-
-
-def _copy(state):
-    return type(state)(*(np.array(x, dtype=np.float64, copy=True, order="C") for x in state))
+def _with_scratch(lo, hi, kernel, make, *args):
+    """``kernel`` over targets ``lo .. hi - 1`` with a scratch of its own (``make()``)."""
+    kernel(lo, hi, *args, *make())
 
 
 def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
@@ -120,135 +130,23 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     _, ahead_times, ahead_frames = check_run_options(z.shape[:2], None, ahead_times, ahead_frames)
     watch_compiles()   # a fresh install: say so on stderr while the kernels compile (._notice)
     compile_ahead(bank, run)   # a fresh install: the AKF kernel compiles in a second process meanwhile
-    t_count, n, p = z.shape
+    t_count, n, _ = z.shape
     size = group_size(n, TARGET_GROUP)
     if size is not None:
         return _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames, record_experts, score,
                            score_ahead, record_covariance, restart, size)
     gaps = check_restart(restart, (t_count, n))
-    if gaps is None:
-        gaps = np.zeros((t_count, n), dtype=bool)
-    k = bank.n_experts
-    lead = bank.lead
-    ahead_times, ahead_frames = with_lead(bank, times, ahead_times, ahead_frames)
-    with_ahead = ahead_times is not None
-    if with_ahead:
-        ahead_times = _kernel_array(np.broadcast_to(np.asarray(ahead_times, dtype=np.float64), (t_count, n)))
-
-    drivers = [driver(family.kind) for family in bank.families]
-    constants = [d.constants(family.params) for d, family in zip(drivers, bank.families)]
-    families = [d.pack(family.params, fstate) for d, family, fstate in zip(drivers, bank.families, state.families)]
-    horizon = ahead_frames if with_ahead else 1
-    rule = pack_rule(bank, state.rule)
-    rule_params = pack_rule_params(bank)
-    cal_args = pack_calibration(bank.calibration_params)
-    initial_variance = float(bank.calibration_params.initial_variance)
-    cal = _copy(state.calibration)
-    if lead is not None:
-        lead_rule = pack_rule(bank, state.lead.rule)
-        lead_params = pack_rule_params(bank, bank.lead_rule_params)
-        lead_cal = _copy(state.lead.calibration)
-        due = np.array(state.lead.due, dtype=np.float64, copy=True, order="C")
-        pending = np.array(state.lead.pending, dtype=np.float64, copy=True, order="C")
-        issued = np.array(state.lead.issued, dtype=np.float64, copy=True, order="C")
-        candidates = np.array(state.lead.candidates, dtype=np.float64, copy=True, order="C")
-        blend = pack_rule(bank, state.lead.blend)
-        blend_params = pack_rule_params(bank, bank.blend_rule_params)
-    scr = ScreenState(*(np.array(x, dtype=np.float64, copy=True, order="C") for x in state.screen))
-    sp = bank.screen_params
-    screen_args = (float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window))
-
-    nan = lambda *shape: np.full(shape, np.nan)  # noqa: E731
-    forecasts, std = nan(t_count, n, p), nan(t_count, n, p)
-    ahead, ahead_std = (nan(t_count, n, p), nan(t_count, n, p)) if with_ahead else (None, None)
-    lead_out, lead_std = (nan(t_count, n, p), nan(t_count, n, p)) if lead is not None else (None, None)
-    covariance = nan(t_count, n, p, p) if record_covariance else None
-    lead_covariance = nan(t_count, n, p, p) if record_covariance and lead is not None else None
-    experts_out = weights_out = ahead_experts_out = None
-    if record_experts:
-        experts_out = nan(t_count, n, k, p)
-        weights_out = nan(t_count, n, k)
-        ahead_experts_out = nan(t_count, n, k, p) if with_ahead else None
-    sums = [np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k))] if score is not None else None
-
-    offsets = [cols.start for cols in bank.slices()]
-    far = bank.far_experts()   # None: no expert ever sleeps for a long step
-    costliest_first = sorted(range(len(bank.families)), key=lambda i: -_family_cost(bank.families[i]))
-    side_by_side = families_in_parallel(n) and t_count * n >= SIDE_BY_SIDE_MIN_ROWS
-    per_row = (n if _block_targets is None else _block_targets) * k * p * 8 * (2 if with_ahead else 1)
-    block = int(max(1, min(t_count, BUFFER_BYTES // max(per_row, 1))))
-    empty4, empty3, empty2 = np.empty((0, 0, 0, 0)), np.empty((0, 0, 0)), np.empty((0, 0))
-    for begin in range(0, t_count, block):
-        end = min(begin + block, t_count)
-        rows = end - begin
-        lens = np.clip(lengths - begin, 0, rows).astype(np.int64)
-        zb, tb = z[begin:end], times[begin:end]
-        accept = np.zeros((rows, n), dtype=bool)
-        restart = np.zeros((rows, n), dtype=bool)
-        started = np.zeros((rows, n), dtype=bool)
-        cold = np.zeros((rows, n), dtype=bool)
-        before, after = np.full((rows, n), np.nan), np.full((rows, n), np.nan)
-        over_targets(cscreen.screen_block, n, *screen_args, *scr, zb, tb, lens, learn[begin:end], gaps[begin:end],
-                     accept, restart, started, cold, before, after)
-        lb = learn[begin:end] & accept
-        buffer = np.full((rows, n, k, p), np.nan)
-        ahead_buffer = np.full((rows, n, k, p), np.nan) if with_ahead else None
-        ahead_b = ahead_times[begin:end] if with_ahead else empty2
-
-        def run_family(i):
-            d, family = drivers[i], bank.families[i]
-            over_targets(d.run_block, n, *constants[i], *families[i], zb, tb, lens, lb, restart, buffer, offsets[i],
-                         ahead_b, ahead_buffer if with_ahead else empty4, horizon,
-                         *d.work_arrays(rows, n, family.params, p, horizon > 1))
-
-        # Families are independent and write their own columns of the buffers: with too few targets to split
-        # (one stream), they run side by side on the threads instead, the costliest first.
-        if side_by_side:
-            over_groups(run_family, costliest_first)
-        else:
-            for i in range(len(bank.families)):
-                run_family(i)
-        if record_experts:
-            experts_out[begin:end] = buffer
-            if with_ahead:
-                ahead_experts_out[begin:end] = ahead_buffer
-        if sums is not None:
-            _accumulate(sums[0], sums[1], buffer, zb, score[begin:end])
-            if with_ahead and score_ahead is not None:
-                _accumulate_ahead(sums[2], sums[3], ahead_buffer, z, begin, end, ahead_frames, score_ahead)
-        # the one-step weights see the experts within reach (the spec's within_reach); the lead head all of them
-        mixed, mixed_ahead = buffer, ahead_buffer
-        if far is not None:
-            mixed = np.empty_like(buffer)
-            over_targets(creach.kernel, n, far, float(bank.reach), buffer, tb, before, lens, mixed)
-            if with_ahead:
-                mixed_ahead = np.empty_like(ahead_buffer)
-                over_targets(creach.kernel, n, far, float(bank.reach), ahead_buffer, ahead_b, after, lens,
-                             mixed_ahead)
-        w_block = np.full((rows, n, k), np.nan) if record_experts else empty3
-        go = lb & ~restart & ~cold
-        over_targets(crules.run_block, n, rule_params, rule, *cal_args, *cal, mixed, zb, lens, go,
-                     forecasts[begin:end], std[begin:end], covariance[begin:end] if record_covariance else empty4,
-                     w_block, mixed_ahead if with_ahead else empty4, ahead[begin:end] if with_ahead else empty3,
-                     ahead_std[begin:end] if with_ahead else empty3, cold, restart, initial_variance)
-        if lead is not None:
-            over_targets(clead.run_block, n, lead_params, lead_rule, blend_params, blend, *cal_args, *lead_cal,
-                         ahead_b, float(lead.tolerance), due, pending, issued, candidates, ahead_buffer,
-                         ahead[begin:end], zb, tb, lens, go, lb & started, restart, lead_out[begin:end],
-                         lead_std[begin:end], lead_covariance[begin:end] if record_covariance else empty4, cold,
-                         initial_variance)
-        if record_experts:
-            weights_out[begin:end] = w_block
-    families = [d.unpack(packed, fstate) for d, packed, fstate in zip(drivers, families, state.families)]
-    head = None
-    if lead is not None:
-        head = LeadState(unpack_rule(bank, lead_rule), CalibrationState(*lead_cal), due, pending, issued,
-                         unpack_rule(bank, blend), candidates)
-    final = BankState(tuple(families), unpack_rule(bank, rule), scr, CalibrationState(*cal), head)
-    if sums is not None:
-        experts_out, weights_out, ahead_experts_out = sums[0], sums[1], sums[2] if with_ahead else None
-    return EngineResult(forecasts, final, ahead, experts_out, weights_out, ahead_experts_out, std, ahead_std,
-                        lead_out, lead_std, covariance, lead_covariance)
+    scores = None
+    if score is not None:
+        frames = with_lead(bank, times, ahead_times, ahead_frames)[1]
+        scores = _Scores(bank.n_experts, z, score, score_ahead, frames)
+    result = run_rows(bank, CpuBackend(n, t_count, _block_targets), z, times, state, lengths, learn, gaps,
+                      ahead_times, ahead_frames, record_experts=record_experts, record_covariance=record_covariance,
+                      observe=None if scores is None else scores.add)
+    if scores is None:
+        return result
+    ahead_sums = scores.sums[2] if result.ahead is not None else None
+    return result._replace(experts=scores.sums[0], weights=scores.sums[1], expert_ahead=ahead_sums)
 
 
 def _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames, record_experts, score, score_ahead,
@@ -293,6 +191,22 @@ def _run_groups(bank, z, times, state, lengths, learn, ahead_times, ahead_frames
 
     over_groups(group, [slice(begin, min(begin + size, n)) for begin in range(0, n, size)])
     return EngineResult(**fields)
+
+
+class _Scores:
+    """Per target and expert, the sums of squared errors of the scored rows and their counts (``sums``: of the
+    one-step forecasts, then of the ahead ones), added block by block (:func:`.block.run_rows`'s ``observe``)."""
+
+    def __init__(self, k, z, score, score_ahead, frames):
+        n = z.shape[1]
+        self.sums = [np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k)), np.zeros((n, k))]
+        self.z, self.score, self.score_ahead, self.frames = z, score, score_ahead, frames
+
+    def add(self, begin, end, experts, ahead_experts):
+        sums = self.sums
+        _accumulate(sums[0], sums[1], experts, self.z[begin:end], self.score[begin:end])
+        if ahead_experts is not None and self.score_ahead is not None:
+            _accumulate_ahead(sums[2], sums[3], ahead_experts, self.z, begin, end, self.frames, self.score_ahead)
 
 
 def _accumulate(total, count, buffer, z, score):

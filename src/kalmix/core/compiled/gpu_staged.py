@@ -1,43 +1,36 @@
-"""GPU engine for every bank (numba-cuda, fp64): the CPU engine's stages, one GPU thread per target.
+"""GPU engine for every bank (numba-cuda, fp64): the block driver's stages, one GPU thread per target.
 
-The CPU engine (:mod:`.engine`) runs a block of rows stage by stage (glitch screen, each
-family's experts, the rule, the lead head), each stage a driver ``kernel(lo, hi, ...)``
-over a range of targets. Here each stage is one kernel launch whose thread ``j`` calls the
-**same driver** with ``lo, hi = j, j + 1`` and its own slice of the scratch, so the numbers
-are the CPU engine's and there is no third copy of the algorithms. The state stays on the
-device from block to block; the work arrays (the experts' forecasts of a block) never leave it.
-
-The glue between stages (which rows learn, the experts asleep across a long step) is done
-by small kernels below. Targets beyond what fits in the device's memory run in chunks.
+The block driver (:func:`.block.run_rows`) runs a block of rows stage by stage (glitch screen,
+each family's experts, the rule, the lead head), each stage a compiled driver
+``kernel(lo, hi, ...)`` over a range of targets. This module's backend makes each stage one
+kernel launch whose thread ``j`` calls the **same driver** with ``lo, hi = j, j + 1`` and its
+own slice of the scratch, so the numbers are the CPU engine's and there is no third copy of the
+algorithms. The state stays on the device from block to block; the work arrays (the experts'
+forecasts of a block) never leave it. Targets beyond what fits in the device's memory run in chunks.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import time
 
 import numba as nb
 import numpy as np
 
-from ..calibration import CalibrationState
 from ..engine import Bank, BankState, EngineResult, check_restart, check_run_options, tree_map
-from ..lead import LeadState
-from ..screen import ScreenState
-from . import lead as clead
-from . import reach as creach
-from . import rules as crules
-from . import screen as cscreen
 from ._cache import JIT as _JIT
 from .akf_driver import MAX_GPU_STATE
-from .calibration import pack_params as pack_calibration
+from .block import run_rows
 from .drivers import driver
-from .engine import pack_rule, pack_rule_params, prepare, unpack_rule, with_lead
+from .engine import prepare
 
 try:  # numba-cuda is optional (the 'gpu' extra)
     from numba import boolean, cuda, float64
 except ImportError:  # pragma: no cover - depends on the install
     cuda = None
 
-__all__ = ["run", "THREADS_PER_BLOCK", "BUFFER_BYTES", "CHUNK_BYTES"]
+__all__ = ["run", "GpuBackend", "THREADS_PER_BLOCK", "BUFFER_BYTES", "CHUNK_BYTES"]
 
 _GUARD_ROWS = MAX_GPU_STATE + 1   # the AKF guard's scratch rows (the largest AKF state on the GPU, and one)
 
@@ -89,8 +82,6 @@ def _synchronize(name, start, stages):
     """With ``stages``: wait for the kernel just launched and add its seconds under ``name``."""
     if stages is None:
         return
-    import time
-
     try:
         cuda.synchronize()
     except Exception as error:   # an error on the device shows at the next synchronisation: name the kernel
@@ -99,33 +90,13 @@ def _synchronize(name, start, stages):
 
 
 def _launch(driver, n: int, args, scratch=(), stages=None, name=None):
-    import time
-
     start = time.perf_counter()
     kernel = _launcher(driver, len(args), len(scratch))
     kernel[max(1, math.ceil(n / THREADS_PER_BLOCK)), THREADS_PER_BLOCK](n, *args, *scratch)
     _synchronize(name or driver.__name__, start, stages)
 
 
-# ---------------------------------------------------------------- the glue between stages, drivers like the others
-@nb.njit(**_JIT)
-def _glue(lo, hi, learn, accept, restart, cold, lengths, learned, go):
-    """The rows the experts learn (``learned``) and the rules learn (``go``): the CPU engine's ``learn & accept``
-    and ``learned & ~restart & ~cold``."""
-    for j in range(lo, hi):
-        for t in range(lengths[j]):
-            learned[t, j] = learn[t, j] and accept[t, j]
-            go[t, j] = learned[t, j] and not restart[t, j] and not cold[t, j]
-
-
-@nb.njit(**_JIT)
-def _both(lo, hi, a, b, lengths, out):
-    """``out = a & b`` on the targets' rows."""
-    for j in range(lo, hi):
-        for t in range(lengths[j]):
-            out[t, j] = a[t, j] and b[t, j]
-
-
+# ---------------------------------------------------------------- device arrays, filled by drivers like the others
 @nb.njit(**_JIT)
 def _fill(lo, hi, value, array):
     """``array[:, j] = value`` (a C-contiguous ``(T, N, ...)`` array)."""
@@ -214,8 +185,6 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
     that fit :data:`CHUNK_BYTES`. ``timings``, if given, receives the seconds of the kernels alone
     (``"kernel"``) and of the whole call (``"total"``); ``stages`` the seconds of each kernel, by name
     (the launches then wait for each other, which costs a little)."""
-    import time
-
     start = time.perf_counter()
     z, times, state, lengths, learn = prepare(bank, measurements, times, state, lengths, learn)
     _, ahead_times, ahead_frames = check_run_options(z.shape[:2], None, ahead_times, ahead_frames)
@@ -245,110 +214,53 @@ def run(bank: Bank, measurements, times, state: BankState | None = None, *, leng
 
 
 def _run_chunk(bank, z, times, state, lengths, learn, ahead_times, ahead_frames, gaps, clock, stages) -> EngineResult:
-    import time
+    return run_rows(bank, GpuBackend(z.shape[1], clock, stages), z, times, state, lengths, learn, gaps, ahead_times,
+                    ahead_frames)
 
-    t_count, n, p = z.shape
-    k = bank.n_experts
-    lead = bank.lead
-    ahead_times, ahead_frames = with_lead(bank, times, ahead_times, ahead_frames)
-    with_ahead = ahead_times is not None
-    horizon = ahead_frames if with_ahead else 1
-    if gaps is None:
-        gaps = np.zeros((t_count, n), dtype=bool)
-    d_z, d_times = cuda.to_device(z), cuda.to_device(np.ascontiguousarray(times))
-    d_learn, d_gaps = cuda.to_device(np.ascontiguousarray(learn)), cuda.to_device(np.ascontiguousarray(gaps))
-    d_ahead_times = cuda.to_device(np.ascontiguousarray(ahead_times)) if with_ahead else cuda.device_array((0, 0))
 
-    drivers = [driver(family.kind) for family in bank.families]
-    constants = [_dev(d.constants(family.params)) for d, family in zip(drivers, bank.families)]
-    families = [_dev(d.pack(family.params, fstate)) for d, family, fstate in zip(drivers, bank.families,
-                                                                                  state.families)]
-    scratch = [_per_target(d.scratch(family.params, p), n) for d, family in zip(drivers, bank.families)]
-    rule = _dev(pack_rule(bank, state.rule))
-    rule_params = pack_rule_params(bank)
-    rule_scratch = _per_target(crules.scratch(k, p), n)
-    cal_args = pack_calibration(bank.calibration_params)
-    initial_variance = float(bank.calibration_params.initial_variance)
-    cal = _dev(state.calibration)
-    if lead is not None:
-        lead_rule = _dev(pack_rule(bank, state.lead.rule))
-        lead_params = pack_rule_params(bank, bank.lead_rule_params)
-        lead_cal = _dev(state.lead.calibration)
-        slots = _dev((state.lead.due, state.lead.pending, state.lead.issued, state.lead.candidates))
-        blend = _dev(pack_rule(bank, state.lead.blend))
-        blend_params = pack_rule_params(bank, bank.blend_rule_params)
-        blend_scratch = _per_target(clead.blend_scratch(p), n)
-    scr = _dev(state.screen)
-    sp = bank.screen_params
-    screen_args = (float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window))
+class GpuBackend:
+    """The block driver's backend on the GPU (:class:`.block.Backend`): device arrays; a stage one kernel launch,
+    thread ``j`` running the driver on target ``j`` with its own scratch. ``clock["kernel"]`` adds the seconds of
+    the block loop; ``stages``, if given, each stage's (the launches then wait for each other)."""
 
-    forecasts, std = _nan((t_count, n, p), n), _nan((t_count, n, p), n)
-    ahead, ahead_std = (_nan((t_count, n, p), n), _nan((t_count, n, p), n)) if with_ahead else (None, None)
-    lead_out, lead_std = (_nan((t_count, n, p), n), _nan((t_count, n, p), n)) if lead is not None else (None, None)
-    empty4, empty3, empty2 = cuda.device_array((0, 0, 0, 0)), cuda.device_array((0, 0, 0)), cuda.device_array((0, 0))
-    offsets = [cols.start for cols in bank.slices()]
-    far = bank.far_experts()
-    d_far = cuda.to_device(far) if far is not None else None
-    per_row = n * k * p * 8 * (2 if with_ahead else 1)
-    block = int(max(1, min(t_count, BUFFER_BYTES // max(per_row, 1))))
-    flags = {name: cuda.device_array((block, n), dtype=np.bool_)
-             for name in ("accept", "restart", "started", "cold", "learned", "go")}
-    spans = {name: cuda.device_array((block, n)) for name in ("before", "after")}
-    cuda.synchronize()
-    launched = time.perf_counter()
-    for begin in range(0, t_count, block):
-        end = min(begin + block, t_count)
-        rows = end - begin
-        lens = cuda.to_device(np.clip(lengths - begin, 0, rows).astype(np.int64))
-        zb, tb = d_z[begin:end], d_times[begin:end]
-        f = {name: a[:rows] for name, a in flags.items()}
-        before, after = spans["before"][:rows], spans["after"][:rows]
-        _launch(cscreen.screen_block, n, (*screen_args, *scr, zb, tb, lens, d_learn[begin:end], d_gaps[begin:end],
-                                          f["accept"], f["restart"], f["started"], f["cold"], before, after),
-                stages=stages, name="screen")
-        _launch(_glue, n, (d_learn[begin:end], f["accept"], f["restart"], f["cold"], lens, f["learned"], f["go"]),
-                stages=stages)
-        lb = f["learned"]
-        buffer = _nan((rows, n, k, p), n)
-        ahead_buffer = _nan((rows, n, k, p), n) if with_ahead else empty4
-        ahead_b = d_ahead_times[begin:end] if with_ahead else empty2
-        for i, (d, family) in enumerate(zip(drivers, bank.families)):
-            work = d.work_arrays(rows, n, family.params, p, horizon > 1, _device_array)
-            _launch(d.kernel, n, (*constants[i], *families[i], zb, tb, lens, lb, f["restart"], buffer, offsets[i],
-                                  ahead_b, ahead_buffer, horizon, *work), scratch[i], stages=stages, name=d.NAME)
-        mixed, mixed_ahead = buffer, ahead_buffer
-        if far is not None:
-            mixed = cuda.device_array(buffer.shape)
-            _launch(creach.kernel, n, (d_far, float(bank.reach), buffer, tb, before, lens, mixed), stages=stages,
-                    name="reach")
-            if with_ahead:
-                mixed_ahead = cuda.device_array(buffer.shape)
-                _launch(creach.kernel, n, (d_far, float(bank.reach), ahead_buffer, ahead_b, after, lens, mixed_ahead),
-                        stages=stages, name="reach")
-        _launch(crules.kernel, n, (rule_params, rule, *cal_args, *cal, mixed, zb, lens, f["go"],
-                                       forecasts[begin:end], std[begin:end], empty4, empty3, mixed_ahead,
-                                       ahead[begin:end] if with_ahead else empty3,
-                                       ahead_std[begin:end] if with_ahead else empty3, f["cold"], f["restart"],
-                                       initial_variance),
-                rule_scratch, stages=stages, name="rules")
-        if lead is not None:
-            keep = cuda.device_array(lb.shape, dtype=np.bool_)
-            _launch(_both, n, (lb, f["started"], lens, keep), stages=stages)
-            _launch(clead.kernel, n, (lead_params, lead_rule, blend_params, blend, *cal_args, *lead_cal, ahead_b,
-                                      float(lead.tolerance), *slots, ahead_buffer, ahead[begin:end], zb, tb, lens,
-                                      f["go"], keep, f["restart"], lead_out[begin:end], lead_std[begin:end], empty4,
-                                      f["cold"], initial_variance),
-                    (*rule_scratch, *blend_scratch), stages=stages, name="lead")
-    cuda.synchronize()
-    clock["kernel"] += time.perf_counter() - launched
-    out = [d.unpack(_host(fs), fstate) for d, fs, fstate in zip(drivers, families, state.families)]
-    head = None
-    if lead is not None:
-        due, pending, issued, candidates = _host(slots)
-        head = LeadState(unpack_rule(bank, _host(lead_rule)), CalibrationState(*_host(lead_cal)), due, pending,
-                         issued, unpack_rule(bank, _host(blend)), candidates)
-    final = BankState(tuple(out), unpack_rule(bank, _host(rule)), ScreenState(*_host(scr)),
-                      CalibrationState(*_host(cal)), head)
-    get = lambda a: None if a is None else a.copy_to_host()  # noqa: E731
-    return EngineResult(get(forecasts), final, get(ahead), None, None, None, get(std), get(ahead_std), get(lead_out),
-                        get(lead_std), None, None)
+    def __init__(self, n: int, clock: dict, stages: dict | None):
+        self.n = n
+        self.buffer_bytes = BUFFER_BYTES
+        self.block_targets = n
+        self.clock, self.stages = clock, stages
+
+    def put(self, tree):
+        if isinstance(tree, tuple):
+            return _dev(tree)
+        return cuda.to_device(np.ascontiguousarray(tree)) if isinstance(tree, np.ndarray) else tree
+
+    def host(self, tree):
+        if isinstance(tree, tuple):
+            return _host(tree)
+        return tree.copy_to_host() if hasattr(tree, "copy_to_host") else tree
+
+    def nan(self, shape):
+        return _nan(shape, self.n)
+
+    @staticmethod
+    def empty(shape, dtype=np.float64):
+        return _device_array(shape, dtype)
+
+    def scratch(self, make):
+        return _per_target(make(), self.n)
+
+    def launch(self, name, kernel, args, scratch=None):
+        _launch(kernel, self.n, args, () if scratch is None else scratch, self.stages, name)
+
+    @staticmethod
+    def each_family(run, costs):
+        for i in range(len(costs)):
+            run(i)
+
+    @contextlib.contextmanager
+    def timed(self):
+        cuda.synchronize()
+        launched = time.perf_counter()
+        yield
+        cuda.synchronize()
+        self.clock["kernel"] += time.perf_counter() - launched
