@@ -85,7 +85,8 @@ class _Block:
             if _same_rows(array):
                 first = array[:1]
                 known = shared.get(i)
-                if known is not None and known.dtype == first.dtype and _same_rows(np.concatenate([known, first])):
+                if (known is not None and known.dtype == first.dtype and known.shape == first.shape
+                        and known.tobytes() == first.tobytes()):   # (the same bits, as _same_rows compares)
                     self.leaves.append(known)   # (one array for every track whose leaf is as new)
                 else:
                     self.leaves.append(first.copy())
