@@ -155,8 +155,8 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     scored, tuning, tune_scored = _scored_rows(streams, tuning_fraction, horizon)
     options = dict(options or {})
     tuned: dict[str, Any] = {}
-    peer_unit, rule, unit = _length_units(values, tuning, length_unit, tune_units, n_experts, seed, options, tuned,
-                                          log)
+    peer_unit, rule, unit = _length_units(values, streams.times, tuning, length_unit, tune_units, n_experts, seed,
+                                          options, tuned, log)
     if options:
         tuned["mixture_options"] = options
     predictions: dict[str, tuple] = {}
@@ -215,12 +215,13 @@ def _scored_rows(streams, tuning_fraction, horizon):
     return scored, tuning, tune_scored
 
 
-def _length_units(values, tuning, length_unit, tune_units, n_experts, seed, options, tuned, log):
-    """The length units: the peers' (the rule's on the tuning part), the bank's (the rule's, or the one given) and
-    the AKF rows' (given, or the rule's times the best of :data:`UNIT_FACTORS` with ``tune_units``), recorded in
-    ``tuned``."""
+def _length_units(values, times, tuning, length_unit, tune_units, n_experts, seed, options, tuned, log):
+    """The length units: the peers' (the rule's on the tuning part, time-aware as ``kalmix predict``'s), the
+    bank's (the rule's, or the one given) and the AKF rows' (given, or the rule's times the best of
+    :data:`UNIT_FACTORS` with ``tune_units``), recorded in ``tuned``."""
     # the peers' noise grids scale with the data's length unit (the rule), whatever unit the mixture is given
-    peer_unit, why = length_unit_rule(np.where(tuning[..., None], values, np.nan) if tuning.any() else values)
+    peer_unit, why = length_unit_rule(np.where(tuning[..., None], values, np.nan) if tuning.any() else values,
+                                      times=times)
     if why is not None:   # as predict says it
         log(f"length unit 1 for the peers{'' if length_unit is not None else ' and the mixture'} (the rule could "
             f"not estimate it: the tuning part has {why}; pass --length-unit, or a larger --tuning-fraction)")
