@@ -79,6 +79,16 @@ def test_one_bad_cell_near_the_end_of_a_file_skips_that_row_only(cli, tmp_path, 
     np.testing.assert_array_equal(_read(good.stdout)["pred_x"].to_numpy()[:598], out["pred_x"].to_numpy()[:598])
 
 
+def test_a_file_none_of_whose_times_can_be_read_says_why(cli, tmp_path):
+    """Every row bad (a time format not taken: ``... UTC``): the error gives the first bad row's line and reason,
+    not only a count."""
+    lines = ["track_id,time,x,y"] + [f"a,2024-03-01 00:00:{i:02d} UTC,{i},0" for i in range(5)]
+    result = _run(cli, ["predict", _write(tmp_path / "utc.csv", lines), *FAST])
+    assert result.exit_code == 1
+    assert "has no rows with a time (5 bad row(s) skipped; the first, line 2: column 'time' must hold a number or an " \
+           "ISO 8601 date-time" in result.stderr and "got '2024-03-01 00:00:00 UTC'" in result.stderr
+
+
 def test_on_bad_row_fail_stops_at_the_row_naming_its_line(cli, tmp_path):
     lines = _lines(40)
     path = _write(tmp_path / "t.csv", _with(lines, 30, "b,0.8,abc,1.0"))

@@ -299,6 +299,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
     clocks = None if clock_resets is None or cols.time is None else (
         clock_resets if isinstance(clock_resets, ClockResets) else ClockResets(clock_resets))
     offset = kept = skipped = 0
+    first_bad = None   # the first bad row's reason: what a file none of whose rows could be read is told
     lines = None
     with contextlib.ExitStack() as stack:
         if fmt == "parquet":
@@ -328,6 +329,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
             bad = chunk.attrs.get("bad_rows")
             if bad is not None:
                 skipped += len(bad)
+                first_bad = first_bad or f"{bad.places[0]}: {bad.reasons[0]}"
                 warnings.warn(bad.summary(), BadRowWarning, stacklevel=2)
             kept += len(chunk)
             firsts = chunk.groupby("track_id", sort=False)["time"].first()
@@ -348,7 +350,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         raise ValueError(f"The track file {os.fspath(path)!r} has no rows (only a header)")
     if kept == 0:
         raise ValueError(f"The track file {os.fspath(path)!r} has no rows with a time" + (
-            f" ({skipped} bad row(s) skipped)" if skipped else ""))
+            f" ({skipped} bad row(s) skipped; the first, {first_bad})" if skipped else ""))
 
 
 def _given_column(batch, name: str | None) -> pd.Series | None:
