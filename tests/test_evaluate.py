@@ -117,6 +117,26 @@ def test_cli_evaluate_file_json_and_plot(tmp_path):
     assert (tmp_path / "e.png").read_bytes()[:4] == b"\x89PNG"
 
 
+def test_a_given_time_unit_is_the_mixtures_as_in_predict(tmp_path):
+    """--time-unit sets the mixture's time unit (learned on the tuning part without it), and the command it prints
+    to run the same mixture names it; the peers are tuned as before."""
+    path = tmp_path / "tracks.csv"
+    _turning_tracks().to_csv(path, index=False)
+    runner = CliRunner()
+    runs = {}
+    for name, extra in (("learned", []), ("given", ["--time-unit", "0.5"])):
+        result = runner.invoke(build(), ["evaluate", str(path), "--experts", "4",
+                                         "--json", str(tmp_path / f"{name}.json"), *extra])
+        assert result.exit_code == 0, result.output
+        runs[name] = (result.stdout, json.loads((tmp_path / f"{name}.json").read_text()))
+    assert runs["learned"][1]["tuned"]["mixture"]["bank"]["time_unit"] == pytest.approx(0.1)
+    assert runs["given"][1]["tuned"]["mixture"]["bank"]["time_unit"] == 0.5
+    assert "--time-unit 0.5 --no-population-prior" in runs["given"][0]
+    peers = [name for name in runs["learned"][1]["overall"] if "Kalman" in name or "IMM" in name]
+    assert peers and all(runs["learned"][1]["overall"][name] == runs["given"][1]["overall"][name] for name in peers)
+    assert runs["learned"][1]["overall"]["mixture"] != runs["given"][1]["overall"]["mixture"]
+
+
 def test_cli_evaluate_errors(tmp_path):
     runner = CliRunner()
     result = runner.invoke(build(), ["evaluate"])

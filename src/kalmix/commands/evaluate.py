@@ -41,6 +41,9 @@ _OPTION_HELP = ("A kalmix.bank.make_params argument, KEY=VALUE (JSON value), rep
 @click.option("--length-unit", default="auto", show_default=True,
               help="The mixtures' length unit (and the other AKF rows'; the peers' noise grids keep the "
                    "rule's); 'auto': the second-difference rule on the tuning part.")
+@click.option("--time-unit", default=None, type=click.FloatRange(min=0, min_open=True),
+              help="The mixture's time unit, as predict's --time-unit (the typical sampling interval, in the time "
+                   "column's units) [default: learned on the tuning part].")
 @click.option("--tuning-fraction", default=0.2, show_default=True, type=click.FloatRange(0.0, 1.0, max_open=True),
               help="Leading share of each track used to tune the peers (and the length unit), not scored.")
 @click.option("--max-gap", default="auto", show_default=True, help=GAP_HELP + " 'none' never splits.")
@@ -69,8 +72,8 @@ _OPTION_HELP = ("A kalmix.bank.make_params argument, KEY=VALUE (JSON value), rep
 @click.option("--per-track/--no-per-track", default=True, show_default=True, help="Print the per-track tables.")
 @click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
 def evaluate(input_path, dataset, time_column, position_columns, id_column, geographic, horizon, n_experts, seed,
-             length_unit, tuning_fraction, max_gap, max_gap_factor, reach, max_samples, tracks, peers, json_path,
-             per_coordinate, plot_path, plot_rows, intervals_path, plot_track, per_track, mixture_options):
+             length_unit, time_unit, tuning_fraction, max_gap, max_gap_factor, reach, max_samples, tracks, peers,
+             json_path, per_coordinate, plot_path, plot_rows, intervals_path, plot_track, per_track, mixture_options):
     """Compare the mixture's prediction errors with the predictors you would use instead.
 
     Every predictor runs online over each track segment; the first --tuning-fraction of each
@@ -100,7 +103,8 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, geog
                                 max_gap_factor=math.inf if never else max_gap_factor, max_samples=max_samples,
                                 tracks=wanted, peers=peers, options=options, geographic=geographic,
                                 metric="per-coordinate" if per_coordinate else "euclidean",
-                                bank_options={**DEFAULT_BANK, "reach": reach_setting(reach)},
+                                bank_options={**DEFAULT_BANK, "reach": reach_setting(reach),
+                                              **({} if time_unit is None else {"time_unit": time_unit})},
                                 log=lambda message: click.echo(f"kalmix: {message}", err=True))
         result.dataset = label
         click.echo(format_result(result, per_track=per_track))

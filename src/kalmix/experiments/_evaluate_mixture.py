@@ -193,12 +193,14 @@ def run_kalmix(streams, scored, tuning, horizon, rule, unit, n_experts, seed, op
     The best expert in hindsight's picks per track and its predictions, and the mixture's forecasts and
     covariances (for the interval figure)."""
     values, p = streams.values, streams.values.shape[2]
-    time_unit = auto_time_unit(np.where(tuning, streams.times, np.nan) if tuning.any() else streams.times)
+    bank_options = dict(bank_options or DEFAULT_BANK)
+    time_unit = bank_options.pop("time_unit", None)   # given (--time-unit), or learned as predict learns it
+    if time_unit is None:
+        time_unit = auto_time_unit(np.where(tuning, streams.times, np.nan) if tuning.any() else streams.times)
     # the AKF family takes K and the options as predict's does (the gate's reach only the AKF mixture row)
     family = {"n_akf": n_experts, "akf_options": {k: v for k, v in options.items() if k not in GATE_OPTIONS}}
     bank = make_bank(p, length_unit=rule, time_unit=time_unit, seed=seed,
-                     lead=horizon * time_unit if horizon > 1 else None,
-                     **{**family, **dict(bank_options or DEFAULT_BANK)})
+                     lead=horizon * time_unit if horizon > 1 else None, **{**family, **bank_options})
     tuned["mixture"] = {"bank": bank.description, "n_experts": bank.n_experts}
     log(f"mixture: {bank.description['kind']} bank of {bank.n_experts} experts, rule {bank.rule} "
         f"(length unit {rule:.4g}, time unit {time_unit:.4g})")

@@ -120,7 +120,7 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         :func:`kalmix.bank.make_bank` arguments of the mixture (default
         :data:`kalmix.bank.DEFAULT_BANK`); its length unit is the rule's
         (:func:`~kalmix.streaming.auto_length_unit`) and its time unit
-        :func:`~kalmix.streaming.auto_time_unit`, both on the tuning part.
+        :func:`~kalmix.streaming.auto_time_unit`, both on the tuning part, unless it gives ``time_unit``.
     metric : {"per-coordinate", "euclidean"}
         What the summaries pool (:func:`error_measure`): each coordinate's error, or each
         row's distance between forecast and measurement (``kalmix evaluate``'s default).
