@@ -138,7 +138,7 @@ class PopulationPrior:
         made before the next row: the places to cut them, where the rows before a cut must all be stepped before
         any after it (the last row, after which the summary comes anyway, is not a cut). Skipped rows do not
         count: a resumed run given again the rows it did skips them."""
-        if not self.summary_within(len(times)):
+        if not self.summary_within(len(times) - 1):   # (a point at the last row is not a cut)
             return []
         ends = np.flatnonzero(self.stepped_rows(ids, times)) + 1   # rows given up to each stepped row
         points = snapshot_points(self.stepped, self.stepped + len(ends))
