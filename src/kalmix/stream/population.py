@@ -131,7 +131,8 @@ class PopulationPrior:
 
     def summary_within(self, n_rows: int) -> bool:
         """Whether a summary may fall within the next ``n_rows`` rows (if all are stepped)."""
-        return bool(self.config.population_prior and snapshot_points(self.stepped, self.stepped + n_rows))
+        return bool(self.config.population_prior and n_rows > 0
+                    and snapshot_points(self.stepped, self.stepped + n_rows))
 
     def summary_cuts(self, ids, times) -> list[int]:
         """Of these rows, in arrival order (continuing the tracks seen), the counts after which a summary is

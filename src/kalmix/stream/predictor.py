@@ -1,6 +1,6 @@
 """The :class:`~kalmix.streaming.TrackPredictor`: one mixture predictor per track, put together from its parts
 (:mod:`.bank_runs`, :mod:`.clocks`, :mod:`.row_steps`, :mod:`.table_steps`, :mod:`.state_file`), and what runs
-the gap rule alone over tables (:func:`learned_time_unit`, :func:`next_row_times`)."""
+the gap rule alone over tables (:func:`learned_time_unit`)."""
 
 from __future__ import annotations
 
@@ -210,19 +210,6 @@ def learned_time_unit(tables, config: StreamConfig, continued: list | None = Non
             if seen and new is not None and continued is not None and key not in continued:
                 continued.append(key)
     return None
-
-
-def next_row_times(parts, after: dict | None = None) -> list[dict]:
-    """For tables ``parts`` fed to :meth:`TrackPredictor.process_table` in this order, each one's
-    ``next_times``: track id -> time of the track's next row after that table (in a later part,
-    else ``after``, e.g. a later chunk of a file)."""
-    out = []
-    upcoming = dict(after or {})
-    for part in reversed(parts):
-        out.append(dict(upcoming))
-        firsts = part.groupby("track_id", sort=False)["time"].first()
-        upcoming.update((track, float(t)) for track, t in zip(firsts.index, column_seconds(firsts)))
-    return out[::-1]
 
 
 class Checkpoint(NamedTuple):

@@ -10,7 +10,7 @@ import numpy as np
 from ..core.engine import BankState, tree_map
 from .columns import ColumnNoteWarning, find_columns
 from .ids import factorize_ids, id_to_json
-from .times import column_seconds
+from .times import column_seconds, next_row_times
 
 #: Most tracks :meth:`TrackPredictor.process_table` steps in one run of the engine: their states are stacked for
 #: the run and the run returns as many, so a table of many tracks goes a batch at a time (the same bits), in
@@ -190,9 +190,14 @@ class TableSteps:
         if self.config.time_unit is None:
             # rows before the time unit is known run with the bank of a unit of 1, as they would row by row
             split = self._unit_row(table["track_id"].to_numpy(), table["time"].to_numpy(np.float64))
-        if not split:   # the rows before a summary of the population prior (.population), then the summary
+        if not split:   # the rows before each summary of the population prior (.population), then the summary
             cuts = self.summary_cuts(table["track_id"].to_numpy(), table["time"].to_numpy(np.float64))
-            split = cuts[0] if cuts else None
+            if cuts:   # (found once: each part ends at a summary point, so none is cut again)
+                bounds = [0, *cuts, len(table)]
+                parts = [table.iloc[a:b] for a, b in zip(bounds, bounds[1:])]
+                return pd.concat([self._process_table(part, position_names, later, first_row + a, kept)
+                                  for part, later, a in zip(parts, next_row_times(parts, next_times), bounds)],
+                                 ignore_index=True)
         if split:
             head, tail = table.iloc[:split], table.iloc[split:]
             later = {**next_times, **tail.groupby("track_id", sort=False)["time"].first().to_dict()}

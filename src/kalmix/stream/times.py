@@ -52,3 +52,16 @@ def row_times(times) -> np.ndarray:
     if given.dtype.kind in "Mm":
         return column_seconds(pd.Series(given.reshape(-1)))
     return given.astype(np.float64)
+
+
+def next_row_times(parts, after: dict | None = None) -> list[dict]:
+    """For tables ``parts`` fed to :meth:`TrackPredictor.process_table` in this order, each one's
+    ``next_times``: track id -> time of the track's next row after that table (in a later part,
+    else ``after``, e.g. a later chunk of a file)."""
+    out = []
+    upcoming = dict(after or {})
+    for part in reversed(parts):
+        out.append(dict(upcoming))
+        firsts = part.groupby("track_id", sort=False)["time"].first()
+        upcoming.update((track, float(t)) for track, t in zip(firsts.index, column_seconds(firsts)))
+    return out[::-1]
