@@ -260,10 +260,11 @@ class RowSteps:
         (:mod:`.population`: the rows before it are stepped, then summarised)."""
         n_rows, p = values.shape
         cuts = self.summary_cuts(ids, times)
-        if cuts:
-            split = cuts[0]
-            head = self._step_batch(ids[:split], times[:split], values[:split], first)
-            return head + self._step_batch(ids[split:], times[split:], values[split:], first + split)
+        if cuts:   # (found once: each part ends at a summary point, so none is cut again)
+            out = []
+            for a, b in zip([0, *cuts], [*cuts, n_rows]):
+                out.extend(self._step_batch(ids[a:b], times[a:b], values[a:b], first + a))
+            return out
         trackers: dict = {}
         runs: dict = {}          # track -> [(row, restart, next time)]
         outcome = [None] * n_rows
