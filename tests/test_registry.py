@@ -25,7 +25,7 @@ def test_every_family_kind_has_the_common_signature_and_a_driver_with_the_common
             "params", "state", "measurement", "time", "learn", "active", "restart"], name
         assert entry.clock in ("time", "frames"), name
         module = driver(name)
-        for part in ("constants", "pack", "unpack", "scratch", "work_arrays", "kernel", "run_block", "check_gpu",
+        for part in ("constants", "pack", "unpack", "scratch", "work_arrays", "kernel", "check_gpu",
                      "COST", "NAME", "COMPILE_APART"):
             assert hasattr(module, part), (name, part)
 

@@ -20,7 +20,7 @@ KERNEL_SOURCES = (
     "_numba_akf_target.py",
     "compiled/kinematic.py", "compiled/ar.py", "compiled/turn.py", "compiled/rules.py", "compiled/screen.py",
     "compiled/_cache.py", "compiled/calibration.py", "compiled/lead.py", "compiled/akf.py", "compiled/reach.py",
-    "compiled/masks.py",
+    "compiled/masks.py", "compiled/stage.py",
 )
 #: The GPU engine's modules: their CPU-side numba functions are cached too. What they import from the spec
 #: modules (state classes) is used on the host only, so the import check leaves them out.

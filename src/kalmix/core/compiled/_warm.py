@@ -167,12 +167,15 @@ def _child() -> None:
     engine runs it."""
     from ..families import parts
     from .drivers import driver
+    from .stage import FamilyOut, family_rows
 
     kind, params, p = pickle.loads(sys.stdin.buffer.read())
     d = driver(kind)
     z, t = _tiny_track(p)
     rows, k = len(z), params.n_experts
     state = d.pack(params, parts(kind).spec.init_state(params, 1, p))
-    d.run_block(0, 1, *d.constants(params), *state, z, t, np.array([rows], dtype=np.int64),
-                np.ones((rows, 1), dtype=bool), np.zeros((rows, 1), dtype=bool), np.full((rows, 1, k, p), np.nan), 0,
-                np.empty((0, 0)), np.empty((0, 0, 0, 0)), 1, *d.work_arrays(rows, 1, params, p, False))
+    block = family_rows(z, t, np.array([rows], dtype=np.int64), np.ones((rows, 1), dtype=bool),
+                        np.zeros((rows, 1), dtype=bool), np.empty((0, 0)), 1)
+    d.kernel(0, 1, d.constants(params), state, block, FamilyOut(np.full((rows, 1, k, p), np.nan), 0,
+                                                                 np.empty((0, 0, 0, 0))),
+             d.work_arrays(rows, 1, params, p, False), d.scratch(params, p))

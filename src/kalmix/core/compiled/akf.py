@@ -11,6 +11,8 @@ its host side (packing, the parts the engines use) is :mod:`.akf_driver`.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba as nb
 import numpy as np
 
@@ -20,7 +22,15 @@ from ._cache import configure_cache
 
 configure_cache()
 
-__all__ = ["run_block", "kernel", "scratch"]
+__all__ = ["Constants", "kernel", "scratch"]
+
+
+class Constants(NamedTuple):
+    """The family's parameters as :func:`kernel` takes them: packed as :func:`kalmix.core.fast.run_fast` packs
+    them, with one new target's packed state (for the restart rows)."""
+
+    params: tuple
+    fresh: tuple
 
 
 def scratch(state):
@@ -28,13 +38,6 @@ def scratch(state):
     k_count, p, dim = state[6].shape[1], state[4].shape[1], state[6].shape[2]
     floats, ints, bools = kernels.scratch_size(k_count, p, dim // p)
     return np.empty(floats), np.empty(ints, dtype=np.int64), np.empty(bools, dtype=np.bool_)
-
-
-def run_block(lo, hi, params, fresh, state, z, times, lengths, learn, restart, out, offset, ahead_times, ahead,
-              horizon, fed, piece, predictions, recorded, later):
-    """Targets ``lo .. hi - 1`` (scratch allocated here, once a call); see :func:`kernel`."""
-    kernel(lo, hi, params, fresh, state, z, times, lengths, learn, restart, out, offset, ahead_times, ahead, horizon,
-           fed, piece, predictions, recorded, later, *scratch(state))
 
 
 @nb.njit(**_JIT)
@@ -73,20 +76,23 @@ def _reset(n, state, fresh):
 
 
 @nb.njit(**_JIT)   # with reference counting: the guard's eigenvalues (numpy) allocate
-def kernel(lo, hi, params, fresh, state, z, times, lengths, learn, restart, out, offset, ahead_times, ahead, horizon,
-           fed, piece, predictions, recorded, later, fbuf, ibuf, bbuf):
-    """The AKF family's experts over the rows of a block, targets ``lo .. hi - 1``.
+def kernel(lo, hi, constants, state, rows, forecasts, work, scratch):
+    """The AKF family's experts over the rows of a block, targets ``lo .. hi - 1`` (the arguments of every family's
+    driver, :mod:`.kinematic`).
 
-    ``params`` / ``fresh`` / ``state``: packed as :func:`kalmix.core.fast.run_fast` packs them
-    (``state`` is advanced in place; ``fresh`` is one new target's, for the restart rows).
-    ``out (B, N, K_bank, p)`` receives the forecast of every row in columns ``offset ..``, made
-    before it; ``ahead`` (if not empty) the forecast ``horizon`` frames after each row (``times``
-    and ``ahead_times``, the time-based families' clock, are not read). Only
-    learned rows (``learn``) are fed to the filters; a present row not learned advances them
-    one frame. ``fed``, ``piece``, ``predictions``, ``recorded`` and ``later`` are the bank's
-    work arrays of the block (each target uses its own column), ``fbuf`` / ``ibuf`` / ``bbuf``
-    the target's scratch.
+    ``constants``: :class:`Constants`; ``state``: packed as :func:`kalmix.core.fast.run_fast` packs it, advanced in
+    place. ``forecasts.experts`` receives the forecast of every row in columns ``forecasts.offset ..``, made
+    before it; ``forecasts.ahead`` (if not empty) the forecast ``rows.horizon`` frames after each row (the times,
+    the time-based families' clock, are not read). Only learned rows (``rows.learn``) are fed to the filters; a
+    present row not learned advances them one frame. ``work`` holds the bank's work arrays of the block
+    (:func:`.akf_driver.work_arrays`; each target uses its own column), ``scratch`` the target's float, int and
+    bool buffers.
     """
+    params, fresh = constants
+    z, _, lengths, learn, restart, _, horizon = rows
+    out, offset, ahead = forecasts
+    fed, piece, predictions, recorded, later = work
+    fbuf, ibuf, bbuf = scratch
     p = z.shape[2]
     k_count = recorded.shape[2]
     want_ahead = ahead.shape[0] > 0

@@ -12,11 +12,11 @@ import numpy as np
 
 from ..families import akf
 from ..fast import fast_guard, pack_params, pack_state
-from .akf import kernel, run_block
+from .akf import Constants, kernel
 from .akf import scratch as _packed_scratch
 
 __all__ = ["COST", "NAME", "COMPILE_APART", "MAX_GPU_STATE", "constants", "pack", "unpack", "scratch", "work_arrays",
-           "check_gpu", "run_block", "kernel"]
+           "check_gpu", "kernel"]
 
 #: Relative cost of an expert's row (the engine hands the costliest family to a thread first).
 COST = 4.0
@@ -34,31 +34,31 @@ MAX_GPU_STATE = 32
 _PACKED: dict = {}
 
 
-def constants(params) -> tuple:
+def constants(params) -> Constants:
     """The family's packed parameters and one new target's packed state (both read only, kept per ``params``),
-    as :func:`kernel` takes them before its state."""
+    as :func:`kernel` takes them."""
     entry = _PACKED.get(id(params))
     if entry is None or entry[0] is not params:   # (the entry holds params: its id is not reused meanwhile)
         if len(_PACKED) >= 32:
             _PACKED.clear()
-        entry = _PACKED[id(params)] = (params, pack_params(params),
-                                       pack_state(akf.init_state(params, 1, params.measurement_dim)))
-    return entry[1], entry[2]
+        entry = _PACKED[id(params)] = (params, Constants(
+            pack_params(params), pack_state(akf.init_state(params, 1, params.measurement_dim))))
+    return entry[1]
 
 
 def pack(params, state) -> tuple:
-    """The state as :func:`kernel` advances it in place: one packed tuple (fresh copies)."""
-    return (pack_state(state),)
+    """The state as :func:`kernel` advances it in place: a packed tuple (fresh copies)."""
+    return pack_state(state)
 
 
 def unpack(packed, like):
     """The state :func:`pack` packed, as the family's state class (that of ``like``)."""
-    return type(like)(*packed[0])
+    return type(like)(*packed)
 
 
 def scratch(params, p: int) -> tuple:
     """One target's scratch of :func:`kernel`: float, int and bool buffers."""
-    return _packed_scratch(constants(params)[1])
+    return _packed_scratch(constants(params).fresh)
 
 
 def work_arrays(rows: int, n: int, params, p: int, later: bool, allocate=np.empty) -> tuple:

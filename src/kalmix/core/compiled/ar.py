@@ -1,6 +1,6 @@
 """Compiled AR family (:mod:`kalmix.core.families.ar`): same formulas in the same order, targets in ranges on threads.
 
-:func:`run_block` advances every target through its rows of a block: at each row it
+:func:`kernel` advances every target through its rows of a block: at each row it
 writes every expert's forecast of the row into the bank's shared buffer at the family's
 column ``offset``, then learns the row (a ``restart`` row starts the experts again from it);
 with ``ahead_times`` it also writes the forecast made after the row for that time. The
@@ -10,6 +10,7 @@ module has the parts of every family's driver (:mod:`.kinematic` lists them).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -210,77 +211,70 @@ def _learn(order, bias, m, forgetting, ridge, persistence, jump_threshold, windo
             history_n[k, c, 0] = v[c]
 
 
-def constants(params) -> tuple:
-    """The family's parameters as :func:`kernel` takes them, before its state."""
-    return (params.order, bool(params.bias), np.asarray(params.forgetting), np.asarray(params.ridge),
-            float(params.length_unit), float(params.time_unit), float(params.persistence),
-            float(params.initial_error), float(params.jump_threshold), float(params.window), float(params.max_step),
-            float(params.max_velocity))
+class Constants(NamedTuple):
+    """The family's parameters as :func:`kernel` takes them."""
+
+    order: int
+    bias: bool
+    forgetting: np.ndarray   # (K,)
+    ridge: np.ndarray        # (K,)
+    length_unit: float
+    time_unit: float
+    persistence: float
+    initial_error: float
+    jump_threshold: float
+    window: float
+    max_step: float
+    max_velocity: float
+
+
+def constants(params) -> Constants:
+    """The family's parameters as :func:`kernel` takes them."""
+    return Constants(int(params.order), bool(params.bias), np.asarray(params.forgetting), np.asarray(params.ridge),
+                     float(params.length_unit), float(params.time_unit), float(params.persistence),
+                     float(params.initial_error), float(params.jump_threshold), float(params.window),
+                     float(params.max_step), float(params.max_velocity))
 
 
 def scratch(params, p: int) -> tuple:
-    """One target's scratch of :func:`kernel`."""
-    return _scratch(params.order, bool(params.bias), p, params.n_experts)
-
-
-def run_block(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
-              jump_threshold, window, max_step, max_velocity,
-              weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
-              z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon):
-    """Targets ``lo .. hi - 1`` through their rows of the block (scratch allocated here, once a call)."""
-    kernel(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
-           jump_threshold, window, max_step, max_velocity,
-           weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
-           z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon,
-           *_scratch(order, bias, z.shape[2], forgetting.shape[0]))
-
-
-def _scratch(order: int, bias: bool, p: int, k_count: int):
-    """A target's scratch of :func:`kernel`: x, v, h and :func:`_learn`'s for ``k_count`` experts of
-    ``m`` weights (a, rhs, low, y, sol, acc, go, new_scale, informative)."""
-    m = order + (1 if bias else 0)
+    """One target's scratch of :func:`kernel`: x, v, h and :func:`_learn`'s for the experts of ``m`` weights
+    (a, rhs, low, y, sol, acc, go, new_scale, informative)."""
+    order, k_count = params.order, params.n_experts
+    m = order + (1 if params.bias else 0)
     return (np.empty(m), np.empty(p), np.empty(order), np.empty((m, m, k_count)), np.empty((m, k_count)),
             np.zeros((m, m, k_count)), np.empty((m, k_count)), np.empty((m, k_count)), np.empty(k_count),
             np.empty(k_count, dtype=np.bool_), np.empty(k_count), np.empty(k_count, dtype=np.bool_))
 
 
 @nb.njit(**KERNEL_JIT)
-def kernel(lo, hi, order, bias, forgetting, ridge, length_unit, time_unit, persistence, initial_error,
-           jump_threshold, window, max_step, max_velocity,
-           weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised,
-           z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon, x, v, h,
-           a, rhs, low, y, sol, acc, go, new_scale, informative):
-    """The driver: targets ``lo .. hi - 1`` through their rows of the block, with their scratch given
-    (``horizon``, the frame-based families' clock, is not read)."""
+def kernel(lo, hi, params, state, rows, forecasts, work, scratch):
+    """The driver: targets ``lo .. hi - 1`` through their rows of the block (:mod:`.kinematic` lists the
+    arguments; ``rows.horizon``, the frame-based families' clock, is not read)."""
     # The default bank's orders as constants of the compiled loops, so that LLVM unrolls them (the helpers are
     # not inlined by numba: its inlining of _learn into five copies would multiply the compile time; LLVM
     # inlines them); other orders and the bias as they come. The same operations in the same order: the same
     # bits.
-    # (Arguments in tuples: numba cannot inline a call of more than 30, which Python makes a *args call.)
-    constants = (forgetting, ridge, length_unit, time_unit, persistence, initial_error, jump_threshold, window,
-                 max_step, max_velocity)
-    state = (weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised)
-    rows = (z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead)
-    work = (x, v, h, a, rhs, low, y, sol, acc, go, new_scale, informative)
+    order, bias = params.order, params.bias
     if not bias and order == 1:
-        _drive(lo, hi, 1, False, constants, state, rows, work)
+        _drive(lo, hi, 1, False, params, state, rows, forecasts, scratch)
     elif not bias and order == 2:
-        _drive(lo, hi, 2, False, constants, state, rows, work)
+        _drive(lo, hi, 2, False, params, state, rows, forecasts, scratch)
     elif not bias and order == 3:
-        _drive(lo, hi, 3, False, constants, state, rows, work)
+        _drive(lo, hi, 3, False, params, state, rows, forecasts, scratch)
     elif not bias and order == 5:
-        _drive(lo, hi, 5, False, constants, state, rows, work)
+        _drive(lo, hi, 5, False, params, state, rows, forecasts, scratch)
     else:
-        _drive(lo, hi, order, bias, constants, state, rows, work)
+        _drive(lo, hi, order, bias, params, state, rows, forecasts, scratch)
 
 
 @nb.njit(inline="always", **_JIT)
-def _drive(lo, hi, order, bias, constants, state, rows, work):
-    (forgetting, ridge, length_unit, time_unit, persistence, initial_error, jump_threshold, window, max_step,
-     max_velocity) = constants
+def _drive(lo, hi, order, bias, params, state, rows, forecasts, scratch):
+    (_, _, forgetting, ridge, length_unit, time_unit, persistence, initial_error, jump_threshold, window, max_step,
+     max_velocity) = params
     weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised = state
-    z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead = rows
-    x, v, h, a, rhs, low, y, sol, acc, go, new_scale, informative = work
+    z, times, lengths, learn, restart, ahead_times, _ = rows
+    out, offset, out_ahead = forecasts
+    x, v, h, a, rhs, low, y, sol, acc, go, new_scale, informative = scratch
     k_count = forgetting.shape[0]
     p = z.shape[2]
     m = order + (1 if bias else 0)

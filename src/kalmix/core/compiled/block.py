@@ -4,8 +4,8 @@ Per block of rows, every target of the call at once::
 
     glitch screen -> learning rows -> each family's experts -> reach -> rule (+ calibration) -> lead head
 
-Each stage is a compiled driver ``kernel(lo, hi, *args, *scratch)`` over a range of targets
-(:mod:`.screen`, :mod:`.masks`, the families' drivers (:mod:`.drivers`), :mod:`.reach`,
+Each stage is a compiled driver ``kernel(lo, hi, params, state, ..., rows, out, scratch)`` over a range of
+targets (:mod:`.stage`; :mod:`.screen`, :mod:`.masks`, the families' drivers (:mod:`.drivers`), :mod:`.reach`,
 :mod:`.rules`, :mod:`.lead`). Families do not depend on the rule's output, so each family runs
 through the whole block, writing its experts' forecasts into one ``(B, N, K, p)`` buffer at its
 columns, before the rule runs over the block. The state carries over between blocks exactly,
@@ -36,6 +36,7 @@ from . import lead as clead
 from . import reach as creach
 from . import rules as crules
 from . import screen as cscreen
+from . import stage
 from .calibration import pack_params as pack_calibration
 from .drivers import driver
 from .masks import both, learning_rows
@@ -69,10 +70,11 @@ class Backend(Protocol):
         """An uninitialised array (every target's rows are written before they are read)."""
 
     def scratch(self, make: Callable[[], tuple]):
-        """A stage's scratch, from ``make()``: one target's fresh scratch arrays."""
+        """A stage's scratch, from ``make()``: one target's fresh scratch arrays (a tuple)."""
 
     def launch(self, name: str, kernel, args: tuple, scratch=None) -> None:
-        """``kernel(lo, hi, *args, *scratch)`` over every target (``scratch`` from :meth:`scratch`, or none)."""
+        """``kernel(lo, hi, *args)`` over every target, or ``kernel(lo, hi, *args, scratch)`` with the targets'
+        scratch tuple (``scratch`` from :meth:`scratch`)."""
 
     def each_family(self, run: Callable[[int], None], costs: list) -> None:
         """``run(i)`` for each family ``i`` (``costs[i]``: the rough relative cost of its row), in turn in the bank's
@@ -137,11 +139,6 @@ class _Packed(NamedTuple):
     lead_blend: tuple | None   # the state of the lead head's blend (its rule's)
 
 
-def _lead_scratch(k: int, p: int) -> tuple:
-    """A target's scratch of the lead head: its rule's (over the experts), then its blend's (over two forecasts)."""
-    return (*crules.scratch(k, p), *clead.blend_scratch(p))
-
-
 def _pack(bank: Bank, state: BankState, drivers, put) -> _Packed:
     families = [put(d.pack(family.params, fstate)) for d, family, fstate in zip(drivers, bank.families,
                                                                                  state.families)]
@@ -149,7 +146,8 @@ def _pack(bank: Bank, state: BankState, drivers, put) -> _Packed:
     lead = (None, None, None, None)
     if bank.lead is not None:
         lead = (put(pack_rule(bank, head.rule)), put(fresh(head.calibration)),
-                put(fresh((head.due, head.pending, head.issued, head.candidates))), put(pack_rule(bank, head.blend)))
+                put(fresh(clead.Slots(head.due, head.pending, head.issued, head.candidates))),
+                put(pack_rule(bank, head.blend)))
     return _Packed(families, put(pack_rule(bank, state.rule)), put(fresh(state.calibration)), put(fresh(state.screen)),
                    *lead)
 
@@ -229,11 +227,9 @@ def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, 
     lead_params = pack_rule_params(bank, bank.lead_rule_params) if lead is not None else None
     blend_params = pack_rule_params(bank, bank.blend_rule_params) if lead is not None else None
     rule_scratch = backend.scratch(functools.partial(crules.scratch, k, p))
-    lead_scratch = backend.scratch(functools.partial(_lead_scratch, k, p)) if lead is not None else None
-    cal_args = pack_calibration(bank.calibration_params)
-    initial_variance = float(bank.calibration_params.initial_variance)
-    sp = bank.screen_params
-    screen_args = (float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window))
+    lead_scratch = backend.scratch(functools.partial(clead.scratch, k, p)) if lead is not None else None
+    cal = pack_calibration(bank.calibration_params)
+    screen = cscreen.constants(bank.screen_params)
     far = bank.far_experts()   # None: no expert ever sleeps for a long step
     far = None if far is None else put(far)
 
@@ -257,9 +253,9 @@ def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, 
             lens = put(np.clip(lengths - begin, 0, end - begin).astype(np.int64))
             zb, tb, ahead_b = z[rows], times[rows], ahead_times[rows] if with_ahead else empty2
             m = masks.first(end - begin)
-            backend.launch("screen", cscreen.screen_block, (*screen_args, *packed.screen, zb, tb, lens, learn[rows],
-                                                            gaps[rows], m.accept, m.restart, m.started, m.cold,
-                                                            m.before, m.after))
+            backend.launch("screen", cscreen.screen_block, (
+                screen, packed.screen, cscreen.Rows(zb, tb, lens, learn[rows], gaps[rows]),
+                cscreen.Verdicts(m.accept, m.restart, m.started, m.cold, m.before, m.after)))
             backend.launch("learning rows", learning_rows, (learn[rows], m.accept, m.restart, m.cold, lens, m.learned,
                                                             m.go))
 
@@ -268,13 +264,14 @@ def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, 
             ahead_buffer = empty4
             if with_ahead:
                 ahead_buffer = ahead_experts[rows] if record_experts else nan((end - begin, n, k, p))
+            family_rows = stage.family_rows(zb, tb, lens, m.learned, m.restart, ahead_b, horizon)
 
             def run_family(i):
                 d, family = drivers[i], bank.families[i]
                 work = d.work_arrays(end - begin, n, family.params, p, horizon > 1, empty)
-                backend.launch(d.NAME, d.kernel, (*constants[i], *packed.families[i], zb, tb, lens, m.learned,
-                                                  m.restart, buffer, offsets[i], ahead_b, ahead_buffer, horizon,
-                                                  *work), scratch[i])
+                backend.launch(d.NAME, d.kernel, (constants[i], packed.families[i], family_rows,
+                                                  stage.FamilyOut(buffer, offsets[i], ahead_buffer), work),
+                               scratch[i])
 
             backend.each_family(run_family, costs)
             if observe is not None:
@@ -290,17 +287,19 @@ def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, 
                     backend.launch("reach", creach.kernel, (far, float(bank.reach), ahead_buffer, ahead_b, m.after,
                                                             lens, mixed_ahead))
             backend.launch("rules", crules.kernel, (
-                rule_params, packed.rule, *cal_args, *packed.calibration, mixed, zb, lens, m.go, forecasts[rows],
-                std[rows], covariance[rows] if record_covariance else empty4,
-                weights[rows] if record_experts else empty3, mixed_ahead, ahead[rows] if with_ahead else empty3,
-                ahead_std[rows] if with_ahead else empty3, m.cold, m.restart, initial_variance), rule_scratch)
+                rule_params, packed.rule, cal, packed.calibration,
+                crules.Rows(mixed, mixed_ahead, zb, lens, m.go, m.cold, m.restart),
+                crules.Out(forecasts[rows], std[rows], covariance[rows] if record_covariance else empty4,
+                           weights[rows] if record_experts else empty3, ahead[rows] if with_ahead else empty3,
+                           ahead_std[rows] if with_ahead else empty3)), rule_scratch)
             if lead is not None:
                 backend.launch("keep", both, (m.learned, m.started, lens, m.keep))
                 backend.launch("lead", clead.kernel, (
-                    lead_params, packed.lead_rule, blend_params, packed.lead_blend, *cal_args,
-                    *packed.lead_calibration, ahead_b, float(lead.tolerance), *packed.lead_slots, ahead_buffer,
-                    ahead[rows], zb, tb, lens, m.go, m.keep, m.restart, lead_out[rows], lead_std[rows],
-                    lead_covariance[rows] if record_covariance else empty4, m.cold, initial_variance), lead_scratch)
+                    lead_params, packed.lead_rule, blend_params, packed.lead_blend, cal, packed.lead_calibration,
+                    packed.lead_slots,
+                    clead.Rows(ahead_b, ahead_buffer, ahead[rows], zb, tb, lens, m.go, m.keep, m.restart, m.cold),
+                    clead.Out(lead_out[rows], lead_std[rows], lead_covariance[rows] if record_covariance else empty4),
+                    float(lead.tolerance)), lead_scratch)
 
     host = backend.host
     return EngineResult(host(forecasts), _unpack(bank, packed, state, drivers, host), host(ahead), host(experts),

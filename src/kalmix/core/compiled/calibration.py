@@ -1,14 +1,14 @@
 """Compiled calibration (:mod:`kalmix.core.calibration`): per-row functions, one target at a time.
 
-Shared by the CPU driver (:func:`.rules.run_block`) and the GPU kernel; the arrays are one
-target's: forecasts ``x (K, p)``, weights ``w (K,)``, ``variance (K, p)``, ``count (K,)``;
-``log_scale`` is a length-1 view. ``cal`` packs the parameters:
-``(window, rate, level, z, max_variance, max_log_scale)``.
+Shared by the rule's and the lead head's drivers (:mod:`.rules`, :mod:`.lead`) and the fused GPU kernel; the
+arrays are one target's: forecasts ``x (K, p)``, weights ``w (K,)``, ``variance (K, p)``, ``count (K,)``;
+``log_scale`` is a length-1 view. The parameters come as :class:`Constants`.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -19,12 +19,25 @@ from ._cache import configure_cache
 
 configure_cache()
 
-__all__ = ["pack_params", "moments_row", "calibrate_row", "calibrate_issued_row"]
+__all__ = ["Constants", "pack_params", "moments_row", "calibrate_row", "calibrate_issued_row"]
 
 
-def pack_params(params: CalibrationParams) -> tuple:
-    return (float(params.window), float(params.rate), float(params.level), float(z_score(params)),
-            float(params.max_variance), float(params.max_log_scale))
+class Constants(NamedTuple):
+    """The calibration's parameters as the compiled rule and lead head take them."""
+
+    window: float
+    rate: float
+    level: float
+    z_level: float          # z of the central ``level`` interval
+    max_variance: float
+    max_log_scale: float
+    initial_variance: float   # of a cold restart
+
+
+def pack_params(params: CalibrationParams) -> Constants:
+    """``params`` as :class:`Constants`."""
+    return Constants(float(params.window), float(params.rate), float(params.level), float(z_score(params)),
+                     float(params.max_variance), float(params.max_log_scale), float(params.initial_variance))
 
 
 @nb.njit(inline="always", **_JIT)

@@ -95,7 +95,7 @@ class CpuBackend:
         elif self.split:
             over_targets(_with_scratch, self.n, kernel, scratch, *args)
         else:
-            kernel(0, self.n, *args, *scratch())
+            kernel(0, self.n, *args, scratch())
 
     def each_family(self, run, costs):
         # families are independent and write their own columns of the buffers: side by side, the costliest first
@@ -112,7 +112,7 @@ class CpuBackend:
 
 def _with_scratch(lo, hi, kernel, make, *args):
     """``kernel`` over targets ``lo .. hi - 1`` with a scratch of its own (``make()``)."""
-    kernel(lo, hi, *args, *make())
+    kernel(lo, hi, *args, make())
 
 
 def run(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,

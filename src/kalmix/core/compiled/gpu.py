@@ -257,7 +257,7 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
         max_variance, float(bank.reach), device["mean"], device["cov"], device["last_time"], device["initialised"],
         pack_rule_params(bank), rule_dev,
         float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window), *screen_dev,
-        *pack_calibration(bank.calibration_params), float(bank.calibration_params.initial_variance),
+        *pack_calibration(bank.calibration_params),
         device["variance"], device["n_errors"], device["log_scale"],
         device["z"], device["times"], device["lengths"], device["learn"], out, out_std, device["ahead_times"],
         out_ahead, out_ahead_std)

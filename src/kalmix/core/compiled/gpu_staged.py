@@ -61,17 +61,18 @@ _kernels = {}
 
 
 def _launcher(driver, n_args: int, n_scratch: int):
-    """A kernel whose thread ``j < count`` runs ``driver(j, j + 1, *args, *(s[j] for s in scratch))``, compiled
-    on first use in this process (numba-cuda cannot cache it on disk: the AKF driver reshapes arrays, which
-    links a helper file that its cache refuses)."""
+    """A kernel whose thread ``j < count`` runs ``driver(j, j + 1, *args)``, or with a scratch ``driver(j, j + 1,
+    *args, tuple(s[j] for s in scratch))``, compiled on first use in this process (numba-cuda cannot cache it on
+    disk: the AKF driver reshapes arrays, which links a helper file that its cache refuses)."""
     key = (driver, n_args, n_scratch)
     if key not in _kernels:
         names = [f"a{i}" for i in range(n_args)]
         scratch = [f"s{i}" for i in range(n_scratch)]
+        own = "(" + "".join(f"{s}[j], " for s in scratch) + ")"   # this thread's scratch, one tuple
         source = (f"def kernel(count, {', '.join(names + scratch)}):\n"
                   "    j = cuda.grid(1)\n"
                   "    if j < count:\n"
-                  f"        driver(j, j + 1, {', '.join(names + [s + '[j]' for s in scratch])})\n")
+                  f"        driver(j, j + 1, {', '.join(names + ([own] if scratch else []))})\n")
         namespace = {"cuda": cuda, "driver": driver}
         exec(compile(source, f"<kalmix gpu kernel of {driver.__name__}>", "exec"), namespace)  # noqa: S102
         _kernels[key] = cuda.jit(namespace["kernel"])

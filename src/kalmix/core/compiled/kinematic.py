@@ -1,6 +1,6 @@
 """Compiled kinematic family (:mod:`kalmix.core.families.kinematic`): same formulas, targets in ranges on threads.
 
-:func:`run_block` advances every target through its rows of a block: at each row it
+:func:`kernel` advances every target through its rows of a block: at each row it
 writes every expert's forecast of the row into the bank's shared buffer at the family's
 column ``offset``, then learns the row (a ``restart`` row starts the filters again from it);
 with ``ahead_times`` it also writes the forecast made after the row for that time.
@@ -9,16 +9,15 @@ A family's driver module (this one, :mod:`.ar`, :mod:`.turn`, :mod:`.akf_driver`
 :data:`kalmix.core.families.KINDS` names it) has the same parts, which the CPU engine, the GPU
 staged engine and the compile warm-up use alike:
 
-- ``constants(params)``: the parameters as :func:`kernel` takes them, before its state;
+- ``constants(params)``: the parameters as :func:`kernel` takes them (this module's :class:`Constants`);
 - ``pack(params, state)`` / ``unpack(packed, like)``: the state as the kernel advances it in place
-  (fresh copies) and back;
-- ``scratch(params, p)``: one target's scratch; ``work_arrays(rows, n, params, p, later, allocate)``: a
-  block's work arrays (none here);
-- ``kernel(lo, hi, *constants, *packed, z, times, lengths, learn, restart, out, offset,
-  ahead_times, out_ahead, horizon, *work, *scratch)``: targets ``lo .. hi - 1`` through the
-  block's rows, allocating nothing (one GPU thread runs it with ``lo, hi = j, j + 1``);
-  ``run_block`` the same with its scratch allocated (a time-based family ignores ``horizon``,
-  a frame-based one the times);
+  (fresh copies, the spec's state class) and back;
+- ``scratch(params, p)``: one target's scratch (a tuple); ``work_arrays(rows, n, params, p, later, allocate)``:
+  a block's work arrays (a tuple; none here);
+- ``kernel(lo, hi, params, state, rows, out, work, scratch)``: targets ``lo .. hi - 1`` through the block's
+  ``rows`` (:class:`.stage.FamilyRows`), writing their experts' forecasts into ``out``
+  (:class:`.stage.FamilyOut`), allocating nothing (one GPU thread runs it with ``lo, hi = j, j + 1``; a
+  time-based family ignores ``rows.horizon``, a frame-based one the times);
 - ``check_gpu(params)``: ``ValueError`` if the GPU cannot run the family; ``COST``: the relative
   cost of an expert's row; ``NAME``: the GPU stage's name; ``COMPILE_APART``: the kernel compiles
   in a second process on a fresh install (:mod:`._warm`).
@@ -27,6 +26,7 @@ staged engine and the compile warm-up use alike:
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -200,16 +200,29 @@ def step_expert(order, delta, q, r, initial_k, max_variance, started, learn, fre
     return variance
 
 
-def constants(params) -> tuple:
-    """The family's parameters as :func:`kernel` takes them, before its state."""
-    return (params.order, np.asarray(params.process_noise), np.asarray(params.measurement_noise),
-            np.asarray(params.initial_variance), float(params.time_unit), float(params.max_step),
-            float(params.max_variance))
+class Constants(NamedTuple):
+    """The family's parameters as :func:`kernel` takes them."""
+
+    order: int              # 2: constant velocity, 3: constant acceleration
+    q: np.ndarray           # (K,) process noise
+    r: np.ndarray           # (K,) measurement noise
+    initial: np.ndarray     # (K, order) initial variances
+    time_unit: float
+    max_step: float
+    max_variance: float
 
 
-def pack(params, state) -> tuple:
-    """A time-based family's state as its kernel advances it in place: fresh C-contiguous copies of its arrays."""
-    return tuple(np.array(a, copy=True, order="C") for a in state)
+def constants(params) -> Constants:
+    """The family's parameters as :func:`kernel` takes them."""
+    return Constants(int(params.order), np.asarray(params.process_noise), np.asarray(params.measurement_noise),
+                     np.asarray(params.initial_variance), float(params.time_unit), float(params.max_step),
+                     float(params.max_variance))
+
+
+def pack(params, state):
+    """A time-based family's state as its kernel advances it in place: fresh C-contiguous copies of its arrays, as
+    the spec's state class."""
+    return type(state)(*(np.array(a, copy=True, order="C") for a in state))
 
 
 def unpack(packed, like):
@@ -227,46 +240,31 @@ def check_gpu(params) -> None:
 
 
 def scratch(params, p: int) -> tuple:
-    """One target's scratch of :func:`kernel`."""
-    return _scratch(params.order, p)
-
-
-def run_block(lo, hi, order, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
-              z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon):
-    """Targets ``lo .. hi - 1`` through their rows of the block (scratch allocated here, once a call)."""
-    kernel(lo, hi, order, q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised,
-           z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon,
-           *_scratch(order, z.shape[2]))
-
-
-def _scratch(order: int, p: int):
-    """A target's scratch of :func:`kernel`: m_pred, c_pred, f, work, gain, a."""
+    """One target's scratch of :func:`kernel`: m_pred, c_pred, f, work, gain, a."""
+    order = params.order
     square = lambda: np.empty((order, order))  # noqa: E731
     return np.empty((order, p)), square(), square(), square(), np.empty(order), square()
 
 
 @nb.njit(**KERNEL_JIT)
-def kernel(lo, hi, order, q, r, initial, time_unit, max_step, max_variance,
-           mean, cov, last_time, initialised,
-           z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon,
-           m_pred, c_pred, f, work, gain, a):
-    """The driver: targets ``lo .. hi - 1`` through their rows of the block, with their scratch given
-    (``horizon``, the frame-based families' clock, is not read)."""
+def kernel(lo, hi, params, state, rows, out, work, scratch):
+    """The driver: targets ``lo .. hi - 1`` through their rows of the block (module docstring)."""
     # The order (2: CV, 3: CA; kalmix.core.engine.Family refuses others) as a constant of the compiled loops, so
     # that LLVM unrolls them (the helpers are not inlined by numba, whose inlining of two copies would triple the
     # compile time; LLVM inlines them). The same operations in the same order: the same bits.
-    args = (q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised, z, times, lengths,
-            learn, restart, out, offset, ahead_times, out_ahead, m_pred, c_pred, f, work, gain, a)
-    if order == 2:
-        _drive(lo, hi, 2, args)
+    if params.order == 2:
+        _drive(lo, hi, 2, params, state, rows, out, scratch)
     else:
-        _drive(lo, hi, 3, args)
+        _drive(lo, hi, 3, params, state, rows, out, scratch)
 
 
 @nb.njit(inline="always", **_JIT)
-def _drive(lo, hi, order, args):
-    (q, r, initial, time_unit, max_step, max_variance, mean, cov, last_time, initialised, z, times, lengths,
-     learn, restart, out, offset, ahead_times, out_ahead, m_pred, c_pred, f, work, gain, a) = args
+def _drive(lo, hi, order, params, state, rows, out, scratch):
+    _, q, r, initial, time_unit, max_step, max_variance = params
+    mean, cov, last_time, initialised = state
+    z, times, lengths, learn, restart, ahead_times, _ = rows
+    experts, offset, out_ahead = out
+    m_pred, c_pred, f, work, gain, a = scratch
     k_count = q.shape[0]
     p = z.shape[2]
     want_ahead = out_ahead.shape[0] > 0
@@ -278,7 +276,8 @@ def _drive(lo, hi, order, args):
             delta = step_delta(times[t, n], last_time[n], time_unit, max_step)
             for k in range(k_count):
                 step_expert(order, delta, q[k], r[k], initial[k], max_variance, initialised[n], learning, fresh,
-                            z[t, n], mean[n, k], cov[n, k], out[t, n, offset + k], m_pred, c_pred, f, work, gain, a)
+                            z[t, n], mean[n, k], cov[n, k], experts[t, n, offset + k], m_pred, c_pred, f, work, gain,
+                            a)
             if learning:
                 initialised[n] = True
                 last_time[n] = times[t, n]

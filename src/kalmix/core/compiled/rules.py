@@ -4,7 +4,7 @@ Each rule has its own parameters and state as the kernels take them, named tuple
 spec's names (:class:`BoaParams` / :class:`BoaState`, :class:`MLPolyParams` / :class:`MLPolyState`,
 :class:`FixedShareParams` / :class:`FixedShareState`; :data:`COMPILED_RULES` maps a rule's name to
 them), and its row functions: its weights, its learning, what a restart and a cold restart change.
-One driver, :func:`run_block`, serves them all: it calls :func:`weights_row`, :func:`learn_row`,
+One driver, :func:`kernel`, serves them all: it calls :func:`weights_row`, :func:`learn_row`,
 :func:`restart_row`, :func:`cold_row` and :func:`target`, which numba resolves by the state's type
 when it compiles (an ``overload`` each), so each rule has its own compiled driver and no branch on
 a rule code; with the JIT off (the CUDA simulator) they dispatch in Python.
@@ -516,25 +516,45 @@ def cold_row(s, variance, n_errors, log_scale, initial_variance):
     log_scale[0] = 0.0
 
 
-def run_block(lo, hi, params, state, window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors,
-              log_scale, experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
-              out_ahead_std, cold, restart, initial_variance):
-    """Mixture forecast of every row (weights before the row) and its covariance, then learn the row
-    where ``learn`` (the rule and the calibration); ``out_cov`` and the others are optional (size 0).
-    ``params`` / ``state``: the rule's (:data:`COMPILED_RULES`). A ``cold`` row (the screen's cold
-    restart) is forecast by the old rule and calibration, which then start again (the variances at
-    ``initial_variance``) before its ahead forecast; a ``restart`` row (the experts start again)
-    changes what :func:`restart_row` says (BOA's error scale starts again). Targets ``lo .. hi - 1``."""
-    kernel(lo, hi, params, state, window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors,
-           log_scale, experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
-           out_ahead_std, cold, restart, float(initial_variance), *scratch(experts.shape[2], z.shape[2]))
+class Rows(NamedTuple):
+    """A block's rows as :func:`kernel` reads them."""
+
+    experts: np.ndarray         # (B, N, K, p) the experts' forecasts of each row (NaN: asleep)
+    ahead_experts: np.ndarray   # (B, N, K, p) their forecasts made after each row, or (0, 0, 0, 0)
+    z: np.ndarray               # (B, N, p)
+    lengths: np.ndarray         # (N,)
+    learn: np.ndarray           # (B, N) rows the rule and the calibration learn
+    cold: np.ndarray            # (B, N) the screen's cold restarts
+    restart: np.ndarray         # (B, N) the experts' restarts
+
+
+class Out(NamedTuple):
+    """The mixture's forecasts :func:`kernel` writes (an optional one an empty array)."""
+
+    mean: np.ndarray        # (B, N, p)
+    std: np.ndarray         # (B, N, p)
+    cov: np.ndarray         # (B, N, p, p) or (0, 0, 0, 0)
+    weights: np.ndarray     # (B, N, K) or (0, 0, 0)
+    ahead: np.ndarray       # (B, N, p) the forecast for the ahead time, or (0, 0, 0)
+    ahead_std: np.ndarray   # (B, N, p) or (0, 0, 0)
 
 
 @nb.njit(**KERNEL_JIT)
-def kernel(lo, hi, params, state, window, rate, level, z_level, max_variance, max_log_scale, variance, n_errors,
-           log_scale, experts, z, lengths, learn, out, out_std, out_cov, out_weights, ahead_experts, out_ahead,
-           out_ahead_std, cold, restart, initial_variance, awake, w, logw, r, mix, cov):
-    """:func:`run_block` with its scratch given (one GPU thread runs it with ``lo, hi = j, j + 1``)."""
+def kernel(lo, hi, params, state, cal, cal_state, rows, out, scratch):
+    """Mixture forecast of every row (weights before the row) and its covariance, then learn the row
+    where ``rows.learn`` (the rule and the calibration). ``params`` / ``state``: the rule's
+    (:data:`COMPILED_RULES`); ``cal`` / ``cal_state``: the calibration's
+    (:class:`.calibration.Constants`, :class:`kalmix.core.calibration.CalibrationState`); ``rows``
+    (:class:`Rows`), ``out`` (:class:`Out`), ``scratch`` (:func:`scratch`). A ``cold`` row (the
+    screen's cold restart) is forecast by the old rule and calibration, which then start again (the
+    variances at ``cal.initial_variance``) before its ahead forecast; a ``restart`` row (the experts
+    start again) changes what :func:`restart_row` says (BOA's error scale starts again). Targets
+    ``lo .. hi - 1`` (one GPU thread runs it with ``lo, hi = j, j + 1``)."""
+    window, rate, level, z_level, max_variance, max_log_scale, initial_variance = cal
+    variance, n_errors, log_scale = cal_state
+    experts, ahead_experts, z, lengths, learn, cold, restart = rows
+    out_mean, out_std, out_cov, out_weights, out_ahead, out_ahead_std = out
+    awake, w, logw, r, mix, cov = scratch
     k_count = experts.shape[2]
     want_weights = out_weights.shape[0] > 0
     want_ahead = out_ahead.shape[0] > 0
@@ -545,7 +565,7 @@ def kernel(lo, hi, params, state, window, rate, level, z_level, max_variance, ma
         for t in range(lengths[n]):
             x = experts[t, n]
             count = forecast_row(params, s, x, awake, w, logw, mix, variance[n], ls[0], max_variance, cov)
-            write_row(count, mix, cov, out[t, n], out_std[t, n])
+            write_row(count, mix, cov, out_mean[t, n], out_std[t, n])
             if want_cov:
                 copy_matrix(cov, out_cov[t, n])
             if want_weights:

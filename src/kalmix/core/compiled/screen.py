@@ -1,12 +1,13 @@
 """Compiled glitch screen (:mod:`kalmix.core.screen`): same formulas, targets in ranges on threads.
 
-:func:`screen_row` is the whole test for one target and one row; the CPU driver
-:func:`screen_block` and the GPU kernel (:mod:`.gpu`) both call it.
+:func:`screen_row` is the whole test for one target and one row; the block driver's stage
+:func:`screen_block` and the fused GPU kernel (:mod:`.gpu`) both call it.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -122,14 +123,50 @@ def last_learned(last_time, points, n):
     return last_time[n] if points[n] >= 2.0 else np.nan
 
 
+class Constants(NamedTuple):
+    """The screen's parameters (:class:`kalmix.core.screen.ScreenParams`) as :func:`screen_block` takes them."""
+
+    threshold: float
+    max_rejects: float
+    warmup: float
+    window: float
+
+
+def constants(params) -> Constants:
+    """``params`` (:class:`kalmix.core.screen.ScreenParams`) as :func:`screen_block` takes them."""
+    return Constants(float(params.threshold), float(params.max_rejects), float(params.warmup), float(params.window))
+
+
+class Rows(NamedTuple):
+    """A block's rows as :func:`screen_block` reads them."""
+
+    z: np.ndarray         # (B, N, p)
+    times: np.ndarray     # (B, N)
+    lengths: np.ndarray   # (N,)
+    present: np.ndarray   # (B, N) rows to screen (the others are missing)
+    gaps: np.ndarray      # (B, N) rows a gap restarts
+
+
+class Verdicts(NamedTuple):
+    """What :func:`screen_block` writes for each row of a block, ``(B, N)`` each."""
+
+    accept: np.ndarray    # the row is learned
+    restart: np.ndarray   # the families start again (from it, or from the next present row)
+    started: np.ndarray   # the target had an accepted row (since a restart) before it
+    cold: np.ndarray      # a COLD row: the rule and the calibration start again once it is forecast
+    before: np.ndarray    # the time of the last accepted row before it (NaN while fewer than two: the spec's
+    after: np.ndarray     # :func:`kalmix.core.engine.span`), and after it
+
+
 @nb.njit(**KERNEL_JIT)
-def screen_block(lo, hi, threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count, rejects,
-                 outliers, points, low, high, z, times, lengths, present, gaps, accept, restart, started, cold,
-                 before, after):
-    """Every row of a block; ``started[t, n]``: target ``n`` had an accepted row (since a restart) before row t;
-    ``cold[t, n]``: a COLD row (the rule and the calibration start again once it is forecast); ``before[t, n]``:
-    the time of the last accepted row before row t, ``after[t, n]`` after it (NaN while fewer than two: the
-    spec's :func:`kalmix.core.engine.span`)."""
+def screen_block(lo, hi, params, state, rows, verdicts):
+    """Every row of a block, targets ``lo .. hi - 1``: ``params`` (:class:`Constants`), ``state`` (the spec's
+    :class:`kalmix.core.screen.ScreenState`, advanced in place), ``rows`` (:class:`Rows`), ``verdicts``
+    (:class:`Verdicts`, written)."""
+    threshold, max_rejects, warmup, window = params
+    position, velocity, last_time, scale, count, rejects, outliers, points, low, high = state
+    z, times, lengths, present, gaps = rows
+    accept, restart, started, cold, before, after = verdicts
     for n in range(lo, hi):
         for t in range(lengths[n]):
             started[t, n] = points[n] >= 1.0

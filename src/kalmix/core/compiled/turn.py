@@ -1,6 +1,6 @@
 """Compiled coordinated-turn family (:mod:`kalmix.core.families.turn`): same formulas in the same order.
 
-:func:`run_block` advances every target through its rows of a block: at each row it
+:func:`kernel` advances every target through its rows of a block: at each row it
 writes every expert's forecast of the row into the bank's shared buffer at the family's
 column ``offset``, then learns the row (a ``restart`` row starts the experts again from it);
 with ``ahead_times`` it also writes the forecast made after the row for that time. The
@@ -10,6 +10,7 @@ module has the parts of every family's driver (:mod:`.kinematic` lists them).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -83,36 +84,37 @@ def forecast_expert(gain, speed, omega, span, known, delta, position_n, b, c, ou
         out[i] = position_n[i] + (length * (b[i] * cos_a + c[i] * sin_a) if known >= 1 else 0.0)
 
 
-def constants(params) -> tuple:
-    """The family's parameters as :func:`kernel` takes them, before its state."""
-    return (np.asarray(params.gain), float(params.length_unit), float(params.time_unit), float(params.window),
-            float(params.max_step), float(params.max_velocity))
+class Constants(NamedTuple):
+    """The family's parameters as :func:`kernel` takes them."""
+
+    gain: np.ndarray   # (K,)
+    length_unit: float
+    time_unit: float
+    window: float
+    max_step: float
+    max_velocity: float
+
+
+def constants(params) -> Constants:
+    """The family's parameters as :func:`kernel` takes them."""
+    return Constants(np.asarray(params.gain), float(params.length_unit), float(params.time_unit),
+                     float(params.window), float(params.max_step), float(params.max_velocity))
 
 
 def scratch(params, p: int) -> tuple:
     """One target's scratch of :func:`kernel`: b, c, v."""
-    return _scratch(p)
-
-
-def run_block(lo, hi, gain, length_unit, time_unit, window, max_step, max_velocity,
-              velocity, previous, span, previous_span, known, error, count, position, last_time, initialised,
-              z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon):
-    """Targets ``lo .. hi - 1`` through their rows of the block (scratch allocated here, once a call)."""
-    kernel(lo, hi, gain, length_unit, time_unit, window, max_step, max_velocity,
-           velocity, previous, span, previous_span, known, error, count, position, last_time, initialised,
-           z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon, *_scratch(z.shape[2]))
-
-
-def _scratch(p: int):
     return np.empty(p), np.empty(p), np.empty(p)
 
 
 @nb.njit(**KERNEL_JIT)
-def kernel(lo, hi, gain, length_unit, time_unit, window, max_step, max_velocity,
-           velocity, previous, span, previous_span, known, error, count, position, last_time, initialised,
-           z, times, lengths, learn, restart, out, offset, ahead_times, out_ahead, horizon, b, c, v):
-    """The driver: targets ``lo .. hi - 1`` through their rows of the block, with their scratch given
-    (``horizon``, the frame-based families' clock, is not read)."""
+def kernel(lo, hi, params, state, rows, forecasts, work, scratch):
+    """The driver: targets ``lo .. hi - 1`` through their rows of the block (:mod:`.kinematic` lists the
+    arguments; ``rows.horizon``, the frame-based families' clock, is not read)."""
+    gain, length_unit, time_unit, window, max_step, max_velocity = params
+    velocity, previous, span, previous_span, known, error, count, position, last_time, initialised = state
+    z, times, lengths, learn, restart, ahead_times, _ = rows
+    out, offset, out_ahead = forecasts
+    b, c, v = scratch
     k_count = gain.shape[0]
     p = z.shape[2]
     bound = max_velocity * length_unit
