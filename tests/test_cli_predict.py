@@ -292,7 +292,7 @@ def test_stdin_bad_line_after_rows_on_a_pipe(tmp_path):
         assert len(done.stdout.decode().strip().splitlines()) == 3 + (not feed.startswith("{"))
         skipped = subprocess.run([sys.executable, "-m", "kalmix.cli", "predict", "-", *FAST], input=feed.encode(),
                                  capture_output=True)
-        assert skipped.returncode == 0 and "kalmix: error: 1 bad row(s) skipped" in skipped.stderr.decode()
+        assert skipped.returncode == 0 and "kalmix: warning: 1 bad row(s) skipped" in skipped.stderr.decode()
         assert len(skipped.stdout.decode().strip().splitlines()) == lines   # (a header, then) one per row
 
 
@@ -895,4 +895,4 @@ def test_a_file_in_several_chunks_counts_its_dropped_rows_once(cli, tmp_path):
     result = _run(cli, ["predict", str(path), "--chunk-rows", "20", *FAST])
     assert result.exit_code == 0
     assert result.stderr.count("repeat a timestamp") == 1   # (two of the 3 chunks have repeats)
-    assert "kalmix: error: 4 row(s) repeat a timestamp" in result.stderr
+    assert "kalmix: warning: 4 row(s) repeat a timestamp" in result.stderr

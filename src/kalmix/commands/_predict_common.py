@@ -87,22 +87,22 @@ class Run:
             self.units.check(engine, final=True)
         bad = self.bad.summary()
         if bad is not None:
-            click.echo(f"kalmix: error: {bad}", err=True)
+            click.echo(f"kalmix: warning: {bad}", err=True)
         if engine is not None and engine.skipped > self.skipped0:
             fate = ("their output rows have empty predictions" if self.unit == "row" else   # stdin's rows
                     "not written (a file's rows skipped are left out of the output)")
-            click.echo(f"kalmix: error: skipped {engine.skipped - self.skipped0} row(s) at or before their "
+            click.echo(f"kalmix: warning: skipped {engine.skipped - self.skipped0} row(s) at or before their "
                        f"track's last time (already processed or out of order); {fate}", err=True)
         if self.untimed:
-            click.echo(f"kalmix: error: skipped {self.untimed} row(s) without a time; their output rows have empty "
+            click.echo(f"kalmix: warning: skipped {self.untimed} row(s) without a time; their output rows have empty "
                        "predictions", err=True)
         if self.dropped["untimed"]:
-            click.echo(f"kalmix: error: {self.dropped['untimed']} row(s) have no time: not predicted (their output "
+            click.echo(f"kalmix: warning: {self.dropped['untimed']} row(s) have no time: not predicted (their output "
                        "rows have empty predictions)", err=True)
         if self.resets > STDIN_WARNINGS:
             click.echo(f"kalmix: note: {self.resets} clock restart(s) started a new segment of their track", err=True)
         if self.dropped["repeated"]:
-            click.echo(f"kalmix: error: {self.dropped['repeated']} row(s) repeat a timestamp within their track: "
+            click.echo(f"kalmix: warning: {self.dropped['repeated']} row(s) repeat a timestamp within their track: "
                        "the last row of each repeated time is predicted, the others' output rows have empty "
                        "predictions", err=True)
         if engine is not None and engine.time_glitches > self.glitches0:

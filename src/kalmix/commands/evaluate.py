@@ -140,7 +140,7 @@ def _read_table(input_path, dataset, time_column, position_columns, id_column, g
         warnings.simplefilter("ignore", BadRowWarning)
         table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True, on_bad_row="skip")
     if "bad_rows" in table.attrs:
-        click.echo(f"kalmix: error: {table.attrs['bad_rows'].summary()}: not evaluated", err=True)
+        click.echo(f"kalmix: warning: {table.attrs['bad_rows'].summary()}: not evaluated", err=True)
     _check_file_degrees(table, list(columns.positions), geographic)
     return table, os.path.basename(input_path)
 
