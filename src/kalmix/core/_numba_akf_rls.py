@@ -77,7 +77,7 @@ def rls_fit(xi, features, forgetting, ridge, prior, gram, cross, new_gram, shift
                 value = forgetting[k] * cross[a, c, k] + x
                 cross[a, c, k] = value
                 shifted[a, c, k] = value + ridge[k] * prior_value
-    la.cholesky_solve_rows(new_gram, d, shifted, p, work, theta, acc)
+    la.cholesky_solve_rows(new_gram, d, shifted, p, work, theta, acc, False)
 
 
 @jit

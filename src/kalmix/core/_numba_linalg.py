@@ -1,6 +1,6 @@
-"""Small dense algebra for K experts at once, experts last (numba; used by the compiled AKF kernel).
+"""Small dense algebra for K experts at once, experts last (numba; used by the compiled AKF and AR kernels).
 
-The Cholesky factor, inverse and solve of the compiled AKF kernel (their numpy spec: :mod:`kalmix.core.kalman`).
+The Cholesky factor, inverse and solve of the compiled kernels (their numpy spec: :mod:`kalmix.core.kalman`).
 
 Every array here carries the expert index as its last axis (a structure of arrays:
 ``cov[r, c, k]`` is entry (r, c) of expert k's covariance), and every inner loop runs
@@ -37,10 +37,11 @@ MAX_CLUSTER = 6
 
 # ---------------------------------------------------------------- Cholesky
 @jit
-def cholesky_lower(source, m, work, acc):
+def cholesky_lower(source, m, work, acc, clamp):
     """Cholesky factors of the leading m x m blocks of ``source`` into the lower triangles of ``work``.
 
-    ``source`` may be ``work`` itself (each entry is read before it is overwritten).
+    ``source`` may be ``work`` itself (each entry is read before it is overwritten). With ``clamp`` a pivot
+    below 0 (rounding, in a matrix that is positive semi-definite) is taken as 0, else it gives NaN.
     """
     experts = acc.shape[0]
     for j in range(m):
@@ -49,8 +50,12 @@ def cholesky_lower(source, m, work, acc):
         for l in range(j):
             for k in range(experts):
                 acc[k] -= work[j, l, k] * work[j, l, k]
-        for k in range(experts):
-            work[j, j, k] = math.sqrt(acc[k])
+        if clamp:
+            for k in range(experts):
+                work[j, j, k] = math.sqrt(max(acc[k], 0.0))
+        else:
+            for k in range(experts):
+                work[j, j, k] = math.sqrt(acc[k])
         for i in range(j + 1, m):
             for k in range(experts):
                 acc[k] = source[i, j, k]
@@ -79,7 +84,7 @@ def cholesky_inverse(spd, m, jitter, work, lower_inv, inverse, acc):
                 work[i, j, k] = 0.5 * (spd[i, j, k] + spd[j, i, k])
         for k in range(experts):
             work[i, i, k] += jitter * (acc[k] / m)
-    cholesky_lower(work, m, work, acc)
+    cholesky_lower(work, m, work, acc, False)
     # L^{-1} by forward substitution
     for c in range(m):
         for i in range(m):
@@ -109,10 +114,11 @@ def cholesky_inverse(spd, m, jitter, work, lower_inv, inverse, acc):
 
 
 @jit
-def cholesky_solve_rows(spd, m, rhs, rows, work, out, acc):
-    """``out[r] = spd^{-1} rhs[r]`` for r < rows, for every expert (``spd`` positive definite)."""
+def cholesky_solve_rows(spd, m, rhs, rows, work, out, acc, clamp):
+    """``out[r] = spd^{-1} rhs[r]`` for r < rows, for every expert (``spd`` positive definite; ``clamp``: see
+    :func:`cholesky_lower`)."""
     experts = acc.shape[0]
-    cholesky_lower(spd, m, work, acc)
+    cholesky_lower(spd, m, work, acc, clamp)
     for i in range(m):  # L y = b
         for r in range(rows):
             for k in range(experts):

@@ -80,17 +80,18 @@ def cholesky_inverse(spd: np.ndarray, jitter: float = 1e-12) -> tuple[np.ndarray
     return inverse, log_det
 
 
-def cholesky_lower(spd: np.ndarray) -> np.ndarray:
+def cholesky_lower(spd: np.ndarray, clamp: bool = False) -> np.ndarray:
     """Cholesky factors :math:`L` (``(..., m, m)``, lower triangle) of the lower triangles of ``spd``, entry by
     entry in the compiled kernels' order (:func:`kalmix.core._numba_linalg.cholesky_lower`); NaN where a
-    matrix is not positive definite."""
+    matrix is not positive definite, or with ``clamp`` a pivot below 0 (rounding, in a matrix that is positive
+    semi-definite) taken as 0."""
     m = spd.shape[-1]
     lower = np.zeros(spd.shape)
     for j in range(m):
         acc = spd[..., j, j]
         for k in range(j):
             acc = acc - lower[..., j, k] * lower[..., j, k]
-        lower[..., j, j] = np.sqrt(acc)
+        lower[..., j, j] = np.sqrt(np.maximum(acc, 0.0) if clamp else acc)
         for i in range(j + 1, m):
             acc = spd[..., i, j]
             for k in range(j):
@@ -99,7 +100,7 @@ def cholesky_lower(spd: np.ndarray) -> np.ndarray:
     return lower
 
 
-def cholesky_solve_rows(spd: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+def cholesky_solve_rows(spd: np.ndarray, rhs: np.ndarray, clamp: bool = False) -> np.ndarray:
     """``rhs @ spd^{-1}`` for symmetric positive definite ``spd``: each row of ``rhs`` solved.
 
     .. math:: S = L L^T, \\qquad L y = b, \\qquad L^T x = y
@@ -110,7 +111,8 @@ def cholesky_solve_rows(spd: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     the RLS solve is where digits are lost (its Gram matrix is as ill-conditioned as the
     regressor is far from its origin), and a rounding difference in the system matrix
     grows with every frame extrapolated through it (long gaps).
-    A matrix that is not positive definite gives NaN (no exception), as in the kernels.
+    A matrix that is not positive definite gives NaN (no exception), as in the kernels; ``clamp``: see
+    :func:`cholesky_lower`.
 
     Parameters
     ----------
@@ -125,7 +127,7 @@ def cholesky_solve_rows(spd: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     m = spd.shape[-1]
     shape = np.broadcast_shapes(spd.shape[:-2], rhs.shape[:-2])
     with np.errstate(invalid="ignore", divide="ignore"):
-        lower = np.broadcast_to(cholesky_lower(spd), shape + (m, m))
+        lower = np.broadcast_to(cholesky_lower(spd, clamp), shape + (m, m))
         out = np.zeros(shape + rhs.shape[-2:])
         for i in range(m):  # L y = b
             acc = rhs[..., :, i]

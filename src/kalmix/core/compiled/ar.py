@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
+from .. import _numba_linalg as la
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
 from .kinematic import step_delta   # the same clipped step in time units
@@ -84,43 +85,6 @@ def _forecast(order, bias, m, delta, length_unit, max_velocity, weights_k, histo
         out[c] = position
 
 
-@nb.njit(**_JIT)
-def _solve_all(m, a, b, low, y, out, acc):
-    """``out[:, k] = a[:, :, k]^{-1} b[:, k]`` by Cholesky for every expert ``k`` at once (the spec's loops,
-    each expert's arithmetic in the same order; the experts innermost, so that their independent chains of
-    square roots and divisions overlap instead of each waiting on the last)."""
-    k_count = acc.shape[0]
-    for i in range(m):
-        for j in range(i + 1):
-            for k in range(k_count):
-                acc[k] = a[i, j, k]
-            for l in range(j):
-                for k in range(k_count):
-                    acc[k] = acc[k] - low[i, l, k] * low[j, l, k]
-            if i == j:
-                for k in range(k_count):
-                    low[i, i, k] = math.sqrt(max(acc[k], 0.0))
-            else:
-                for k in range(k_count):
-                    low[i, j, k] = acc[k] / low[j, j, k]
-    for i in range(m):
-        for k in range(k_count):
-            acc[k] = b[i, k]
-        for l in range(i):
-            for k in range(k_count):
-                acc[k] = acc[k] - low[i, l, k] * y[l, k]
-        for k in range(k_count):
-            y[i, k] = acc[k] / low[i, i, k]
-    for i in range(m - 1, -1, -1):
-        for k in range(k_count):
-            acc[k] = y[i, k]
-        for l in range(i + 1, m):
-            for k in range(k_count):
-                acc[k] = acc[k] - low[l, i, k] * out[l, k]
-        for k in range(k_count):
-            out[i, k] = acc[k] / low[i, i, k]
-
-
 @nb.njit(**KERNEL_JIT)
 def _start(order, m, persistence, initial_error, weights_k, info_k, target_k, history_k, scale, weight, error,
            count, jumps, n, k):
@@ -142,13 +106,14 @@ def _start(order, m, persistence, initial_error, weights_k, info_k, target_k, hi
 
 @nb.njit(**KERNEL_JIT)
 def _learn(order, bias, m, forgetting, ridge, persistence, jump_threshold, window, max_velocity, v, weights_n,
-           info_n, target_n, history_n, scale, weight, error, count, jumps, n, x, a, rhs, low, y, sol, acc, go,
+           info_n, target_n, history_n, scale, weight, error, count, jumps, n, x, a, rhs, low, sol, acc, go,
            new_scale, informative):
     """Every expert of target ``n`` learns the velocity ``v (p,)``: the jump test, then the fit (or not).
 
     Each expert's arithmetic is the spec's, in its order; the experts are only interleaved: first each one's
     jump test and running statistics, then, coordinate by coordinate, the information matrices of those that
-    learn and one Cholesky solve over all of them (:func:`_solve_all`)."""
+    learn and one Cholesky solve over all of them (:func:`kalmix.core._numba_linalg.cholesky_solve_rows`, a
+    pivot below 0 taken as 0)."""
     p = v.shape[0]
     k_count = forgetting.shape[0]
     vv = v[0] * v[0]
@@ -181,7 +146,7 @@ def _learn(order, bias, m, forgetting, ridge, persistence, jump_threshold, windo
                 for i in range(m):
                     for j in range(m):
                         a[i, j, k] = 1.0 if i == j else 0.0
-                    rhs[i, k] = 0.0
+                    rhs[0, i, k] = 0.0
                 continue
             lam = forgetting[k]
             info_kc = info_n[k, c]
@@ -197,15 +162,15 @@ def _learn(order, bias, m, forgetting, ridge, persistence, jump_threshold, windo
             for i in range(m):
                 for j in range(m):
                     a[i, j, k] = info_kc[i, j] + (ridge_k if i == j else 0.0)
-                rhs[i, k] = target_kc[i] + ridge_k * (persistence if i == 0 else 0.0)
+                rhs[0, i, k] = target_kc[i] + ridge_k * (persistence if i == 0 else 0.0)
                 informative[k] = informative[k] or x[i] != 0.0
-        _solve_all(m, a, rhs, low, y, sol, acc)
+        la.cholesky_solve_rows(a, m, rhs, 1, low, sol, acc, True)
         for k in range(k_count):
             if not go[k]:
                 continue
             if informative[k]:  # a zero regressor keeps the weights exactly (the spec's note)
                 for i in range(m):
-                    weights_n[k, c, i] = sol[i, k]
+                    weights_n[k, c, i] = sol[0, i, k]
             for i in range(order - 1, 0, -1):
                 history_n[k, c, i] = history_n[k, c, i - 1]
             history_n[k, c, 0] = v[c]
@@ -238,11 +203,11 @@ def constants(params) -> Constants:
 
 def scratch(params, p: int) -> tuple:
     """One target's scratch of :func:`kernel`: x, v, h and :func:`_learn`'s for the experts of ``m`` weights
-    (a, rhs, low, y, sol, acc, go, new_scale, informative)."""
+    (a, rhs, low, sol, acc, go, new_scale, informative)."""
     order, k_count = params.order, params.n_experts
     m = order + (1 if params.bias else 0)
-    return (np.empty(m), np.empty(p), np.empty(order), np.empty((m, m, k_count)), np.empty((m, k_count)),
-            np.zeros((m, m, k_count)), np.empty((m, k_count)), np.empty((m, k_count)), np.empty(k_count),
+    return (np.empty(m), np.empty(p), np.empty(order), np.empty((m, m, k_count)), np.empty((1, m, k_count)),
+            np.zeros((m, m, k_count)), np.empty((1, m, k_count)), np.empty(k_count),
             np.empty(k_count, dtype=np.bool_), np.empty(k_count), np.empty(k_count, dtype=np.bool_))
 
 
@@ -274,7 +239,7 @@ def _drive(lo, hi, order, bias, params, state, rows, forecasts, scratch):
     weights, info, target, history, scale, weight, error, count, jumps, position, last_time, initialised = state
     z, times, lengths, learn, restart, ahead_times, _ = rows
     out, offset, out_ahead = forecasts
-    x, v, h, a, rhs, low, y, sol, acc, go, new_scale, informative = scratch
+    x, v, h, a, rhs, low, sol, acc, go, new_scale, informative = scratch
     k_count = forgetting.shape[0]
     p = z.shape[2]
     m = order + (1 if bias else 0)
@@ -301,7 +266,7 @@ def _drive(lo, hi, order, bias, params, state, rows, forecasts, scratch):
                         v[c] = bounded((z[t, n, c] - position[n, c]) / delta / length_unit, max_velocity)
                     _learn(order, bias, m, forgetting, ridge, persistence, jump_threshold, window, max_velocity, v,
                            weights[n], info[n], target[n], history[n], scale, weight, error, count, jumps, n, x, a, rhs,
-                           low, y, sol, acc, go, new_scale, informative)
+                           low, sol, acc, go, new_scale, informative)
                 for c in range(p):
                     position[n, c] = z[t, n, c]
                 last_time[n] = times[t, n]

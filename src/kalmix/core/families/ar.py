@@ -52,6 +52,7 @@ import numpy as np
 
 from .._libm import ordered_sum
 from ..constraints import Boolean, Integer, Levels, Real
+from ..kalman import cholesky_solve_rows
 from .kinematic import restarted, step_delta   # the same clipped step in time units; the same restart
 
 __all__ = ["ARParams", "ARState", "init_state", "forecast", "update", "expert_name", "one_expert", "ITERATED_STEPS"]
@@ -196,34 +197,6 @@ def forecast(params: ARParams, state: ARState, time, frames: int = 1) -> tuple[n
     return means, state.error * scale * scale
 
 
-def _solve(a, b):
-    """``a^{-1} b`` for symmetric positive definite ``a (..., m, m)`` by Cholesky, in the kernel's order."""
-    m = b.shape[-1]
-    low = np.zeros(a.shape)
-    for i in range(m):
-        for j in range(i + 1):
-            acc = a[..., i, j]
-            for l in range(j):
-                acc = acc - low[..., i, l] * low[..., j, l]
-            if i == j:
-                low[..., i, i] = np.sqrt(np.maximum(acc, 0.0))
-            else:
-                low[..., i, j] = acc / low[..., j, j]
-    y = np.zeros(b.shape)
-    for i in range(m):
-        acc = b[..., i]
-        for l in range(i):
-            acc = acc - low[..., i, l] * y[..., l]
-        y[..., i] = acc / low[..., i, i]
-    x = np.zeros(b.shape)
-    for i in range(m - 1, -1, -1):
-        acc = y[..., i]
-        for l in range(i + 1, m):
-            acc = acc - low[..., l, i] * x[..., l]
-        x[..., i] = acc / low[..., i, i]
-    return x
-
-
 def _fit(params: ARParams, state: ARState, x, v):
     """Exponentially weighted least squares with a ridge toward the prior weights.
 
@@ -239,7 +212,9 @@ def _fit(params: ARParams, state: ARState, x, v):
     scale = state.scale + (ordered_dot(v, v) / v.shape[-1] - state.scale) / weight
     largest = np.max(np.diagonal(info, axis1=-2, axis2=-1), axis=-1)                # (N, K, p)
     ridge = rho * scale[..., None] + 1e-9 * largest + 1e-12
-    weights = _solve(info + ridge[..., None, None] * np.eye(m), target + ridge[..., None] * prior_weights(params))
+    # (A + r I) w = b + r w0 by Cholesky, a pivot below 0 (rounding) taken as 0
+    rhs = (target + ridge[..., None] * prior_weights(params))[..., None, :]
+    weights = cholesky_solve_rows(info + ridge[..., None, None] * np.eye(m), rhs, clamp=True)[..., 0, :]
     # a zero regressor (the first velocity of a track) says nothing about w: keep it exactly (the solve
     # would return it up to rounding, and experts equal to rounding make the rules' regrets chaotic)
     weights = np.where((x == 0.0).all(axis=-1)[..., None], state.weights, weights)
