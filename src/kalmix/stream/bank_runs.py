@@ -11,6 +11,7 @@ import numpy as np
 
 from ..bank import make_bank
 from ..core.engine import Bank, BankState, init_bank_state
+from .gaps import silence_variance
 from .times import column_seconds
 from .units import LengthUnitWarning, estimate_length_unit, length_unit_fallback
 
@@ -174,10 +175,11 @@ class BankRuns:
             self._far = (self.params, far)
         return self._far[1]
 
-    def _forecast_far(self, state: BankState, times) -> tuple[np.ndarray, np.ndarray]:
+    def _forecast_far(self, state: BankState, times, thresholds) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`_forecast_next` across a time gap: the constant-velocity experts' extrapolation (weighted as
-        the rule weighs them) and its interval, which grows with the step; NaN for a bank without them (whose
-        other time-based experts extrapolate fits made on the usual steps)."""
+        the rule weighs them) and its interval, widened by what the silence adds (:func:`.gaps.silence_variance`,
+        ``thresholds (N,)`` the tracks' gap thresholds); NaN for a bank without them (whose other time-based
+        experts extrapolate fits made on the usual steps)."""
         bank = self._far_bank()
         if bank is None:
             shape = (len(np.atleast_1d(times)), self.params.measurement_dim)
@@ -185,7 +187,9 @@ class BankRuns:
         times = np.asarray(times, dtype=np.float64)
         blank = np.full((1, len(times), self.params.measurement_dim), np.nan)
         result = self._run(blank, times[None, :], None, state, None, bank=bank)
-        return result.forecasts[0], result.std[0]
+        mean, std = result.forecasts[0], result.std[0]
+        added = silence_variance(mean, state.screen.position, state.screen.time, times, thresholds)
+        return mean, np.sqrt(std ** 2 + added[:, None])
 
     def output_columns(self) -> dict:
         """Output key (``pred``, ``std``, ``lead``, ``lead_std``) -> its columns' names: ``pred_<pos>``,

@@ -1,5 +1,5 @@
 """The gap rule: causal detection of time gaps that start a new segment of a track (see :mod:`kalmix.streaming`,
-which re-exports it)."""
+which re-exports it), and what a forecast across such a gap is sure of (:func:`silence_variance`)."""
 
 from __future__ import annotations
 
@@ -25,6 +25,32 @@ def _upper_quartile(values) -> float:
     13th of 16; of up to 4 steps, the largest)."""
     ordered = sorted(values)
     return float(ordered[min(len(ordered) - 1, 3 * len(ordered) // 4)])
+
+
+def silence_variance(mean, position, last_time, time, threshold) -> np.ndarray:
+    """The variance ``(N,)`` that a silence adds to each coordinate of a forecast made across it.
+
+    The experts learn a track's motion on its usual steps, where the process noise is lost in the measurement
+    noise, so their intervals say little of how a velocity may change over hours or days. Across a silence the
+    honest statement is that the velocity may have changed by about its own size: over the silence, white
+    acceleration whose velocity change :math:`\\delta v` has :math:`E|\\delta v|^2 = |v|^2`, i.e. a variance
+    :math:`|v|^2 / p` per coordinate, which leaves a position variance of :math:`|v|^2 \\Delta^2 / (3p)` per
+    coordinate at the silence's end. With :math:`d = v \\Delta` the forecast's own displacement, ``mean (N, p)``
+    minus the last accepted ``position (N, p)`` at ``last_time (N,)``, and :math:`\\Delta` the span from
+    ``last_time`` to ``time (N,)``:
+
+    .. math::  \\sigma^2 = \\frac{|d|^2}{3p} \\max\\Big(0, 1 - \\frac{\\tau}{\\Delta}\\Big),
+
+    where :math:`\\tau` is the ``threshold (N,)`` of the gap rule: the track's own steps vouch for steps up to it,
+    so only the part of the silence beyond it counts (the variance is 0 at the threshold, and about the full
+    :math:`|d|^2 / (3p)` across a silence of many thresholds). 0 where any of these is unknown.
+    """
+    mean, position = np.asarray(mean, dtype=np.float64), np.asarray(position, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        span = np.asarray(time, dtype=np.float64) - np.asarray(last_time, dtype=np.float64)
+        share = np.maximum(0.0, 1.0 - np.asarray(threshold, dtype=np.float64) / span)
+        variance = ((mean - position) ** 2).sum(axis=-1) / (3.0 * mean.shape[-1]) * share
+    return np.where(np.isfinite(variance) & (span > 0), variance, 0.0)
 
 
 class SkippedRowWarning(RuntimeWarning):

@@ -298,12 +298,13 @@ class TableSteps:
                 guess = times[last] + np.array([self._interval(self.gaps[tracks[c]]) for c in columns])
                 when = np.where(np.isfinite(when) & (when > times[last]), when, guess)
                 out["pred"][last], out["std"][last] = self._forecast_next(result.state, when)
-                far = np.array([len(pieces[c]) > wave + 1 or when[k] - times[last[k]] > self.gaps[tracks[c]].threshold(
-                    self.config) for k, c in enumerate(columns)], dtype=bool)
+                thresholds = np.array([self.gaps[tracks[c]].threshold(self.config) for c in columns])
+                far = np.array([len(pieces[c]) > wave + 1 for c in columns], dtype=bool) | (
+                    when - times[last] > thresholds)
                 if far.any():   # the next row comes after a gap
                     index = np.flatnonzero(far)
                     out["pred"][last[index]], out["std"][last[index]] = self._forecast_far(
-                        _take(result.state, index), when[index])
+                        _take(result.state, index), when[index], thresholds[index])
                 if lead:   # none from a track's first row (a single position)
                     out["lead"][rows[active]] = result.lead[active]
                     out["lead_std"][rows[active]] = result.lead_std[active]
