@@ -5,6 +5,7 @@ stdin line that does not parse) is skipped, keeps its place in the output with e
 counted on an error line at the end with its line; ``--on-bad-row fail`` stops at it; ``--rejects`` lists it.
 """
 
+import io
 import json
 import os
 import subprocess
@@ -17,7 +18,7 @@ import pytest
 from click.testing import CliRunner
 
 from kalmix.cli import build
-from kalmix.io.tables import BadRowWarning, iter_track_chunks, read_tracks
+from kalmix.io.tables import BadRowWarning, DroppedRowWarning, iter_track_chunks, read_tracks
 from kalmix.streaming import SkippedRowWarning, StreamConfig, TrackPredictor
 
 FAST = ["--experts", "2", "--seed", "1", "--no-progress", "--length-unit", "0.5"]
@@ -421,3 +422,29 @@ def test_rows_that_come_late_are_still_sorted_into_place(cli, tmp_path):
     twice = ["id,t,x,y"] + [f"a,{k},{k},0" for k in range(50)] * 2   # a block given twice: repeated rows
     result = _run(cli, ["predict", _write(tmp_path / "twice.csv", twice), *FAST])
     assert "goes back" not in result.stderr and "kalmix: warning: 50 row(s) repeat a timestamp" in result.stderr
+
+
+def test_a_row_that_goes_back_across_a_chunk_boundary_keeps_its_place_with_empty_predictions(cli, tmp_path):
+    """A track whose time repeats or goes back across a chunk boundary stopped the run ("sort the file") while the
+    same file read whole was sorted: the chunks cannot be reordered, so the late rows keep their places, not
+    predicted, counted on one warning line; every other row is predicted, in any --chunk-rows."""
+    lines = _lines(40)   # a: lines 2-21, b: lines 22-41
+    late = lines[:12] + [lines[11], lines[6]] + lines[12:]   # a's time 1.0 again, then 0.5, after line 12
+    path = _write(tmp_path / "late.csv", late)
+    for chunk in ("11", "12", "5"):
+        result = _run(cli, ["predict", path, *FAST, "--chunk-rows", chunk])
+        assert result.exit_code == 0, result.stderr
+        out = pd.read_csv(io.StringIO(result.stdout))
+        assert len(out) == len(late) - 1 and out["time"].tolist() == [float(x.split(",")[1]) for x in late[1:]]
+        # out[10] and out[11] repeat a's time 1.0 (one of them predicted: the first across a boundary, the last
+        # within a chunk), out[12] goes back to 0.5 after them: not predicted
+        empty = np.flatnonzero(out["pred_x"].isna().to_numpy()).tolist()
+        assert empty == ([11, 12] if chunk == "11" else [10, 12])
+        late_line = "row(s) came at or before their track's last time in the rows read before them"
+        assert (f"2 {late_line}" if chunk == "11" else f"1 {late_line}") in result.stderr
+    with pytest.raises(ValueError, match="not after the time"):
+        list(iter_track_chunks(path, chunk_rows=12))
+    with pytest.warns(DroppedRowWarning, match="at or before their track's last time"):
+        chunks = list(iter_track_chunks(path, chunk_rows=12, late_rows="skip"))
+    assert [c.attrs["dropped"]["late"] for c in chunks] == [0, 1, 0, 0]
+    assert sum(map(len, chunks)) == len(late) - 1 - 2

@@ -23,8 +23,9 @@ a whole is derived here the same way, before the shuffle:
 Everything else is per track (the gap rule, repeated timestamps, the states), so it does not
 matter which worker holds a track. Rows of one track are put in order the same way: the rows
 of the whole archive in file order, a repeated timestamp keeps the last row, a row without a
-time is dropped, a time-less track counts its rows. (A single-machine run needs each track's
-rows in increasing time order across its chunks; here the whole archive is sorted.)
+time is dropped, a time-less track counts its rows. (A single-machine run cannot reorder a
+track's rows across its chunks, and leaves a row that comes late unpredicted; here the whole
+archive is sorted.)
 
 Memory: a partition of the shuffle is held whole by one worker thread, about 300 bytes per
 row at its peak with 2 positions (its rows, the time sort, the output); it is stepped in

@@ -23,7 +23,7 @@ class Run:
         self.ids = IdWatch(engine.gaps if engine is not None else ())
         self.units = UnitWatch()
         self.resets = 0   # tracks' clocks that restarted
-        self.dropped = {"untimed": 0, "repeated": 0}   # a file's rows not predicted, by why
+        self.dropped = {"untimed": 0, "repeated": 0, "late": 0}   # a file's rows not predicted, by why
         self.resuming = engine is not None  # a state file was loaded
         self.sink: Output | None = None
         self.rows = self.since_save = 0
@@ -105,6 +105,11 @@ class Run:
             click.echo(f"kalmix: warning: {self.dropped['repeated']} row(s) repeat a timestamp within their track: "
                        "the last row of each repeated time is predicted, the others' output rows have empty "
                        "predictions", err=True)
+        if self.dropped["late"]:
+            click.echo(f"kalmix: warning: {self.dropped['late']} row(s) came at or before their track's last time in "
+                       "the rows read before them (a file is read a chunk at a time, see --chunk-rows, and rows cannot "
+                       "be reordered across chunks): not predicted (their output rows have empty predictions); sort "
+                       "the file by track and time to predict them", err=True)
         if engine is not None and engine.time_glitches > self.glitches0:
             click.echo(f"kalmix: warning: {engine.time_glitches - self.glitches0} row(s) came back in time after "
                        "a jump ahead: the jump's timestamp was taken as wrong and the track went on", err=True)

@@ -19,7 +19,8 @@ from .values import bad_value, read_floats
 def normalise_table(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
                counts: dict | None = None, first_appearance: bool = False, as_given: bool = False,
                given_time: pd.Series | None = None, *, on_bad_row: str = "fail", lines: ChunkLines | None = None,
-               time_kind: dict | None = None, where: str = "row", clocks: ClockResets | None = None) -> pd.DataFrame:
+               time_kind: dict | None = None, where: str = "row", clocks: ClockResets | None = None,
+               after: dict | None = None) -> pd.DataFrame:
     """Validate one raw table (or chunk) into the canonical sorted long table; ``as_given``: with its rows as
     the file gave them in ``attrs["as_given"]`` (:class:`AsGiven`; ``given_time``: the time column's values
     to keep, when not ``raw``'s own).
@@ -30,7 +31,9 @@ def normalise_table(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
     place in ``as_given`` as a row not stepped, and is listed in ``attrs["bad_rows"]`` (:class:`BadRows`).
     ``time_kind``: the time column's kind (numbers or date-times) across a file's chunks. ``clocks``: a
     track's clock that restarts starts a new segment (:class:`ClockResets`) instead of being sorted into the
-    rows before it."""
+    rows before it. ``after``: each track's last time in a file's chunks before this one; a row at or before it
+    (a late row, which the chunks read cannot be reordered with) is left out like a row without a time, kept in
+    ``as_given`` as a row not stepped, and counted in ``attrs["dropped"]["late"]``."""
     if len(raw) == 0:
         raise ValueError("The track file has no rows (only a header or nothing at all)")
     if on_bad_row not in ON_BAD_ROW:
@@ -92,6 +95,16 @@ def normalise_table(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
         out = out[~(no_time | bad)]
     if clocks is not None:
         out = clocks.apply(out, named)
+    late = np.zeros(n, dtype=bool)
+    if after:
+        before = out["track_id"].map(after).to_numpy(np.float64, na_value=np.nan)
+        behind = before >= out["time"].to_numpy()
+        if behind.any():
+            late[out.index.to_numpy()[behind]] = True
+            out = out[~behind]
+            warnings.warn(f"{int(behind.sum())} row(s) at or before their track's last time in the rows read "
+                          "before: not predicted" + (" (their output rows have empty predictions)" if as_given else
+                                                     ""), DroppedRowWarning, stacklevel=3)
     back = int((out.groupby("track_id", sort=False)["time"].diff() < 0).sum())
     if back:
         warnings.warn(f"Times decrease at {back} row(s) within tracks; sorted each track's rows "
@@ -116,11 +129,11 @@ def normalise_table(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
     if dup.any():
         out = out[~dup]
     out.attrs["file_order"] = _RowOrder(out.index.to_numpy())   # each row's place in the file (read on demand)
-    out.attrs["dropped"] = {"untimed": int(no_time.sum()), "repeated": int(dup.sum())}
+    out.attrs["dropped"] = {"untimed": int(no_time.sum()), "repeated": int(dup.sum()), "late": int(late.sum())}
     if clocks is not None and clocks.found:
         out.attrs["clock_resets"] = list(clocks.found)
     if as_given:
-        out.attrs["as_given"] = AsGiven.of(raw, cols, sorted_places, dup, no_time | bad, given_time)
+        out.attrs["as_given"] = AsGiven.of(raw, cols, sorted_places, dup, no_time | bad | late, given_time)
     if bad.any():
         out.attrs["bad_rows"] = BadRows.of(raw, cols, np.flatnonzero(bad), why, offset, lines, named)
     return out.reset_index(drop=True)

@@ -240,7 +240,7 @@ def _checked_column(path, cols: TrackColumns, ids_as_text: bool) -> int | None:
 def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None = None,
                       chunk_rows: int = 1_000_000, format: str | None = None, ids_as_text: bool = False,
                       as_given: bool = False, on_bad_row: str = "fail", bad_texts: bool = False,
-                      clock_resets=None) -> Iterator[pd.DataFrame]:
+                      clock_resets=None, late_rows: str = "fail") -> Iterator[pd.DataFrame]:
     """Read a huge CSV or Parquet track file in bounded memory, chunk by chunk.
 
     Chunks of at most `chunk_rows` file rows come in file order (pandas
@@ -250,8 +250,8 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
 
     Within a track, rows must come in increasing time order across chunks: a
     chunk cannot reorder rows already yielded, so a track whose time goes back
-    (or repeats) across a chunk boundary raises ``ValueError``; sort the file
-    first or use :func:`read_tracks`. Disorder inside one chunk is sorted with a
+    (or repeats) across a chunk boundary raises ``ValueError`` (``late_rows``);
+    sort the file first or use :func:`read_tracks`. Disorder inside one chunk is sorted with a
     warning as in :func:`read_tracks`. With ``time=None`` each track's row count
     continues across chunks.
 
@@ -281,6 +281,11 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         before it by this step (a track's usual step given), instead of being sorted into them; the
         chunk lists its restarts in ``chunk.attrs["clock_resets"]``. A :class:`ClockResets`: that one
         (its tracks' clocks read after each chunk). None: sorted (as any disorder).
+    late_rows : {'fail', 'skip'}, default 'fail'
+        A row at or before its track's last time in an earlier chunk: ``'fail'`` raises
+        ``ValueError``; ``'skip'`` leaves it out of its chunk like a row without a time (counted in
+        ``chunk.attrs["dropped"]["late"]``, kept in ``as_given`` as a row not predicted) and warns
+        (:class:`DroppedRowWarning`).
 
     Yields
     ------
@@ -290,6 +295,8 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
     """
     if int(chunk_rows) < 1:
         raise ValueError(f"Expected chunk_rows >= 1, got {chunk_rows}")
+    if late_rows not in ON_BAD_ROW:
+        raise ValueError(f"late_rows: expected one of {list(ON_BAD_ROW)}, got {late_rows!r}")
     fmt = _format_of(path, format)
     cols = _resolve(read_header(path, fmt), columns)
     check_unique_columns(path, fmt, cols)
@@ -325,7 +332,8 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
                 len(raw), raw[cols.track_id] if lines.check is not None else None)
             chunk = normalise_table(raw, cols, offset, counts, first_appearance=ids_as_text and fmt == "csv",
                                as_given=as_given, given_time=given_time, on_bad_row=on_bad_row, lines=where,
-                               time_kind=time_kind, where="parquet" if fmt == "parquet" else "row", clocks=clocks)
+                               time_kind=time_kind, where="parquet" if fmt == "parquet" else "row", clocks=clocks,
+                               after=last if late_rows == "skip" else None)
             bad = chunk.attrs.get("bad_rows")
             if bad is not None:
                 skipped += len(bad)
