@@ -291,6 +291,10 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
         engine = None
         if state_path and os.path.exists(state_path):
             engine = TrackPredictor.load(state_path, backend=backend)
+            if unit is None and isinstance(engine.config.length_unit, float):   # (said as a new run says its own)
+                metres = " m" if engine.config.geographic else ""
+                click.echo(f"kalmix: length unit {engine.config.length_unit:.6g}{metres} (from the state file "
+                           f"{state_path})", err=True)
             _check_state(engine, state_path, n_experts=n_experts, seed=seed, unit=unit, horizon=horizon, lead=lead,
                          bank_kind=bank_kind, rule=rule, time_unit=time_unit, geographic=geographic, reach=reach,
                          options=options)
