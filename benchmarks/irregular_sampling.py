@@ -4,14 +4,14 @@ Run: python -m benchmarks.irregular_sampling [--json out.json]
 
 Six simulated vessels, 400 reports each (seed 0): speed ~5 m/s, a slowly drifting heading, 5 m
 position noise, reports every 2, 3, 10, 30 or 180 s (10 s most often; one report in seven
-after 180 s). :func:`kalmix.experiments.evaluate.evaluate_table` with its peers: with
-the default gap rule (a step over 3 reference intervals restarts the track: here the 30 s and
-180 s steps) and with no gap restart (``--max-gap none``, the experts predict across every
-step), each without and with ``--reach 8`` (across a step over 8 time units only the CV experts
-predict). For the bridged run it also gives the one-step RMS with the time unit forced to 3-180 s, for
-reach none, 8 and 1.5. For the bridged runs it also splits the default mixture's one-step errors (the engine on
-evaluation's rule for the units) between the long steps (> 60 s) and the others, and gives each family's best
-expert and its weight there.
+after 180 s). :func:`kalmix.experiments.evaluate.evaluate_table` with its peers: with the
+default gap rule (a step beyond 3 reference intervals, which take the spread of a track's first
+steps into account, restarts the track) and with no gap restart (``--max-gap none``, the experts
+predict across every step), each without and with ``--reach 8`` (across a step over 8 time units
+only the CV experts predict). For the bridged run it also gives the one-step RMS with the time
+unit forced to 3-180 s, for reach none, 8 and 1.5. For the bridged runs it also splits the
+default mixture's one-step errors (the engine on evaluation's rule for the units) between the
+long steps (> 60 s) and the others, and gives each family's best expert and its weight there.
 """
 
 from __future__ import annotations

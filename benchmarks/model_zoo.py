@@ -159,6 +159,10 @@ def _uniform(low, high):
     return lambda rng, rows: rng.uniform(low, high, rows - 1)
 
 
+def _log_uniform(low, high):
+    return lambda rng, rows: np.exp(rng.uniform(math.log(low), math.log(high), rows - 1))
+
+
 def scenarios() -> dict[str, Scenario]:
     out = {}
 
@@ -200,6 +204,13 @@ def scenarios() -> dict[str, Scenario]:
                  [kinematic(1, q)], r, np.zeros(4), np.array([100.0, 5.0, 100.0, 5.0]), _uniform(5.0, 60.0),
                  {"model": "constant velocity", "q_m2_per_s3": q, "measurement_std_m": r,
                   "dt_s": "uniform in [5, 60]"}, tracks=100, seed=5))
+    # the same vessel model reporting at random intervals spread over a factor of 60 (log-uniform 10 s to 10 min):
+    # the long steps are the sampling, not gaps
+    add(Scenario("cv_log_uniform", "constant velocity, steps 10 s-10 min",
+                 f"constant velocity (q = {q:g} m²/s³), steps log-uniform in 10 s-10 min, {r:g} m noise",
+                 [kinematic(1, q)], r, np.zeros(4), np.array([100.0, 5.0, 100.0, 5.0]), _log_uniform(10.0, 600.0),
+                 {"model": "constant velocity", "q_m2_per_s3": q, "measurement_std_m": r,
+                  "dt_s": "log-uniform in [10, 600]"}, tracks=40, seed=11))
     # the same vessel model, regular 10 s reports, silent for 3 days in the middle of each track
     outage = 3 * 86400.0
     add(Scenario("cv_outage", "constant velocity, a 3-day silence",

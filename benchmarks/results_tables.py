@@ -636,9 +636,9 @@ def irregular(results: Results) -> list:
                           "coverage"], rows=rows, sources=("irregular_sampling.json",), command=command,
                   title="Six simulated vessels reporting every 2-180 s (AIS-like), one-step RMS",
                   notes=[("`kalmix evaluate` with its peers. Bridged: `--max-gap none`, no step restarts the experts; "
-                          "with the default gap rule a step over 3 typical intervals does. `--reach 8`: across a step "
-                          "over 8 time units only the CV experts forecast. *The bank's best expert, chosen in "
-                          "hindsight. Coverage of the 95 % intervals." + peer_note)])
+                          "with the default gap rule a step beyond the spread of a track's first steps does. "
+                          "`--reach 8`: across a step over 8 time units only the CV experts forecast. *The bank's "
+                          "best expert, chosen in hindsight. Coverage of the 95 % intervals." + peer_note)])
     tables = [first]
     grid = data.get("bridged, by time unit and reach")
     if grid:

@@ -141,6 +141,8 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
         settings = (*settings, "geographic")
     if version < 12:
         config, settings = {**config, "gap_reference": "median"}, (*settings, "gap_reference")
+    elif version < 15:   # files of versions 12 to 14 hold the rule they ran with, the upper quartile alone
+        config = {**config, "gap_reference": "upper quartile"}
     if version < 13:
         config = {**config, "gap_min_steps": 1, "population_prior": False}
         settings = (*settings, "gap_min_steps", "population_prior")
@@ -154,7 +156,7 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     first.save(tmp_path / "s.npz")
     saved = dict(np.load(tmp_path / "s.npz"))
     meta = json.loads(str(saved["meta"]))
-    assert meta["format_version"] == STATE_FORMAT_VERSION == 14
+    assert meta["format_version"] == STATE_FORMAT_VERSION == 15
     if version < 14:
         whole = part + _rows(_without_blend(tmp_path, saved, dict(meta, format_version=13)), table.iloc[cut:])
     meta["format_version"] = version
@@ -967,3 +969,23 @@ def test_a_store_that_compacts_keeps_every_tracks_bits_a_batch_at_a_time():
     for track, leaves in want.items():
         got = [a for _, a in tree_leaves(store[track])]
         assert all(a.dtype == b.dtype and a.tobytes() == b.tobytes() for a, b in zip(got, leaves)), track
+
+
+def test_the_gap_threshold_is_the_step_on_regular_sampling_and_beyond_the_spread_of_irregular_sampling():
+    """The default reference: the upper quartile of a track's first 16 steps times their spread (upper over lower
+    quartile) to the power 1.5. Regular steps: 3 steps; steps spread over a factor of 60 (log-uniform 10 s - 10 min):
+    beyond the longest step; "upper quartile" (files of versions 12 to 14): the upper quartile alone."""
+    def threshold(steps, **config):
+        tracker = GapTracker()
+        for t in np.concatenate([[0.0], np.cumsum(steps)]):
+            tracker.advance(float(t), StreamConfig(**config))
+        return tracker.threshold(StreamConfig(**config))
+
+    assert threshold(np.full(16, 0.125)) == threshold(np.full(16, 0.125), gap_reference="upper quartile") == 0.375
+    # steps read back from times carry rounding: a spread of 1 + 1e-15, a threshold the same to 1e-14
+    assert threshold(np.full(16, 0.04)) == pytest.approx(threshold(np.full(16, 0.04), gap_reference="upper quartile"),
+                                                         rel=1e-14, abs=0)
+    steps = np.exp(np.random.default_rng(11).uniform(np.log(10.0), np.log(600.0), 16))
+    ordered = np.sort(np.diff(np.concatenate([[0.0], np.cumsum(steps)])))   # (the steps as the times give them)
+    assert threshold(steps, gap_reference="upper quartile") == 3 * ordered[12]
+    assert threshold(steps) == 3 * ordered[12] * (ordered[12] / ordered[4]) ** 1.5 > 600.0

@@ -13,8 +13,11 @@ from ..bank import DEFAULT_BANK, DEFAULT_REACH, check_horizon, check_length_unit
 from ..core.constraints import validate
 from ..core.lead import LeadParams
 
-#: How a track's reference interval is taken from its first steps (:class:`StreamConfig`'s ``gap_reference``).
-GAP_REFERENCES = ("upper quartile", "median")
+#: How a track's gap threshold is taken from its first steps (:class:`StreamConfig`'s ``gap_reference``).
+GAP_REFERENCES = ("spread", "upper quartile", "median")
+#: The power of the spread of a track's first steps (upper over lower quartile) in the ``"spread"`` gap rule: a
+#: fence on the log of the steps, as Tukey's fence is 1.5 interquartile ranges beyond the upper quartile.
+GAP_SPREAD_POWER = 1.5
 #: Number of first non-gap time steps whose upper quartile is a track's reference interval.
 REFERENCE_INTERVALS = 16
 
@@ -53,10 +56,13 @@ class StreamConfig:
         segment: the experts start again (the rule and calibration go on). Pass ``inf`` (or a
         ``max_gap``) where short drops are the sampling and the target did not change course.
     gap_reference : str
-        The reference interval: ``"upper quartile"`` (the default) of the track's first 16 steps (the
-        13th in increasing order), so that irregular sampling (steps of 5 to 60 s) keeps a track in one
-        segment; ``"median"``: their median (the rule of state files before format version 12, which
-        resume with it).
+        The reference interval, from the track's first 16 steps: ``"spread"`` (the default), their upper
+        quartile (the 13th in increasing order) times their spread, the upper quartile over the lower
+        quartile (the 5th) to the power :data:`GAP_SPREAD_POWER`: the step itself on regular sampling, and on
+        irregular sampling beyond the sampling's own long steps (a fence on the log of the steps), so that
+        steps of 10 s to 10 min drawn at random keep a track in one segment; ``"upper quartile"``: the upper
+        quartile alone (the rule of state files of format versions 12 to 14, which resume with it);
+        ``"median"``: their median (files before version 12).
     gap_min_steps : int
         Steps a track must have before a step is judged a gap (4: the upper quartile of fewer steps is their
         largest, one to three draws of the sampling say little about its spread, and a track sampled every 10 to
@@ -102,7 +108,7 @@ class StreamConfig:
     horizon: int = 1
     max_gap: float | None = None
     max_gap_factor: float = 3.0
-    gap_reference: str = "upper quartile"
+    gap_reference: str = "spread"
     gap_min_steps: int = 4
     population_prior: bool = True
     options: dict = field(default_factory=dict)

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from .config import REFERENCE_INTERVALS, StreamConfig
+from .config import GAP_SPREAD_POWER, REFERENCE_INTERVALS, StreamConfig
 
 
 
@@ -21,10 +21,21 @@ def short_median(values) -> float:
 
 
 def _upper_quartile(values) -> float:
-    """The gap rule's reference interval: of ``n`` steps in increasing order the one at index ``3n // 4`` (the
-    13th of 16; of up to 4 steps, the largest)."""
+    """The ``"upper quartile"`` gap rule's reference interval: of ``n`` steps in increasing order the one at index
+    ``3n // 4`` (the 13th of 16; of up to 4 steps, the largest)."""
     ordered = sorted(values)
     return float(ordered[min(len(ordered) - 1, 3 * len(ordered) // 4)])
+
+
+def _spread_reference(values) -> float:
+    """The ``"spread"`` gap rule's reference interval: the upper quartile (:func:`_upper_quartile`) times the
+    spread of the steps, the upper quartile over the lower (index ``n // 4``: the 5th of 16) to the power
+    :data:`GAP_SPREAD_POWER`. On a log scale the upper quartile plus 1.5 interquartile ranges, as Tukey's fence:
+    a step beyond it (and the factor) is an outlier of the track's own sampling."""
+    ordered = sorted(values)
+    upper = float(ordered[min(len(ordered) - 1, 3 * len(ordered) // 4)])
+    lower = float(ordered[len(ordered) // 4])
+    return upper * (upper / lower) ** GAP_SPREAD_POWER
 
 
 def silence_variance(mean, position, last_time, time, threshold) -> np.ndarray:
@@ -101,7 +112,9 @@ class GapTracker:
             return math.inf
         if config.gap_reference == "median":   # state files before version 12
             return config.max_gap_factor * short_median(self.intervals)
-        return config.max_gap_factor * _upper_quartile(self.intervals)
+        if config.gap_reference == "upper quartile":   # state files of versions 12 to 14
+            return config.max_gap_factor * _upper_quartile(self.intervals)
+        return config.max_gap_factor * _spread_reference(self.intervals)
 
     def advance(self, time: float, config: StreamConfig) -> bool | None:
         """Register ``time``; True if it starts a new segment, None if out of order or not finite (skip: a NaN
