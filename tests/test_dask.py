@@ -124,13 +124,13 @@ def test_dask_equals_single_machine_predict_over_many_files(cli, cluster, tmp_pa
 
 
 def test_the_gap_note_is_said_as_on_one_machine(cli, cluster, tmp_path):
-    """Irregular reports that the default gap rule splits at >= 5 % of the rows (heavy-tailed steps): the
+    """Reports that the default gap rule splits at >= 5 % of the rows (every 8th step a pause of 20 steps): the
     single-machine run says so and what to do; the Dask run said nothing. Now the same note, from the segments
     it wrote."""
     rng = np.random.default_rng(3)
     frames = []
     for k in range(6):
-        t = np.cumsum(rng.lognormal(0.0, 1.5, 120))
+        t = np.cumsum(np.where(np.arange(120) % 8 == 7, 20.0, 1.0) + rng.uniform(0.0, 0.01, 120))
         frames.append(pd.DataFrame({"vessel": f"v{k}", "t": t, "x": np.cumsum(rng.normal(size=120)),
                                     "y": np.cumsum(rng.normal(size=120))}))
     whole = _write(_split(pd.concat(frames, ignore_index=True), 3), str(tmp_path / "archive"), "parquet")
