@@ -20,11 +20,16 @@ from .lead_and_intervals import arguments, over_datasets
 NOT_PEERS = ("mixture", "AKF mixture", "best expert", "no prediction", "single AKF")
 
 
-def _against_peers(name, table, h):
-    overall = ev.evaluate_table(table, horizon=h, log=lambda *_: None).overall
+def horizon_peers(overall: dict) -> tuple[dict, str]:
+    """Every tuned peer's H-step RMS in an evaluation's ``overall`` (those with an H-step forecast), and the best."""
     peers = {row: scores["horizon"]["rms"] for row, scores in overall.items()
              if not row.startswith(NOT_PEERS) and (scores.get("horizon") or {}).get("rms") is not None}
-    best = min(peers, key=peers.get)
+    return peers, min(peers, key=peers.get)
+
+
+def _against_peers(name, table, h):
+    overall = ev.evaluate_table(table, horizon=h, log=lambda *_: None).overall
+    peers, best = horizon_peers(overall)
     mixture = overall["mixture"]["horizon"]["rms"]
     entry = {"mixture_rms": mixture, "best_peer": best, "best_peer_rms": peers[best],
              "ratio": mixture / peers[best], "peers": peers}

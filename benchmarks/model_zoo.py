@@ -277,11 +277,20 @@ def simulate(s: Scenario, transitions=None):
 def kalman_one_step(t, z, model, r, prior_mean, prior_std, transitions=None):
     """One-step forecasts of the Kalman filter with the true model: ``pred[i]`` (and its innovation covariance
     ``S[i]``) forecasts ``z[i]`` from ``z[:i]``; NaN for the first row."""
+    return kalman_forecasts(t, z, model, r, prior_mean, prior_std, transitions)[1]
+
+
+def kalman_forecasts(t, z, model, r, prior_mean, prior_std, transitions=None, horizons=(1,)):
+    """The Kalman filter with the true model, ``h`` rows ahead for each ``h`` of ``horizons``: ``{h: (pred, S)}``,
+    ``pred[i]`` (and the covariance ``S[i]`` of ``z[i] - pred[i]``) forecasting ``z[i]`` from ``z[:i - h + 1]``:
+    the filtered state after row ``i - h`` propagated to ``t[i]``, the conditional mean of ``z[i]`` for these
+    linear-Gaussian models; NaN for the first ``h`` rows."""
     A, Qc, H = model
     transitions = transitions or Transitions(A, Qc)
     R = r ** 2 * np.eye(2)
     x, P = prior_mean.astype(np.float64), np.diag(prior_std ** 2)
     pred, S_all = np.full(z.shape, np.nan), np.full((len(z), 2, 2), np.nan)
+    later = {h: (np.full(z.shape, np.nan), np.full((len(z), 2, 2), np.nan)) for h in horizons if h > 1}
     I = np.eye(len(x))
     for i in range(len(z)):
         if i:
@@ -295,7 +304,12 @@ def kalman_one_step(t, z, model, r, prior_mean, prior_std, transitions=None):
         x = x + K @ (z[i] - H @ x)
         IKH = I - K @ H
         P = IKH @ P @ IKH.T + K @ R @ K.T   # Joseph form: stays symmetric and positive after a long silence
-    return pred, S_all
+        for h, (pred_h, S_h) in later.items():
+            if i + h < len(z):
+                F, Q = transitions(t[i + h] - t[i])
+                pred_h[i + h] = H @ F @ x
+                S_h[i + h] = H @ (F @ P @ F.T + Q) @ H.T + R
+    return {h: (pred, S_all) if h == 1 else later[h] for h in horizons}
 
 
 def imm_one_step(t, z, models, switch, r, prior_mean, prior_std, transitions=None):
@@ -374,9 +388,11 @@ def kalmix_predict(table: pd.DataFrame, directory: Path, options=(), source: Pat
     return pd.read_csv(target), seconds, done.stderr.strip()
 
 
-def kalmix_one_step(out: pd.DataFrame, table: pd.DataFrame, tracks):
+def kalmix_one_step(out: pd.DataFrame, table: pd.DataFrame, tracks, horizon: int = 1):
     """Per track the forecasts of each row (the output row before it holds the forecast for its time) and their
-    std, aligned with ``tracks``; NaN where kalmix gave none."""
+    std, aligned with ``tracks``; NaN where kalmix gave none. ``horizon`` H > 1: the forecasts of ``--horizon H``
+    (columns ``pred<H>_``, ``std<H>_`` of the output row H rows before, made for its time plus H time units: the
+    row H steps later on a track sampled every time unit)."""
     if len(out) != len(table):
         raise RuntimeError(f"kalmix predict wrote {len(out)} rows for {len(table)} input rows")
     keys = table["track_id"].to_numpy()
@@ -387,8 +403,9 @@ def kalmix_one_step(out: pd.DataFrame, table: pd.DataFrame, tracks):
         part = out.iloc[start:start + len(z)]
         start += len(z)
         pred, std = np.full(z.shape, np.nan), np.full(z.shape, np.nan)
-        pred[1:] = part[["pred_x", "pred_y"]].to_numpy()[:-1]
-        std[1:] = part[["std_x", "std_y"]].to_numpy()[:-1]
+        name, h = ("", 1) if horizon == 1 else (str(horizon), horizon)
+        pred[h:] = part[[f"pred{name}_x", f"pred{name}_y"]].to_numpy()[:-h]
+        std[h:] = part[[f"std{name}_x", f"std{name}_y"]].to_numpy()[:-h]
         per.append((pred, std))
     return per
 
@@ -504,7 +521,8 @@ def run_scenario(s: Scenario, directory: Path, source: Path | None = None, log=p
     return result
 
 
-def _git(*args) -> str:
+def git(*args) -> str:
+    """The output of ``git ARGS`` in this checkout; a ``RuntimeError`` when it fails."""
     done = subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True, text=True)
     if done.returncode:
         raise RuntimeError(f"git {' '.join(args)}: {done.stderr.strip()}")
@@ -513,7 +531,7 @@ def _git(*args) -> str:
 
 def export(revision: str, directory: Path) -> tuple[Path, str]:
     """kalmix's ``src`` at ``revision`` of this repository, written under ``directory``: its path and the commit."""
-    commit = _git("rev-parse", "--verify", f"{revision}^{{commit}}").strip()
+    commit = git("rev-parse", "--verify", f"{revision}^{{commit}}").strip()
     archive = subprocess.run(["git", "-C", str(ROOT), "archive", "--format=tar", commit, "src"], capture_output=True)
     if archive.returncode:
         raise RuntimeError(f"git archive {commit} src: {archive.stderr.decode().strip()}")
@@ -544,8 +562,8 @@ def main(argv=None) -> dict:
                 source, commit = export(args.at, Path(temporary))
                 report["kalmix"] = {"commit": commit, "working_tree_changes": []}
             else:
-                changed = _git("status", "--porcelain", "--", "src").splitlines()
-                report["kalmix"] = {"commit": _git("rev-parse", "HEAD").strip(),
+                changed = git("status", "--porcelain", "--", "src").splitlines()
+                report["kalmix"] = {"commit": git("rev-parse", "HEAD").strip(),
                                     "working_tree_changes": [line[3:] for line in changed]}
         except (RuntimeError, FileNotFoundError) as error:
             if args.at:

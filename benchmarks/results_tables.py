@@ -754,6 +754,45 @@ def model_zoo(results: Results) -> list:
     return [first, second]
 
 
+def zoo_lead(results: Results) -> list:
+    """kalmix's lead forecasts (H rows ahead) against the optimal H-step predictor, the one-step weights on the same
+    experts and the best tuned peer, on the zoo's regularly sampled scenarios."""
+    data = results("model_zoo_lead.json")
+    command = data.get("command", "python -m benchmarks.zoo_lead") + " --json benchmarks/results/model_zoo_lead.json"
+    predict, cold = "kalmix predict --horizon H", "kalmix predict --horizon H --no-population-prior"
+    rows = []
+    for entry in data["scenarios"].values():
+        unit = entry.get("unit", "m")
+        for key, h in _horizons(entry["horizons"]):
+            r = h["ratio_to_optimum"]
+            worse = h["lead_over_one_step_weights_per_track"]
+            rows.append([entry["label"], key[2:], f"{num(h['rms_per_coordinate']['optimum'])} {unit}",
+                         _times(r[predict]), _times(r[cold]), _times(r["mixture (lead head)"]),
+                         _times(r["mixture, one-step weights"]),
+                         f"{ratio(h['lead_over_one_step_weights'], 4)} ({h['tracks_lead_worse']} of {len(worse)})",
+                         _peer_name(h["best_peer"]), _times(h["best_peer_ratio_to_optimum"]),
+                         _times(r["no prediction"]), percent(h["coverage_95"][predict])])
+    _blank_repeats(rows)
+    left_out = "; ".join(f"`{name}`: {why}" for name, why in data.get("left_out", {}).items())
+    return [Table(
+        header=["scenario", "H", "optimum RMS", "kalmix predict / optimum", "--no-population-prior / optimum",
+                "lead head / optimum", "one-step weights / optimum", "lead / one-step weights (tracks worse)",
+                "best tuned peer", "peer / optimum", "no prediction / optimum", "kalmix coverage"],
+        rows=rows, sources=("model_zoo_lead.json",), command=command,
+        title="Forecasts H rows ahead against the optimal H-step predictor",
+        notes=[("RMS per coordinate of the forecast of each row made H rows before it, over every row after the "
+                "first 20 % of each track (the same rows for every predictor and as the one-step table), on the "
+                "same seeded tracks. The optimum is the Kalman filter with the true model, its state H rows back "
+                "propagated H steps: the conditional mean. kalmix predict: its `pred<H>_` columns with the "
+                "defaults, and with `--no-population-prior`. Lead head, one-step weights and peers: what `kalmix "
+                "evaluate -H H` measures on the same table (every track's weights start empty there): the default "
+                "mixture's forecasts (the lead head's weights blended with the one-step weights' forecast), the "
+                "same experts' one-step mixture extrapolated H steps, and the best of the tuned peers at H (each "
+                "tuned on the first 20 % of every track). Tracks worse: tracks where the lead head's RMS is above "
+                "the one-step weights'. Coverage: of `kalmix predict`'s forecast ± 1.96 std, per coordinate. Left "
+                f"out: {left_out}.")])]
+
+
 # -- speed --------------------------------------------------------------------------------------------------------
 
 SPEED_FILES = (("engine_speed.json", "source checkout"),
@@ -946,6 +985,7 @@ SECTIONS = {
     "hawkeye-bounds": hawkeye_bounds,
     "irregular": irregular,
     "model-zoo": model_zoo,
+    "model-zoo-lead": zoo_lead,
     "speed": speed,
     "akf-kernels": akf_kernels,
     "dask": dask,

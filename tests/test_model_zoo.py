@@ -102,3 +102,60 @@ def test_the_default_gap_rule_keeps_log_uniform_sampling_one_segment(tmp_path):
     assert run["segments"] <= entry["tracks"] + 2
     ratios = {name: p["ratio_to_optimum"] for name, p in entry["scores"]["scored"]["predictors"].items()}
     assert ratios["kalmix"] <= 1.07 and ratios["kalmix"] <= ratios["kalmix --max-gap none"] + 0.005
+
+
+def test_the_kalman_filters_h_step_forecast_is_the_conditional_mean():
+    """``kalman_forecasts``: its one-step forecasts are ``kalman_one_step``'s, and the H-step forecast (the filtered
+    state H rows back, propagated) is unbiased, between the one-step forecast and no prediction in RMS, with
+    intervals that cover 95 %."""
+    s = mz.scenarios()["cv_10hz"]
+    s.tracks, s.rows = 20, 200
+    _, tracks = mz.simulate(s)
+    errors = {1: [], 5: [], "none": []}
+    inside = []
+    for t, z in tracks:
+        out = mz.kalman_forecasts(t, z, s.models[0], s.r, s.prior_mean, s.prior_std, horizons=(1, 5))
+        one, S = mz.kalman_one_step(t, z, s.models[0], s.r, s.prior_mean, s.prior_std)
+        np.testing.assert_array_equal(out[1][0], one)
+        np.testing.assert_array_equal(out[1][1], S)
+        pred, cov = out[5]
+        assert np.isnan(pred[:5]).all() and np.isfinite(pred[5:]).all()
+        errors[1].append(z[40:] - one[40:])
+        errors[5].append(z[40:] - pred[40:])
+        errors["none"].append(z[40:] - z[35:-5])
+        inside.append(np.abs(z[40:] - pred[40:]) <= mz.Z95 * np.sqrt(np.diagonal(cov[40:], axis1=1, axis2=2)))
+    e = {k: np.concatenate(v) for k, v in errors.items()}
+    rms = {k: float(np.sqrt(np.mean(v ** 2))) for k, v in e.items()}
+    assert rms[1] < rms[5] < rms["none"]
+    # unbiased: the mean error within 4 standard errors of 0 (the errors of a track are correlated: 5 rows apart)
+    assert (np.abs(e[5].mean(axis=0)) < 4 * rms[5] * np.sqrt(5 / len(e[5]))).all()
+    assert 0.93 <= np.concatenate(inside).mean() <= 0.97
+
+
+def test_lead_scoring_puts_every_forecast_on_the_same_rows(tmp_path):
+    """``benchmarks.zoo_lead`` on a tiny constant-velocity case: kalmix predict's ``pred5_`` column is scored against
+    the row 5 later (one row off either way fits worse), on the optimum's rows, which ``kalmix evaluate -H 5``
+    scores too (``run_scenario`` checks its count and no-prediction RMS)."""
+    from benchmarks import zoo_lead
+
+    s = mz.scenarios()["cv_10hz"]
+    s.tracks, s.rows = 4, 150
+    entry = zoo_lead.run_scenario(s, tmp_path, horizons=(5,), log=lambda *_: None)["horizons"]["H=5"]
+    assert entry["rows"] == 4 * (150 - 30)
+    assert all(v == 0 for v in entry["unforecast_rows"].values())
+    r = entry["ratio_to_optimum"]
+    assert r["optimum"] == 1.0 and r["no prediction"] > 2
+    for name in (zoo_lead.PREDICT, "mixture (lead head)", "mixture, one-step weights", f"peer: {entry['best_peer']}"):
+        assert 0.9 < r[name] < 1.5, (name, r[name])   # under the optimum by more than chance: a scoring error
+    assert len(entry["lead_over_one_step_weights_per_track"]) == 4
+    # the alignment: the output row j's pred5_ forecasts the row j + 5
+    table, tracks = mz.simulate(s)
+    (tmp_path / "again").mkdir()
+    out, _, _ = mz.kalmix_predict(table, tmp_path / "again", ("--horizon", "5"))
+    shifted = {}
+    for h in (4, 5, 6):
+        per = mz.kalmix_one_step(out.rename(columns={"pred5_x": f"pred{h}_x", "pred5_y": f"pred{h}_y",
+                                                     "std5_x": f"std{h}_x", "std5_y": f"std{h}_y"}), table, tracks, h)
+        shifted[h] = np.sqrt(np.nanmean(np.concatenate([(z - p)[30:] for (_, z), (p, _) in zip(tracks, per)]) ** 2))
+    assert shifted[5] < min(shifted[4], shifted[6])
+    assert shifted[5] == pytest.approx(entry["rms_per_coordinate"][zoo_lead.PREDICT], rel=1e-12)
