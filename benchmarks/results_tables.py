@@ -749,8 +749,8 @@ def model_zoo(results: Results) -> list:
                    notes=[("2-D tracks; each track's initial state drawn from the prior the reference starts from "
                            "(in the file with every parameter). kalmix segments: the tracks' pieces after "
                            "`kalmix predict`'s default gap rule (once a track has 4 steps, a step over 3 times its "
-                           "reference interval, the upper quartile of its first 16 steps, restarts the experts), one "
-                           "per track when nothing splits.")])
+                           "reference interval, the upper quartile of its first 16 steps times their spread, "
+                           "restarts the experts), one per track when nothing splits.")])
     return [first, second]
 
 

@@ -22,13 +22,15 @@ the row after the gap (a halftime, a lost GPS fix, a camera cut: the motion befo
 says little about the motion after it), while the aggregation rule and the calibration
 keep what they learned on the track (a warm start, :func:`kalmix.core.engine.run`'s
 ``restart``). The threshold is ``max_gap`` (in the time column's units)
-when given, else ``max_gap_factor`` (3) times the track's *reference interval*: the
-upper quartile (the 13th in increasing order of 16) of the first (up to 16) positive time
-steps of the track (a gap among them too, so that one short first step cannot make every
-later step a gap); once it has 16, a gap's step does not change it. On regular sampling it
-is the step; on irregular sampling (steps of 5 to 60 s) it is near the long steps, so the
-sampling itself is not taken for gaps and the track stays one segment, while an outage
-many times the longest usual step still starts a new segment.
+when given, else ``max_gap_factor`` (3) times the track's *reference interval*, taken from
+the first (up to 16) positive time steps of the track (a gap among them too, so that one
+short first step cannot make every later step a gap; once it has 16, a gap's step does not
+change it): their upper quartile (the 13th in increasing order of 16) times their spread,
+the upper quartile over the lower quartile (the 5th), to the power 1.5. On regular sampling
+it is the step; where the sampling itself is spread (steps of 5 to 60 s, or of 10 s to 10
+min drawn at random) it lies beyond the long steps, so the sampling is not taken for gaps
+and the track stays one segment, while an outage many times the usual steps still starts a
+new segment.
 The rule is causal (it only looks at rows already seen), so a row-by-row stream and a
 whole file give the same segments, and it survives a ``--state`` save and resume.
 

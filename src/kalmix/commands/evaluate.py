@@ -49,7 +49,7 @@ _OPTION_HELP = ("A kalmix.bank.make_params argument, KEY=VALUE (JSON value), rep
 @click.option("--max-gap", default="auto", show_default=True, help=GAP_HELP + " 'none' never splits.")
 @click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True),
               help="Gap threshold as a multiple of the reference interval (the upper quartile of a track's first "
-                   "16 steps).")
+                   "16 steps times their spread, the upper over the lower quartile, to the power 1.5).")
 @click.option("--reach", default=None, help=REACH_HELP)
 @click.option("--max-samples", default=None, type=click.IntRange(min=3),
               help="Use only the first N samples of each track (quicker).")

@@ -204,7 +204,7 @@ def _local_only(given, output):
 @click.option("--max-gap", default="auto", show_default=True, help=GAP_HELP + " 'none' never splits.")
 @click.option("--max-gap-factor", default=3.0, show_default=True, type=click.FloatRange(min=1.0, min_open=True),
               help="Gap threshold as a multiple of the reference interval (the upper quartile of a track's first "
-                   "16 steps).")
+                   "16 steps times their spread, the upper over the lower quartile, to the power 1.5).")
 @click.option("--reach", default=None, help=REACH_HELP)
 @click.option("--population-prior/--no-population-prior", default=None,
               help="A new track's aggregation rule starts from what the tracks before it learned (in the order the "
