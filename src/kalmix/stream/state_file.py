@@ -20,10 +20,10 @@ from .ids import id_from_meta, id_to_meta
 from .population import Prior
 
 #: Format version of the state files :meth:`TrackPredictor.save` writes. :meth:`TrackPredictor.load` reads
-#: versions 3 to 14 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
+#: versions 3 to 15 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
 #: versions", says what each version adds).
-STATE_FORMAT_VERSION = 14
-_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14)
+STATE_FORMAT_VERSION = 15
+_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)
 _MAGIC = "kalmix-track-predictor"
 
 
@@ -120,6 +120,9 @@ class StateFile:
                 stacked = {name: (np.broadcast_to(expected, (count, *expected.shape[1:])) if fresh(name)
                                   else archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name))
                            for name, expected in tree_leaves(template)}
+                if version <= 14:   # the screen counted a track's learned rows up to 2: taken as warmed up (3)
+                    points = stacked["state/screen/points"]
+                    stacked["state/screen/points"] = np.where(points == 2.0, 3.0, points)
         engine.use_backend(backend)   # outside the checks of the file: a backend that cannot run is not corruption
         for track, gaps, _ in entries:
             engine.gaps[track] = gaps
