@@ -132,7 +132,8 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     (``population_prior`` False, and no learned rows or priors in the file). Before version 14 there was no blend
     of the lead forecasts: such a file resumes with the blend started again, so ``whole`` is then the run whose
     blend starts again at the save (the same file as version 13, resumed; the uninterrupted run but for the lead
-    forecasts after the save: test_version_13_files_resume_with_the_blend_started_again)."""
+    forecasts after the save: test_version_13_files_resume_with_the_blend_started_again). Before version 15 the
+    screen counted a track's learned rows up to 2: the file's counts are capped so."""
     import json
 
     if version < 9:
