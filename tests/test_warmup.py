@@ -79,7 +79,8 @@ def test_compiled_equals_the_spec_on_short_segments():
         bank = make_bank(2, **DEFAULT_BANK, length_unit=0.5, time_unit=1.0, n_akf=4, lead=lead)
         ref = engine.run(bank, z, t, lengths=lengths, ahead_times=t + 1.0, restart=restart, record_experts=True)
         fast = ce.run(bank, z, t, lengths=lengths, ahead_times=t + 1.0, restart=restart, record_experts=True)
-        names = ("forecasts", "std", "ahead", "ahead_std", "weights", "experts") + (("lead", "lead_std") if lead else ())
+        names = ("forecasts", "std", "ahead", "ahead_std", "weights", "experts")
+        names += ("lead", "lead_std") if lead else ()
         for name in names:
             assert np.array_equal(getattr(ref, name), getattr(fast, name), equal_nan=True), (lead, name)
         assert np.array_equal(ref.state.screen.points, fast.state.screen.points)

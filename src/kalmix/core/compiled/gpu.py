@@ -263,8 +263,9 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
     cuda.synchronize()
     launched = time.perf_counter()
     kernel[blocks, threads_per_block](
-        device["orders"], device["warm"], device["far"], device["q"], device["r"], device["initial"], device["tu"], max_step,
-        max_variance, float(bank.reach), device["mean"], device["cov"], device["last_time"], device["initialised"],
+        device["orders"], device["warm"], device["far"], device["q"], device["r"], device["initial"], device["tu"],
+        max_step, max_variance, float(bank.reach), device["mean"], device["cov"], device["last_time"],
+        device["initialised"],
         pack_rule_params(bank), rule_dev,
         float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window), *screen_dev,
         *pack_calibration(bank.calibration_params),
