@@ -132,7 +132,8 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     (``population_prior`` False, and no learned rows or priors in the file). Before version 14 there was no blend
     of the lead forecasts: such a file resumes with the blend started again, so ``whole`` is then the run whose
     blend starts again at the save (the same file as version 13, resumed; the uninterrupted run but for the lead
-    forecasts after the save: test_version_13_files_resume_with_the_blend_started_again)."""
+    forecasts after the save: test_version_13_files_resume_with_the_blend_started_again). Before version 15 the
+    screen counted a track's learned rows up to 2: the file's counts are capped so."""
     import json
 
     if version < 9:
@@ -170,6 +171,8 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
         del meta["config"]["rule_options"]["clip"]
     older = {name: value for name, value in saved.items() if name not in members and name != "meta"
              and not (version < 14 and name.startswith(BLEND_MEMBERS))}
+    if version < 15:   # the screen counted learned rows up to 2
+        older["state/screen/points"] = np.minimum(older["state/screen/points"], 2.0)
     np.savez(tmp_path / "older.npz", **older, meta=np.array(json.dumps(meta)))
     second = TrackPredictor.load(tmp_path / "older.npz")
     assert second.loaded_version == version
@@ -402,6 +405,19 @@ def test_version_12_files_resume_without_the_population_prior(tmp_path):
     assert second.config.gap_min_steps == 1 and second.config.population_prior is False
     assert second.priors == [] and second.track_rows == {}
     assert np.array_equal(_next(resumed), _next(whole), equal_nan=True)
+
+
+def test_version_14_files_resume_with_their_tracks_warmed_up(tmp_path):
+    """Version 14 files counted a track's learned rows up to 2: a track at 2 resumes as one with the 3 rows of the
+    experts' longest warm-up (every track here has more than 2 at the save), bit for bit."""
+    whole, resumed, second, saved = _as_older_file(tmp_path, CONFIG, 70, 14)
+    assert (saved["state/screen/points"] == 3.0).all() and (np.load(tmp_path / "older.npz")["state/screen/points"]
+                                                            == 2.0).all()
+    assert (_saved(TrackPredictor.load(tmp_path / "older.npz"), tmp_path / "again.npz")["state/screen/points"]
+            == 3.0).all()
+    for field in ("next", "ahead"):
+        assert np.array_equal(np.array([getattr(r, field) for r in resumed]),
+                              np.array([getattr(r, field) for r in whole]), equal_nan=True), field
 
 
 def _adversarial_times(rng, n):

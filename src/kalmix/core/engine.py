@@ -39,6 +39,16 @@ same numbers fast, and is what every command uses):
 An expert sleeps (is left out of the weights and of the rule's learning) while its
 forecast is not finite, e.g. before its first measurement.
 
+**Warm-up.** An expert's forecasts weigh once its target's track (since its last (re)start) has given it
+its kind's ``warmup`` learned rows (:data:`kalmix.core.families.KINDS`: 2 for CV and turn, 3 for CA, AR and
+the AKF): before, the one-step weights leave it out (it sleeps for that forecast), if an expert warmed up is
+awake there; while none is, every expert forecasts. On a track's third row a CA fitted to two points, an AR
+that took its first velocity for a jump or an AKF one step into its model can miss by orders of magnitude
+more than the CV; one such row would set BOA's scale of the losses for the rest of a short track. The
+count comes from the glitch screen (its accepted rows, :data:`kalmix.core.screen.MAX_POINTS` at most), known
+before the row; the experts learn every row as usual, and the lead head sees every expert
+(:func:`warmed_up`).
+
 **Reach** (off unless the bank has one: ``make_bank(..., reach=...)``). The one-step weights
 are learned mostly on a track's usual steps. Across a step longer than the bank's ``reach``
 (time-column units, from the target's last learned row to the forecast's time, once it has two
@@ -67,7 +77,8 @@ from .families import KINDS, FamilyKind
 from .families import parts as family_parts
 
 __all__ = ["Family", "Bank", "BankState", "EngineResult", "StepOutput", "init_bank_state", "run", "step", "forecast",
-           "cold_start", "FAMILY_KINDS", "FAMILY_MODULES", "LONG_STEP_KINDS", "span", "within_reach",
+           "cold_start", "FAMILY_KINDS", "FAMILY_MODULES", "LONG_STEP_KINDS", "span", "within_reach", "warmed_up",
+           "for_weights",
            "check_run_arguments", "check_horizon", "MAX_HORIZON", "tree_map", "tree_leaves"]
 
 #: Largest prediction horizon (frames ahead). A prediction H frames ahead costs H - 1
@@ -144,6 +155,13 @@ class Bank:
             return None
         far = np.concatenate([np.full(f.n_experts, not f.parts.long_step) for f in self.families])
         return far if far.any() and not far.all() else None
+
+    def warmup_rows(self) -> np.ndarray | None:
+        """``(K,)`` float: the learned rows each expert's track needs before its forecasts weigh (its kind's
+        ``warmup``, see the module docstring); None when they are all the same (then no expert ever sleeps
+        for it)."""
+        rows = np.concatenate([np.full(f.n_experts, float(f.parts.warmup)) for f in self.families])
+        return rows if rows.size and rows.min() < rows.max() else None
 
     @property
     def rule_module(self):
@@ -375,7 +393,7 @@ def forecast(bank: Bank, state: BankState, time, frames: int = 1, *, lead: bool 
         raise ValueError(f"time: expected finite times at or after each target's last learned row, got "
                          f"{float(time[i])!r} for target {i} (last learned row at {float(state.screen.time[i])!r})")
     experts = expert_forecasts(bank, state, time, frames)
-    _, mean, cov = lead_head.forecast(bank, state, within_reach(bank, experts, span(state.screen, time)))
+    _, mean, cov = lead_head.forecast(bank, state, for_weights(bank, experts, state.screen, time))
     if lead:
         _, lead_mean, lead_cov = lead_head.forecast(bank, state.lead, experts, lead=True)
         mean, cov, _ = lead_head.blend(bank, state.lead, lead_mean, lead_cov, mean)
@@ -404,6 +422,30 @@ def within_reach(bank: Bank, experts, span):
     if not beyond.any():
         return experts
     return np.where((beyond[..., None] & far)[..., None], np.nan, experts)
+
+
+def warmed_up(bank: Bank, experts, points):
+    """``experts (..., K, p)`` as the one-step weights see them at the warm-up: where the target's learned rows
+    since its (re)start ``points (...)`` (the glitch screen's, before the forecast) are fewer than an expert's
+    :meth:`Bank.warmup_rows`, the expert is NaN (asleep), if an expert with enough rows is awake there. Returns
+    ``experts`` itself when nothing changes."""
+    rows = bank.warmup_rows()
+    if rows is None:
+        return experts
+    cold = np.asarray(points)[..., None] < rows   # (..., K)
+    if not cold.any():
+        return experts
+    ready = (~cold & np.isfinite(experts).all(axis=-1)).any(axis=-1)
+    asleep = cold & ready[..., None]
+    if not asleep.any():
+        return experts
+    return np.where(asleep[..., None], np.nan, experts)
+
+
+def for_weights(bank: Bank, experts, screen: glitch.ScreenState, time):
+    """``experts (N, K, p)`` forecasting ``time (N,)`` as the one-step weights see them, from the screen's state
+    before the forecast: :func:`warmed_up`, then :func:`within_reach`."""
+    return within_reach(bank, warmed_up(bank, experts, screen.points), span(screen, time))
 
 
 class StepOutput(NamedTuple):
@@ -460,7 +502,7 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
                                                     np.where(learn[:, None], z, 0.0), time, learn, gap)
     learn = learn & accept
     experts = expert_forecasts(bank, state, time)
-    mixed = within_reach(bank, experts, span(state.screen, time))
+    mixed = for_weights(bank, experts, state.screen, time)
     awake = np.isfinite(mixed).all(axis=-1)
     weights, mix, cov = lead_head.forecast(bank, state, mixed)
     go = learn & ~restart & ~cold
@@ -479,7 +521,7 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
         target = time + bank.lead.time if ahead_time is None else np.broadcast_to(ahead_time, (n,))
         head = lead_head.learn(bank, new.lead, z, time, go)
         later = expert_forecasts(bank, new, target, bank.lead.frames)
-        _, one_mix, one_cov = lead_head.forecast(bank, new, within_reach(bank, later, span(new.screen, target)))
+        _, one_mix, one_cov = lead_head.forecast(bank, new, for_weights(bank, later, new.screen, target))
         _, lead_mix, lead_cov = lead_head.forecast(bank, head, later, lead=True)
         lead_mix, lead_cov, candidates = lead_head.blend(bank, head, lead_mix, lead_cov, one_mix)
         head = lead_head.push(bank, head, later, target, learn & (state.screen.points >= 1), restart, lead_mix,
@@ -489,7 +531,7 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
                            ahead_covariance=one_cov)
     elif ahead_time is not None:
         later = expert_forecasts(bank, new, ahead_time, ahead_frames)
-        _, one_mix, one_cov = lead_head.forecast(bank, new, within_reach(bank, later, span(new.screen, ahead_time)))
+        _, one_mix, one_cov = lead_head.forecast(bank, new, for_weights(bank, later, new.screen, ahead_time))
         out = out._replace(ahead_experts=later, ahead=one_mix, ahead_covariance=one_cov)
     return new, out
 

@@ -50,11 +50,15 @@ import numpy as np
 from ._libm import ordered_sum
 from .constraints import Integer, Real
 
-__all__ = ["ScreenParams", "ScreenState", "init", "screen", "ZERO"]
+__all__ = ["ScreenParams", "ScreenState", "init", "screen", "ZERO", "MAX_POINTS"]
 
 #: A distance below this fraction of the last accepted position's largest coordinate (in absolute value) is
 #: rounding: 0.
 ZERO = 1e-9
+#: The count of accepted rows since a target's (re)start stops here: the screen needs two (a velocity), the
+#: bank's experts up to this many before their forecasts weigh (their kind's ``warmup``,
+#: :data:`kalmix.core.families.KINDS`).
+MAX_POINTS = 3.0
 
 
 class ScreenParams(NamedTuple):
@@ -75,8 +79,8 @@ class ScreenState(NamedTuple):
     count: np.ndarray      # (N,) accepted distances in s
     rejects: np.ndarray    # (N,) outliers in a row
     outliers: np.ndarray   # (N,) outliers so far
-    points: np.ndarray     # (N,) accepted rows since the (re)start, capped at 2 (2: the velocity is known);
-    #                        -1: the warm-up held a glitch, the families start again at the next present row
+    points: np.ndarray     # (N,) accepted rows since the (re)start, capped at MAX_POINTS (>= 2: the velocity is
+    #                        known); -1: the warm-up held a glitch, the families start again at the next present row
     low: np.ndarray        # (N,) smallest non-zero distance of the warm-up (inf before one; NaN once audited)
     high: np.ndarray       # (N,) largest distance of the warm-up (NaN once audited)
 
@@ -140,7 +144,7 @@ def screen(params: ScreenParams, state: ScreenState, z, time, present, gap=None)
     audited = auditing & (count >= params.warmup)
     glitch = audited & (high > params.threshold * low)
     points = np.where(restart, np.where(present, 1.0, np.where(pending_restart, -1.0, 0.0)),
-                      np.where(accept, np.minimum(state.points + 1, 2.0), state.points))
+                      np.where(accept, np.minimum(state.points + 1, MAX_POINTS), state.points))
     new = ScreenState(
         position=np.where(accept[:, None], z, state.position),
         velocity=velocity,

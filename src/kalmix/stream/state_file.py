@@ -122,6 +122,9 @@ class StateFile:
                 stacked = {name: (np.broadcast_to(expected, (count, *expected.shape[1:])) if fresh(name)
                                   else archive.array(name, (count, *expected.shape[1:]), expected.dtype, label=name))
                            for name, expected in tree_leaves(template)}
+                if version <= 14:   # the screen counted a track's learned rows up to 2: taken as warmed up (3)
+                    points = stacked["state/screen/points"]
+                    stacked["state/screen/points"] = np.where(points == 2.0, 3.0, points)
         engine.use_backend(backend)   # outside the checks of the file: a backend that cannot run is not corruption
         for track, gaps, _ in entries:
             engine.gaps[track] = gaps

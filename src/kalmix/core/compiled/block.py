@@ -165,7 +165,8 @@ def _unpack(bank: Bank, packed: _Packed, state: BankState, drivers, host) -> Ban
 
 class _Masks(NamedTuple):
     """A block's rows, ``(rows, N)`` each, as the stages pass them on: the screen's verdicts (``accept``,
-    ``restart``, ``started``, ``cold``) and spans (``before``, ``after``: :func:`.screen.screen_block`), the rows
+    ``restart``, ``started``, ``cold``), spans (``before``, ``after``) and learned rows (``points_before``,
+    ``points_after``: :func:`.screen.screen_block`), the rows
     that learn (``learned``, ``go``: :func:`.masks.learning_rows`), the lead head's ``keep``. Each target's rows
     are written before they are read."""
 
@@ -178,12 +179,15 @@ class _Masks(NamedTuple):
     keep: object
     before: object
     after: object
+    points_before: object
+    points_after: object
 
     @classmethod
     def allocate(cls, backend: Backend, block: int, n: int, lead: bool) -> _Masks:
         flag = lambda: backend.empty((block, n), np.bool_)  # noqa: E731
         return cls(flag(), flag(), flag(), flag(), flag(), flag(), flag() if lead else None,
-                   backend.empty((block, n)), backend.empty((block, n)))
+                   backend.empty((block, n)), backend.empty((block, n)), backend.empty((block, n)),
+                   backend.empty((block, n)))
 
     def first(self, rows: int) -> _Masks:
         return _Masks(*(None if a is None else a[:rows] for a in self))
@@ -230,8 +234,11 @@ def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, 
     lead_scratch = backend.scratch(functools.partial(clead.scratch, k, p)) if lead is not None else None
     cal = pack_calibration(bank.calibration_params)
     screen = cscreen.constants(bank.screen_params)
-    far = bank.far_experts()   # None: no expert ever sleeps for a long step
-    far = None if far is None else put(far)
+    # the one-step masks (the spec's for_weights): none when no expert ever sleeps for the warm-up or a long step
+    warm, far = bank.warmup_rows(), bank.far_experts()
+    masked = warm is not None or far is not None
+    warm = put(np.zeros(0) if warm is None else warm)
+    far = put(np.zeros(k, dtype=np.bool_) if far is None else far)
 
     # the outputs
     forecasts, std = nan((t_count, n, p)), nan((t_count, n, p))
@@ -255,7 +262,8 @@ def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, 
             m = masks.first(end - begin)
             backend.launch("screen", cscreen.screen_block, (
                 screen, packed.screen, cscreen.Rows(zb, tb, lens, learn[rows], gaps[rows]),
-                cscreen.Verdicts(m.accept, m.restart, m.started, m.cold, m.before, m.after)))
+                cscreen.Verdicts(m.accept, m.restart, m.started, m.cold, m.before, m.after, m.points_before,
+                                 m.points_after)))
             backend.launch("learning rows", learning_rows, (learn[rows], m.accept, m.restart, m.cold, lens, m.learned,
                                                             m.go))
 
@@ -277,15 +285,17 @@ def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, 
             if observe is not None:
                 observe(begin, end, buffer, ahead_buffer if with_ahead else None)
 
-            # the one-step weights see the experts within reach (the spec's within_reach); the lead head all of them
+            # the one-step weights see the experts warmed up and within reach (the spec's for_weights); the lead
+            # head all of them
             mixed, mixed_ahead = buffer, ahead_buffer
-            if far is not None:
+            if masked:
                 mixed = empty(buffer.shape)
-                backend.launch("reach", creach.kernel, (far, float(bank.reach), buffer, tb, m.before, lens, mixed))
+                backend.launch("reach", creach.kernel, (warm, far, float(bank.reach), buffer, m.points_before, tb,
+                                                        m.before, lens, mixed))
                 if with_ahead:
                     mixed_ahead = empty(ahead_buffer.shape)
-                    backend.launch("reach", creach.kernel, (far, float(bank.reach), ahead_buffer, ahead_b, m.after,
-                                                            lens, mixed_ahead))
+                    backend.launch("reach", creach.kernel, (warm, far, float(bank.reach), ahead_buffer, m.points_after,
+                                                            ahead_b, m.after, lens, mixed_ahead))
             backend.launch("rules", crules.kernel, (
                 rule_params, packed.rule, cal, packed.calibration,
                 crules.Rows(mixed, mixed_ahead, zb, lens, m.go, m.cold, m.restart),

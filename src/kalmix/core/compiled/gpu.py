@@ -36,7 +36,7 @@ from . import screen as cscreen
 from .calibration import calibrate_row
 from .calibration import pack_params as pack_calibration
 from .drivers import driver
-from .reach import sleep_beyond
+from .reach import sleep_beyond, sleep_cold
 
 if not hasattr(np, "row_stack"):  # numba-cuda 0.30 registers an overload of np.row_stack, gone from numpy 2.4+
     np.row_stack = np.vstack
@@ -63,7 +63,7 @@ def gpu_available() -> bool:
     return bool(os.environ.get("NUMBA_ENABLE_CUDASIM") == "1" or cuda.is_available())
 
 
-def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, mean, cov, last_time, initialised,
+def _body(orders, warm, far, q, r, initial, time_unit, max_step, max_variance, reach, mean, cov, last_time, initialised,
            rule_params, rule_state, threshold, max_rejects, warmup, window, position, velocity, seen, spread, count,
            rejects, outliers, points, low, high, cal_window, cal_rate, cal_level, z_level, cal_max_variance,
            max_log_scale, cal_initial, variance, n_errors, log_scale, z, times, lengths, learn, out, out_std,
@@ -100,6 +100,7 @@ def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, 
     errors_n = n_errors[:, n]
     for t in range(lengths[n]):
         before = last_learned(seen, points, n)   # the spec's engine.span
+        rows = points[n]   # and learned rows (engine.warmed_up)
         code = screen_row(threshold, max_rejects, warmup, window, position, velocity, seen, spread, count,
                           rejects, outliers, points, low, high, n, z[t, n], times[t, n], learn[t, n], False)
         # every expert's forecast of the row, and its learning from the same extrapolation
@@ -112,6 +113,7 @@ def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, 
         if learning:
             initialised[n] = True
             last_time[n] = times[t, n]
+        sleep_cold(warm, x, rows)
         sleep_beyond(far, x, times[t, n] - before, reach)
         awake_count = forecast_row(rule_params, rule, x, awake, w, logw, mix, var_n, ls[0], cal_max_variance, sigma)
         write_row(awake_count, mix, sigma, out[t, n], out_std[t, n])
@@ -132,6 +134,7 @@ def _body(orders, far, q, r, initial, time_unit, max_step, max_variance, reach, 
                 else:
                     for ci in range(p):
                         x[k, ci] = math.nan
+            sleep_cold(warm, x, points[n])
             sleep_beyond(far, x, ahead_times[t, n] - last_learned(seen, points, n), reach)
             awake_count = forecast_row(rule_params, rule, x, awake, w, logw, mix, var_n, ls[0], cal_max_variance,
                                        sigma)
@@ -208,6 +211,13 @@ def _far(bank: Bank) -> np.ndarray:
     return np.zeros(bank.n_experts, dtype=np.bool_) if far is None else far
 
 
+def _warm(bank: Bank) -> np.ndarray:
+    """The experts' warm-up rows (:meth:`~kalmix.core.engine.Bank.warmup_rows`; empty when no expert ever sleeps
+    for it)."""
+    warm = bank.warmup_rows()
+    return np.zeros(0) if warm is None else warm
+
+
 def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *, lengths=None, learn=None,
         ahead_times=None, ahead_frames: int = 1, threads_per_block: int = THREADS_PER_BLOCK,
         timings: dict | None = None) -> EngineResult:
@@ -239,7 +249,7 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
     # the rule's per-expert arrays (N, K) as (K, N), its per-target ones (N,) as they are
     rule_dev = type(rule)(*(cuda.to_device(soa(a) if a.ndim == 2 else a) for a in rule))
     device = {name: cuda.to_device(value) for name, value in dict(
-        orders=orders, far=_far(bank), q=q, r=r, initial=initial, tu=tu, mean=soa(mean), cov=soa(cov),
+        orders=orders, warm=_warm(bank), far=_far(bank), q=q, r=r, initial=initial, tu=tu, mean=soa(mean), cov=soa(cov),
         last_time=last_time,
         initialised=initialised, z=z, times=times, lengths=lengths,
         learn=np.ascontiguousarray(learn), ahead_times=ahead_host, variance=soa(cal[0]), n_errors=soa(cal[1]),
@@ -253,8 +263,9 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
     cuda.synchronize()
     launched = time.perf_counter()
     kernel[blocks, threads_per_block](
-        device["orders"], device["far"], device["q"], device["r"], device["initial"], device["tu"], max_step,
-        max_variance, float(bank.reach), device["mean"], device["cov"], device["last_time"], device["initialised"],
+        device["orders"], device["warm"], device["far"], device["q"], device["r"], device["initial"], device["tu"],
+        max_step, max_variance, float(bank.reach), device["mean"], device["cov"], device["last_time"],
+        device["initialised"],
         pack_rule_params(bank), rule_dev,
         float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window), *screen_dev,
         *pack_calibration(bank.calibration_params),

@@ -12,7 +12,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from ..screen import ZERO
+from ..screen import MAX_POINTS, ZERO
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
 
@@ -99,7 +99,7 @@ def screen_row(threshold, max_rejects, warmup, window, position, velocity, last_
         if started and dt > 0:
             for c in range(p):
                 velocity[n, c] = (z[c] - position[n, c]) / dt
-        points[n] = min(points[n] + 1.0, 2.0)
+        points[n] = min(points[n] + 1.0, MAX_POINTS)
         if glitch:   # the warm-up held a glitch: learn the scale again; restart cold
             count[n] = 0.0
             scale[n] = 0.0
@@ -156,6 +156,8 @@ class Verdicts(NamedTuple):
     cold: np.ndarray      # a COLD row: the rule and the calibration start again once it is forecast
     before: np.ndarray    # the time of the last accepted row before it (NaN while fewer than two: the spec's
     after: np.ndarray     # :func:`kalmix.core.engine.span`), and after it
+    points_before: np.ndarray   # the screen's ``points`` (accepted rows since the (re)start) before it,
+    points_after: np.ndarray    # and after it (:func:`kalmix.core.engine.warmed_up`)
 
 
 @nb.njit(**KERNEL_JIT)
@@ -166,11 +168,12 @@ def screen_block(lo, hi, params, state, rows, verdicts):
     threshold, max_rejects, warmup, window = params
     position, velocity, last_time, scale, count, rejects, outliers, points, low, high = state
     z, times, lengths, present, gaps = rows
-    accept, restart, started, cold, before, after = verdicts
+    accept, restart, started, cold, before, after, points_before, points_after = verdicts
     for n in range(lo, hi):
         for t in range(lengths[n]):
             started[t, n] = points[n] >= 1.0
             before[t, n] = last_learned(last_time, points, n)
+            points_before[t, n] = points[n]
             code = screen_row(threshold, max_rejects, warmup, window, position, velocity, last_time, scale, count,
                               rejects, outliers, points, low, high, n, z[t, n], times[t, n], present[t, n],
                               gaps[t, n])
@@ -178,3 +181,4 @@ def screen_block(lo, hi, params, state, rows, verdicts):
             restart[t, n] = code == RESTART or code == GAP
             cold[t, n] = code == COLD
             after[t, n] = last_learned(last_time, points, n)
+            points_after[t, n] = points[n]

@@ -37,16 +37,20 @@ class FamilyKind(NamedTuple):
     clock: str = "time"         # "time": forecasts at a time; "frames": so many rows ahead, whatever the time
     order: int | None = None    # the state's order the kind fixes (its compiled kernels are built for it)
     long_step: bool = False     # forecasts across a step longer than the bank's reach (kalmix.core.engine)
+    warmup: int = 1             # learned rows of a track (segment) before its forecasts weigh (kalmix.core.engine)
 
 
 #: Family kinds and their parts: kinematic CV / CA, adaptive AR of the velocity and coordinated turns in real
-#: time, and the paper's AKF (frame-based).
+#: time, and the paper's AKF (frame-based). The warm-up rows: a kinematic state of order m is fitted by m rows
+#: (position and velocity from two, the acceleration from a third); a turn needs a velocity (two rows; with no
+#: turn rate yet it goes straight); the AR needs two velocities (its first one is taken for a jump), and the
+#: AKF's state model a row past its first step.
 KINDS = {
-    "cv": FamilyKind(kinematic, "kinematic", order=2, long_step=True),
-    "ca": FamilyKind(kinematic, "kinematic", order=3),
-    "ar": FamilyKind(ar, "ar"),
-    "turn": FamilyKind(turn, "turn"),
-    "akf": FamilyKind(akf, "akf_driver", clock="frames"),
+    "cv": FamilyKind(kinematic, "kinematic", order=2, long_step=True, warmup=2),
+    "ca": FamilyKind(kinematic, "kinematic", order=3, warmup=3),
+    "ar": FamilyKind(ar, "ar", warmup=3),
+    "turn": FamilyKind(turn, "turn", warmup=2),
+    "akf": FamilyKind(akf, "akf_driver", clock="frames", warmup=3),
 }
 
 
