@@ -131,7 +131,7 @@ def test_display_on_a_terminal_counts_and_clears_its_line_for_other_writers(monk
     assert terminal.getvalue().endswith("\rkalmix: warning: something\n\r" + display._status_text(3.0))
     display.done(3.2, True)
     assert sys.stderr is terminal
-    end = "\rkalmix: compiled kalmix's kernels in 3 s (cached: later runs start at once)\n"
+    end = "\rkalmix: compiled kalmix's kernels in 3.2 s (cached: later runs start at once)\n"
     assert terminal.getvalue().endswith(end)
     display.tick(4.0)   # a tick that comes after the end (the notice's thread): draws nothing
     assert terminal.getvalue().endswith(end) and sys.stderr is terminal
@@ -153,7 +153,7 @@ def test_display_under_a_progress_bar_writes_above_it(monkeypatch):
         display.done(5.0, True)
         bar.update(10)
     screen = terminal.getvalue()
-    assert "kalmix: " + _notice.START + "\n" in screen and "kalmix: compiled kalmix's kernels in 5 s" in screen
+    assert "kalmix: " + _notice.START + "\n" in screen and "kalmix: compiled kalmix's kernels in 5.0 s" in screen
     assert "first run only ... " not in screen and sys.stderr is terminal
     with tqdm(total=10, file=io.StringIO()) as elsewhere:   # a bar on another stream is not this display's
         assert elsewhere in tqdm._instances and display._bars() == []

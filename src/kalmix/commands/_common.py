@@ -292,9 +292,12 @@ class CompileDisplay:
 
     @staticmethod
     def _done_text(elapsed: float, finished: bool) -> str:
+        from ..core.compiled._notice import seconds_text
+
+        took = seconds_text(elapsed)
         if finished:
-            return f"kalmix: compiled kalmix's kernels in {elapsed:.0f} s (cached: later runs start at once)"
-        return f"kalmix: compiling kalmix's kernels stopped after {elapsed:.0f} s"
+            return f"kalmix: compiled kalmix's kernels in {took} (cached: later runs start at once)"
+        return f"kalmix: compiling kalmix's kernels stopped after {took}"
 
     # -- the notice's calls (start and done from the compiling thread or at exit, tick from the notice's thread)
     def start(self, first: bool) -> None:

@@ -45,7 +45,7 @@ import logging
 import threading
 import time
 
-__all__ = ["QUIET_SECONDS", "TICK_SECONDS", "add_display", "compiling", "remove_display", "watch"]
+__all__ = ["QUIET_SECONDS", "TICK_SECONDS", "add_display", "compiling", "remove_display", "seconds_text", "watch"]
 
 logger = logging.getLogger("kalmix")
 
@@ -104,6 +104,11 @@ def watch() -> None:
             return
         event.register("numba:compile", _make_listener(event.Listener)())
         _watching = True
+
+
+def seconds_text(elapsed: float) -> str:
+    """How long a compile took, as the notices say it: ``"0.4 s"`` under 10 s (not ``"0 s"``), else ``"28 s"``."""
+    return f"{elapsed:.1f} s" if elapsed < 9.95 else f"{elapsed:.0f} s"
 
 
 def _ours(data) -> bool:
@@ -207,9 +212,9 @@ def _close(episode: _Episode) -> None:
     episode.wake.set()
     elapsed = (episode.last_end if finished else time.monotonic()) - episode.start
     if finished:
-        logger.info("compiled kalmix's kernels in %.0f s (cached: later runs load them)", elapsed)
+        logger.info("compiled kalmix's kernels in %s (cached: later runs load them)", seconds_text(elapsed))
     else:
-        logger.info("compiling kalmix's kernels stopped after %.0f s", elapsed)
+        logger.info("compiling kalmix's kernels stopped after %s", seconds_text(elapsed))
     for display in displays:
         _call(display.done, elapsed, finished)
 
