@@ -318,8 +318,7 @@ def test_a_fast_noise_free_line_is_not_taken_for_a_glitch():
     units (noise-free data, where the automatic length unit is rounding error): before the velocity is learned
     the second row was judged against the initial velocity spread, and a filter lagging a target of 1e12 units a
     step restarted every few rows (misses of the order of the speed). Both engines, the same bits. (Measured: 3.2
-    and 16,069 units; 1.39 and 6,967 before the experts' warm-up, which keeps the CA's wild forecast of the third
-    row out of the rule's learning, and the rule then weighs the CA more on this line.)"""
+    and 16,069 units.)"""
     t = np.arange(100.0)
     bank = make_bank(1, "kinematic")
     for speed, bound in ((2e8, 4.6), (1e12, 2.3e4)):
