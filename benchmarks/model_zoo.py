@@ -539,6 +539,35 @@ def export(revision: str, directory: Path) -> tuple[Path, str]:
     return directory / "src", commit
 
 
+def machine() -> dict:
+    """The machine a report was measured on."""
+    return {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
+            "python": platform.python_version()}
+
+
+def checkout() -> dict:
+    """The kalmix a report measured: this checkout's commit and the files of ``src`` changed in its working tree."""
+    changed = git("status", "--porcelain", "--", "src").splitlines()
+    return {"commit": git("rev-parse", "HEAD").strip(), "working_tree_changes": [line[3:] for line in changed]}
+
+
+def run_all(report: dict, zoo: dict, chosen, quick: bool, directory: Path, run, start: float, json_path=None) -> dict:
+    """``run(scenario, its own directory under directory)`` for each chosen scenario (``quick``: 5 tracks of 200
+    rows) into ``report["scenarios"]``; then the seconds since ``start``, said and written to ``json_path``."""
+    for name in chosen:
+        s = zoo[name]
+        if quick:
+            s.tracks, s.rows = 5, 200
+        scenario_directory = directory / name
+        scenario_directory.mkdir()
+        report["scenarios"][name] = run(s, scenario_directory)
+    report["seconds"] = time.perf_counter() - start
+    print(f"{len(chosen)} scenario(s) in {report['seconds']:.1f} s")
+    if json_path:
+        Path(json_path).write_text(json.dumps(report, indent=2) + "\n")
+    return report
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", default=None, help="write the results here")
@@ -551,9 +580,7 @@ def main(argv=None) -> dict:
     chosen = args.scenario or list(zoo)
     report = {"command": "python -m benchmarks.model_zoo" + (" --quick" if args.quick else "")
               + (f" --at {args.at}" if args.at else ""),
-              "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
-                          "python": platform.python_version()},
-              "burn_in": BURN_IN, "scenarios": {}}
+              "machine": machine(), "burn_in": BURN_IN, "scenarios": {}}
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="kalmix-zoo-") as temporary:
         source = None
@@ -562,25 +589,13 @@ def main(argv=None) -> dict:
                 source, commit = export(args.at, Path(temporary))
                 report["kalmix"] = {"commit": commit, "working_tree_changes": []}
             else:
-                changed = git("status", "--porcelain", "--", "src").splitlines()
-                report["kalmix"] = {"commit": git("rev-parse", "HEAD").strip(),
-                                    "working_tree_changes": [line[3:] for line in changed]}
+                report["kalmix"] = checkout()
         except (RuntimeError, FileNotFoundError) as error:
             if args.at:
                 sys.exit(f"model_zoo: --at {args.at}: {error}")
             report["kalmix"] = {"commit": None, "note": f"not a git checkout ({error})"}
-        for name in chosen:
-            s = zoo[name]
-            if args.quick:
-                s.tracks, s.rows = 5, 200
-            directory = Path(temporary) / name
-            directory.mkdir()
-            report["scenarios"][name] = run_scenario(s, directory, source)
-    report["seconds"] = time.perf_counter() - start
-    print(f"{len(chosen)} scenario(s) in {report['seconds']:.1f} s")
-    if args.json:
-        Path(args.json).write_text(json.dumps(report, indent=2) + "\n")
-    return report
+        return run_all(report, zoo, chosen, args.quick, Path(temporary),
+                       lambda s, directory: run_scenario(s, directory, source), start, args.json)
 
 
 if __name__ == "__main__":

@@ -34,10 +34,7 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import math
-import os
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -155,29 +152,15 @@ def main(argv=None) -> dict:
     zoo = mz.scenarios()
     report = {"command": "python -m benchmarks.zoo_lead" + (" --quick" if args.quick else "")
               + ("" if tuple(args.horizons) == HORIZONS else f" --horizons {' '.join(map(str, args.horizons))}"),
-              "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
-                          "python": platform.python_version()},
-              "burn_in": mz.BURN_IN, "left_out": LEFT_OUT, "scenarios": {}}
+              "machine": mz.machine(), "burn_in": mz.BURN_IN, "left_out": LEFT_OUT, "scenarios": {}}
     try:
-        changed = mz.git("status", "--porcelain", "--", "src").splitlines()
-        report["kalmix"] = {"commit": mz.git("rev-parse", "HEAD").strip(),
-                            "working_tree_changes": [line[3:] for line in changed]}
+        report["kalmix"] = mz.checkout()
     except (RuntimeError, FileNotFoundError) as error:
         report["kalmix"] = {"commit": None, "note": f"not a git checkout ({error})"}
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="kalmix-zoo-lead-") as temporary:
-        for name in chosen:
-            s = zoo[name]
-            if args.quick:
-                s.tracks, s.rows = 5, 200
-            directory = Path(temporary) / name
-            directory.mkdir()
-            report["scenarios"][name] = run_scenario(s, directory, tuple(args.horizons))
-    report["seconds"] = time.perf_counter() - start
-    print(f"{len(chosen)} scenario(s) in {report['seconds']:.1f} s")
-    if args.json:
-        Path(args.json).write_text(json.dumps(report, indent=2) + "\n")
-    return report
+        return mz.run_all(report, zoo, chosen, args.quick, Path(temporary),
+                          lambda s, directory: run_scenario(s, directory, tuple(args.horizons)), start, args.json)
 
 
 if __name__ == "__main__":

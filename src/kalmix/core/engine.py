@@ -43,11 +43,10 @@ forecast is not finite, e.g. before its first measurement.
 its kind's ``warmup`` learned rows (:data:`kalmix.core.families.KINDS`: 2 for CV and turn, 3 for CA, AR and
 the AKF): before, the one-step weights leave it out (it sleeps for that forecast), if an expert warmed up is
 awake there; while none is, every expert forecasts. On a track's third row a CA fitted to two points, an AR
-that took its first velocity for a jump or an AKF one step into its model can miss by orders of magnitude
-more than the CV; one such row would set BOA's scale of the losses for the rest of a short track. The
-count comes from the glitch screen (its accepted rows, :data:`kalmix.core.screen.MAX_POINTS` at most), known
-before the row; the experts learn every row as usual, and the lead head sees every expert
-(:func:`warmed_up`).
+that took its first velocity for a jump or an AKF one step into its model can miss by orders of magnitude more
+than the CV, and one such row would set BOA's scale of the losses for the rest of a short track. The count is
+the glitch screen's accepted rows, known before the row; the experts learn every row, and the lead head sees
+every expert (:func:`warmed_up`).
 
 **Reach** (off unless the bank has one: ``make_bank(..., reach=...)``). The one-step weights
 are learned mostly on a track's usual steps. Across a step longer than the bank's ``reach``
@@ -433,8 +432,6 @@ def warmed_up(bank: Bank, experts, points):
     if rows is None:
         return experts
     cold = np.asarray(points)[..., None] < rows   # (..., K)
-    if not cold.any():
-        return experts
     ready = (~cold & np.isfinite(experts).all(axis=-1)).any(axis=-1)
     asleep = cold & ready[..., None]
     if not asleep.any():
