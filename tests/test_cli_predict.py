@@ -763,11 +763,10 @@ def test_iso_8601_times_are_seconds_since_1970_in_files_on_stdin_and_as_parquet_
 
 
 @pytest.mark.parametrize("chunk_rows", ["200000", "7"])
-def test_a_learned_time_unit_is_the_files_first_step_in_file_order_as_on_stdin(cli, tmp_path, chunk_rows):
-    """Without --time-unit, the unit is the data's first time step. A file's rows are stepped track by track,
-    and it was learned from the first track's first step (1.0 here), while a stream of the same rows learns
-    the first step to arrive (track 101's 0.3): the lead columns differed between the file and stdin. The
-    file's unit is now the first step in file order, in one chunk or across chunks."""
+def test_a_files_time_unit_is_its_first_chunks_median_step_and_stdin_takes_the_first_step(cli, tmp_path, chunk_rows):
+    """Without --time-unit, a file's unit is the median time step of its first chunk (its tracks' steps of 1.0,
+    0.3 and 0.7: 0.7), learned before any row is stepped; stdin cannot look ahead and takes the first step to
+    arrive (track 101's 0.3). Given the unit, the file and stdin give the same bits."""
     rng = np.random.default_rng(4)
     rows = []
     for track, start, step in ((100, 0.0, 1.0), (101, 0.1, 0.3), (102, 0.2, 0.7)):
@@ -775,31 +774,37 @@ def test_a_learned_time_unit_is_the_files_first_step_in_file_order_as_on_stdin(c
         xy = np.cumsum(rng.normal(size=(30, 2)), 0) * 0.01
         rows += [(track, round(t[i], 6), *xy[i]) for i in range(30)]
     feed = pd.DataFrame(rows, columns=["object_id", "t", "px", "py"]).sort_values("t", kind="stable")
+    first = feed.iloc[:int(chunk_rows)]
+    steps = np.concatenate([np.diff(g.to_numpy()) for _, g in first.groupby("object_id")["t"]])
     path = _write_csv(feed, tmp_path / "in.csv")
     args = [*FAST, "--lead", "0.5", "--state"]
     file = _run(cli, ["predict", path, "--chunk-rows", chunk_rows, *args, str(tmp_path / "f.npz")])
     piped = _run(cli, ["predict", "-", *args, str(tmp_path / "s.npz")], input=feed.to_csv(index=False))
     assert file.exit_code == 0 and piped.exit_code == 0, file.output + piped.output
-    file, piped = _sorted(_read(file.stdout)), _sorted(_read(piped.stdout))
+    units = [_saved_time_unit(tmp_path / name) for name in ("f.npz", "s.npz")]
+    assert units == [pytest.approx(np.median(steps), rel=1e-11), pytest.approx(0.3, rel=1e-11)]
+    if chunk_rows == "200000":
+        assert units[0] == pytest.approx(0.7, rel=1e-11)
+    given = [*args[:-1], "--time-unit", "0.7"]
+    file = _sorted(_read(_run(cli, ["predict", path, "--chunk-rows", chunk_rows, *given]).stdout))
+    piped = _sorted(_read(_run(cli, ["predict", "-", *given], input=feed.to_csv(index=False)).stdout))
     lead = ["lead_px", "lead_py", "lead_std_px", "lead_std_py"]
     assert np.isfinite(file[lead].to_numpy()).sum() > 300
     np.testing.assert_array_equal(piped[["object_id", "t", "segment", *lead]],
                                   file[["object_id", "t", "segment", *lead]])
-    units = [_saved_time_unit(tmp_path / name) for name in ("f.npz", "s.npz")]
-    assert units == [pytest.approx(0.3, abs=1e-12)] * 2
 
 
 @pytest.mark.parametrize("bank", ["akf", "mixed"])
-def test_a_restart_before_the_time_unit_is_known_is_the_same_in_a_file_and_on_stdin(cli, tmp_path, bank):
-    """With an absolute --max-gap a track's second row can restart it before any step fixes the time unit.
-    A stream steps that row with the unit unknown; the file fixed the unit first, and the row's lead differed
-    (a review's case). The file now steps the rows before the unit's step in file order first, as a stream."""
+def test_a_restart_before_any_step_runs_with_the_files_time_unit(cli, tmp_path, bank):
+    """With an absolute --max-gap a track's second row can restart it before any kept step. A file fixes the
+    time unit (the median step, 0.3 here) before stepping any row, so that row runs with it too: the numbers
+    of a stream given that unit. (A stream without it steps that row before it knows the unit.)"""
     text = "id,t,x,y\n0,0,-0.96,6.43\n0,10,-0.07,3.43\n0,10.3,-1.26,0.95\n0,10.6,-1.0,0.5\n1,10.9,2.0,1.0\n"
     path = tmp_path / "gap.csv"
     path.write_text(text)
     args = ["--bank", bank, "--lead", "0.5", "--max-gap", "3", "--length-unit", "1", "--no-progress"]
     file = _read(_run(cli, ["predict", str(path), *args]).stdout)
-    piped = _read(_run(cli, ["predict", "-", *args], input=text).stdout)
+    piped = _read(_run(cli, ["predict", "-", *args, "--time-unit", "0.3"], input=text).stdout)
     lead = ["segment", "lead_x", "lead_y", "lead_std_x", "lead_std_y"]
     assert np.isfinite(file["lead_std_x"]).sum() >= 3
     np.testing.assert_array_equal(_by_id(piped)[lead], _by_id(file)[lead])

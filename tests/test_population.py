@@ -69,7 +69,8 @@ def test_summarise_takes_tracks_with_enough_rows_per_row_times_the_pseudo_rows()
 @pytest.mark.parametrize("prior", [True, False])
 def test_a_file_in_one_table_in_chunks_and_row_by_row_learn_the_same_bits(prior):
     table = _short_tracks(tracks=40)
-    config = StreamConfig(length_unit=27.0, population_prior=prior)
+    # (the units given: a table learns the time unit from its own median step, a stream from its first step)
+    config = StreamConfig(length_unit=27.0, time_unit=1800.0, population_prior=prior)
     whole = TrackPredictor(config)
     whole.process_table(table, ["x", "y"])
     chunks = TrackPredictor(config)
@@ -111,7 +112,7 @@ def test_only_boa_has_a_prior():
 
 def test_a_saved_predictor_resumes_its_population_exactly(tmp_path):
     table = _short_tracks(tracks=30)
-    config = StreamConfig(length_unit=27.0, population_prior=True)
+    config = StreamConfig(length_unit=27.0, time_unit=1800.0, population_prior=True)   # (a half's median step differs)
     whole = TrackPredictor(config)
     expected = whole.process_table(table, ["x", "y"])
     half = len(table) // 2 + 7

@@ -783,12 +783,13 @@ def _arrival_tables():
 
 
 @pytest.mark.parametrize("case", range(6))
-def test_the_rows_before_the_time_unit_then_the_rest_by_track_give_the_stream_numbers(case, tmp_path):
-    """``kalmix predict`` steps a file's rows track by track. While the time unit is unknown it steps the rows
-    before the first step in file order, fixes the unit from that step (``learn_time_unit``), then steps the
-    rest track by track: every output and state leaf has the bits of stepping the rows in arrival order. (The
-    first version fixed the unit before those rows; a restart by an absolute max_gap, or a horizon after a
-    time glitch, then differed.) And ``in_file_order`` gives back a read file's order."""
+def test_a_tables_time_unit_is_its_median_step_and_its_rows_give_the_stream_numbers_in_any_track_order(case,
+                                                                                                       tmp_path):
+    """A table fixes the time unit before any of its rows is stepped: the median step between consecutive rows of
+    its tracks (``learn_time_unit``). ``kalmix predict`` steps a file's rows track by track; every output and
+    state leaf has the bits of stepping them in arrival order, and of a stream of them given that unit (a
+    restart by an absolute max_gap, a horizon after a time glitch included). And ``in_file_order`` gives back a
+    read file's order."""
     import warnings
 
     from kalmix.io import in_file_order, read_tracks
@@ -796,19 +797,22 @@ def test_the_rows_before_the_time_unit_then_the_rest_by_track_give_the_stream_nu
     table, settings = _arrival_tables()[case]
     # (without the population prior, whose summaries cut a file's rows in arrival order too: test_population.py)
     config = dict(n_experts=6, seed=3, length_unit=0.05, population_prior=False, **settings)
+    steps = np.concatenate([np.diff(g.to_numpy()) for _, g in table.groupby("track_id", sort=False)["time"]])
+    median = float(np.median(steps[steps > 0]))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)   # the glitch case's time glitch
         learned = TrackPredictor(StreamConfig(**config))
         expected = learned.process_table(table)
+        assert learned.config.time_unit == pytest.approx(median, rel=1e-12)
         stepped = TrackPredictor(StreamConfig(**config))
-        row = stepped.time_unit_row(table)
-        assert row is not None
-        head, rest = table.iloc[:row], table.iloc[row:]
-        by_track = rest.sort_values("track_id", kind="stable")
-        parts = [stepped.process_table(head, next_times=rest.groupby("track_id")["time"].first().to_dict())]
-        assert stepped.config.time_unit is None
-        assert stepped.learn_time_unit(rest) == learned.config.time_unit
-        parts.append(stepped.process_table(by_track))
+        assert stepped.learn_time_unit(table) == learned.config.time_unit
+        parts = [stepped.process_table(table.sort_values("track_id", kind="stable"))]
+        stream = TrackPredictor(StreamConfig(**{**config, "time_unit": learned.config.time_unit}))
+        rows = stream.step_rows(table["track_id"].tolist(), table["time"].to_numpy(), table[["x", "y"]].to_numpy())
+    assert sum(r is not None for r in rows) == len(expected)   # the same rows stepped (none skipped but glitches)
+    for track in learned.states:
+        for a, b in zip(_leaves_of(stream.states[track]), _leaves_of(learned.states[track])):
+            assert np.array_equal(a, b, equal_nan=True)
     got = pd.concat(parts, ignore_index=True)
     order = np.lexsort((got["time"], got["track_id"]))
     want = expected.iloc[np.lexsort((expected["time"], expected["track_id"]))]

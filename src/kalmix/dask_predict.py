@@ -13,12 +13,10 @@ a whole is derived here the same way, before the shuffle:
 - the **length unit** (``auto``): the rule of :func:`kalmix.streaming.auto_length_unit` on the
   *first chunk*, the first ``chunk_rows`` rows of the data in order (files in sorted path
   order, rows in file order), exactly the chunk a single-machine run reads first;
-- the **time unit** (when not given): the first interval the gap rule keeps, scanning the
-  data's rows in file order, as a stream of them learns it (and single-machine ``predict``,
-  see :meth:`kalmix.streaming.TrackPredictor.learn_time_unit`); the partitions then get it
-  fixed from the start. The rows before that interval that start tracks do not depend on it
-  (tested); a row after a track's first before it (a restart by an absolute ``max_gap``, a
-  row after a time glitch) can, and the run warns (``--time-unit`` makes the runs agree).
+- the **time unit** (when not given): the median time step of the first chunk that has one,
+  as a single-machine run learns it before stepping that chunk (see
+  :meth:`kalmix.streaming.TrackPredictor.learn_time_unit`); the partitions then get it fixed
+  from the start.
 
 Everything else is per track (the gap rule, repeated timestamps, the states), so it does not
 matter which worker holds a track. Rows of one track are put in order the same way: the rows
@@ -400,15 +398,8 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
         arrays = to_arrays(first, columns.positions)
         unit, why = length_unit_rule(arrays.values, times=arrays.times)
     time_unit = config.time_unit
-    if time_unit is None:  # one gap rule over the chunks' rows in file order, reading on only until it is learned
-        continued: list = []
-        time_unit = learned_time_unit((in_file_order(chunk) for chunk in itertools.chain([first], read)), config,
-                                      continued)
-        if continued and time_unit is not None:
-            warnings.warn(f"track(s) {continued[:5]} have rows after their first before the time unit is learned "
-                          f"(the first step, {time_unit:.6g}): a single machine and a stream step them with a unit "
-                          "of 1, this run with the learned unit, so their predictions there can differ; pass "
-                          "--time-unit to make them agree", RuntimeWarning, stacklevel=2)
+    if time_unit is None:  # the median step of the first chunk that has one, as a single machine
+        time_unit = learned_time_unit((in_file_order(chunk) for chunk in itertools.chain([first], read)), config)
     return unit, why, time_unit, first.iloc[:3]
 
 

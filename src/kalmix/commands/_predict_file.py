@@ -226,16 +226,13 @@ def _step_chunk(run, chunk, names, later, clocks, columns, bar) -> None:
     mark = engine.checkpoint(pd.unique(chunk["track_id"]))
     committed = False
     try:
-        parts, unit_at, arrived, summaries = _parts(engine, chunk)
+        engine.learn_time_unit(chunk)   # (until known: the median step of the first chunk that has one)
+        parts, summaries = _parts(engine, chunk)
         frames = []
         for k, (piece, times) in enumerate(zip(parts, next_row_times(parts, later))):
-            if k == unit_at:
-                engine.learn_time_unit(arrived)
             frames.append(engine.process_table(piece, names, times))
             bar.update(len(piece))
-            # a unit of work done (a stop may come here): not the rows before the time unit's step, which go with
-            # the next part, nor a part cut at a population summary
-            if k >= (unit_at or 0) and k not in summaries:
+            if k not in summaries:   # a unit of work done (a stop may come here), but for a part cut at a summary
                 run.guard.tick()
         _keep_clocks(engine, clocks, pd.unique(chunk["track_id"]))
         written: list = []
@@ -307,42 +304,31 @@ def _write_unstepped(run, chunk, columns, settings) -> None:
 
 
 def _parts(engine, chunk):
-    """A chunk's parts to step in turn (each cut into :func:`pieces`), the part before which to fix the time unit
-    (None: none), the rows from that step on in file order, and the parts that end where a population summary
-    falls.
+    """A chunk's parts to step in turn (each cut into :func:`pieces`), and the parts that end where a population
+    summary falls.
 
-    A stream does something at given rows of its arrival order: it learns the time unit at the first
-    step to arrive (:meth:`TrackPredictor.time_unit_row`), and it summarises its population prior
-    after fixed counts of rows (:mod:`kalmix.stream.population`). So the chunk is cut in file order
-    there, and every row before a cut is stepped (track by track) before any after it: the numbers of
-    a stream of the file's rows.
+    A stream summarises its population prior after fixed counts of rows in its arrival order
+    (:mod:`kalmix.stream.population`). So the chunk is cut in file order there, and every row before
+    a cut is stepped (track by track) before any after it: the numbers of a stream of the file's
+    rows.
     """
     from ..io import in_file_order
     from ..stream.times import column_seconds
 
-    unknown = engine.config.time_unit is None
-    summarised = engine.summary_within(len(chunk))
-    arrived = in_file_order(chunk[["track_id", "time"]]) if unknown or summarised else None
-    cuts = set(engine.summary_cuts(arrived["track_id"].to_numpy(), column_seconds(arrived["time"]))
-               if summarised else ())
-    summaries = set(cuts)
-    row = engine.time_unit_row(arrived) if unknown else None
-    if row:
-        cuts.add(row)
+    if not engine.summary_within(len(chunk)):
+        return pieces(chunk), set()
+    arrived = in_file_order(chunk[["track_id", "time"]])
+    cuts = engine.summary_cuts(arrived["track_id"].to_numpy(), column_seconds(arrived["time"]))
     if not cuts:
-        return pieces(chunk), row, None if row is None else arrived, set()
+        return pieces(chunk), set()
     parts, ends = [], set()
-    for begin, end in zip([0, *sorted(cuts)], [*sorted(cuts), len(chunk)]):
+    for begin, end in zip([0, *cuts], [*cuts, len(chunk)]):
         mask = np.zeros(len(chunk), dtype=bool)
         mask[arrived.index[begin:end]] = True
-        if begin == row:
-            unit_at = len(parts)
         parts.extend(pieces(chunk[mask]))
-        if end in summaries:
+        if end in cuts:
             ends.add(len(parts) - 1)
-    if row is None:
-        return parts, None, None, ends
-    return parts, 0 if row == 0 else unit_at, arrived.iloc[row:], ends
+    return parts, ends
 
 
 def _lookahead(chunks) -> list[dict]:

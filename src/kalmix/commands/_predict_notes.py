@@ -167,11 +167,11 @@ class IdWatch:
 
 
 class UnitWatch:
-    """Says once (on stderr) when the learned time unit, the first step of the first track to have one, is far
-    from that track's usual step (the median of its first :data:`~kalmix.streaming.REFERENCE_INTERVALS` steps,
+    """Says once (on stderr) when a time unit learned on stdin, the first step of the first track to have one, is
+    far from that track's usual step (the median of its first :data:`~kalmix.streaming.REFERENCE_INTERVALS` steps,
     or of those it has at the end): a 1 ms first step among 1 s steps makes the unit 1 ms, the experts' noise
-    scales with it, and the first forecasts are wild. The unit stays (it is fixed at that step, so that a file and
-    a stream of its rows give the same numbers); the line gives the --time-unit to pass."""
+    scales with it, and the first forecasts are wild. The unit stays (a stream cannot wait for more steps); the line
+    gives the --time-unit to pass. (A file's unit is its first chunk's median step, not warned about.)"""
 
     FACTOR = 3.0   # "far": more than this many times larger or smaller
 

@@ -196,7 +196,7 @@ def _local_only(given, output):
 @click.option("--time-unit", default=None, type=click.FloatRange(min=0, min_open=True),
               help="Typical sampling interval (the time unit, in the time column's units) that scales the CV/CA "
                    "experts' noise "
-                   "[default: the first positive time step of a track, in the order the rows come].")
+                   "[default: the median time step of a file's first chunk; on stdin, the first time step].")
 @click.option("--experts", "n_experts", default=None, type=click.IntRange(min=1),
               help="Experts of the AKF family [default: 40].")
 @click.option("--seed", default=None, type=click.IntRange(0, MAX_SEED), help="Seed of the bank [default: 0].")

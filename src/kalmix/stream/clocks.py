@@ -1,5 +1,6 @@
 """Every track's clock in a :class:`~kalmix.streaming.TrackPredictor`: the gap rule row by row and over a
-table's rows (:class:`~kalmix.stream.gaps.GapTracker`), and the time unit learned from the data's first step."""
+table's rows (:class:`~kalmix.stream.gaps.GapTracker`), and the time unit learned from the data: the median step of the
+first table with one, or, row by row, the first step."""
 
 from __future__ import annotations
 
@@ -44,22 +45,26 @@ class TrackClocks:
                           "experts' noise and the lead's frames scale with it: pass time_unit (--time-unit) to set it",
                           RuntimeWarning, stacklevel=4)
 
-    def _learn_time_unit(self, value: float, track=None) -> None:
-        """Fix a learned time unit (the bank's parameters scale with it; states do not).
+    def _learn_time_unit(self, value: float, track=None, where: str = "the data's first step") -> None:
+        """Fix a learned time unit, to 12 significant digits (the bank's parameters scale with it; states do not);
+        ``track``: the track whose first step it is (None: a table's median step, see :meth:`learn_time_unit`).
 
         Only first rows of tracks come before it (a track's second row has a time step), and
         nothing they leave in a state depends on the unit (the lead head keeps no forecast made
         from a first row), so the order in which those first rows come changes nothing.
         """
         if self.config.time_unit is None and math.isfinite(value) and value > 0:
+            # to 12 digits: a file's median step and a stream's first step of regular rows agree even where the
+            # times' last bits differ (0.04 and 0.039999999999999994)
+            step, value = value, float(f"{value:.12g}")
             try:   # the settings with this unit (a lead in time units is bounded), checked before any change
                 learned = replace(self.config, time_unit=float(value))
             except ValueError as error:
-                raise ValueError(f"the time unit learned from the data's first step, {value:.6g} time-column units, "
+                raise ValueError(f"the time unit learned from {where}, {value:.6g} time-column units, "
                                  f"does not suit these settings: {error} (pass time_unit, --time-unit on the "
                                  "command line)") from None
             self.config.time_unit = learned.time_unit
-            self._unit_source = (track, learned.time_unit)
+            self._unit_source = None if track is None else (track, step)
             if self.params is not None:
                 self.params = self._build(self.params.measurement_dim)
 
@@ -89,19 +94,6 @@ class TrackClocks:
         """Rows that came back before a jump ahead in time (see the module docstring)."""
         return sum(g.glitches for g in self.gaps.values())
 
-    def _first_step(self, ids, times) -> tuple | None:
-        """``(row, track, step)``: the row of these rows, in this order, at which the time unit would be learned,
-        its track and the step learned (None: no such row). Nothing is changed."""
-        trackers: dict = {}
-        for i in range(len(ids)):
-            track = id_to_json(ids[i])
-            if track not in trackers:
-                trackers[track] = self.gaps[track].copy() if track in self.gaps else GapTracker()
-            trackers[track].advance(float(times[i]), self.config)
-            if trackers[track].intervals:
-                return i, track, trackers[track].intervals[0]
-        return None
-
     def stepped_rows(self, ids, times) -> np.ndarray:
         """``(n,)`` bool: which of these rows, in this order and continuing the tracks seen, the gap rule would
         step rather than skip (a time not after its track's last, or not finite). Nothing is changed."""
@@ -117,47 +109,43 @@ class TrackClocks:
             keep[rows] = gaps.advance_many(times[rows], self.config)[0] >= 0
         return keep
 
-    def _unit_row(self, ids, times) -> int | None:
-        """The row of a table at which the time unit would be learned (None: not in this table)."""
-        found = self._first_step(ids, times)
-        return None if found is None else found[0]
-
-    def time_unit_row(self, table) -> int | None:
-        """The position in ``table`` (``track_id`` and ``time`` columns, rows in arrival order, continuing the
-        tracks this predictor has seen) of the row whose step fixes the time unit; None if the unit is known
-        or no row of the table fixes it. See :meth:`learn_time_unit`."""
-        found = self._table_first_step(table)
-        return None if found is None else found[0]
-
-    def _table_first_step(self, table) -> tuple | None:
-        """:meth:`_first_step` of a table's rows while the time unit is unknown (None once it is known)."""
-        if self.config.time_unit is not None:
-            return None
-        return self._first_step(table["track_id"].to_numpy(), column_seconds(table["time"]))
+    def table_steps(self, ids, times) -> np.ndarray:
+        """The positive time steps between consecutive rows of each track among these rows (in this order, going
+        on from the tracks' last times seen); nothing is changed."""
+        times = np.asarray(times, dtype=np.float64)
+        index, uniques = factorize_ids(np.asarray(ids, dtype=object) if not isinstance(ids, np.ndarray) else ids)
+        steps = []
+        for u, rows in enumerate(_by_key(index, np.arange(len(times)), len(uniques))):
+            known = self.gaps.get(id_to_json(uniques[u]))
+            last = None if known is None else known.last_time
+            t = times[rows] if last is None else np.concatenate([[last], times[rows]])
+            step = np.diff(t[np.isfinite(t)])
+            steps.append(step[step > 0])
+        return np.concatenate(steps) if steps else np.zeros(0)
 
     def learn_time_unit(self, table) -> float | None:
-        """Fix the time unit, if it is not known yet, from the first step of a table's rows in arrival order,
-        without stepping them; returns the time unit (None: still unknown).
+        """Fix the time unit, if it is not known yet, from a table's rows without stepping them: the median of the
+        positive time steps between consecutive rows of each of its tracks (going on from the rows seen
+        before); returns the time unit (None: still unknown, the table has no such step).
 
-        Stepping the rows one by one learns the unit at that step, and the rows before it run
-        with a unit of 1. So this gives the same numbers as stepping the table when every row
-        before that step has been stepped already (:meth:`time_unit_row` tells where it is):
-        ``kalmix predict`` steps a file's rows track by track (:func:`kalmix.io.iter_track_chunks`
-        sorts a chunk), so it steps the rows before that step in file order
-        (:func:`kalmix.io.in_file_order`), fixes the unit here, then steps the rest track by
-        track: the numbers of a stream of the same rows. (Called before those rows instead, the
-        numbers differ where they depend on the unit: a restart before the unit is known, by an
-        absolute ``max_gap``, or a ``horizon`` after a time glitch.)
+        :meth:`process_table` calls it on each table it gets while the unit is unknown (the first
+        table with a step fixes it), and ``kalmix predict`` on each chunk of a file, before any of
+        its rows is stepped, so that every row runs with the same bank. Rows stepped one by one
+        (:meth:`step_row`, :meth:`step_rows`, ``kalmix predict -``) have no table to look at: the
+        first step to arrive fixes the unit there, so a stream and a file of the same rows give the
+        same numbers when the unit is given (``time_unit``, ``--time-unit``), or when the first
+        step is the median one (regular sampling).
 
         Parameters
         ----------
         table : pandas.DataFrame
-            ``track_id`` and ``time`` columns, in arrival order (later rows continue the tracks
-            this predictor has seen).
+            ``track_id`` and ``time`` columns, each track's rows in time order (later rows continue
+            the tracks this predictor has seen).
         """
-        found = self._table_first_step(table)
-        if found is not None:
-            self._learn_time_unit(found[2], found[1])
+        if self.config.time_unit is None:
+            steps = self.table_steps(table["track_id"].to_numpy(), column_seconds(table["time"]))
+            if steps.size:
+                self._learn_time_unit(float(np.median(steps)), where="the median time step of the table")
         return self.config.time_unit
 
     def _gap_rule(self, ids, times, first_row=0):

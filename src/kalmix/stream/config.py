@@ -83,9 +83,11 @@ class StreamConfig:
         :func:`kalmix.bank.make_bank`).
     time_unit : float or None
         The typical sampling interval (time-column units) that scales the kinematic
-        experts' noise; ``None``: learned from the data, the first positive time step
-        between two rows of one track (in row order, so a file and a stream of the same
-        rows learn the same unit).
+        experts' noise; ``None``: learned from the data, the median time step between
+        consecutive rows of a track in the first table :meth:`TrackPredictor.process_table`
+        gets that has one (as ``kalmix predict`` on a file's first chunk); rows that come
+        one by one (:meth:`~TrackPredictor.step_row`, ``kalmix predict -``) take the first
+        time step to arrive.
     reach : float or None
         In time units: across a longer step only the CV experts make the one-step forecast
         (``reach`` of :func:`kalmix.bank.make_bank`); None: every expert at every step.

@@ -180,13 +180,11 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, PopulationPrio
                 self.states.share_as_new(self._fresh())
 
 
-def learned_time_unit(tables, config: StreamConfig, continued: list | None = None) -> float | None:
-    """The time unit :meth:`TrackPredictor.process_table` learns from ``tables`` fed in this order.
-
-    Only the gap rule runs (no bank): the unit is the first interval a track's
-    :class:`GapTracker` keeps, in row order, exactly as in ``process_table`` (the bank's
-    parameters scale with it, so a run split over several machines fixes it in advance to
-    give the numbers of one run). ``None`` when no table has a positive step of a track.
+def learned_time_unit(tables, config: StreamConfig) -> float | None:
+    """The time unit :meth:`TrackPredictor.process_table` learns from ``tables`` fed in this order: the median
+    time step of the first of them that has a step (:meth:`TrackPredictor.learn_time_unit`), reading on only
+    until then. The bank's parameters scale with it, so a run split over several machines fixes it in advance
+    to give the numbers of one run. ``None`` when no table has a positive step of a track.
 
     Parameters
     ----------
@@ -194,21 +192,13 @@ def learned_time_unit(tables, config: StreamConfig, continued: list | None = Non
         ``track_id`` and ``time`` columns, in the order ``process_table`` would get them.
     config : StreamConfig
         The gap rule's settings (``max_gap``, ``max_gap_factor``); its ``time_unit`` is ignored.
-    continued : list, optional
-        Receives the tracks that have a row before that step other than their first (a restart by
-        an absolute ``max_gap``, a row after a time glitch): such a row's numbers can depend on
-        the unit, which a run that steps it before knowing the unit takes as 1.
     """
     scratch = TrackPredictor(replace(config, time_unit=None))
     for table in tables:
+        if scratch.learn_time_unit(table) is not None:
+            return scratch.config.time_unit
         for track, time in zip(table["track_id"].to_numpy(), column_seconds(table["time"])):
-            key = id_to_json(track)
-            seen = key in scratch.gaps
-            _, new = scratch._advance(key, float(time))
-            if scratch.config.time_unit is not None:
-                return scratch.config.time_unit
-            if seen and new is not None and continued is not None and key not in continued:
-                continued.append(key)
+            scratch._advance(id_to_json(track), float(time))   # (the tracks' last times, for the next table)
     return None
 
 

@@ -52,7 +52,9 @@ class TableSteps:
         text such as ``BaseDateTime``, positions such as ``lat``/``lon``; no id column: one
         track; no time column: row order), whose notes come as :class:`ColumnNoteWarning`.
         With ``length_unit="auto"`` the first table also fixes the length unit
-        (:func:`estimate_length_unit`, as the command on a file's first chunk). Geographic
+        (:func:`estimate_length_unit`, as the command on a file's first chunk), and with
+        ``time_unit=None`` the first table with a time step fixes the time unit, the median step
+        (:meth:`learn_time_unit`, as the command on a file's first chunk). Geographic
         positions (:class:`StreamConfig`'s ``geographic``) are predicted in metres and come back
         in degrees, their standard deviations in metres (``std_east_m``, ``std_north_m``).
 
@@ -119,6 +121,7 @@ class TableSteps:
                 check_degrees(table[names].to_numpy(np.float64), self.axes, names,
                               lambda i: f"table: row {i} (counted from 0)")
             self._resolve_length_unit(table, names, "the table")
+            self.learn_time_unit(table)
             frame = self._process_table(table, position_names, next_times or {}, kept=kept)
         except BaseException:
             self.rollback(saved)
@@ -186,24 +189,14 @@ class TableSteps:
         if not pd.api.types.is_numeric_dtype(table["time"]):   # dates and durations: seconds, as files are read
             table = table.assign(time=column_seconds(table["time"]))
 
-        split = None
-        if self.config.time_unit is None:
-            # rows before the time unit is known run with the bank of a unit of 1, as they would row by row
-            split = self._unit_row(table["track_id"].to_numpy(), table["time"].to_numpy(np.float64))
-        if not split:   # the rows before each summary of the population prior (.population), then the summary
-            cuts = self.summary_cuts(table["track_id"].to_numpy(), table["time"].to_numpy(np.float64))
-            if cuts:   # (found once: each part ends at a summary point, so none is cut again)
-                bounds = [0, *cuts, len(table)]
-                parts = [table.iloc[a:b] for a, b in zip(bounds, bounds[1:])]
-                return pd.concat([self._process_table(part, position_names, later, first_row + a, kept)
-                                  for part, later, a in zip(parts, next_row_times(parts, next_times), bounds)],
-                                 ignore_index=True)
-        if split:
-            head, tail = table.iloc[:split], table.iloc[split:]
-            later = {**next_times, **tail.groupby("track_id", sort=False)["time"].first().to_dict()}
-            first = self._process_table(head, position_names, later, first_row, kept)
-            return pd.concat([first, self._process_table(tail, position_names, next_times, first_row + split,
-                                                         kept)], ignore_index=True)
+        # the rows before each summary of the population prior (.population), then the summary
+        cuts = self.summary_cuts(table["track_id"].to_numpy(), table["time"].to_numpy(np.float64))
+        if cuts:   # (found once: each part ends at a summary point, so none is cut again)
+            bounds = [0, *cuts, len(table)]
+            parts = [table.iloc[a:b] for a, b in zip(bounds, bounds[1:])]
+            return pd.concat([self._process_table(part, position_names, later, first_row + a, kept)
+                              for part, later, a in zip(parts, next_row_times(parts, next_times), bounds)],
+                             ignore_index=True)
         names = list(position_names)   # (process_table gave the default: every other column)
         if self.position_names is None:
             self.position_names = tuple(names)
