@@ -615,7 +615,8 @@ def _singular(text: str) -> str:
 
 #: The irregular-sampling runs, as the table names them.
 IRREGULAR_RUNS = {"gap restarts (default)": "default", "bridged (--max-gap none)": "bridged",
-                  "bridged, --reach 8": "bridged, `--reach 8`", "gap restarts, --reach 8": "default, `--reach 8`"}
+                  "gap restarts, --reach none": "default, `--reach none`", "bridged, --reach none":
+                  "bridged, `--reach none`", "bridged, --reach 8": "bridged, `--reach 8`"}
 
 
 def irregular(results: Results) -> list:
@@ -637,7 +638,8 @@ def irregular(results: Results) -> list:
                   title="Six simulated vessels reporting every 2-180 s (AIS-like), one-step RMS",
                   notes=[("`kalmix evaluate` with its peers. Bridged: `--max-gap none`, no step restarts the experts; "
                           "with the default gap rule a step beyond the spread of a track's first steps does. "
-                          "`--reach 8`: across a step over 8 time units only the CV experts forecast. *The bank's "
+                          "The default reach here: across a step over 1.5 time units only the CV experts forecast "
+                          "(the steps are irregular); `--reach none`: every expert at every step. *The bank's "
                           "best expert, chosen in hindsight. Coverage of the 95 % intervals." + peer_note)])
     tables = [first]
     grid = data.get("bridged, by time unit and reach")

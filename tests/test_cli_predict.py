@@ -802,7 +802,7 @@ def test_a_restart_before_any_step_runs_with_the_files_time_unit(cli, tmp_path, 
     text = "id,t,x,y\n0,0,-0.96,6.43\n0,10,-0.07,3.43\n0,10.3,-1.26,0.95\n0,10.6,-1.0,0.5\n1,10.9,2.0,1.0\n"
     path = tmp_path / "gap.csv"
     path.write_text(text)
-    args = ["--bank", bank, "--lead", "0.5", "--max-gap", "3", "--length-unit", "1", "--no-progress"]
+    args = ["--bank", bank, "--lead", "0.5", "--max-gap", "3", "--length-unit", "1", "--reach", "none", "--no-progress"]
     file = _read(_run(cli, ["predict", str(path), *args]).stdout)
     piped = _read(_run(cli, ["predict", "-", *args, "--time-unit", "0.3"], input=text).stdout)
     lead = ["segment", "lead_x", "lead_y", "lead_std_x", "lead_std_y"]

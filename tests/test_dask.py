@@ -341,7 +341,7 @@ def test_units_are_the_first_chunks_and_they_matter(cluster, tmp_path):
     frame, columns, fmt = read_archive(str(tmp_path / "archive"), track_id="vessel")
     config = StreamConfig(n_experts=4, seed=1)
     with distributed.Client(cluster):
-        unit, why, time_unit, _ = data_units(frame, columns, config, chunk_rows=500, first_appearance=True)
+        unit, why, time_unit, reach, _ = data_units(frame, columns, config, chunk_rows=500, first_appearance=True)
     first = next(iter_track_chunks(whole, columns=columns, chunk_rows=500, ids_as_text=True))
     arrays = to_arrays(first, ["x", "y"])
     assert why is None and unit == auto_length_unit(arrays.values, times=arrays.times)
@@ -349,7 +349,7 @@ def test_units_are_the_first_chunks_and_they_matter(cluster, tmp_path):
     assert abs(unit / auto_length_unit(everything.values, times=everything.times) - 1) > 0.01
     engine = TrackPredictor(StreamConfig(n_experts=4, seed=1, length_unit=unit), ["x", "y"])
     engine.process_table(first, ["x", "y"])
-    assert time_unit == engine.config.time_unit
+    assert time_unit == engine.config.time_unit and reach == engine.config.reach != "auto"
     steps = np.concatenate([np.diff(g.to_numpy()) for _, g in first.groupby("track_id")["time"]])
     assert time_unit == pytest.approx(np.median(steps[steps > 0]), rel=1e-11)
     other = TrackPredictor(StreamConfig(n_experts=4, seed=1, length_unit=unit, time_unit=2 * time_unit), ["x", "y"])

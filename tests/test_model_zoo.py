@@ -94,14 +94,16 @@ def test_the_default_gap_rule_keeps_irregular_sampling_one_segment(tmp_path):
 
 def test_the_default_gap_rule_keeps_log_uniform_sampling_one_segment(tmp_path):
     """Steps drawn log-uniform in 10 s - 10 min (a spread of 60): the gap rule's threshold takes the spread of a
-    track's first steps into account, so no track is cut at its long reports. Measured: 40 segments for 40 tracks,
-    1.05x the optimum, as --max-gap none (the upper quartile alone cut them 253 times: 3.87x)."""
+    track's first steps into account, so no track is cut at its long reports (the upper quartile alone cut them
+    253 times: 3.87x). The time unit is the median step and the steps are irregular, so across a step over 1.5
+    time units only the CV experts predict. Measured: 40 segments for 40 tracks, 1.016x the optimum (1.053x with
+    the first step as the unit and no reach)."""
     mz.main(["--scenario", "cv_log_uniform", "--json", str(tmp_path / "zoo.json")])
     entry = json.loads((tmp_path / "zoo.json").read_text())["scenarios"]["cv_log_uniform"]
     run = entry["kalmix_runs"]["kalmix"]
     assert run["segments"] <= entry["tracks"] + 2
     ratios = {name: p["ratio_to_optimum"] for name, p in entry["scores"]["scored"]["predictors"].items()}
-    assert ratios["kalmix"] <= 1.07 and ratios["kalmix"] <= ratios["kalmix --max-gap none"] + 0.005
+    assert ratios["kalmix"] <= 1.025 and ratios["kalmix"] <= ratios["kalmix --max-gap none"] + 0.005
 
 
 def test_the_kalman_filters_h_step_forecast_is_the_conditional_mean():

@@ -69,8 +69,8 @@ def test_summarise_takes_tracks_with_enough_rows_per_row_times_the_pseudo_rows()
 @pytest.mark.parametrize("prior", [True, False])
 def test_a_file_in_one_table_in_chunks_and_row_by_row_learn_the_same_bits(prior):
     table = _short_tracks(tracks=40)
-    # (the units given: a table learns the time unit from its own median step, a stream from its first step)
-    config = StreamConfig(length_unit=27.0, time_unit=1800.0, population_prior=prior)
+    # (the units and reach given: a table learns them from its own steps, a stream from its first step)
+    config = StreamConfig(length_unit=27.0, time_unit=1800.0, reach=1.5, population_prior=prior)
     whole = TrackPredictor(config)
     whole.process_table(table, ["x", "y"])
     chunks = TrackPredictor(config)
@@ -112,7 +112,7 @@ def test_only_boa_has_a_prior():
 
 def test_a_saved_predictor_resumes_its_population_exactly(tmp_path):
     table = _short_tracks(tracks=30)
-    config = StreamConfig(length_unit=27.0, time_unit=1800.0, population_prior=True)   # (a half's median step differs)
+    config = StreamConfig(length_unit=27.0, time_unit=1800.0, reach=1.5, population_prior=True)   # (a half may differ)
     whole = TrackPredictor(config)
     expected = whole.process_table(table, ["x", "y"])
     half = len(table) // 2 + 7
@@ -198,7 +198,7 @@ def test_a_file_its_chunks_and_stdin_learn_in_the_order_the_rows_came(tmp_path):
     source = tmp_path / "tracks.csv"
     table.to_csv(source, index=False)
     runner = CliRunner()
-    fixed = ["--length-unit", "27", "--time-unit", "1800", "--lead", "1800"]
+    fixed = ["--length-unit", "27", "--time-unit", "1800", "--reach", "1.5", "--lead", "1800"]
     outputs, states = {}, {}
     for name, flags in (("one", []), ("chunks", ["--chunk-rows", "45"]), ("more", ["--chunk-rows", "100"])):
         result = runner.invoke(build(), ["predict", str(source), "-o", str(tmp_path / f"{name}.csv"), *fixed,
@@ -281,7 +281,7 @@ def test_a_parquet_file_sorted_by_id_learns_as_its_rows_came(tmp_path):
     table.to_parquet(tmp_path / "feed.parquet", index=False)
     table.to_csv(tmp_path / "feed.csv", index=False)
     runner = CliRunner()
-    fixed = ["--experts", "2", "--length-unit", "27", "--time-unit", "1800"]
+    fixed = ["--experts", "2", "--length-unit", "27", "--time-unit", "1800", "--reach", "1.5"]
     runs = {"whole": ("feed.parquet", []), "rows": ("feed.parquet", ["--chunk-rows", "1"]), "csv": ("feed.csv", [])}
     outputs, states = {}, {}
     for name, (source, flags) in runs.items():

@@ -117,7 +117,8 @@ def test_save_and_resume_is_bit_for_bit(tmp_path):
     second = TrackPredictor.load(tmp_path / "s.npz")
     part += [r.next for r in _rows(second, table.iloc[70:])]
     assert np.array_equal(np.array(part), np.array(whole), equal_nan=True)
-    assert second.config == StreamConfig(**CONFIG, time_unit=0.1)  # learned from the first time step, kept
+    # learned from the first time step, kept; a stream's reach is settled at none
+    assert second.config == StreamConfig(**CONFIG, time_unit=0.1, reach=None)
 
 
 def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
@@ -786,8 +787,9 @@ def _arrival_tables():
 def test_a_tables_time_unit_is_its_median_step_and_its_rows_give_the_stream_numbers_in_any_track_order(case,
                                                                                                        tmp_path):
     """A table fixes the time unit before any of its rows is stepped: the median step between consecutive rows of
-    its tracks (``learn_time_unit``). ``kalmix predict`` steps a file's rows track by track; every output and
-    state leaf has the bits of stepping them in arrival order, and of a stream of them given that unit (a
+    its tracks (``learn_time_unit``), and settles an automatic reach from the same steps. ``kalmix predict``
+    steps a file's rows track by track; every output and state leaf has the bits of stepping them in arrival
+    order, and of a stream of them given that unit and reach (a
     restart by an absolute max_gap, a horizon after a time glitch included). And ``in_file_order`` gives back a
     read file's order."""
     import warnings
@@ -807,7 +809,9 @@ def test_a_tables_time_unit_is_its_median_step_and_its_rows_give_the_stream_numb
         stepped = TrackPredictor(StreamConfig(**config))
         assert stepped.learn_time_unit(table) == learned.config.time_unit
         parts = [stepped.process_table(table.sort_values("track_id", kind="stable"))]
-        stream = TrackPredictor(StreamConfig(**{**config, "time_unit": learned.config.time_unit}))
+        assert learned.config.reach in (None, 1.5)   # (settled from the same steps)
+        stream = TrackPredictor(StreamConfig(**{**config, "time_unit": learned.config.time_unit,
+                                                "reach": learned.config.reach}))
         rows = stream.step_rows(table["track_id"].tolist(), table["time"].to_numpy(), table[["x", "y"]].to_numpy())
     assert sum(r is not None for r in rows) == len(expected)   # the same rows stepped (none skipped but glitches)
     for track in learned.states:

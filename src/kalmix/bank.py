@@ -72,11 +72,11 @@ BANK_KINDS = ("mixed", "kinematic", "akf", "ar", "kinematic+ar", "mixed+ar", "tu
 #: at 3 times their RMS so far (``clip``, :mod:`kalmix.core.aggregators.boa`), so a kick or a relocation
 #: does not move the weights. Both were chosen by the ablation (benchmarks/results/ablation_*.json).
 DEFAULT_RULE_OPTIONS = {"boa": {"bound_forgetting": 0.99, "clip": 3.0}}
-#: make_bank's ``reach`` (time units): off by default, as no value wins everywhere. A reach helps on tracks
-#: sampled at irregular intervals and bridged across their gaps (``--max-gap none``); it hurts where staying
-#: near the last position across a gap beats extrapolating a velocity (a lost player), and it worsens H-step
-#: forecasts made with the one-step weights (the lead head's weights are not affected); see
-#: benchmarks/results/irregular_sampling.json. Use reach 8 on tracks sampled at irregular intervals.
+#: make_bank's ``reach`` (time units): off by default. A reach helps on tracks sampled at irregular intervals
+#: (benchmarks/results/irregular_sampling.json); it hurts on regular tracks across missed rows, where staying
+#: near the last position beats extrapolating a velocity (a lost player). ``kalmix predict`` and
+#: :class:`kalmix.streaming.StreamConfig` settle it from the data (``reach="auto"``:
+#: :func:`kalmix.streaming.reach_for_steps`).
 DEFAULT_REACH = None
 
 #: Process-noise levels q of the kinematic experts, in length_unit^2 per time_unit^3 (CV).
@@ -243,8 +243,8 @@ def make_bank(
         In time units: across a longer step (from a target's last learned row to the
         forecast's time) only the CV experts make the one-step forecast, when the bank has
         some (see :mod:`kalmix.core.engine`, "Reach"); None (or inf): every expert at every step.
-        Off by default (:data:`DEFAULT_REACH`: what it wins and loses); 8 suits tracks sampled
-        at irregular intervals and not cut at gaps (``--max-gap none``).
+        Off by default (:data:`DEFAULT_REACH`: what it wins and loses); 1.5 suits tracks sampled
+        at irregular intervals.
     """
     given = dict(measurement_dim=measurement_dim, kind=kind, rule=rule, time_unit=time_unit, seed=seed, n_akf=n_akf)
     args = {name: validate(name, value, ARGUMENT_CONSTRAINTS[name]) for name, value in given.items()}

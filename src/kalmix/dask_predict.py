@@ -350,7 +350,7 @@ def _first_chunks(prepared, chunk_rows):
 
 def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool = True, chunk_rows: int = 200_000,
                first_appearance: bool = False):
-    """The length unit and time unit single-machine ``kalmix predict`` derives from these rows.
+    """The length unit, time unit and reach single-machine ``kalmix predict`` derives from these rows.
 
     Parameters
     ----------
@@ -371,12 +371,13 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
 
     Returns
     -------
-    (float, str or None, float or None, pandas.DataFrame)
+    (float, str or None, float or None, float or str or None, pandas.DataFrame)
         The length unit; why it fell back to 1 (else None); the time unit (None: no track has a
-        positive time step); the first chunk's first rows (a sample of the data's types).
+        positive time step); the reach (``config.reach``, or what ``"auto"`` settles at); the
+        first chunk's first rows (a sample of the data's types).
     """
     from .io import in_file_order, to_arrays
-    from .streaming import learned_time_unit, length_unit_rule
+    from .streaming import learned_sampling, length_unit_rule
 
     canon = _engine_columns(columns)
     counts = {} if columns.time is None else None
@@ -397,10 +398,11 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
     if derive_length:
         arrays = to_arrays(first, columns.positions)
         unit, why = length_unit_rule(arrays.values, times=arrays.times)
-    time_unit = config.time_unit
-    if time_unit is None:  # the median step of the first chunk that has one, as a single machine
-        time_unit = learned_time_unit((in_file_order(chunk) for chunk in itertools.chain([first], read)), config)
-    return unit, why, time_unit, first.iloc[:3]
+    time_unit, reach = config.time_unit, config.reach
+    if time_unit is None or reach == "auto":  # from the first chunk with a step, as a single machine
+        learned, reach = learned_sampling((in_file_order(chunk) for chunk in itertools.chain([first], read)), config)
+        time_unit = learned if time_unit is None else time_unit
+    return unit, why, time_unit, reach, first.iloc[:3]
 
 
 # --------------------------------------------------------------------------------- per partition
@@ -533,13 +535,13 @@ def predict_dask(frame, columns: TrackColumns | None = None, *, length_unit: flo
     check_output_names(columns)
     if not prepared:
         frame = prepare(frame, columns)
-    unit, why, time_unit, sample = data_units(frame, columns, config, derive_length=length_unit is None,
+    unit, why, time_unit, reach, sample = data_units(frame, columns, config, derive_length=length_unit is None,
                                               chunk_rows=chunk_rows, first_appearance=first_appearance)
     if log is not None and length_unit is None:
         log(f"length unit {unit:.6g} (auto; pass --length-unit to override)" if why is None else
             f"length unit 1 (auto could not estimate it: the first chunk has {why}; pass --length-unit)")
     check_automatic_length_unit(unit)
-    settings = {**asdict(config), "length_unit": unit, "time_unit": time_unit}
+    settings = {**asdict(config), "length_unit": unit, "time_unit": time_unit, "reach": reach}
     meta = dask.delayed(_meta)(sample, columns, settings).compute()  # on a worker, which loads the engine now
     shuffled = frame.shuffle(on="track_id", npartitions=int(partitions or frame.npartitions))
     return shuffled.map_partitions(_predict_partition, columns, settings, chunk_rows, batch_tracks,

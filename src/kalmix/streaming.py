@@ -83,16 +83,18 @@ from .stream.gaps import REFERENCE_INTERVALS as REFERENCE_INTERVALS
 from .stream.gaps import GapTracker, SkippedRowWarning
 from .stream.gaps import short_median as short_median
 from .stream.ids import id_to_json
-from .stream.predictor import Checkpoint, TrackPredictor, learned_time_unit
+from .stream.predictor import Checkpoint, TrackPredictor, learned_sampling, learned_time_unit
 from .stream.row_steps import RowPrediction
 from .stream.state_file import STATE_FORMAT_VERSION
 from .stream.table_steps import TRACK_BATCH as TRACK_BATCH
 from .stream.table_steps import with_input_names
 from .stream.times import next_row_times
-from .stream.units import (LengthUnitWarning, auto_length_unit, auto_time_unit, estimate_length_unit,
-                           length_unit_fallback, length_unit_rule)
+from .stream.units import (IRREGULAR_REACH, LengthUnitWarning, auto_length_unit, auto_reach, auto_time_unit,
+                           estimate_length_unit,
+                           length_unit_fallback, length_unit_rule, reach_for_steps)
 
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "SkippedRowWarning", "Checkpoint",
            "LengthUnitWarning", "ColumnNoteWarning", "estimate_length_unit", "length_unit_fallback", "find_columns",
            "guess_id", "auto_length_unit", "length_unit_rule", "auto_time_unit", "learned_time_unit", "next_row_times",
+           "learned_sampling", "auto_reach", "reach_for_steps", "IRREGULAR_REACH",
            "id_to_json", "with_input_names", "STATE_FORMAT_VERSION", "GAP_REFERENCES"]

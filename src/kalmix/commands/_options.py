@@ -10,7 +10,7 @@ import os
 
 import click
 
-from ..bank import DEFAULT_REACH, GATE_OPTIONS, LENGTH_UNIT_RANGE
+from ..bank import GATE_OPTIONS, LENGTH_UNIT_RANGE
 from ._common import missing_directory
 
 
@@ -98,10 +98,9 @@ def parse_length_unit(text):
 
 
 REACH_HELP = ("Across a time step longer than this many time units (--time-unit) only the constant-velocity experts "
-               "make the "
-               "one-step prediction (the others extrapolate fits made on the usual steps); 'none': every expert "
-               "at every step. 8 suits tracks sampled at irregular intervals, with --max-gap none "
-               "[default: none].")
+              "make the one-step prediction (the others extrapolate fits made on the usual steps); 'none': every "
+              "expert at every step [default: 1.5 where the first chunk's time steps are irregular (upper quartile "
+              "over twice the lower), else none; on stdin none].")
 
 
 def parse_reach(text):
@@ -121,8 +120,9 @@ def parse_reach(text):
 
 
 def reach_setting(value):
-    """The reach a bank takes: None for 'none' (math.inf here), the default when not given."""
-    return DEFAULT_REACH if value is None else (None if math.isinf(value) else value)
+    """The reach a bank takes: None for 'none' (math.inf here), ``"auto"`` when not given
+    (:class:`kalmix.streaming.StreamConfig`'s)."""
+    return "auto" if value is None else (None if math.isinf(value) else value)
 
 
 def parse_max_gap(text):

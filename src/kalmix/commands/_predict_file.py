@@ -226,7 +226,8 @@ def _step_chunk(run, chunk, names, later, clocks, columns, bar) -> None:
     mark = engine.checkpoint(pd.unique(chunk["track_id"]))
     committed = False
     try:
-        engine.learn_time_unit(chunk)   # (until known: the median step of the first chunk that has one)
+        if engine.config.time_unit is None or engine.config.reach == "auto":
+            _learn_sampling(engine, chunk)
         parts, summaries = _parts(engine, chunk)
         frames = []
         for k, (piece, times) in enumerate(zip(parts, next_row_times(parts, later))):
@@ -248,6 +249,16 @@ def _step_chunk(run, chunk, names, later, clocks, columns, bar) -> None:
             with run.guard.deferred(deliver=False):
                 engine.rollback(mark)
         raise
+
+
+def _learn_sampling(engine, chunk) -> None:
+    """Fix the time unit and an automatic reach from the chunk's steps (the first chunk that has one); a reach
+    settled on irregular steps is said on stderr."""
+    automatic = engine.config.reach == "auto"
+    engine.learn_time_unit(chunk)
+    if automatic and engine.config.reach not in ("auto", None):
+        click.echo(f"kalmix: the time steps are irregular: across a step over {engine.config.reach:g} time units "
+                   "only the constant-velocity experts predict (auto; pass --reach to override)", err=True)
 
 
 def _clocks(engine, settings):

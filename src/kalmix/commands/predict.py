@@ -73,7 +73,7 @@ def _check_state(engine, state_path, *, n_experts, seed, unit, horizon, lead, ba
                               ("--option", options or None, stored.options)):
         if given is not None and given != have:
             if name == "--reach":
-                have, given = (("none" if math.isinf(v) else v) for v in (have, given))
+                have, given = (("none" if isinstance(v, float) and math.isinf(v) else v) for v in (have, given))
             if name in ("--geographic", "--no-geographic"):
                 have, given = (("geographic positions" if v else "flat positions") for v in (have, given))
             raise ValueError(f"{name}: the state file {state_path} was made with {have}, got {given}; "

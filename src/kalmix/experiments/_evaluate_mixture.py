@@ -10,7 +10,7 @@ import numpy as np
 
 from ..bank import DEFAULT_BANK, GATE_OPTIONS, LENGTH_UNIT_RANGE, make_bank, make_params
 from ..core.mixture import init_state, predict, step
-from ..streaming import auto_time_unit
+from ..streaming import auto_reach, auto_time_unit
 from ._evaluate_experts import expert_name, single_expert_bank
 from ._evaluate_scores import forecast_errors
 from ._evaluate_segments import shift, to_segments, to_tracks, track_layout
@@ -193,10 +193,13 @@ def run_kalmix(streams, scored, tuning, horizon, rule, unit, n_experts, seed, op
     The best expert in hindsight's picks per track and its predictions, and the mixture's forecasts and
     covariances (for the interval figure)."""
     values, p = streams.values, streams.values.shape[2]
-    bank_options = dict(bank_options or DEFAULT_BANK)
+    bank_options = {"reach": "auto", **(bank_options or DEFAULT_BANK)}
     time_unit = bank_options.pop("time_unit", None)   # given (--time-unit), or learned as predict learns it
+    learning = np.where(tuning, streams.times, np.nan) if tuning.any() else streams.times
     if time_unit is None:
-        time_unit = auto_time_unit(np.where(tuning, streams.times, np.nan) if tuning.any() else streams.times)
+        time_unit = auto_time_unit(learning)
+    if bank_options.get("reach") == "auto":   # settled from the same steps, as predict settles it
+        bank_options["reach"] = auto_reach(learning)
     # the AKF family takes K and the options as predict's does (the gate's reach only the AKF mixture row)
     family = {"n_akf": n_experts, "akf_options": {k: v for k, v in options.items() if k not in GATE_OPTIONS}}
     bank = make_bank(p, length_unit=rule, time_unit=time_unit, seed=seed,

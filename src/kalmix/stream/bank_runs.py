@@ -109,7 +109,7 @@ class BankRuns:
         interim = 1.0 if c.lead is None else max(1.0, c.lead / MAX_HORIZON * (1.0 + 1e-9))
         return make_bank(measurement_dim, c.bank, rule=c.rule, length_unit=c.length_unit,
                          time_unit=interim if c.time_unit is None else c.time_unit, seed=c.seed, n_akf=c.n_experts,
-                         akf_options=c.options, lead=c.lead_time(), rule_options=c.rule_options, reach=c.reach,
+                         akf_options=c.options, lead=c.lead_time(), rule_options=c.rule_options, reach=c.bank_reach(),
                          lead_delay=c.lead_delay)
 
     def _without_lead(self) -> Bank:

@@ -13,6 +13,7 @@ import numpy as np
 from .gaps import GapTracker, short_median
 from .ids import factorize_ids, id_to_json, keyable
 from .times import column_seconds
+from .units import reach_for_steps
 
 
 def _by_key(index, rows, count) -> list[np.ndarray]:
@@ -65,6 +66,15 @@ class TrackClocks:
                                  "command line)") from None
             self.config.time_unit = learned.time_unit
             self._unit_source = None if track is None else (track, step)
+            if track is not None:   # a stream's first step: no steps to judge the sampling by
+                self.settle_reach(None)
+            if self.params is not None:
+                self.params = self._build(self.params.measurement_dim)
+
+    def settle_reach(self, value: float | None) -> None:
+        """Fix ``reach="auto"`` at ``value`` (time units, None: no reach); nothing if it is set already."""
+        if self.config.reach == "auto":
+            self.config.reach = value
             if self.params is not None:
                 self.params = self._build(self.params.measurement_dim)
 
@@ -128,9 +138,11 @@ class TrackClocks:
         positive time steps between consecutive rows of each of its tracks (going on from the rows seen
         before); returns the time unit (None: still unknown, the table has no such step).
 
-        :meth:`process_table` calls it on each table it gets while the unit is unknown (the first
-        table with a step fixes it), and ``kalmix predict`` on each chunk of a file, before any of
-        its rows is stepped, so that every row runs with the same bank. Rows stepped one by one
+        A ``reach="auto"`` is settled from the same steps (:func:`~kalmix.stream.units.reach_for_steps`:
+        1.5 time units when they are irregular, else None), the given unit or not. :meth:`process_table`
+        calls it on each table it gets while either is unknown (the first table with a step fixes
+        them), and ``kalmix predict`` on each chunk of a file, before any of its rows is stepped, so
+        that every row runs with the same bank. Rows stepped one by one
         (:meth:`step_row`, :meth:`step_rows`, ``kalmix predict -``) have no table to look at: the
         first step to arrive fixes the unit there, so a stream and a file of the same rows give the
         same numbers when the unit is given (``time_unit``, ``--time-unit``), or when the first
@@ -142,9 +154,10 @@ class TrackClocks:
             ``track_id`` and ``time`` columns, each track's rows in time order (later rows continue
             the tracks this predictor has seen).
         """
-        if self.config.time_unit is None:
+        if self.config.time_unit is None or self.config.reach == "auto":
             steps = self.table_steps(table["track_id"].to_numpy(), column_seconds(table["time"]))
             if steps.size:
+                self.settle_reach(reach_for_steps(steps))
                 self._learn_time_unit(float(np.median(steps)), where="the median time step of the table")
         return self.config.time_unit
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..bank import ARGUMENT_CONSTRAINTS as BANK_ARGUMENTS
-from ..bank import DEFAULT_BANK, DEFAULT_REACH, check_horizon, check_length_unit, make_bank, make_params, short_lead
+from ..bank import DEFAULT_BANK, check_horizon, check_length_unit, make_bank, make_params, short_lead
 from ..core.constraints import validate
 from ..core.lead import LeadParams
 
@@ -88,9 +88,12 @@ class StreamConfig:
         gets that has one (as ``kalmix predict`` on a file's first chunk); rows that come
         one by one (:meth:`~TrackPredictor.step_row`, ``kalmix predict -``) take the first
         time step to arrive.
-    reach : float or None
+    reach : float, None or "auto"
         In time units: across a longer step only the CV experts make the one-step forecast
         (``reach`` of :func:`kalmix.bank.make_bank`); None: every expert at every step.
+        ``"auto"`` (the default): settled with the time unit, from the same steps
+        (:func:`reach_for_steps`): 1.5 time units on irregularly sampled data, else None; rows
+        that come one by one take None.
     lead_delay : float or None
         ``lead_delay`` of :func:`kalmix.bank.make_bank` (None: the lead's rows); checked always, used
         only with a lead.
@@ -119,7 +122,7 @@ class StreamConfig:
     time_unit: float | None = None
     rule_options: dict = field(default_factory=dict)
     lead: float | None = None
-    reach: float | None = DEFAULT_REACH
+    reach: float | str | None = "auto"
     lead_delay: float | None = None
     geographic: bool | None = None
 
@@ -127,8 +130,14 @@ class StreamConfig:
         from ..bank import BANK_KINDS
 
         self.horizon = check_horizon(self.horizon)
+        if isinstance(self.reach, str) and self.reach.strip().lower() == "auto":
+            self.reach = "auto"
+        elif isinstance(self.reach, str):
+            raise ValueError(f"reach: expected a number of time units, None or 'auto', got {self.reach!r}")
         for name in ("lead", "time_unit", "max_gap", "max_gap_factor", "reach", "lead_delay"):
             value = getattr(self, name)
+            if name == "reach" and value == "auto":
+                continue
             if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)):
                 raise TypeError(f"{name}: expected a number, got {type(value).__name__} {value!r:.80}")
         if self.bank not in BANK_KINDS:
@@ -183,7 +192,11 @@ class StreamConfig:
         unit = self.time_unit if self.time_unit is not None else (self.lead if self.lead is not None else 1.0)
         make_bank(1, self.bank, rule=self.rule, length_unit=length, time_unit=unit,
                   seed=self.seed, n_akf=self.n_experts, akf_options=self.options, lead=self.lead_time(),
-                  rule_options=self.rule_options, reach=self.reach, lead_delay=self.lead_delay)
+                  rule_options=self.rule_options, reach=self.bank_reach(), lead_delay=self.lead_delay)
+
+    def bank_reach(self) -> float | None:
+        """``reach`` as the bank takes it: None while it is ``"auto"`` (not settled yet)."""
+        return None if self.reach == "auto" else self.reach
 
     def numeric_length_unit(self) -> float:
         """``length_unit``, or 1 while it is ``"auto"`` (not chosen yet)."""

@@ -146,7 +146,7 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, PopulationPrio
         tracks = {t: (self.gaps[t].copy() if t in self.gaps else None, self.states.ref(t), self.track_rows.get(t))
                   for t in ids}
         return Checkpoint(self.rows, self.skipped, self.position_names, tracks, self.config.time_unit, self.outliers,
-                          (self.config.length_unit, self.axes, self._geo_decided), len(self.priors))
+                          (self.config.length_unit, self.axes, self._geo_decided), len(self.priors), self.config.reach)
 
     def rollback(self, checkpoint: "Checkpoint") -> None:
         """Undo everything done since ``checkpoint`` was taken."""
@@ -160,8 +160,9 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, PopulationPrio
                     self.params = None   # (no track has a state yet: the unit is chosen at the first rows)
                 elif self.params is not None:
                     self.params = self._build(self.params.measurement_dim)
-        if self.config.time_unit != checkpoint.time_unit:  # a unit learned from rows now undone
-            self.config.time_unit = checkpoint.time_unit
+        if self.config.time_unit != checkpoint.time_unit or self.config.reach != checkpoint.reach:
+            # a unit or a reach learned from rows now undone
+            self.config.time_unit, self.config.reach = checkpoint.time_unit, checkpoint.reach
             if self.params is not None:
                 self.params = self._build(self.params.measurement_dim)
         for track, (gaps, state, rows) in checkpoint.tracks.items():
@@ -193,13 +194,19 @@ def learned_time_unit(tables, config: StreamConfig) -> float | None:
     config : StreamConfig
         The gap rule's settings (``max_gap``, ``max_gap_factor``); its ``time_unit`` is ignored.
     """
+    return learned_sampling(tables, config)[0]
+
+
+def learned_sampling(tables, config: StreamConfig) -> tuple[float | None, float | str | None]:
+    """``(time unit, reach)``: :func:`learned_time_unit`, and the reach that ``reach="auto"`` settles at from the
+    same steps (``config.reach`` when it is not ``"auto"``; ``"auto"`` still when no table has a step)."""
     scratch = TrackPredictor(replace(config, time_unit=None))
     for table in tables:
         if scratch.learn_time_unit(table) is not None:
-            return scratch.config.time_unit
+            return scratch.config.time_unit, scratch.config.reach
         for track, time in zip(table["track_id"].to_numpy(), column_seconds(table["time"])):
             scratch._advance(id_to_json(track), float(time))   # (the tracks' last times, for the next table)
-    return None
+    return None, config.reach
 
 
 class Checkpoint(NamedTuple):
@@ -213,3 +220,4 @@ class Checkpoint(NamedTuple):
     outliers: int = 0
     settings: tuple | None = None   # (length_unit, axes, whether the axes are settled)
     priors: int = 0                 # population priors summarised by then
+    reach: float | str | None = None  # the reach, "auto" until settled

@@ -117,6 +117,40 @@ def auto_time_unit(times) -> float:
     return float(np.median(steps)) if steps.size else 1.0
 
 
+#: Time steps are irregular when their upper quartile is over this many times their lower quartile (regular
+#: sampling, jittered or with missed reports: about 1).
+IRREGULAR_SPREAD = 2.0
+#: The reach (time units) ``reach="auto"`` takes on irregularly sampled data; regular data: none.
+IRREGULAR_REACH = 1.5
+
+
+def reach_for_steps(steps) -> float | None:
+    """The reach ``"auto"`` takes from time steps (positive, any order): :data:`IRREGULAR_REACH` time units when
+    they are irregular (upper / lower quartile over :data:`IRREGULAR_SPREAD`), else None (no reach).
+
+    On tracks sampled at irregular intervals the one-step weights learn mostly on short steps,
+    where an expert that extrapolates a fitted acceleration, velocity model or turn does well,
+    and the same expert misses by orders of magnitude across a step many times longer; the reach
+    keeps only the constant-velocity experts there (:func:`kalmix.bank.make_bank`). On regular
+    data a long step is a gap the gap rule restarts at, or the forecast across missed rows, where
+    the other experts do better (a player lost for a few frames), so every expert is kept there.
+    """
+    steps = np.asarray(steps, dtype=np.float64).ravel()
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    if not steps.size:
+        return None
+    lower, upper = np.quantile(steps, [0.25, 0.75])
+    return IRREGULAR_REACH if upper > IRREGULAR_SPREAD * lower else None
+
+
+def auto_reach(times) -> float | None:
+    """:func:`reach_for_steps` of the positive time steps of every track (``times`` as :func:`auto_time_unit`'s)."""
+    t = np.asarray(times, dtype=np.float64)
+    if t.ndim == 1:
+        t = t[:, None]
+    return reach_for_steps(np.diff(t, axis=0))
+
+
 class LengthUnitWarning(UserWarning):
     """``length_unit="auto"`` fell back to 1: nothing to estimate it from (the text says why, as ``kalmix predict``'s
     note does); pass a ``length_unit``."""
