@@ -15,7 +15,7 @@ from click.testing import CliRunner
 
 from kalmix.cli import build
 from kalmix.io import geo
-from kalmix.streaming import LengthUnitWarning, StreamConfig, TrackPredictor
+from kalmix.streaming import ColumnNoteWarning, LengthUnitWarning, StreamConfig, TrackPredictor
 
 FAST = ["--experts", "4", "--seed", "1", "--no-progress"]
 WGS84 = 6378137.0
@@ -88,7 +88,9 @@ def test_ais_file_is_predicted_in_metres_and_the_api_gives_the_cli_numbers(cli, 
 
     # the Python API: the same file as a DataFrame, columns and length unit found as the command finds them
     predictor = TrackPredictor(StreamConfig(n_experts=4, seed=1))
-    api = predictor.process_table(pd.read_csv(path))
+    with pytest.warns(ColumnNoteWarning, match=r"geographic coordinates \('LAT' latitude, 'LON' longitude\).*"
+                                               r"\(geographic=False: flat numbers\)"):   # what the command says
+        api = predictor.process_table(pd.read_csv(path))
     assert list(api.columns) == list(out.columns)
     assert f"length unit {predictor.config.length_unit:.6g} m (auto" in result.stderr
     for name in ("pred_LAT", "pred_LON", "std_east_m", "std_north_m", "segment"):
@@ -209,7 +211,8 @@ def test_a_resumed_geographic_run_continues_bit_for_bit(cli, tmp_path):
 def test_the_python_api_finds_columns_and_the_length_unit_as_the_command(cli, tmp_path):
     frame = _ais(n=40)
     with warnings.catch_warnings():
-        warnings.simplefilter("error")   # a unit it could estimate: no warning
+        warnings.simplefilter("error")   # a unit it could estimate: no warning but the columns' note
+        warnings.simplefilter("ignore", ColumnNoteWarning)
         predictor = TrackPredictor(StreamConfig(n_experts=4))
         predictor.process_table(frame)
     assert predictor.position_names == ("LAT", "LON") and predictor.axes is not None

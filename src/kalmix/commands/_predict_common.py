@@ -158,19 +158,14 @@ def check_resumed(engine, columns):
 def geographic_axes(engine, settings, columns):
     """The positions' :class:`kalmix.io.geo.GeoAxes` when they are geographic (a resumed state's setting, else
     --geographic / --no-geographic, else their names), told on stderr; None when they are flat."""
-    from ..io.geo import resolve_axes, std_names
+    from ..io.geo import geographic_note, resolve_axes
 
     if engine is not None:
         axes = engine.axes
     else:
         axes = resolve_axes(list(columns.positions), settings.get("geographic"))
     if axes is not None:
-        lat, lon = columns.positions[axes.lat], columns.positions[axes.lon]
-        spread = ", ".join(f"std_{name}" for name in std_names(axes))
-        click.echo(f"kalmix: geographic coordinates ({lat!r} latitude, {lon!r} longitude"
-                   + (f", {columns.positions[axes.alt]!r} altitude in metres" if axes.alt is not None else "")
-                   + f"): predicted in metres in each track's local frame; pred_ columns in degrees, {spread} in "
-                   "metres (--no-geographic: flat numbers)", err=True)
+        click.echo(f"kalmix: {geographic_note(list(columns.positions), axes, '--no-geographic')}", err=True)
     return axes
 
 

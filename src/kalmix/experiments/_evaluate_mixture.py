@@ -206,7 +206,8 @@ def run_kalmix(streams, scored, tuning, horizon, rule, unit, n_experts, seed, op
                      lead=horizon * time_unit if horizon > 1 else None, **{**family, **bank_options})
     tuned["mixture"] = {"bank": bank.description, "n_experts": bank.n_experts}
     log(f"mixture: {bank.description['kind']} bank of {bank.n_experts} experts, rule {bank.rule} "
-        f"(length unit {rule:.4g}, time unit {time_unit:.4g})")
+        f"(length unit {rule:.4g}, time unit {time_unit:.4g}"
+        + ("" if bank.description["reach"] is None else f", reach {bank.description['reach']:g} time units") + ")")
     one, ahead, picks, oracle, plain, calibration = run_bank(bank, streams, horizon, scored)
     predictions["mixture"] = (one, ahead)
     intervals = calibration.pop("_arrays")

@@ -34,7 +34,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 __all__ = ["GeoAxes", "geographic_axes", "resolve_axes", "check_degrees", "to_local", "from_local", "chord",
-           "origin_of", "assign_frames", "std_names", "local_table", "REANCHOR_M", "LATITUDE_NAMES",
+           "origin_of", "assign_frames", "std_names", "geographic_note", "local_table", "REANCHOR_M", "LATITUDE_NAMES",
            "LONGITUDE_NAMES", "ALTITUDE_NAMES"]
 
 LATITUDE_NAMES = ("lat", "latitude")
@@ -114,6 +114,17 @@ def resolve_axes(names: Sequence[str] | None, geographic: bool | None, dim: int 
         raise ValueError(f"geographic: expected 2 or 3 position columns (latitude, longitude[, altitude]), got "
                          f"{count}" + (f" ({list(names)})" if names is not None else ""))
     return GeoAxes((0, 1, 2 if count == 3 else None))
+
+
+def geographic_note(names, axes, off: str) -> str:
+    """What is said when positions ``names`` are taken as geographic (``axes``): which column is which, and the
+    units of the outputs; ``off`` names the setting that turns it off."""
+    lat, lon = names[axes.lat], names[axes.lon]
+    spread = ", ".join(f"std_{name}" for name in std_names(axes))
+    return (f"geographic coordinates ({lat!r} latitude, {lon!r} longitude"
+            + (f", {names[axes.alt]!r} altitude in metres" if axes.alt is not None else "")
+            + f"): predicted in metres in each track's local frame; pred_ columns in degrees, {spread} in metres "
+            f"({off}: flat numbers)")
 
 
 def std_names(axes: GeoAxes) -> tuple[str, ...]:

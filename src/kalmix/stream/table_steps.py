@@ -114,7 +114,12 @@ class TableSteps:
             names = list(position_names)
             if self.position_names is not None and set(names) == set(self.position_names):
                 names = list(self.position_names)
+            decided = self._geo_decided
             self._decide_geographic(names)
+            if self.axes is not None and not decided and self.config.geographic is None:   # from the names: said
+                from ..io.geo import geographic_note
+
+                warnings.warn(geographic_note(names, self.axes, "geographic=False"), ColumnNoteWarning, stacklevel=2)
             if self.axes is not None:
                 from ..io.geo import check_degrees
 
