@@ -163,6 +163,11 @@ def _log_uniform(low, high):
     return lambda rng, rows: np.exp(rng.uniform(math.log(low), math.log(high), rows - 1))
 
 
+def _dropped(frame, kept):
+    """Frames of ``frame`` s each kept with probability ``kept``: steps of a geometric number of frames."""
+    return lambda rng, rows: frame * rng.geometric(kept, rows - 1).astype(float)
+
+
 def scenarios() -> dict[str, Scenario]:
     out = {}
 
@@ -240,6 +245,15 @@ def scenarios() -> dict[str, Scenario]:
                   "omega_rad_per_s": omega, "q_m2_per_s3": q, "measurement_std_m": r, "dt_s": 1.0,
                   "switch_matrix": switch.tolist(), "mode_order": ["CV", "turn +omega", "turn -omega"]},
                  switch=switch, seed=7))
+    # constant acceleration at 10 Hz with 60 % of the frames dropped at random (a detector that misses): the long
+    # steps are a few frames, where the acceleration experts still extrapolate well
+    q_ca, r_ca = 2.0, 0.2   # (ca_10hz's)
+    add(Scenario("ca_dropped_frames", "constant acceleration, 60 % of frames dropped",
+                 f"constant acceleration (white jerk, q = {q_ca} m²/s⁵), 0.1 s frames each kept with probability 0.4, "
+                 f"{r_ca} m noise", [kinematic(2, q_ca)], r_ca, np.zeros(6), np.array([10.0, 2.0, 1.0, 10.0, 2.0, 1.0]),
+                 _dropped(0.1, 0.4),
+                 {"model": "constant acceleration", "q_m2_per_s5": q_ca, "measurement_std_m": r_ca, "frame_s": 0.1,
+                  "frame_kept": 0.4}, seed=12))
     return out
 
 

@@ -639,7 +639,7 @@ def irregular(results: Results) -> list:
                   notes=[("`kalmix evaluate` with its peers. Bridged: `--max-gap none`, no step restarts the experts; "
                           "with the default gap rule a step beyond the spread of a track's first steps does. "
                           "The default reach here: across a step over 1.5 time units only the CV experts forecast "
-                          "(the steps are irregular); `--reach none`: every expert at every step. *The bank's "
+                          "(the steps are heavy-tailed); `--reach none`: every expert at every step. *The bank's "
                           "best expert, chosen in hindsight. Coverage of the 95 % intervals." + peer_note)])
     tables = [first]
     grid = data.get("bridged, by time unit and reach")

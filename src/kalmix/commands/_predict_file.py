@@ -257,7 +257,7 @@ def _learn_sampling(engine, chunk) -> None:
     automatic = engine.config.reach == "auto"
     engine.learn_time_unit(chunk)
     if automatic and engine.config.reach not in ("auto", None):
-        click.echo(f"kalmix: the time steps are irregular: across a step over {engine.config.reach:g} time units "
+        click.echo(f"kalmix: the time steps are heavy-tailed: across a step over {engine.config.reach:g} time units "
                    "only the constant-velocity experts predict (auto; pass --reach to override)", err=True)
 
 

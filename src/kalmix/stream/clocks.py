@@ -139,7 +139,7 @@ class TrackClocks:
         before); returns the time unit (None: still unknown, the table has no such step).
 
         A ``reach="auto"`` is settled from the same steps (:func:`~kalmix.stream.units.reach_for_steps`:
-        1.5 time units when they are irregular, else None), the given unit or not. :meth:`process_table`
+        1.5 time units when they are heavy-tailed, else None), the given unit or not. :meth:`process_table`
         calls it on each table it gets while either is unknown (the first table with a step fixes
         them), and ``kalmix predict`` on each chunk of a file, before any of its rows is stepped, so
         that every row runs with the same bank. Rows stepped one by one

@@ -92,7 +92,7 @@ class StreamConfig:
         In time units: across a longer step only the CV experts make the one-step forecast
         (``reach`` of :func:`kalmix.bank.make_bank`); None: every expert at every step.
         ``"auto"`` (the default): settled with the time unit, from the same steps
-        (:func:`reach_for_steps`): 1.5 time units on irregularly sampled data, else None; rows
+        (:func:`reach_for_steps`): 1.5 time units on heavy-tailed steps, else None; rows
         that come one by one take None.
     lead_delay : float or None
         ``lead_delay`` of :func:`kalmix.bank.make_bank` (None: the lead's rows); checked always, used

@@ -117,30 +117,32 @@ def auto_time_unit(times) -> float:
     return float(np.median(steps)) if steps.size else 1.0
 
 
-#: Time steps are irregular when their upper quartile is over this many times their lower quartile (regular
-#: sampling, jittered or with missed reports: about 1).
-IRREGULAR_SPREAD = 2.0
-#: The reach (time units) ``reach="auto"`` takes on irregularly sampled data; regular data: none.
+#: Time steps are heavy-tailed when the top tenth of them is over this many times their median: reports every few
+#: seconds to every few minutes (AIS: about 17; steps log-uniform over a range of 60: 5). Regular sampling, jittered,
+#: with gaps, or with frames dropped at random (at most 3.3 for any drop rate) stays under it.
+IRREGULAR_TAIL = 4.0
+#: The reach (time units) ``reach="auto"`` takes on heavy-tailed steps; other data: none.
 IRREGULAR_REACH = 1.5
 
 
 def reach_for_steps(steps) -> float | None:
     """The reach ``"auto"`` takes from time steps (positive, any order): :data:`IRREGULAR_REACH` time units when
-    they are irregular (upper / lower quartile over :data:`IRREGULAR_SPREAD`), else None (no reach).
+    they are heavy-tailed (their 90th percentile over :data:`IRREGULAR_TAIL` times their median), else None.
 
-    On tracks sampled at irregular intervals the one-step weights learn mostly on short steps,
-    where an expert that extrapolates a fitted acceleration, velocity model or turn does well,
-    and the same expert misses by orders of magnitude across a step many times longer; the reach
-    keeps only the constant-velocity experts there (:func:`kalmix.bank.make_bank`). On regular
-    data a long step is a gap the gap rule restarts at, or the forecast across missed rows, where
-    the other experts do better (a player lost for a few frames), so every expert is kept there.
+    On tracks reported every few seconds to every few minutes the one-step weights learn mostly on
+    the usual steps, where an expert that extrapolates a fitted acceleration, velocity model or
+    turn does well, and the same expert misses by orders of magnitude across a step many times
+    longer; the reach keeps only the constant-velocity experts there (:func:`kalmix.bank.make_bank`).
+    Where the long steps are a few usual ones (frames dropped at random, a gap the gap rule
+    restarts at, missed rows), those experts still do better than the constant velocity, so every
+    expert is kept.
     """
     steps = np.asarray(steps, dtype=np.float64).ravel()
     steps = steps[np.isfinite(steps) & (steps > 0)]
     if not steps.size:
         return None
-    lower, upper = np.quantile(steps, [0.25, 0.75])
-    return IRREGULAR_REACH if upper > IRREGULAR_SPREAD * lower else None
+    median, top = np.quantile(steps, [0.5, 0.9])
+    return IRREGULAR_REACH if top > IRREGULAR_TAIL * median else None
 
 
 def auto_reach(times) -> float | None:
