@@ -121,9 +121,9 @@ def test_display_on_a_terminal_counts_and_clears_its_line_for_other_writers(monk
     display = CompileDisplay()
     display.start(True)
     assert terminal.getvalue().endswith(
-        "\n\rkalmix: compiling kalmix's kernels for this machine, first run only ... 0 s")
+        "\n\rkalmix: compiling kalmix's kernels for this machine, once per setting ... 0 s")
     display.tick(2.4)
-    assert terminal.getvalue().endswith("first run only ... 2 s")
+    assert terminal.getvalue().endswith("once per setting ... 2 s")
     width = display.drawn
     click.echo("kalmix: warning: something", err=True)   # a warning while the line is drawn: the line goes first
     assert terminal.getvalue().endswith("... 2 s\r" + " " * width + "\rkalmix: warning: something\n")
@@ -154,7 +154,7 @@ def test_display_under_a_progress_bar_writes_above_it(monkeypatch):
         bar.update(10)
     screen = terminal.getvalue()
     assert "kalmix: " + _notice.START + "\n" in screen and "kalmix: compiled kalmix's kernels in 5.0 s" in screen
-    assert "first run only ... " not in screen and sys.stderr is terminal
+    assert "once per setting ... " not in screen and sys.stderr is terminal
     with tqdm(total=10, file=io.StringIO()) as elsewhere:   # a bar on another stream is not this display's
         assert elsewhere in tqdm._instances and display._bars() == []
 

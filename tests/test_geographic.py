@@ -6,6 +6,7 @@ finds the columns and the length unit as ``kalmix predict`` does; a forecast acr
 constant-velocity extrapolation with its interval, and stays on the globe.
 """
 
+import io
 import warnings
 
 import numpy as np
@@ -140,7 +141,7 @@ def test_bad_degrees_are_refused_naming_the_row(cli, tmp_path):
         TrackPredictor(StreamConfig(length_unit=5.0)).process_table(frame)
     predictor = TrackPredictor(StreamConfig(length_unit=5.0), ["lat", "lon"])
     with pytest.raises(ValueError, match=r"z: position column 'lat' must hold a latitude"):
-        predictor.step_row("a", 0.0, [91.0, 0.0])
+        predictor.step_row("a", 0.0, [91.5, 0.0])   # (91 itself is AIS's "not available": a missing position)
     assert predictor.rows == 0 and not predictor.gaps   # refused before anything changed
     # flat numbers named otherwise are not checked; --no-geographic takes lat/lon as flat numbers
     flat = TrackPredictor(StreamConfig(length_unit=5.0, geographic=False), ["lat", "lon"])
@@ -280,3 +281,39 @@ def test_frames_round_trip_and_move_with_a_long_track():
     for start in np.flatnonzero(np.diff(out["segment"].to_numpy())) + 1:
         fresh[start - 1:start + 10] = True   # the rows around a new frame, where the experts start again
     assert np.sqrt(np.mean(error[~fresh[:-1]][20:] ** 2)) < 30.0
+
+
+def test_ais_not_available_fixes_are_missing_positions_not_errors(cli, tmp_path):
+    """AIS reports latitude 91 / longitude 181 when it has no fix: such a row kept its place only after an error
+    that stopped the run (a new user's finding). It is now a missing position, as an empty cell, in a file, on
+    stdin and in Python, said once; any other latitude beyond 90 is still an error naming its row."""
+    frame = _ais(n=60)
+    blanked = frame.copy()
+    dirty = frame.copy()
+    for row, values in ((7, (91.0, 181.0)), (20, (91.0, None)), (33, (None, 181.0))):
+        for name, value in zip(("LAT", "LON"), values):
+            if value is not None:
+                dirty.loc[row, name] = value
+        blanked.loc[row, ["LAT", "LON"]] = np.nan
+    dirty.to_csv(tmp_path / "dirty.csv", index=False)
+    blanked.to_csv(tmp_path / "blank.csv", index=False, na_rep="")
+    args = ["--experts", "4", "--seed", "1", "--length-unit", "5", "--time-unit", "10", "--no-progress"]
+    got = _run(cli, ["predict", str(tmp_path / "dirty.csv"), *args])
+    want = _run(cli, ["predict", str(tmp_path / "blank.csv"), *args])
+    assert got.exit_code == 0 and want.exit_code == 0, got.output
+    assert got.stderr.count("latitude 91 or longitude 181 (AIS: no position) is a missing position") == 1
+    assert "first at row 7" in got.stderr
+    got, want = pd.read_csv(io.StringIO(got.stdout)), pd.read_csv(io.StringIO(want.stdout))
+    predictions = ["pred_LAT", "pred_LON", "std_east_m", "std_north_m"]
+    np.testing.assert_array_equal(got[predictions], want[predictions])
+    piped = _run(cli, ["predict", "-", *args], input=dirty.to_csv(index=False))
+    assert piped.exit_code == 0, piped.output
+    api = TrackPredictor(StreamConfig(n_experts=4, seed=1, length_unit=5.0, time_unit=10.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ColumnNoteWarning)
+        out = api.process_table(dirty)
+    np.testing.assert_array_equal(out[predictions].to_numpy(), want[predictions].to_numpy())
+    dirty.loc[40, "LAT"] = 91.5
+    dirty.to_csv(tmp_path / "bad.csv", index=False)
+    bad = _run(cli, ["predict", str(tmp_path / "bad.csv"), *args])
+    assert bad.exit_code == 1 and "row 40" in bad.stderr and "got 91.5" in bad.stderr

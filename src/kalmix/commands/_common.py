@@ -286,7 +286,7 @@ class CompileDisplay:
         return "kalmix: " + (START if self.first else START_MORE)
 
     def _status_text(self, elapsed: float) -> str:
-        text = f"kalmix: compiling kalmix's kernels for this machine, first run only ... {elapsed:.0f} s"
+        text = f"kalmix: compiling kalmix's kernels for this machine, once per setting ... {elapsed:.0f} s"
         width = shutil.get_terminal_size(fallback=(80, 24)).columns - 1
         return text if len(text) <= width else text[:max(width, 1)]
 

@@ -25,16 +25,26 @@ PIECE_ROWS = 65_536
 _MAX_PIECES = 64
 
 
-def _check_degrees(chunk, names, axes, offset) -> None:
+def _check_degrees(chunk, names, axes, offset, said: bool = False) -> bool:
     """A ``ValueError`` naming the first file row of a chunk (``offset``: the file rows before it) whose latitude is
-    beyond ±90° or longitude beyond ±180°."""
-    from ..io.geo import check_degrees
+    beyond ±90° or longitude beyond ±180°; a warning, once (``said``: already), at the first row with AIS's
+    latitude 91 or longitude 181 ("not available": a missing position). Returns whether it was said."""
+    from ..io.geo import check_degrees, not_available
 
     given = chunk.attrs.get("as_given")
     places = np.asarray(given.places) if given is not None else np.arange(len(chunk))
     order = np.argsort(places, kind="stable")   # file order: the first such row of the file is named
-    check_degrees(chunk[names].to_numpy(np.float64)[order], axes, names,
+    values = chunk[names].to_numpy(np.float64)[order]
+    check_degrees(values, axes, names,
                   lambda i: f"row {offset + int(places[order[i]])} (counted from 0 after the header)")
+    gone = np.flatnonzero(not_available(values, axes))
+    if len(gone) and not said:
+        row = offset + int(places[order[gone[0]]])
+        click.echo(f"kalmix: warning: latitude 91 or longitude 181 (AIS: no position) is a missing position, as an "
+                   f"empty cell: the row keeps its place and is predicted (first at row {row}, counted from 0 after "
+                   "the header); this is said once", err=True)
+        return True
+    return said
 
 
 def pieces(chunk, rows: int | None = None) -> list:
@@ -167,6 +177,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     run.bad.open("row" if in_fmt == "parquet" else "line", append=run.resuming)
     axes = geographic_axes(run.engine, settings, columns)
     offset = 0   # file rows before the chunk
+    said_unavailable = False
     clocks = _clocks(run.engine, settings)
     ahead = (_lookahead(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
                                           ids_as_text=True, on_bad_row=run.on_bad_row,
@@ -186,7 +197,8 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                 run.clock_reset(place, track, before, after)
             offset += chunk.attrs.get("file_rows", len(chunk))
             if axes is not None:
-                _check_degrees(chunk, names, axes, offset - chunk.attrs.get("file_rows", len(chunk)))
+                said_unavailable = _check_degrees(chunk, names, axes, offset - chunk.attrs.get("file_rows", len(chunk)),
+                                                  said_unavailable)
             if not len(chunk):   # every row bad or without a time: their output rows, nothing to step
                 _write_unstepped(run, chunk, columns, settings)
                 bar.update(chunk.attrs.get("file_rows", 0))
@@ -257,8 +269,10 @@ def _learn_sampling(engine, chunk) -> None:
     automatic = engine.config.reach == "auto"
     engine.learn_time_unit(chunk)
     if automatic and engine.config.reach not in ("auto", None):
+        unit = engine.config.time_unit
         click.echo(f"kalmix: the time steps are heavy-tailed: across a step over {engine.config.reach:g} time units "
-                   "only the constant-velocity experts predict (auto; pass --reach to override)", err=True)
+                   f"({engine.config.reach * unit:.6g}; the time unit {unit:.6g} is the median step) only the "
+                   "constant-velocity experts predict (auto; pass --reach to override)", err=True)
 
 
 def _clocks(engine, settings):

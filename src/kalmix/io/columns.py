@@ -176,7 +176,8 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
             raise ValueError(
                 "Could not detect position columns (expected e.g. x/y[/z], u/v, lat/lon, "
                 f"position_x/..., px/py/pz); available columns: {columns}. "
-                "Name them: --position a,b on the command line, positions=(...) or a TrackColumns in Python."
+                "Name them: --position a,b on the command line, position_names=[...] (process_table) or a "
+                "TrackColumns(positions=(...)) in Python."
                 + _header_hint(columns))
     taken = set(positions)
 

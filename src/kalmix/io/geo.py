@@ -34,7 +34,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 __all__ = ["GeoAxes", "geographic_axes", "resolve_axes", "check_degrees", "to_local", "from_local", "chord",
-           "origin_of", "assign_frames", "std_names", "geographic_note", "local_table", "REANCHOR_M", "LATITUDE_NAMES",
+           "origin_of", "assign_frames", "std_names", "geographic_note", "NOT_AVAILABLE", "not_available",
+           "without_not_available", "local_table", "REANCHOR_M", "LATITUDE_NAMES",
            "LONGITUDE_NAMES", "ALTITUDE_NAMES"]
 
 LATITUDE_NAMES = ("lat", "latitude")
@@ -132,10 +133,37 @@ def std_names(axes: GeoAxes) -> tuple[str, ...]:
     return ("east_m", "north_m", "up_m")[:axes.dim]
 
 
+#: What AIS reports when it has no fix: a latitude of 91° or a longitude of 181° (ITU-R M.1371); such a row is a
+#: missing position (NaN), as an empty cell.
+NOT_AVAILABLE = (91.0, 181.0)
+
+
+def not_available(values, axes: GeoAxes) -> np.ndarray:
+    """``(n,)`` bool: the rows of ``values (n, p)`` (degrees) whose latitude is 91° or longitude 181°
+    (:data:`NOT_AVAILABLE`)."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.size == 0:
+        return np.zeros(len(values), dtype=bool)
+    return (values[:, axes.lat] == NOT_AVAILABLE[0]) | (values[:, axes.lon] == NOT_AVAILABLE[1])
+
+
+def without_not_available(values, axes: GeoAxes) -> np.ndarray:
+    """``values (n, p)`` (degrees) with the rows of :func:`not_available` missing (NaN); ``values`` itself when
+    there is none."""
+    values = np.asarray(values, dtype=np.float64)
+    gone = not_available(values, axes)
+    if not gone.any():
+        return values
+    values = values.copy()
+    values[gone] = np.nan
+    return values
+
+
 def check_degrees(values, axes: GeoAxes, names: Sequence[str] | None, where: Callable[[int], str]) -> None:
     """``ValueError`` at the first row of ``values (n, p)`` whose latitude is beyond ±90° or longitude beyond
-    ±180° (NaN is a missing fix); ``where(i)`` names row ``i`` (``"row 17 (counted from 0)"``)."""
-    values = np.asarray(values, dtype=np.float64)
+    ±180° (NaN is a missing fix, and so is AIS's "not available", :data:`NOT_AVAILABLE`); ``where(i)`` names row
+    ``i`` (``"row 17 (counted from 0)"``)."""
+    values = without_not_available(values, axes)
     if values.size == 0:
         return
     lat, lon = values[:, axes.lat], values[:, axes.lon]
@@ -288,7 +316,7 @@ def local_table(table, names: Sequence[str], axes: GeoAxes):
     import pandas as pd
 
     names = list(names)
-    values = table[names].to_numpy(np.float64)
+    values = without_not_available(table[names].to_numpy(np.float64), axes)
     check_degrees(values, axes, names, lambda i: f"row {i} (counted from 0)")
     codes = pd.factorize(table["track_id"], sort=False)[0]
     valid = np.isfinite(values).all(axis=1)

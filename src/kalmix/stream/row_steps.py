@@ -231,8 +231,9 @@ class RowSteps:
             start = 0
             self._decide_geographic(names if names is not None else self.position_names, values.shape[1])
             if self.axes is not None:
-                from ..io.geo import check_degrees
+                from ..io.geo import check_degrees, without_not_available
 
+                values = without_not_available(values, self.axes)   # AIS's latitude 91 / longitude 181: no fix
                 check_degrees(values, self.axes, names if names is not None else self.position_names,
                               where or (lambda i: f"values[{i}]"))
             self._resolve_length_unit(None, None, "a stream's first row")

@@ -226,8 +226,9 @@ class TableSteps:
                              f"in row {first_row + i} (counted from 0)")
         axes = self.axes
         if axes is not None:
-            from ..io.geo import check_degrees
+            from ..io.geo import check_degrees, without_not_available
 
+            values = without_not_available(values, axes)   # AIS's latitude 91 / longitude 181: no fix
             check_degrees(values, axes, names, lambda i: f"table: row {first_row + i} (counted from 0)")
         times = table["time"].to_numpy(np.float64)
         ids = table["track_id"].to_numpy()

@@ -18,7 +18,7 @@ and the paper's mixture are entered: :func:`kalmix.core.compiled.engine.run`,
 Where it is told:
 
 - The ``kalmix`` logger (:mod:`logging`): when an episode starts, ``"compiling kalmix's kernels
-  for this machine, first run only ..."``; when it ends, the elapsed time (INFO). The first
+  for this machine, once per setting ..."``; when it ends, the elapsed time (INFO). The first
   start of a process is logged at WARNING, the lowest level that Python shows when no
   logging is configured (its last-resort handler writes WARNING and above to stderr): an
   API user who set nothing up sees that one line, once per process and only when kernels
@@ -54,8 +54,8 @@ QUIET_SECONDS = 1.5
 #: How often displays are told the elapsed time.
 TICK_SECONDS = 1.0
 
-START = "compiling kalmix's kernels for this machine, first run only (a minute or two) ..."
-START_MORE = "compiling more of kalmix's kernels for this machine, first run only ..."
+START = "compiling kalmix's kernels for this machine, once per setting (a minute or two) ..."
+START_MORE = "compiling more of kalmix's kernels for this machine, once per setting ..."
 
 _lock = threading.Lock()
 _active = 0          # kalmix compiles in progress (numba's events, nested ones too) plus open compiling() blocks
