@@ -607,18 +607,20 @@ def test_a_state_file_made_with_gate_options_still_resumes(tmp_path):
 
 
 def test_a_gap_rule_that_cuts_tracks_into_pieces_says_what_to_do(cli, tmp_path):
-    """On a track sampled in bursts (steps of 0.1 s, every 8th a pause of 2 s) the default gap rule splits 12 % of
+    """On a track sampled in bursts (steps of 0.1 s, every 12th a pause of 2 s) the default gap rule splits 8 % of
     the rows, and the rows before those splits get intervals holding fewer of the measurements. Such a run says so,
     and what to use instead; a regular track, --max-gap none, or a track sampled at heavy-tailed intervals
-    (log-normal steps, sigma 2: the rule's spread keeps it in few segments) says nothing."""
+    (log-normal steps, sigma 2: the rule's spread keeps it in few segments; bursts with a pause every 8th step,
+    whose top tenth of steps are the pauses: the gap floor keeps them) says nothing."""
     rng = np.random.default_rng(7)
-    steps = np.where(np.arange(400) % 8 == 7, 2.0, 0.1)
+    steps = np.where(np.arange(400) % 12 == 11, 2.0, 0.1)
     t = np.cumsum(steps)
     bursts = pd.DataFrame({"track_id": "a", "time": t, "x": t + rng.normal(0, 0.05, 400), "y": 0.0})
     regular = bursts.assign(time=np.arange(400) * 0.1)
     heavy = bursts.assign(time=np.cumsum(0.1 * rng.lognormal(0.0, 2.0, 400) + 0.01))
+    eighth = bursts.assign(time=np.cumsum(np.where(np.arange(400) % 8 == 7, 2.0, 0.1)))
     for frame, args, noted in ((bursts, [], True), (bursts, ["--max-gap", "none"], False), (regular, [], False),
-                               (heavy, [], False)):
+                               (heavy, [], False), (eighth, [], False)):
         path = str(tmp_path / "in.csv")
         frame.to_csv(path, index=False)
         result = _run(cli, ["predict", path, *FAST, "--length-unit", "0.05", *args])

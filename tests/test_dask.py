@@ -124,13 +124,13 @@ def test_dask_equals_single_machine_predict_over_many_files(cli, cluster, tmp_pa
 
 
 def test_the_gap_note_is_said_as_on_one_machine(cli, cluster, tmp_path):
-    """Reports that the default gap rule splits at >= 5 % of the rows (every 8th step a pause of 20 steps): the
+    """Reports that the default gap rule splits at >= 5 % of the rows (every 12th step a pause of 20 steps): the
     single-machine run says so and what to do; the Dask run said nothing. Now the same note, from the segments
     it wrote."""
     rng = np.random.default_rng(3)
     frames = []
     for k in range(6):
-        t = np.cumsum(np.where(np.arange(120) % 8 == 7, 20.0, 1.0) + rng.uniform(0.0, 0.01, 120))
+        t = np.cumsum(np.where(np.arange(120) % 12 == 11, 20.0, 1.0) + rng.uniform(0.0, 0.01, 120))
         frames.append(pd.DataFrame({"vessel": f"v{k}", "t": t, "x": np.cumsum(rng.normal(size=120)),
                                     "y": np.cumsum(rng.normal(size=120))}))
     whole = _write(_split(pd.concat(frames, ignore_index=True), 3), str(tmp_path / "archive"), "parquet")
@@ -349,7 +349,8 @@ def test_units_are_the_first_chunks_and_they_matter(cluster, tmp_path):
     assert abs(unit / auto_length_unit(everything.values, times=everything.times) - 1) > 0.01
     engine = TrackPredictor(StreamConfig(n_experts=4, seed=1, length_unit=unit), ["x", "y"])
     engine.process_table(first, ["x", "y"])
-    assert time_unit == engine.config.time_unit and reach == engine.config.reach != "auto"
+    assert time_unit == engine.config.time_unit and reach == (engine.config.reach, engine.config.gap_floor)
+    assert "auto" not in reach
     steps = np.concatenate([np.diff(g.to_numpy()) for _, g in first.groupby("track_id")["time"]])
     assert time_unit == pytest.approx(np.median(steps[steps > 0]), rel=1e-11)
     other = TrackPredictor(StreamConfig(n_experts=4, seed=1, length_unit=unit, time_unit=2 * time_unit), ["x", "y"])

@@ -44,6 +44,7 @@ def test_the_reach_is_set_only_where_the_steps_are_heavy_tailed():
     assert reach_for_steps(_log_uniform(rng, 500)) == IRREGULAR_REACH
     assert reach_for_steps(rng.choice([2.0, 3.0, 10.0, 10.0, 10.0, 30.0, 180.0], 500)) == IRREGULAR_REACH   # AIS-like
     assert reach_for_steps([]) is None and reach_for_steps([0.0, -1.0, np.nan]) is None
+    assert reach_for_steps(_log_uniform(rng, 49)) is None   # too few steps to tell
     times = np.cumsum(_log_uniform(rng, 60)).reshape(20, 3)
     assert auto_reach(times) == reach_for_steps(np.diff(times, axis=0))
 
@@ -117,3 +118,32 @@ def test_predict_says_the_reach_it_settled_on_irregular_steps(tmp_path):
     assert off.exit_code == 0 and "heavy-tailed" not in off.stderr
     a, b = pd.read_csv(tmp_path / "a.csv"), pd.read_csv(tmp_path / "b.csv")
     assert not np.allclose(a["pred_x"], b["pred_x"], equal_nan=True)
+
+
+def test_on_heavy_tailed_sampling_a_young_track_is_not_cut_at_its_usual_long_steps():
+    """A vessel whose first reports came 2-5 s apart, then 144 s: a young track's own steps made those usual
+    steps gaps, and it restarted twice in its first 7 reports (a new user's finding). On heavy-tailed sampling the
+    gap floor (3 x the steps' 90th percentile) keeps them; a day of silence is still a gap; regular data and
+    streams get no floor."""
+    rng = np.random.default_rng(3)
+    table = _table(_log_uniform, tracks=4)
+    start = table["time"].max() + 10.0
+    moored = np.concatenate([[0.0, 2.0, 5.0, 8.0, 11.0, 155.0, 298.0], 298.0 + np.cumsum(_log_uniform(rng, 30)),
+                             [10_000.0]]) + start
+    moored[-1] = moored[-2] + 86400.0   # a day of silence
+    table = pd.concat([table, pd.DataFrame({"track_id": 9, "time": moored, "x": rng.normal(size=len(moored)),
+                                            "y": rng.normal(size=len(moored))})], ignore_index=True)
+    steps = np.concatenate([np.diff(g.to_numpy()) for _, g in table.groupby("track_id")["time"]])
+    predictor = TrackPredictor(StreamConfig(**CONFIG))
+    out = predictor.process_table(table)
+    assert predictor.config.gap_floor == pytest.approx(3 * np.quantile(steps, 0.9), rel=1e-12)
+    segments = out.loc[out["track_id"] == 9, "segment"].to_numpy()
+    assert (segments[:-1] == 0).all() and segments[-1] == 1
+    cut = TrackPredictor(StreamConfig(**CONFIG, gap_floor=None)).process_table(table)
+    assert cut.loc[cut["track_id"] == 9, "segment"].max() >= 2   # without the floor: cut at its usual steps
+    regular = TrackPredictor(StreamConfig(**CONFIG))
+    regular.process_table(_table(_regular))
+    assert regular.config.gap_floor is None
+    stream = TrackPredictor(StreamConfig(**CONFIG))
+    stream.step_row(0, 0.0, [1.0, 2.0])
+    assert stream.config.gap_floor is None

@@ -118,7 +118,7 @@ def test_save_and_resume_is_bit_for_bit(tmp_path):
     part += [r.next for r in _rows(second, table.iloc[70:])]
     assert np.array_equal(np.array(part), np.array(whole), equal_nan=True)
     # learned from the first time step, kept; a stream's reach is settled at none
-    assert second.config == StreamConfig(**CONFIG, time_unit=0.1, reach=None)
+    assert second.config == StreamConfig(**CONFIG, time_unit=0.1, reach=None, gap_floor=None)
 
 
 def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
@@ -134,9 +134,12 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     of the lead forecasts: such a file resumes with the blend started again, so ``whole`` is then the run whose
     blend starts again at the save (the same file as version 13, resumed; the uninterrupted run but for the lead
     forecasts after the save: test_version_13_files_resume_with_the_blend_started_again). Before version 15 the
-    screen counted a track's learned rows up to 2: the file's counts are capped so."""
+    screen counted a track's learned rows up to 2: the file's counts are capped so. Before version 16 there was no
+    ``gap_floor`` setting (none)."""
     import json
 
+    if version < 16:   # no gap floor setting (a stream settles it at none)
+        settings = (*settings, "gap_floor")
     if version < 9:
         config, settings = {**config, "lead_delay": 1.0}, (*settings, "lead_delay")
     if version < 11:
@@ -158,7 +161,7 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     first.save(tmp_path / "s.npz")
     saved = dict(np.load(tmp_path / "s.npz"))
     meta = json.loads(str(saved["meta"]))
-    assert meta["format_version"] == STATE_FORMAT_VERSION == 15
+    assert meta["format_version"] == STATE_FORMAT_VERSION == 16
     if version < 14:
         whole = part + _rows(_without_blend(tmp_path, saved, dict(meta, format_version=13)), table.iloc[cut:])
     meta["format_version"] = version

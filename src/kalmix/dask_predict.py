@@ -371,10 +371,10 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
 
     Returns
     -------
-    (float, str or None, float or None, float or str or None, pandas.DataFrame)
+    (float, str or None, float or None, tuple, pandas.DataFrame)
         The length unit; why it fell back to 1 (else None); the time unit (None: no track has a
-        positive time step); the reach (``config.reach``, or what ``"auto"`` settles at); the
-        first chunk's first rows (a sample of the data's types).
+        positive time step); the reach and the gap floor (the config's, or what ``"auto"`` settles
+        at); the first chunk's first rows (a sample of the data's types).
     """
     from .io import in_file_order, to_arrays
     from .streaming import learned_sampling, length_unit_rule
@@ -398,11 +398,12 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
     if derive_length:
         arrays = to_arrays(first, columns.positions)
         unit, why = length_unit_rule(arrays.values, times=arrays.times)
-    time_unit, reach = config.time_unit, config.reach
-    if time_unit is None or reach == "auto":  # from the first chunk with a step, as a single machine
-        learned, reach = learned_sampling((in_file_order(chunk) for chunk in itertools.chain([first], read)), config)
+    time_unit, reach, floor = config.time_unit, config.reach, config.gap_floor
+    if time_unit is None or "auto" in (reach, floor):  # from the first chunk with a step, as a single machine
+        learned, reach, floor = learned_sampling((in_file_order(chunk) for chunk in itertools.chain([first], read)),
+                                                 config)
         time_unit = learned if time_unit is None else time_unit
-    return unit, why, time_unit, reach, first.iloc[:3]
+    return unit, why, time_unit, (reach, floor), first.iloc[:3]
 
 
 # --------------------------------------------------------------------------------- per partition
@@ -541,7 +542,7 @@ def predict_dask(frame, columns: TrackColumns | None = None, *, length_unit: flo
         log(f"length unit {unit:.6g} (auto; pass --length-unit to override)" if why is None else
             f"length unit 1 (auto could not estimate it: the first chunk has {why}; pass --length-unit)")
     check_automatic_length_unit(unit)
-    settings = {**asdict(config), "length_unit": unit, "time_unit": time_unit, "reach": reach}
+    settings = {**asdict(config), "length_unit": unit, "time_unit": time_unit, "reach": reach[0], "gap_floor": reach[1]}
     meta = dask.delayed(_meta)(sample, columns, settings).compute()  # on a worker, which loads the engine now
     shuffled = frame.shuffle(on="track_id", npartitions=int(partitions or frame.npartitions))
     return shuffled.map_partitions(_predict_partition, columns, settings, chunk_rows, batch_tracks,

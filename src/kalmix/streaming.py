@@ -91,10 +91,10 @@ from .stream.table_steps import with_input_names
 from .stream.times import next_row_times
 from .stream.units import (IRREGULAR_REACH, LengthUnitWarning, auto_length_unit, auto_reach, auto_time_unit,
                            estimate_length_unit,
-                           length_unit_fallback, length_unit_rule, reach_for_steps)
+                           gap_floor_for_steps, length_unit_fallback, length_unit_rule, reach_for_steps)
 
 __all__ = ["StreamConfig", "TrackPredictor", "RowPrediction", "GapTracker", "SkippedRowWarning", "Checkpoint",
            "LengthUnitWarning", "ColumnNoteWarning", "estimate_length_unit", "length_unit_fallback", "find_columns",
            "guess_id", "auto_length_unit", "length_unit_rule", "auto_time_unit", "learned_time_unit", "next_row_times",
-           "learned_sampling", "auto_reach", "reach_for_steps", "IRREGULAR_REACH",
+           "learned_sampling", "auto_reach", "reach_for_steps", "IRREGULAR_REACH", "gap_floor_for_steps",
            "id_to_json", "with_input_names", "STATE_FORMAT_VERSION", "GAP_REFERENCES"]

@@ -238,7 +238,7 @@ def _step_chunk(run, chunk, names, later, clocks, columns, bar) -> None:
     mark = engine.checkpoint(pd.unique(chunk["track_id"]))
     committed = False
     try:
-        if engine.config.time_unit is None or engine.config.reach == "auto":
+        if engine.config.time_unit is None or "auto" in (engine.config.reach, engine.config.gap_floor):
             _learn_sampling(engine, chunk)
         parts, summaries = _parts(engine, chunk)
         frames = []

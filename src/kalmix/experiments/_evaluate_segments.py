@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..streaming import GapTracker, StreamConfig
+from ..streaming import GapTracker, StreamConfig, gap_floor_for_steps
 
 
 @dataclass
@@ -32,7 +32,10 @@ def split_streams(table, *, max_gap: float | None = None, max_gap_factor: float 
                   max_samples: int | None = None) -> Streams:
     """Cut each track of a track table into segments with the ``kalmix predict`` gap rule."""
     names = tuple(c for c in table.columns if c not in ("track_id", "time"))
-    config = StreamConfig(max_gap=max_gap, max_gap_factor=max_gap_factor)
+    steps = table.groupby("track_id", sort=False)["time"].diff().to_numpy(np.float64)
+    # the gap floor kalmix predict settles on heavy-tailed sampling (its first chunk's steps; here the table's)
+    config = StreamConfig(max_gap=max_gap, max_gap_factor=max_gap_factor,
+                          gap_floor=gap_floor_for_steps(steps, max_gap_factor))
     columns, track_ids = [], []
     for track, group in table.groupby("track_id", sort=False):
         if max_samples is not None:

@@ -13,7 +13,7 @@ import numpy as np
 from .gaps import GapTracker, short_median
 from .ids import factorize_ids, id_to_json, keyable
 from .times import column_seconds
-from .units import reach_for_steps
+from .units import gap_floor_for_steps, reach_for_steps
 
 
 def _by_key(index, rows, count) -> list[np.ndarray]:
@@ -68,8 +68,14 @@ class TrackClocks:
             self._unit_source = None if track is None else (track, step)
             if track is not None:   # a stream's first step: no steps to judge the sampling by
                 self.settle_reach(None)
+                self.settle_gap_floor(None)
             if self.params is not None:
                 self.params = self._build(self.params.measurement_dim)
+
+    def settle_gap_floor(self, value: float | None) -> None:
+        """Fix ``gap_floor="auto"`` at ``value`` (time-column units, None: none); nothing if it is set already."""
+        if self.config.gap_floor == "auto":
+            self.config.gap_floor = value
 
     def settle_reach(self, value: float | None) -> None:
         """Fix ``reach="auto"`` at ``value`` (time units, None: no reach); nothing if it is set already."""
@@ -138,8 +144,9 @@ class TrackClocks:
         positive time steps between consecutive rows of each of its tracks (going on from the rows seen
         before); returns the time unit (None: still unknown, the table has no such step).
 
-        A ``reach="auto"`` is settled from the same steps (:func:`~kalmix.stream.units.reach_for_steps`:
-        1.5 time units when they are heavy-tailed, else None), the given unit or not. :meth:`process_table`
+        A ``reach="auto"`` and a ``gap_floor="auto"`` are settled from the same steps, the given unit
+        or not (:func:`~kalmix.stream.units.reach_for_steps`, :func:`~kalmix.stream.units.gap_floor_for_steps`:
+        on heavy-tailed steps 1.5 time units, and 3 times their 90th percentile; else None). :meth:`process_table`
         calls it on each table it gets while either is unknown (the first table with a step fixes
         them), and ``kalmix predict`` on each chunk of a file, before any of its rows is stepped, so
         that every row runs with the same bank. Rows stepped one by one
@@ -154,10 +161,11 @@ class TrackClocks:
             ``track_id`` and ``time`` columns, each track's rows in time order (later rows continue
             the tracks this predictor has seen).
         """
-        if self.config.time_unit is None or self.config.reach == "auto":
+        if self.config.time_unit is None or "auto" in (self.config.reach, self.config.gap_floor):
             steps = self.table_steps(table["track_id"].to_numpy(), column_seconds(table["time"]))
             if steps.size:
                 self.settle_reach(reach_for_steps(steps))
+                self.settle_gap_floor(gap_floor_for_steps(steps, self.config.max_gap_factor))
                 self._learn_time_unit(float(np.median(steps)), where="the median time step of the table")
         return self.config.time_unit
 

@@ -94,6 +94,12 @@ class StreamConfig:
         ``"auto"`` (the default): settled with the time unit, from the same steps
         (:func:`reach_for_steps`): 1.5 time units on heavy-tailed steps, else None; rows
         that come one by one take None.
+    gap_floor : float, None or "auto"
+        A step not longer than this (time-column units) is no gap, whatever a track's first
+        steps were (an absolute ``max_gap`` decides alone). ``"auto"`` (the default): settled
+        with the time unit, from the same steps (:func:`gap_floor_for_steps`): on heavy-tailed
+        sampling ``max_gap_factor`` times the steps' 90th percentile, else None (rows that come
+        one by one: None).
     lead_delay : float or None
         ``lead_delay`` of :func:`kalmix.bank.make_bank` (None: the lead's rows); checked always, used
         only with a lead.
@@ -123,6 +129,7 @@ class StreamConfig:
     rule_options: dict = field(default_factory=dict)
     lead: float | None = None
     reach: float | str | None = "auto"
+    gap_floor: float | str | None = "auto"
     lead_delay: float | None = None
     geographic: bool | None = None
 
@@ -130,10 +137,16 @@ class StreamConfig:
         from ..bank import BANK_KINDS
 
         self.horizon = check_horizon(self.horizon)
-        if isinstance(self.reach, str) and self.reach.strip().lower() == "auto":
-            self.reach = "auto"
-        elif isinstance(self.reach, str):
-            raise ValueError(f"reach: expected a number of time units, None or 'auto', got {self.reach!r}")
+        for name in ("reach", "gap_floor"):
+            value = getattr(self, name)
+            if isinstance(value, str) and value.strip().lower() == "auto":
+                setattr(self, name, "auto")
+            elif isinstance(value, str):
+                raise ValueError(f"{name}: expected a number, None or 'auto', got {value!r}")
+        if self.gap_floor not in (None, "auto") and not (isinstance(self.gap_floor, numbers.Real)
+                                                          and not isinstance(self.gap_floor, bool)
+                                                          and self.gap_floor > 0):
+            raise ValueError(f"gap_floor: expected a time step > 0, None or 'auto', got {self.gap_floor!r:.80}")
         for name in ("lead", "time_unit", "max_gap", "max_gap_factor", "reach", "lead_delay"):
             value = getattr(self, name)
             if name == "reach" and value == "auto":

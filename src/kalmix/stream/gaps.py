@@ -111,10 +111,13 @@ class GapTracker:
         if not self.intervals or not math.isfinite(config.max_gap_factor):
             return math.inf
         if config.gap_reference == "median":   # state files before version 12
-            return config.max_gap_factor * short_median(self.intervals)
-        if config.gap_reference == "upper quartile":   # state files of versions 12 to 14
-            return config.max_gap_factor * _upper_quartile(self.intervals)
-        return config.max_gap_factor * _spread_reference(self.intervals)
+            own = config.max_gap_factor * short_median(self.intervals)
+        elif config.gap_reference == "upper quartile":   # state files of versions 12 to 14
+            own = config.max_gap_factor * _upper_quartile(self.intervals)
+        else:
+            own = config.max_gap_factor * _spread_reference(self.intervals)
+        floor = config.gap_floor
+        return own if floor is None or floor == "auto" else max(own, float(floor))
 
     def advance(self, time: float, config: StreamConfig) -> bool | None:
         """Register ``time``; True if it starts a new segment, None if out of order or not finite (skip: a NaN

@@ -146,7 +146,8 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, PopulationPrio
         tracks = {t: (self.gaps[t].copy() if t in self.gaps else None, self.states.ref(t), self.track_rows.get(t))
                   for t in ids}
         return Checkpoint(self.rows, self.skipped, self.position_names, tracks, self.config.time_unit, self.outliers,
-                          (self.config.length_unit, self.axes, self._geo_decided), len(self.priors), self.config.reach)
+                          (self.config.length_unit, self.axes, self._geo_decided), len(self.priors), self.config.reach,
+                          self.config.gap_floor)
 
     def rollback(self, checkpoint: "Checkpoint") -> None:
         """Undo everything done since ``checkpoint`` was taken."""
@@ -160,6 +161,7 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, PopulationPrio
                     self.params = None   # (no track has a state yet: the unit is chosen at the first rows)
                 elif self.params is not None:
                     self.params = self._build(self.params.measurement_dim)
+        self.config.gap_floor = checkpoint.gap_floor   # (settled from rows now undone, or as it was)
         if self.config.time_unit != checkpoint.time_unit or self.config.reach != checkpoint.reach:
             # a unit or a reach learned from rows now undone
             self.config.time_unit, self.config.reach = checkpoint.time_unit, checkpoint.reach
@@ -197,16 +199,17 @@ def learned_time_unit(tables, config: StreamConfig) -> float | None:
     return learned_sampling(tables, config)[0]
 
 
-def learned_sampling(tables, config: StreamConfig) -> tuple[float | None, float | str | None]:
-    """``(time unit, reach)``: :func:`learned_time_unit`, and the reach that ``reach="auto"`` settles at from the
-    same steps (``config.reach`` when it is not ``"auto"``; ``"auto"`` still when no table has a step)."""
+def learned_sampling(tables, config: StreamConfig) -> tuple[float | None, float | str | None, float | str | None]:
+    """``(time unit, reach, gap floor)``: :func:`learned_time_unit`, and what ``reach="auto"`` and
+    ``gap_floor="auto"`` settle at from the same steps (the config's when not ``"auto"``; ``"auto"`` still when no
+    table has a step)."""
     scratch = TrackPredictor(replace(config, time_unit=None))
     for table in tables:
         if scratch.learn_time_unit(table) is not None:
-            return scratch.config.time_unit, scratch.config.reach
+            return scratch.config.time_unit, scratch.config.reach, scratch.config.gap_floor
         for track, time in zip(table["track_id"].to_numpy(), column_seconds(table["time"])):
             scratch._advance(id_to_json(track), float(time))   # (the tracks' last times, for the next table)
-    return None, config.reach
+    return None, config.reach, config.gap_floor
 
 
 class Checkpoint(NamedTuple):
@@ -221,3 +224,4 @@ class Checkpoint(NamedTuple):
     settings: tuple | None = None   # (length_unit, axes, whether the axes are settled)
     priors: int = 0                 # population priors summarised by then
     reach: float | str | None = None  # the reach, "auto" until settled
+    gap_floor: float | str | None = None   # the gap floor, "auto" until settled

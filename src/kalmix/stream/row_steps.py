@@ -238,6 +238,7 @@ class RowSteps:
                               where or (lambda i: f"values[{i}]"))
             self._resolve_length_unit(None, None, "a stream's first row")
             self.settle_reach(None)   # (no table of steps to judge the sampling by)
+            self.settle_gap_floor(None)
             self._ensure_params(values.shape[1])
             while start < len(ids) and self.config.time_unit is None:   # one row at a time until it is known
                 out.extend(self._step_batch(ids[start:start + 1], times[start:start + 1], values[start:start + 1],

@@ -20,10 +20,10 @@ from .ids import id_from_meta, id_to_meta
 from .population import Prior
 
 #: Format version of the state files :meth:`TrackPredictor.save` writes. :meth:`TrackPredictor.load` reads
-#: versions 3 to 15 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
+#: versions 3 to 16 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
 #: versions", says what each version adds).
-STATE_FORMAT_VERSION = 15
-_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)
+STATE_FORMAT_VERSION = 16
+_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16)
 _MAGIC = "kalmix-track-predictor"
 
 
@@ -78,6 +78,8 @@ class StateFile:
                     config.setdefault("gap_reference", "median")   # files before version 12 took the median
                 if meta["format_version"] < 15:   # versions 12 to 14: the upper quartile, without the spread
                     config.setdefault("gap_reference", "upper quartile")
+                if meta["format_version"] < 16:   # files before version 16: no gap floor
+                    config.setdefault("gap_floor", None)
                 if meta["format_version"] < 13:   # files before version 13: any step a gap, no population prior
                     config.setdefault("gap_min_steps", 1)
                     config.setdefault("population_prior", False)

@@ -121,6 +121,8 @@ def auto_time_unit(times) -> float:
 #: seconds to every few minutes (AIS: about 17; steps log-uniform over a range of 60: 5). Regular sampling, jittered,
 #: with gaps, or with frames dropped at random (at most 3.3 for any drop rate) stays under it.
 IRREGULAR_TAIL = 4.0
+#: Time steps it takes to tell heavy-tailed sampling (fewer: a single silence would be a tenth of them).
+IRREGULAR_MIN_STEPS = 50
 #: The reach (time units) ``reach="auto"`` takes on heavy-tailed steps; other data: none.
 IRREGULAR_REACH = 1.5
 
@@ -137,12 +139,26 @@ def reach_for_steps(steps) -> float | None:
     restarts at, missed rows), those experts still do better than the constant velocity, so every
     expert is kept.
     """
+    return None if heavy_tail(steps) is None else IRREGULAR_REACH
+
+
+def heavy_tail(steps) -> float | None:
+    """The 90th percentile of time steps (positive, any order) when it is over :data:`IRREGULAR_TAIL` times their
+    median (heavy-tailed sampling), else None (and with fewer than :data:`IRREGULAR_MIN_STEPS` steps)."""
     steps = np.asarray(steps, dtype=np.float64).ravel()
     steps = steps[np.isfinite(steps) & (steps > 0)]
-    if not steps.size:
+    if steps.size < IRREGULAR_MIN_STEPS:
         return None
     median, top = np.quantile(steps, [0.5, 0.9])
-    return IRREGULAR_REACH if top > IRREGULAR_TAIL * median else None
+    return float(top) if top > IRREGULAR_TAIL * median else None
+
+
+def gap_floor_for_steps(steps, factor: float) -> float | None:
+    """The gap floor ``"auto"`` takes from time steps: on heavy-tailed sampling (:func:`heavy_tail`) ``factor``
+    (the gap rule's ``max_gap_factor``) times their 90th percentile, a step the sampling itself makes often
+    being no gap however short a young track's first steps were; else None (the track's own steps decide)."""
+    top = heavy_tail(steps)
+    return None if top is None or not math.isfinite(factor) else float(factor * top)
 
 
 def auto_reach(times) -> float | None:
