@@ -836,13 +836,16 @@ def test_iso_times_outside_the_clock_or_mixed_with_numbers_are_named(cli, tmp_pa
     """From a review: a date outside the nanosecond clock (1600, a 9999 sentinel) stopped stdin without a line
     and lost the rows before it, and a file named a valid row; 'now' was read as the clock's time; a column of
     numbers and dates was refused naming a valid date (or taken, on stdin); NaT was missing in a file and an
-    error on stdin."""
+    error on stdin; a minute of one digit was read as another time."""
     rows = "id,time,x\na,2024-05-01T00:00:00Z,1\na,2024-05-01T00:00:01Z,2\na,{},3\n"
     for value, message in (
             ("1600-01-01T00:00:02Z", "line 4: column 'time' must hold a number or an ISO 8601 date-time (like "
                                      "2024-05-01T12:00:00.5Z), got '1600-01-01T00:00:02Z'"),
             ("now", "line 4: column 'time' must hold a number or an ISO 8601 date-time (like 2024-05-01T12:00:00.5Z), "
                     "got 'now'"),
+            # a cut minute (a new user's "08:5" of 08:50) was read as 08:05, 45 minutes back in its track
+            ("2024-05-01T00:0", "line 4: column 'time' must hold a number or an ISO 8601 date-time (like "
+                                "2024-05-01T12:00:00.5Z), got '2024-05-01T00:0'"),
             ("1714521602.5", "line 4: column 'time' holds a number ('1714521602.5') where its first time is a "
                              "date-time; expected one or the other")):
         path = tmp_path / "t.csv"

@@ -14,10 +14,12 @@ def iso_seconds(text, errors: str = "raise") -> np.ndarray:
     ``ValueError`` naming the first value that is not such text or is outside 1677-2262 (the nanosecond
     clock's range); ``errors="coerce"``: NaN there. Counted in nanoseconds whatever the text's precision, element
     by element, and shared by the file and stdin paths, so both give the same bits for the same text. ``now``
-    and ``today``, which pandas reads as the clock's time, are not dates of the data."""
+    and ``today``, which pandas reads as the clock's time, are not dates of the data; nor is a minute or second of
+    one digit (``08:5``, a cut ``08:50``, which pandas reads as 08:05)."""
     series = pd.Series(list(text), dtype=object)
     given = series.notna().to_numpy()
-    words = series.astype(str).str.strip().str.lower().isin(("now", "today")).to_numpy() & given
+    texts = series.astype(str).str.strip()
+    words = (texts.str.lower().isin(("now", "today")) | texts.str.contains(r":\d(?!\d)", regex=True)).to_numpy() & given
     when = pd.to_datetime(series.where(~words), format="ISO8601", utc=True, errors="coerce")
     low, high = pd.Timestamp.min.tz_localize("UTC"), pd.Timestamp.max.tz_localize("UTC")
     outside = ((when < low) | (when > high)).to_numpy()
