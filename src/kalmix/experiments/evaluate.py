@@ -162,7 +162,7 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     predictions: dict[str, tuple] = {}
     picks, oracle, intervals = run_kalmix(streams, scored, tuning, horizon, rule, unit, n_experts, seed, options,
                                           bank_options, predictions, tuned, log)
-    log("no prediction")
+    log("no prediction (the baseline: the last position)")
     carried = _carried(values)
     predictions["no prediction"] = (carried, carried)
     run_fixed_filters(streams, tuning, tune_scored, peer_unit, unit, horizon, tuning_fraction, predictions, tuned, log)

@@ -105,10 +105,12 @@ def normalise_table(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
             warnings.warn(f"{int(behind.sum())} row(s) at or before their track's last time in the rows read "
                           "before: not predicted" + (" (their output rows have empty predictions)" if as_given else
                                                      ""), DroppedRowWarning, stacklevel=3)
-    back = int((out.groupby("track_id", sort=False)["time"].diff() < 0).sum())
+    decreasing = (out["time"].groupby(out["track_id"], sort=False).diff() < 0).to_numpy()
+    back = int(decreasing.sum())
     if back:
-        warnings.warn(f"Times decrease at {back} row(s) within tracks; sorted each track's rows "
-                      "by time (stable)", RuntimeWarning, stacklevel=3)
+        first = out["track_id"].iloc[int(np.argmax(decreasing))]
+        warnings.warn(f"Times decrease at {back} row(s) within tracks (the first in track {first!r}); sorted each "
+                      "track's rows by time (stable)", RuntimeWarning, stacklevel=3)
     if first_appearance:
         first = pd.factorize(out["track_id"], sort=False)[0]
         out = out.iloc[np.lexsort((out["time"].to_numpy(), first))]
