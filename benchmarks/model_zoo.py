@@ -254,6 +254,14 @@ def scenarios() -> dict[str, Scenario]:
                  _dropped(0.1, 0.4),
                  {"model": "constant acceleration", "q_m2_per_s5": q_ca, "measurement_std_m": r_ca, "frame_s": 0.1,
                   "frame_kept": 0.4}, seed=12))
+    # the same constant acceleration reported at heavy-tailed intervals (log-uniform 0.02-2 s): the automatic reach
+    # (only the constant-velocity experts across a step over 1.5 time units) suits vessels, not this
+    add(Scenario("ca_log_uniform", "constant acceleration, steps 0.02-2 s",
+                 f"constant acceleration (white jerk, q = {q_ca} m²/s⁵), steps log-uniform in 0.02-2 s, {r_ca} m "
+                 "noise", [kinematic(2, q_ca)], r_ca, np.zeros(6), np.array([10.0, 2.0, 1.0, 10.0, 2.0, 1.0]),
+                 _log_uniform(0.02, 2.0),
+                 {"model": "constant acceleration", "q_m2_per_s5": q_ca, "measurement_std_m": r_ca,
+                  "dt_s": "log-uniform in [0.02, 2]"}, seed=13))
     return out
 
 

@@ -46,7 +46,7 @@ import glob
 import itertools
 import os
 import warnings
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import numpy as np
 import pandas as pd
@@ -401,7 +401,7 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
     time_unit, reach, floor = config.time_unit, config.reach, config.gap_floor
     if time_unit is None or "auto" in (reach, floor):  # from the first chunk with a step, as a single machine
         learned, reach, floor = learned_sampling((in_file_order(chunk) for chunk in itertools.chain([first], read)),
-                                                 config)
+                                                 replace(config, length_unit=unit), columns.positions)
         time_unit = learned if time_unit is None else time_unit
     return unit, why, time_unit, (reach, floor), first.iloc[:3]
 

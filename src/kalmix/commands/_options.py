@@ -100,7 +100,8 @@ def parse_length_unit(text):
 REACH_HELP = ("Across a time step longer than this many time units (--time-unit) only the constant-velocity experts "
               "make the one-step prediction (the others extrapolate fits made on the usual steps); 'none': every "
               "expert at every step [default: 1.5 where the first chunk's time steps are heavy-tailed (the top "
-              "tenth over 4 times the median), else none; on stdin none].")
+              "tenth over 4 times the median) and a pilot run on its first rows predicts better so, else none; on "
+              "stdin none].")
 
 
 def parse_reach(text):

@@ -239,7 +239,7 @@ def _step_chunk(run, chunk, names, later, clocks, columns, bar) -> None:
     committed = False
     try:
         if engine.config.time_unit is None or "auto" in (engine.config.reach, engine.config.gap_floor):
-            _learn_sampling(engine, chunk)
+            _learn_sampling(engine, chunk, names)
         parts, summaries = _parts(engine, chunk)
         frames = []
         for k, (piece, times) in enumerate(zip(parts, next_row_times(parts, later))):
@@ -263,11 +263,11 @@ def _step_chunk(run, chunk, names, later, clocks, columns, bar) -> None:
         raise
 
 
-def _learn_sampling(engine, chunk) -> None:
+def _learn_sampling(engine, chunk, names) -> None:
     """Fix the time unit and an automatic reach from the chunk's steps (the first chunk that has one); a reach
     settled on irregular steps is said on stderr."""
     automatic = engine.config.reach == "auto"
-    engine.learn_time_unit(chunk)
+    engine.learn_time_unit(chunk, names)
     if automatic and engine.config.reach not in ("auto", None):
         unit = engine.config.time_unit
         click.echo(f"kalmix: the time steps are heavy-tailed: across a step over {engine.config.reach:g} time units "

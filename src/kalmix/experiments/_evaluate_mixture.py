@@ -186,6 +186,30 @@ def tune_unit(values, tuning, rule, n_experts, seed, options):
     return rule * best, {str(k): v for k, v in scores.items()}
 
 
+def _settled_reach(streams, tuning, learning, rule, time_unit, n_experts, seed, bank_options):
+    """The reach ``"auto"`` settles at for the tuning part, as ``kalmix predict --no-population-prior`` settles it on
+    a file (:meth:`kalmix.streaming.TrackPredictor.learn_time_unit`: on heavy-tailed steps, a pilot of both
+    choices); None on other steps."""
+    import pandas as pd
+
+    from ..streaming import StreamConfig, TrackPredictor
+
+    if auto_reach(learning) is None:
+        return None
+    t, s = np.nonzero(tuning if tuning.any() else np.isfinite(streams.times))
+    order = np.lexsort((t, s))   # each segment's rows in time order, one segment after another
+    t, s = t[order], s[order]
+    names = [f"c{j}" for j in range(streams.values.shape[2])]
+    table = pd.DataFrame({"track_id": s, "time": streams.times[t, s],
+                          **{name: streams.values[t, s, j] for j, name in enumerate(names)}})
+    config = StreamConfig(length_unit=rule, time_unit=time_unit, n_experts=n_experts, seed=seed, max_gap_factor=np.inf,
+                          population_prior=False, bank=bank_options.get("kind", DEFAULT_BANK["kind"]),
+                          rule=bank_options.get("rule", "boa"), geographic=False)
+    pilot = TrackPredictor(config)
+    pilot.learn_time_unit(table, names)
+    return pilot.config.reach
+
+
 def run_kalmix(streams, scored, tuning, horizon, rule, unit, n_experts, seed, options, bank_options, predictions,
                tuned, log):
     """kalmix's rows: the bank (``bank_options``, as ``kalmix predict`` makes it with length unit ``rule`` and the
@@ -198,8 +222,9 @@ def run_kalmix(streams, scored, tuning, horizon, rule, unit, n_experts, seed, op
     learning = np.where(tuning, streams.times, np.nan) if tuning.any() else streams.times
     if time_unit is None:
         time_unit = auto_time_unit(learning)
-    if bank_options.get("reach") == "auto":   # settled from the same steps, as predict settles it
-        bank_options["reach"] = auto_reach(learning)
+    if bank_options.get("reach") == "auto":   # settled from the same steps and a pilot, as predict settles it
+        bank_options["reach"] = _settled_reach(streams, tuning, learning, rule, time_unit, n_experts, seed,
+                                               bank_options)
     # the AKF family takes K and the options as predict's does (the gate's reach only the AKF mixture row)
     family = {"n_akf": n_experts, "akf_options": {k: v for k, v in options.items() if k not in GATE_OPTIONS}}
     bank = make_bank(p, length_unit=rule, time_unit=time_unit, seed=seed,

@@ -15,6 +15,9 @@ from .ids import factorize_ids, id_to_json, keyable
 from .times import column_seconds
 from .units import gap_floor_for_steps, reach_for_steps
 
+#: Rows of a table the automatic reach is tried on (:meth:`TrackClocks._pilot_reach`).
+PILOT_ROWS = 20_000
+
 
 def _by_key(index, rows, count) -> list[np.ndarray]:
     """``rows`` grouped by their key ``index[rows]`` (``count`` keys), each group in row order."""
@@ -139,7 +142,7 @@ class TrackClocks:
             steps.append(step[step > 0])
         return np.concatenate(steps) if steps else np.zeros(0)
 
-    def learn_time_unit(self, table) -> float | None:
+    def learn_time_unit(self, table, names=None) -> float | None:
         """Fix the time unit, if it is not known yet, from a table's rows without stepping them: the median of the
         positive time steps between consecutive rows of each of its tracks (going on from the rows seen
         before); returns the time unit (None: still unknown, the table has no such step).
@@ -159,15 +162,43 @@ class TrackClocks:
         ----------
         table : pandas.DataFrame
             ``track_id`` and ``time`` columns, each track's rows in time order (later rows continue
-            the tracks this predictor has seen).
+            the tracks this predictor has seen), and the positions.
+        names : sequence of str, optional
+            The position columns (default: every other column).
         """
         if self.config.time_unit is None or "auto" in (self.config.reach, self.config.gap_floor):
             steps = self.table_steps(table["track_id"].to_numpy(), column_seconds(table["time"]))
             if steps.size:
-                self.settle_reach(reach_for_steps(steps))
                 self.settle_gap_floor(gap_floor_for_steps(steps, self.config.max_gap_factor))
                 self._learn_time_unit(float(np.median(steps)), where="the median time step of the table")
+                if self.config.reach == "auto":
+                    reach = reach_for_steps(steps)
+                    self.settle_reach(None if reach is None else self._pilot_reach(table, names, reach))
         return self.config.time_unit
+
+    def _pilot_reach(self, table, names, reach: float) -> float | None:
+        """``reach`` or None, whichever predicts the first :data:`PILOT_ROWS` rows of ``table`` better (one-step
+        RMS of each row's forecast of its track's next row there), by two throwaway predictors with this one's
+        settings: on heavy-tailed steps keeping only the constant-velocity experts across the long steps is right
+        for a vessel's drifting course and wrong for an accelerating target, which the data tell."""
+        import pandas as pd
+
+        names = list(names) if names is not None else [c for c in table.columns if c not in ("track_id", "time")]
+        sample = table[["track_id", "time", *names]].iloc[:PILOT_ROWS].reset_index(drop=True)
+        numbers = sample[names].apply(pd.to_numeric, errors="coerce")   # (bad values: the pilot's run names them)
+        later = numbers.groupby(sample["track_id"], sort=False).shift(-1).to_numpy(np.float64)
+        scores = []
+        for candidate in (reach, None):
+            pilot = type(self)(replace(self.config, reach=candidate, gap_floor=self.config.gap_floor))
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                out = pilot.process_table(sample, names)
+            pred = out[[f"pred_{name}" for name in names]].to_numpy(np.float64)
+            if len(pred) != len(sample):   # (rows skipped for their time: score the rows kept)
+                pred = pd.DataFrame(pred, index=out.index).reindex(range(len(sample))).to_numpy()
+            error = (pred - later)[np.isfinite(pred - later).all(axis=1)]
+            scores.append(float(np.sqrt(np.mean(error ** 2))) if len(error) else np.inf)
+        return reach if scores[0] < scores[1] else None
 
     def _gap_rule(self, ids, times, first_row=0):
         """The gap rule over a table's rows, in row order as :meth:`_advance` row by row.

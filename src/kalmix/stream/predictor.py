@@ -199,13 +199,14 @@ def learned_time_unit(tables, config: StreamConfig) -> float | None:
     return learned_sampling(tables, config)[0]
 
 
-def learned_sampling(tables, config: StreamConfig) -> tuple[float | None, float | str | None, float | str | None]:
+def learned_sampling(tables, config: StreamConfig, names=None
+                     ) -> tuple[float | None, float | str | None, float | str | None]:
     """``(time unit, reach, gap floor)``: :func:`learned_time_unit`, and what ``reach="auto"`` and
     ``gap_floor="auto"`` settle at from the same steps (the config's when not ``"auto"``; ``"auto"`` still when no
-    table has a step)."""
+    table has a step); ``names``: the position columns (default: every other column)."""
     scratch = TrackPredictor(replace(config, time_unit=None))
     for table in tables:
-        if scratch.learn_time_unit(table) is not None:
+        if scratch.learn_time_unit(table, names) is not None:
             return scratch.config.time_unit, scratch.config.reach, scratch.config.gap_floor
         for track, time in zip(table["track_id"].to_numpy(), column_seconds(table["time"])):
             scratch._advance(id_to_json(track), float(time))   # (the tracks' last times, for the next table)

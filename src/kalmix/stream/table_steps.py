@@ -126,7 +126,7 @@ class TableSteps:
                 check_degrees(table[names].to_numpy(np.float64), self.axes, names,
                               lambda i: f"table: row {i} (counted from 0)")
             self._resolve_length_unit(table, names, "the table")
-            self.learn_time_unit(table)
+            self.learn_time_unit(table, names)
             frame = self._process_table(table, position_names, next_times or {}, kept=kept)
         except BaseException:
             self.rollback(saved)
