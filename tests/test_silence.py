@@ -94,3 +94,55 @@ def test_the_silence_variance_starts_at_the_gap_threshold():
     assert added[0] == 0.0 and added[1] == pytest.approx(full / 2) and added[2] == pytest.approx(full, rel=1e-4)
     assert added[3] == 0.0   # unknown: nothing added
     assert (silence_variance(mean[:3], position[:3], last[:3], time[:3], np.full(3, np.inf)) == 0.0).all()
+
+
+def _restarted_states(order):
+    """A kinematic family's state after three rows of uniform motion (1 length unit per time unit along x) and a
+    restart 100 time units later, by the spec and by the compiled engine: target 0 where the motion went on,
+    target 1 relocated by 1e6 length units (beyond what the expert's model allows)."""
+    from kalmix.bank import make_bank
+    from kalmix.core import engine
+    from kalmix.core.compiled import engine as ce
+    from kalmix.core.families.kinematic import KinematicParams
+
+    params = KinematicParams(order=order, process_noise=np.array([0.01]), measurement_noise=np.array([0.1]),
+                             initial_variance=np.array([[0.1] + [1e4] * (order - 1)]), time_unit=1.0)
+    like = make_bank(2, "kinematic")
+    bank = engine.Bank(2, (engine.Family("cv" if order == 2 else "ca", params),), like.rule, like.rule_params)
+    times = np.array([0.0, 1.0, 2.0, 102.0])
+    z = np.zeros((4, 2, 2))
+    z[:, :, 0] = times[:, None]
+    z[3, 1, 0] += 1e6
+    restart = np.zeros((4, 2), dtype=bool)
+    restart[3] = True
+    t = np.broadcast_to(times[:, None], (4, 2)).copy()
+    before = engine.run(bank, z[:3], t[:3]).state.families[0]
+    spec = engine.run(bank, z, t, restart=restart).state.families[0]
+    fast = ce.run(bank, z, t, restart=restart).state.families[0]
+    return params, before, spec, fast
+
+
+@pytest.mark.parametrize("order", [2, 3])
+def test_a_restart_keeps_the_mean_velocity_across_the_gap(order):
+    """A restart starts the filter at the measurement with the mean velocity across the gap and a variance that
+    covers the old position, the noise and the drift of the velocity under the expert's model; a relocation
+    starts it as a first measurement. The compiled kernel gives the same bits."""
+    params, before, spec, fast = _restarted_states(order)
+    for a, b in zip(spec, fast):
+        assert np.array_equal(a, b, equal_nan=True)
+    gap, r, q = 100.0, 0.1, 0.01
+    old = before.cov[0, 0]
+    assert spec.mean[0, 0, 0].tolist() == [102.0, 0.0]
+    assert spec.mean[0, 0, 1].tolist() == [(102.0 - before.mean[0, 0, 0, 0]) / gap, 0.0]
+    assert spec.mean[0, 0, 1, 0] == pytest.approx(1.0, abs=1e-3)   # the motion's own velocity
+    drift = q * gap / 3 if order == 2 else gap**2 / 4 * old[2, 2] - old[0, 2] + 2 * q * gap**3 / 15
+    assert spec.cov[0, 0, 1, 1] == pytest.approx((old[0, 0] + r) / gap**2 + drift, rel=1e-12)
+    assert spec.cov[0, 0, 0, 1] == spec.cov[0, 0, 1, 0] == pytest.approx(r / gap, rel=1e-12)
+    assert spec.cov[0, 0, 0, 0] == r
+    if order == 3:
+        assert spec.mean[0, 0, 2].tolist() == [0.0, 0.0] and spec.cov[0, 0, 2, 2] == 1e4
+        assert spec.cov[0, 0, 0, 2] == spec.cov[0, 0, 1, 2] == 0.0
+    # the relocated target: a first measurement
+    assert spec.mean[1, 0, 0].tolist() == [1e6 + 102.0, 0.0]
+    assert not spec.mean[1, 0, 1:].any()
+    assert np.array_equal(spec.cov[1, 0], np.diag(params.initial_variance[0]))

@@ -2,7 +2,8 @@
 
 :func:`kernel` advances every target through its rows of a block: at each row it
 writes every expert's forecast of the row into the bank's shared buffer at the family's
-column ``offset``, then learns the row (a ``restart`` row starts the filters again from it);
+column ``offset``, then learns the row (a ``restart`` row starts the filters again from it, keeping the mean
+velocity across the gap where the spec does);
 with ``ahead_times`` it also writes the forecast made after the row for that time.
 
 A family's driver module (this one, :mod:`.ar`, :mod:`.turn`, :mod:`.akf_driver`; the registry
@@ -119,6 +120,8 @@ def forecast_expert(order, delta, q, r, max_variance, mean_k, cov_k, out, m_pred
 
 #: The spec's restart threshold on the innovation's NIS (1e6 standard deviations).
 RESTART_NIS = float(_spec.RESTART_NIS)
+#: The spec's bound on the NIS of a restart that keeps the mean velocity across the gap.
+CARRY_NIS = float(_spec.CARRY_NIS)
 
 
 @nb.njit(**_JIT)
@@ -148,6 +151,42 @@ def _start(order, initial_k, z, mean_k, cov_k):
             mean_k[i, c] = z[c] if i == 0 else 0.0
         for j in range(order):
             cov_k[i, j] = initial_k[i] if i == j else 0.0
+
+
+@nb.njit(**_JIT)
+def _carry(order, delta, q, initial_k, z, mean_k, cov_k, m_pred, s):
+    """A restart ``delta`` steps after ``mean_k, cov_k`` (extrapolated to ``m_pred``, innovation variance
+    ``s``) that keeps the mean velocity across the gap (the spec's ``carried_start``): writes it and returns
+    True, or returns False (the state unchanged) where the spec starts as at a first measurement."""
+    if not delta > 0.0:
+        return False
+    nis = 0.0
+    for c in range(z.shape[0]):
+        e = z[c] - m_pred[0, c]
+        nis = nis + e * e / s
+    r0 = initial_k[0]
+    variance = (cov_k[0, 0] + r0) / (delta * delta)
+    if order == 2:
+        variance = variance + q * delta / 3.0
+    else:
+        variance = variance - cov_k[0, 2] + delta * delta / 4.0 * cov_k[2, 2] + 2.0 * q * delta * delta * delta / 15.0
+    cross = r0 / delta
+    if not (math.isfinite(variance) and math.isfinite(cross) and nis <= CARRY_NIS * z.shape[0]):
+        return False
+    for c in range(z.shape[0]):
+        if not math.isfinite((z[c] - mean_k[0, c]) / delta):
+            return False
+    for c in range(z.shape[0]):
+        velocity = (z[c] - mean_k[0, c]) / delta
+        for i in range(order):
+            mean_k[i, c] = z[c] if i == 0 else (velocity if i == 1 else 0.0)
+    for i in range(order):
+        for j in range(order):
+            cov_k[i, j] = initial_k[i] if i == j else 0.0
+    cov_k[1, 1] = variance
+    cov_k[0, 1] = cross
+    cov_k[1, 0] = cross
+    return True
 
 
 @nb.njit(**_JIT)
@@ -193,7 +232,10 @@ def step_expert(order, delta, q, r, initial_k, max_variance, started, learn, fre
         for c in range(out.shape[0]):
             out[c] = np.nan
     if learn:
-        if fresh or not started or (cov_k[1, 1] < initial_k[1] and _absurd(z, mean_k, m_pred, c_pred[0, 0] + r)):
+        if fresh and started:   # a restart: the mean velocity across the gap kept where it can be
+            if not _carry(order, delta, q, initial_k, z, mean_k, cov_k, m_pred, c_pred[0, 0] + r):
+                _start(order, initial_k, z, mean_k, cov_k)
+        elif fresh or not started or (cov_k[1, 1] < initial_k[1] and _absurd(z, mean_k, m_pred, c_pred[0, 0] + r)):
             _start(order, initial_k, z, mean_k, cov_k)
         else:
             _update(order, r, max_variance, z, mean_k, cov_k, m_pred, c_pred, work, gain, a)

@@ -25,6 +25,14 @@ measurement changes nothing); :func:`update` extrapolates to the measurement's t
 applies the Joseph-form update. The first measurement starts the filter at
 ``[z, 0, 0]`` with covariance ``diag(r, v0, a0)`` (``initial_variance``).
 
+A restart (after a time gap, or the glitch screen's) starts the filter at the measurement too, but
+keeps what the track's motion says: the velocity is the mean velocity across the gap, the displacement from
+the old position estimate over the gap's length, with a variance that covers the old position's error, the
+measurement's and how far the current velocity may have drifted from the mean one under the expert's own
+model (:func:`carried_start`); the acceleration starts again as at a first measurement. Where the old state is
+not finite, or the measurement's NIS against the expert's forecast across the gap is above :data:`CARRY_NIS`
+per coordinate (a jump, a new identity), the restart is a first measurement.
+
 Time steps are clipped to ``max_step`` intervals so that an absurd gap cannot overflow
 the covariance; the variance cap keeps every number finite after very long gaps. A
 measurement more than 1e6 standard deviations from an expert's forecast (:data:`RESTART_NIS`)
@@ -46,7 +54,7 @@ from .._libm import ordered_sum
 from ..constraints import Levels, Real
 
 __all__ = ["KinematicParams", "KinematicState", "init_state", "forecast", "update", "transition", "process_noise",
-           "RESTART_NIS", "restarted", "expert_name", "one_expert"]
+           "RESTART_NIS", "CARRY_NIS", "restarted", "carried_start", "expert_name", "one_expert"]
 
 
 class KinematicParams(NamedTuple):
@@ -80,6 +88,11 @@ class KinematicState(NamedTuple):
 #: screen's warm-up is over) cannot leave it a slope (of 1e10, say) that a filter of low process noise
 #: would keep for thousands of rows. Real motion never comes near it.
 RESTART_NIS = 1e12
+#: A restart keeps the mean velocity across the gap (:func:`carried_start`) when the measurement's NIS against
+#: the expert's forecast across the gap is at most this per coordinate (5 standard deviations): where the
+#: expert's own model could have taken the target, so that the variance it gives the velocity covers it. A
+#: target that jumped (the glitch screen's relocation) is far beyond it.
+CARRY_NIS = 25.0
 
 
 def init_state(params: KinematicParams, n_targets: int, measurement_dim: int) -> KinematicState:
@@ -196,18 +209,61 @@ def restarted(state, restart):
     return state._replace(initialised=state.initialised & ~restart)
 
 
+def carried_start(params: KinematicParams, state: KinematicState, z, delta, nis):
+    """The start at ``z (N, p)`` of a filter that restarts ``delta (N,)`` time units after its ``state``, keeping
+    the mean velocity across the gap: ``(mean (N, K, d, p), cov (N, K, d, d), ok (N, K))``.
+
+    The position is the measurement, with the start's variance :math:`r_0` (``initial_variance[:, 0]``); the
+    velocity is :math:`\\bar v = (z - \\hat x)/\\Delta`, with :math:`\\hat x` the old position, the
+    mean velocity over the gap up to the old position's error and the noise; the acceleration (CA) starts as
+    at a first measurement. The velocity's variance is :math:`(P_{00} + r_0)/\\Delta^2` plus the spread of
+    the current velocity about the mean one under the expert's own model: :math:`q\\Delta/3` for CV (white
+    acceleration); for CA (white jerk, the old acceleration's mean not carried)
+    :math:`\\Delta^2 P_{22}/4 - P_{02} + 2q\\Delta^3/15`. The position and velocity share the measurement's
+    error: their covariance is :math:`r_0/\\Delta`. ``ok`` where the step is positive, everything is finite
+    and the measurement's NIS against the expert's forecast across the gap (``nis (N, K)``, summed over the
+    coordinates) is at most :data:`CARRY_NIS` per coordinate: a target that jumped (a relocation, a new
+    identity) starts as at a first measurement.
+    """
+    t = delta[:, None]                                                             # (N, 1)
+    r0 = params.initial_variance[None, :, 0]                                       # (1, K)
+    q = params.process_noise[None, :]
+    old = state.cov
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        variance = (old[..., 0, 0] + r0) / (t * t)
+        if params.order == 2:
+            variance = variance + q * t / 3.0
+        else:
+            variance = variance - old[..., 0, 2] + t * t / 4.0 * old[..., 2, 2] + 2.0 * q * t * t * t / 15.0
+        velocity = (z[:, None, :] - state.mean[..., 0, :]) / t[..., None]          # (N, K, p)
+        cross = r0 / t
+    ok = (t > 0.0) & np.isfinite(variance) & np.isfinite(cross) & np.isfinite(velocity).all(axis=-1) \
+        & (nis <= CARRY_NIS * z.shape[-1])
+    mean = np.zeros_like(state.mean)
+    mean[..., 0, :] = z[:, None, :]
+    mean[..., 1, :] = velocity
+    cov = np.broadcast_to(np.eye(params.order) * params.initial_variance[:, None, :], old.shape).copy()
+    cov[..., 1, 1] = variance
+    cov[..., 0, 1] = cov[..., 1, 0] = cross
+    return mean, cov, ok
+
+
 def update(params: KinematicParams, state: KinematicState, measurement: np.ndarray, time, learn: np.ndarray,
            active=None, restart=None) -> KinematicState:
     """Assimilate ``measurement (N, p)`` at ``time (N,)`` for the targets where ``learn (N,)``.
 
-    A target not yet started (or that ``restart (N,)``s) starts at the measurement; the others get
-    the Joseph-form Kalman update of the extrapolated state. Targets outside ``learn`` are unchanged
-    (``active`` is not read: a row not learned changes nothing in a time-based family).
+    A target not yet started starts at the measurement; one that ``restart (N,)``s there too, keeping the
+    mean velocity across the gap where it can (:func:`carried_start`); the others get the Joseph-form Kalman
+    update of the extrapolated state. Targets outside ``learn`` are unchanged (``active`` is not read: a row
+    not learned changes nothing in a time-based family).
     """
+    carry = learn & state.initialised & (np.zeros_like(learn) if restart is None else np.asarray(restart, bool))
+    old = state
     state = restarted(state, restart)
     time = np.asarray(time, dtype=np.float64)
     z = np.where(learn[:, None], measurement, 0.0)
-    mean, cov = _predict(params, state, step_delta(params, state, time))
+    delta = step_delta(params, state, time)
+    mean, cov = _predict(params, state, delta)
     r = params.measurement_noise[None, :]                                          # (1, K)
     s = cov[..., 0, 0] + r                                                         # (N, K)
     gain = cov[..., :, 0] / s[..., None]                                           # (N, K, d)
@@ -238,6 +294,11 @@ def update(params: KinematicParams, state: KinematicState, measurement: np.ndarr
     first_mean = np.zeros_like(state.mean)
     first_mean[..., 0, :] = z[:, None, :]
     first_cov = np.broadcast_to(np.eye(params.order) * params.initial_variance[:, None, :], state.cov.shape)
+    # a restart after a gap keeps the mean velocity across it (the old state is read: restarted() keeps it)
+    kept_mean, kept_cov, kept = carried_start(params, old, z, delta, nis)
+    kept = kept & carry[:, None]
+    first_mean = np.where(kept[..., None, None], kept_mean, first_mean)
+    first_cov = np.where(kept[..., None, None], kept_cov, first_cov)
 
     def pick(fresh, updated, old):
         shape = start.shape + (1,) * (old.ndim - 2)
