@@ -193,9 +193,13 @@ class TrackClocks:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 out = pilot.process_table(sample, names)
-            pred = out[[f"pred_{name}" for name in names]].to_numpy(np.float64)
-            if len(pred) != len(sample):   # (rows skipped for their time: score the rows kept)
-                pred = pd.DataFrame(pred, index=out.index).reindex(range(len(sample))).to_numpy()
+            columns = [f"pred_{name}" for name in names]
+            if len(out) == len(sample):
+                pred = out[columns].to_numpy(np.float64)
+            else:   # (rows skipped for their time: each sample row's forecast by its track and time, if any)
+                kept = out.drop_duplicates(["track_id", "time"], keep="last")[["track_id", "time", *columns]]
+                pred = sample[["track_id", "time"]].merge(kept, how="left", on=["track_id", "time"])[columns]
+                pred = pred.to_numpy(np.float64)
             error = (pred - later)[np.isfinite(pred - later).all(axis=1)]
             scores.append(float(np.sqrt(np.mean(error ** 2))) if len(error) else np.inf)
         return reach if scores[0] < scores[1] else None
