@@ -147,3 +147,32 @@ def test_on_heavy_tailed_sampling_a_young_track_is_not_cut_at_its_usual_long_ste
     stream = TrackPredictor(StreamConfig(**CONFIG))
     stream.step_row(0, 0.0, [1.0, 2.0])
     assert stream.config.gap_floor is None
+
+
+def test_the_pilot_takes_date_times_and_repeated_timestamps_and_a_given_unit_as_one_machine_does():
+    """From a review: the pilot scored rows skipped for a repeated timestamp by merging date-times with seconds
+    (an error on AIS-like BaseDateTime); and the settings a split run fixes in advance (learned_sampling) ran the
+    pilot with the learned unit where one was given, so a run split over machines could settle another reach."""
+    from kalmix.streaming import learned_sampling
+
+    table = _table(_log_uniform, tracks=4)
+    dated = table.assign(time=pd.Timestamp("2024-03-01", tz="UTC") + pd.to_timedelta(table["time"], unit="s"))
+    dated = pd.concat([dated, dated.iloc[[10]]]).sort_values("time", kind="stable").reset_index(drop=True)
+    predictor = TrackPredictor(StreamConfig(**CONFIG))
+    out = predictor.process_table(dated)   # (the repeated timestamp's row skipped)
+    assert len(out) == len(dated) - 1 and predictor.config.reach in (None, IRREGULAR_REACH)
+    for unit in (None, 2.0, 200.0):
+        config = StreamConfig(**CONFIG, time_unit=unit)
+        whole = TrackPredictor(config)
+        whole.process_table(table)
+        assert learned_sampling([table], config, ["x", "y"]) == (whole.config.time_unit, whole.config.reach,
+                                                                  whole.config.gap_floor)
+
+
+def test_text_in_a_position_of_a_first_table_is_named_before_the_units_read_it():
+    """From a review: the length unit's estimate read the positions first, and text there failed with a bare
+    "could not convert string to float", naming neither column nor row."""
+    table = _table(_regular).astype({"x": object})
+    table.loc[11, "x"] = "abc"
+    with pytest.raises(ValueError, match=r"table: position column 'x' must hold numbers, got 'abc' in row 11"):
+        TrackPredictor(StreamConfig(n_experts=4)).process_table(table)

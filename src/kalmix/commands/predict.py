@@ -69,7 +69,8 @@ def _check_state(engine, state_path, *, n_experts, seed, unit, horizon, lead, ba
                               ("--time-unit", time_unit, stored.time_unit),
                               ("--geographic" if geographic else "--no-geographic", geographic,
                                engine.axes is not None),
-                              ("--reach", reach, math.inf if stored.reach is None else stored.reach),
+                              ("--reach", None if stored.reach == "auto" else reach,   # (not settled yet: given)
+                               math.inf if stored.reach is None else stored.reach),
                               ("--option", options or None, stored.options)):
         if given is not None and given != have:
             if name == "--reach":
@@ -298,6 +299,8 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
             _check_state(engine, state_path, n_experts=n_experts, seed=seed, unit=unit, horizon=horizon, lead=lead,
                          bank_kind=bank_kind, rule=rule, time_unit=time_unit, geographic=geographic, reach=reach,
                          options=options)
+            if reach is not None:   # a reach given to a file whose reach is not settled yet (only first rows seen)
+                engine.settle_reach(None if math.isinf(reach) else reach)
             _check_gap_rule(engine.config, state_path, gap, never, max_gap_factor,
                             _given(("max_gap", "max_gap_factor")))
             if population_prior is not None and population_prior != engine.config.population_prior:

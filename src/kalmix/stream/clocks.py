@@ -185,11 +185,12 @@ class TrackClocks:
 
         names = list(names) if names is not None else [c for c in table.columns if c not in ("track_id", "time")]
         sample = table[["track_id", "time", *names]].iloc[:PILOT_ROWS].reset_index(drop=True)
+        sample = sample.assign(time=column_seconds(sample["time"]))   # (the pilot's output times are seconds)
         numbers = sample[names].apply(pd.to_numeric, errors="coerce")   # (bad values: the pilot's run names them)
         later = numbers.groupby(sample["track_id"], sort=False).shift(-1).to_numpy(np.float64)
         scores = []
         for candidate in (reach, None):
-            pilot = type(self)(replace(self.config, reach=candidate, gap_floor=self.config.gap_floor))
+            pilot = type(self)(replace(self.config, reach=candidate), backend=self.backend)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 out = pilot.process_table(sample, names)

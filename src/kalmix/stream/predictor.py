@@ -196,21 +196,23 @@ def learned_time_unit(tables, config: StreamConfig) -> float | None:
     config : StreamConfig
         The gap rule's settings (``max_gap``, ``max_gap_factor``); its ``time_unit`` is ignored.
     """
-    return learned_sampling(tables, config)[0]
+    return learned_sampling(tables, replace(config, time_unit=None))[0]
 
 
 def learned_sampling(tables, config: StreamConfig, names=None
                      ) -> tuple[float | None, float | str | None, float | str | None]:
-    """``(time unit, reach, gap floor)``: :func:`learned_time_unit`, and what ``reach="auto"`` and
-    ``gap_floor="auto"`` settle at from the same steps (the config's when not ``"auto"``; ``"auto"`` still when no
-    table has a step); ``names``: the position columns (default: every other column)."""
-    scratch = TrackPredictor(replace(config, time_unit=None))
+    """``(time unit, reach, gap floor)``: :func:`learned_time_unit` (or the config's given unit), and what
+    ``reach="auto"`` and ``gap_floor="auto"`` settle at from the same steps (the config's when not ``"auto"``;
+    ``"auto"`` still when no table has a step); ``names``: the position columns (default: every other column)."""
+    scratch = TrackPredictor(config)   # (a given time unit is the pilot's, as a single machine's)
     for table in tables:
-        if scratch.learn_time_unit(table, names) is not None:
-            return scratch.config.time_unit, scratch.config.reach, scratch.config.gap_floor
+        scratch.learn_time_unit(table, names)
+        settled = scratch.config
+        if settled.time_unit is not None and "auto" not in (settled.reach, settled.gap_floor):
+            break
         for track, time in zip(table["track_id"].to_numpy(), column_seconds(table["time"])):
             scratch._advance(id_to_json(track), float(time))   # (the tracks' last times, for the next table)
-    return None, config.reach, config.gap_floor
+    return scratch.config.time_unit, scratch.config.reach, scratch.config.gap_floor
 
 
 class Checkpoint(NamedTuple):

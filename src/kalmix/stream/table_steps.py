@@ -38,6 +38,22 @@ def with_input_names(frame, columns):
     return frame.rename(columns=renames)
 
 
+def position_values(table, names, first_row: int = 0) -> np.ndarray:
+    """``table[names]`` as float64 ``(n, p)``; a ``ValueError`` naming the column and row (counted from ``first_row``)
+    of the first value that is not a number."""
+    import pandas as pd
+
+    try:
+        return table[names].to_numpy(np.float64)
+    except (TypeError, ValueError):
+        bad = next(name for name in names if not pd.api.types.is_numeric_dtype(table[name]))
+        column = table[bad].reset_index(drop=True)
+        wrong = column.notna() & pd.to_numeric(column, errors="coerce").isna()
+        i = int(np.flatnonzero(wrong.to_numpy())[0]) if wrong.any() else 0
+        raise ValueError(f"table: position column {bad!r} must hold numbers, got {column.iloc[i]!r} in row "
+                         f"{first_row + i} (counted from 0; {table[bad].dtype} values)") from None
+
+
 class TableSteps:
     """The part of :class:`~kalmix.streaming.TrackPredictor` that steps tables."""
 
@@ -125,6 +141,7 @@ class TableSteps:
 
                 check_degrees(table[names].to_numpy(np.float64), self.axes, names,
                               lambda i: f"table: row {i} (counted from 0)")
+            position_values(table, names)   # (a named error for text in a position, before the units read it)
             self._resolve_length_unit(table, names, "the table")
             self.learn_time_unit(table, names)
             frame = self._process_table(table, position_names, next_times or {}, kept=kept)
@@ -211,15 +228,7 @@ class TableSteps:
             raise ValueError(f"table: expected the position columns {list(self.position_names)} (as before), got "
                              f"{names}")
         self._decide_geographic(names, len(names))
-        try:
-            values = table[names].to_numpy(np.float64)
-        except (TypeError, ValueError):
-            bad = next(name for name in names if not pd.api.types.is_numeric_dtype(table[name]))
-            column = table[bad].reset_index(drop=True)
-            wrong = column.notna() & pd.to_numeric(column, errors="coerce").isna()
-            i = int(np.flatnonzero(wrong.to_numpy())[0]) if wrong.any() else 0
-            raise ValueError(f"table: position column {bad!r} must hold numbers, got {column.iloc[i]!r} in row "
-                             f"{first_row + i} (counted from 0; {table[bad].dtype} values)") from None
+        values = position_values(table, names, first_row)
         if np.isinf(values).any():
             i = int(np.flatnonzero(np.isinf(values).any(axis=-1))[0])
             raise ValueError(f"table: expected finite positions (NaN for a missing measurement), got {values[i]!r} "
