@@ -398,12 +398,11 @@ def data_units(prepared, columns: TrackColumns, config, *, derive_length: bool =
     if derive_length:
         arrays = to_arrays(first, columns.positions)
         unit, why = length_unit_rule(arrays.values, times=arrays.times)
-    time_unit, reach, floor = config.time_unit, config.reach, config.gap_floor
-    if time_unit is None or "auto" in (reach, floor):  # from the first chunk with a step, as a single machine
-        learned, reach, floor = learned_sampling((in_file_order(chunk) for chunk in itertools.chain([first], read)),
-                                                 replace(config, length_unit=unit), columns.positions)
-        time_unit = learned if time_unit is None else time_unit
-    return unit, why, time_unit, (reach, floor), first.iloc[:3]
+    time_unit, sampling = config.time_unit, (config.reach, config.gap_floor)
+    if time_unit is None or "auto" in sampling:  # from the first chunk with a step, as a single machine
+        time_unit, *sampling = learned_sampling((in_file_order(chunk) for chunk in itertools.chain([first], read)),
+                                                replace(config, length_unit=unit), columns.positions)
+    return unit, why, time_unit, tuple(sampling), first.iloc[:3]
 
 
 # --------------------------------------------------------------------------------- per partition
@@ -536,13 +535,15 @@ def predict_dask(frame, columns: TrackColumns | None = None, *, length_unit: flo
     check_output_names(columns)
     if not prepared:
         frame = prepare(frame, columns)
-    unit, why, time_unit, reach, sample = data_units(frame, columns, config, derive_length=length_unit is None,
-                                              chunk_rows=chunk_rows, first_appearance=first_appearance)
+    unit, why, time_unit, (reach, gap_floor), sample = data_units(frame, columns, config,
+                                                                  derive_length=length_unit is None,
+                                                                  chunk_rows=chunk_rows,
+                                                                  first_appearance=first_appearance)
     if log is not None and length_unit is None:
         log(f"length unit {unit:.6g} (auto; pass --length-unit to override)" if why is None else
             f"length unit 1 (auto could not estimate it: the first chunk has {why}; pass --length-unit)")
     check_automatic_length_unit(unit)
-    settings = {**asdict(config), "length_unit": unit, "time_unit": time_unit, "reach": reach[0], "gap_floor": reach[1]}
+    settings = {**asdict(config), "length_unit": unit, "time_unit": time_unit, "reach": reach, "gap_floor": gap_floor}
     meta = dask.delayed(_meta)(sample, columns, settings).compute()  # on a worker, which loads the engine now
     shuffled = frame.shuffle(on="track_id", npartitions=int(partitions or frame.npartitions))
     return shuffled.map_partitions(_predict_partition, columns, settings, chunk_rows, batch_tracks,

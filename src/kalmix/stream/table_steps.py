@@ -141,7 +141,8 @@ class TableSteps:
 
                 check_degrees(table[names].to_numpy(np.float64), self.axes, names,
                               lambda i: f"table: row {i} (counted from 0)")
-            position_values(table, names)   # (a named error for text in a position, before the units read it)
+            if self.config.length_unit == "auto":   # (text in a position named before the unit's estimate reads it)
+                position_values(table, names)
             self._resolve_length_unit(table, names, "the table")
             self.learn_time_unit(table, names)
             frame = self._process_table(table, position_names, next_times or {}, kept=kept)

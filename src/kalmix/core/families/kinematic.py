@@ -295,10 +295,11 @@ def update(params: KinematicParams, state: KinematicState, measurement: np.ndarr
     first_mean[..., 0, :] = z[:, None, :]
     first_cov = np.broadcast_to(np.eye(params.order) * params.initial_variance[:, None, :], state.cov.shape)
     # a restart after a gap keeps the mean velocity across it (the old state is read: restarted() keeps it)
-    kept_mean, kept_cov, kept = carried_start(params, old, z, delta, nis)
-    kept = kept & carry[:, None]
-    first_mean = np.where(kept[..., None, None], kept_mean, first_mean)
-    first_cov = np.where(kept[..., None, None], kept_cov, first_cov)
+    if carry.any():
+        kept_mean, kept_cov, kept = carried_start(params, old, z, delta, nis)
+        kept = kept & carry[:, None]
+        first_mean = np.where(kept[..., None, None], kept_mean, first_mean)
+        first_cov = np.where(kept[..., None, None], kept_cov, first_cov)
 
     def pick(fresh, updated, old):
         shape = start.shape + (1,) * (old.ndim - 2)
