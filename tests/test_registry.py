@@ -33,7 +33,7 @@ def test_every_family_kind_has_the_common_signature_and_a_driver_with_the_common
 def test_a_family_state_packed_for_its_driver_unpacks_to_the_same_state():
     from kalmix.core.compiled.drivers import driver
 
-    bank = make_bank(2, "mixed+ar+turn", n_akf=4)
+    bank = make_bank(2, "mixed+ar+turn+ct", n_akf=4)
     assert {family.kind for family in bank.families} == set(KINDS)
     for family in bank.families:
         state = family.module.init_state(family.params, 3, 2)
@@ -48,7 +48,7 @@ def test_a_family_state_packed_for_its_driver_unpacks_to_the_same_state():
 
 
 def test_an_unknown_kind_is_refused_by_name():
-    with pytest.raises(ValueError, match="kind: expected one of 'cv', 'ca', 'ar', 'turn', 'akf', got 'imm'"):
+    with pytest.raises(ValueError, match="kind: expected one of 'cv', 'ca', 'ar', 'turn', 'ct', 'akf', got 'imm'"):
         parts("imm")
     with pytest.raises(ValueError, match="got 'imm'"):
         Family("imm", None)

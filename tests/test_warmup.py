@@ -23,14 +23,15 @@ def _warm(bank):
 
 
 def test_every_kind_declares_rows_the_screen_counts_to():
-    assert {name: kind.warmup for name, kind in KINDS.items()} == {"cv": 2, "ca": 3, "ar": 3, "turn": 2, "akf": 3}
+    warmups = {name: kind.warmup for name, kind in KINDS.items()}
+    assert warmups == {"cv": 2, "ca": 3, "ar": 3, "turn": 2, "ct": 2, "akf": 3}
     assert all(kind.warmup <= MAX_POINTS for kind in KINDS.values())
     assert all(kind.warmup == kind.order for kind in KINDS.values() if kind.order is not None)   # CV, CA
 
 
 @pytest.mark.parametrize("run", [engine.run, ce.run], ids=["spec", "compiled"])
 def test_the_experts_of_three_rows_sleep_on_a_segments_third_row(run):
-    """Row 2 (one learned row): no expert has its rows, every one forecasts. Row 3: only CV and turn weigh (the
+    """Row 2 (one learned row): no expert has its rows, every one forecasts. Row 3: only CV and the turns weigh (the
     others' forecasts are still recorded). Row 4 on: every family. Again after a restart (row 10 of target 0)."""
     z, t = _tracks()
     restart = np.zeros(t.shape, dtype=bool)

@@ -17,6 +17,7 @@ from .core.calibration import CalibrationParams
 from .core.constraints import Choice, Integer, Levels, Real, validate, validate_options
 from .core.engine import MAX_HORIZON, Bank, Family, check_horizon
 from .core.families.ar import ARParams
+from .core.families.ct import PLANE, CTParams
 from .core.families.kinematic import KinematicParams
 from .core.families.turn import TurnParams
 from .core.lead import LeadParams
@@ -36,7 +37,8 @@ from .mixture_recipe import (
 __all__ = ["make_params", "noise_grid", "check_horizon", "check_length_unit", "MAX_HORIZON", "MAX_SEED",
            "LENGTH_UNIT_RANGE", "make_bank", "BANK_KINDS", "KINEMATIC_PROCESS_LEVELS",
            "KINEMATIC_MEASUREMENT_LEVELS", "DEFAULT_BANK", "AR_ORDERS", "AR_FORGETTING", "AR_RIDGE",
-           "TURN_GAINS", "recipe_parts", "GATE_OPTIONS", "PROCESS_NOISE_RANGE", "MEASUREMENT_NOISE_RANGE",
+           "TURN_GAINS", "CT_PROCESS_LEVELS", "CT_TURN_LEVELS",
+           "recipe_parts", "GATE_OPTIONS", "PROCESS_NOISE_RANGE", "MEASUREMENT_NOISE_RANGE",
            "FORGETTING_LEVELS", "RIDGE_LEVELS"]
 
 
@@ -65,7 +67,7 @@ def check_automatic_length_unit(unit: float) -> float:
 
 #: Bank recipes of :func:`make_bank`.
 BANK_KINDS = ("mixed", "kinematic", "akf", "ar", "kinematic+ar", "mixed+ar", "turn", "kinematic+ar+turn",
-              "mixed+ar+turn")
+              "mixed+ar+turn", "ct", "kinematic+ar+turn+ct", "mixed+ar+turn+ct")
 #: Options of each rule that :func:`make_bank` uses unless ``rule_options`` says otherwise. BOA's range
 #: bound forgets at 0.99 a row: without forgetting (1.0, the original rule) one large error, such as a
 #: ball's kick, caps every learning rate for the rest of the track. BOA's regrets see the errors clipped
@@ -116,6 +118,21 @@ def _ar(order, unit, time_unit, forgetting, ridge, **options):
 #: Gains of the coordinated-turn experts (the fraction of the last turn rate carried forward). The rules'
 #: weights are convex, so gains on both sides of 1 let the mixture reach any fraction of the turn.
 TURN_GAINS = (0.5, 1.0, 1.5)
+#: Process-noise levels q of the coordinated-turn Kalman experts (along the track), in length_unit^2 per time_unit^3.
+CT_PROCESS_LEVELS = (0.01, 0.1, 1.0)
+#: Turn-rate noise levels q_omega of the coordinated-turn Kalman experts, in rad^2 per time_unit^3.
+CT_TURN_LEVELS = (1e-3, 1e-2, 1e-1)
+#: Measurement-noise level r of the coordinated-turn Kalman experts, in length_unit^2.
+CT_MEASUREMENT_LEVEL = 1.0
+
+
+def _ct(unit, time_unit, process_levels, turn_levels):
+    q = np.repeat(np.asarray(process_levels, float), len(turn_levels)) * unit**2
+    qw = np.tile(np.asarray(turn_levels, float), len(process_levels))
+    r = np.full(q.shape, CT_MEASUREMENT_LEVEL * unit**2)
+    return CTParams(process_noise=q, turn_noise=qw, measurement_noise=r,
+                    initial_variance=np.full(q.shape, (KINEMATIC_INITIAL_SPREAD * unit) ** 2),
+                    length_unit=float(unit), time_unit=float(time_unit))
 
 
 def recipe_parts(kind: str) -> set:
@@ -160,6 +177,8 @@ def make_bank(
     ar_ridge=AR_RIDGE,
     ar_options: dict | None = None,
     turn_gains=TURN_GAINS,
+    ct_process_levels=CT_PROCESS_LEVELS,
+    ct_turn_levels=CT_TURN_LEVELS,
     reach: float | None = DEFAULT_REACH,
 ):
     """Build and validate a bank of expert families and its aggregation rule.
@@ -179,7 +198,12 @@ def make_bank(
     - ``"turn"``: coordinated-turn experts (:mod:`kalmix.core.families.turn`), one per gain
       in ``turn_gains`` (3 experts);
     - ``"kinematic+ar+turn"``, ``"mixed+ar+turn"``: those banks and the turn family
-      (79, 119 experts; ``"mixed+ar+turn"`` is the default, :data:`DEFAULT_BANK`).
+      (79, 119 experts; ``"mixed+ar+turn"`` is the default, :data:`DEFAULT_BANK`);
+    - ``"ct"``: coordinated-turn Kalman filters (:mod:`kalmix.core.families.ct`), one per
+      pair (process level, turn-rate level): 3 x 3 = 9 experts, in the plane of the first two
+      coordinates (left out of a bank of one coordinate);
+    - ``"kinematic+ar+turn+ct"``, ``"mixed+ar+turn+ct"``: those banks and the coordinated-turn
+      Kalman filters (88, 128 experts).
 
     Parameters
     ----------
@@ -239,6 +263,9 @@ def make_bank(
         Other :class:`kalmix.core.families.ar.ARParams` fields (``bias``, ``jump_threshold``, ...).
     turn_gains : sequence of float
         The turn family's experts: fractions >= 0 of the last turn rate carried forward.
+    ct_process_levels, ct_turn_levels : sequence of float
+        The coordinated-turn Kalman grid: process-noise levels q along the track (in units of
+        ``length_unit**2`` per ``time_unit**3``) and turn-rate noise levels (rad^2 per ``time_unit**3``).
     reach : float or None
         In time units: across a longer step (from a target's last learned row to the
         forecast's time) only the CV experts make the one-step forecast, when the bank has
@@ -266,6 +293,12 @@ def make_bank(
         validate_options(ar_options, AR_OPTIONS, "ar_options", "the AR family")
     if "turn" in parts:
         turn_gains = validate("turn_gains", turn_gains, TurnParams.CONSTRAINTS["gain"])
+    if kind == "ct" and p < PLANE:
+        raise ValueError(f"kind: 'ct' needs at least {PLANE} coordinates (a plane to turn in), got measurement_dim "
+                         f"{p}; in a bank of other families it is left out of one coordinate")
+    if "ct" in parts:
+        ct_process_levels = validate("ct_process_levels", ct_process_levels, CTParams.CONSTRAINTS["process_noise"])
+        ct_turn_levels = validate("ct_turn_levels", ct_turn_levels, CTParams.CONSTRAINTS["turn_noise"])
     families = []
     if "kinematic" in parts:
         families.append(Family("cv", _kinematic(2, unit, tunit, process_levels, measurement_levels)))
@@ -276,6 +309,8 @@ def make_bank(
     if "turn" in parts:
         families.append(Family("turn", TurnParams(gain=np.asarray(turn_gains, float), length_unit=unit,
                                                   time_unit=tunit)))
+    if "ct" in parts and p >= PLANE:   # (one coordinate has no plane to turn in)
+        families.append(Family("ct", _ct(unit, tunit, ct_process_levels, ct_turn_levels)))
     if "akf" in parts:
         gate = [name for name in (akf_options or {}) if name in GATE_OPTIONS]
         if gate:
@@ -311,6 +346,9 @@ def make_bank(
                        rule_options=options, akf_options=dict(akf_options or {}), reach=reach)
     if "turn" in parts:
         description.update(turn_gains=[float(v) for v in turn_gains])
+    if "ct" in parts:
+        description.update(ct_process_levels=[float(v) for v in ct_process_levels],
+                           ct_turn_levels=[float(v) for v in ct_turn_levels])
     if "ar" in parts:
         description.update(ar_orders=[int(v) for v in ar_orders], ar_forgetting=[float(v) for v in ar_forgetting],
                            ar_ridge=[float(v) for v in ar_ridge], ar_options=ar_options)

@@ -190,8 +190,9 @@ def _local_only(given, output):
                    "new directory (a partitioned Parquet dataset).")
 @click.option("--bank", "bank_kind", default=None, type=click.Choice(list(BANK_KINDS)),
               help="Expert families: CV/CA Kalman filters in real time and the paper's AKFs (mixed), "
-                   "one of them alone, with adaptive AR models of the velocity (+ar, ar) and coordinated-turn "
-                   f"experts (+turn, turn) [default: {DEFAULT_BANK['kind']}].")
+                   "one of them alone, with adaptive AR models of the velocity (+ar, ar), coordinated-turn "
+                   "extrapolations (+turn, turn) and coordinated-turn Kalman filters (+ct, ct) "
+                   f"[default: {DEFAULT_BANK['kind']}].")
 @click.option("--rule", default=None, type=click.Choice(["boa", "mlpoly", "fixed_share"]),
               help="Aggregation rule [default: boa].")
 @click.option("--time-unit", default=None, type=click.FloatRange(min=0, min_open=True),
@@ -311,7 +312,8 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
         kind = bank_kind or (engine.config.bank if engine is not None else DEFAULT_BANK["kind"])
         if "akf" not in recipe_parts(kind) and (n_experts is not None or options):
             raise ValueError(f"{'--experts' if n_experts is not None else '--option'}: sets the AKF family, "
-                             f"and --bank {kind} has none (use --bank mixed, mixed+ar, mixed+ar+turn or akf)")
+                             f"and --bank {kind} has none (use --bank mixed, mixed+ar, mixed+ar+turn, "
+                             "mixed+ar+turn+ct or akf)")
         if reach is not None and math.isfinite(reach) and "kinematic" not in recipe_parts(kind):
             click.echo(f"kalmix: warning: --reach: --bank {kind} has no constant-velocity experts to keep across "
                        "long steps, so the reach changes nothing", err=True)

@@ -18,7 +18,8 @@ KERNEL_JIT = dict(JIT, _nrt=False)
 KERNEL_SOURCES = (
     "_numba_linalg.py", "_numba_kernels.py", "_numba_akf_gate.py", "_numba_akf_rls.py", "_numba_akf_filter.py",
     "_numba_akf_target.py",
-    "compiled/kinematic.py", "compiled/ar.py", "compiled/turn.py", "compiled/rules.py", "compiled/screen.py",
+    "compiled/kinematic.py", "compiled/ar.py", "compiled/turn.py", "compiled/ct.py", "compiled/rules.py",
+    "compiled/screen.py",
     "compiled/_cache.py", "compiled/calibration.py", "compiled/lead.py", "compiled/akf.py", "compiled/reach.py",
     "compiled/masks.py", "compiled/stage.py",
 )
@@ -27,7 +28,7 @@ KERNEL_SOURCES = (
 GPU_SOURCES = ("compiled/gpu.py", "compiled/gpu_staged.py")
 #: The other kalmix files the kernel sources import from: numba freezes a global (``screen.ZERO``,
 #: ``families/kinematic.RESTART_NIS``) into the compiled code, so they key the cache too (a test checks the list).
-CONSTANT_SOURCES = ("screen.py", "families/kinematic.py", "calibration.py", "aggregators/boa.py")
+CONSTANT_SOURCES = ("screen.py", "families/kinematic.py", "families/ct.py", "calibration.py", "aggregators/boa.py")
 #: What the cache directory is keyed on (with numba's version).
 COMPILED_SOURCES = KERNEL_SOURCES + GPU_SOURCES + CONSTANT_SOURCES
 

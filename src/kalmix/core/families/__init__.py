@@ -6,6 +6,8 @@
   squares with forgetting, a persistence prior and a jump test for relocations);
 - :mod:`.turn`: coordinated-turn extrapolation (the last turn rate and speed carried
   forward) in real time, in any dimension;
+- :mod:`.ct`: coordinated-turn Kalman filters (an extended Kalman filter of speed, heading and turn
+  rate) in real time, in the plane of the first two coordinates;
 - :mod:`.akf`: the paper's state-model adaptive Kalman filters (frame-based).
 
 Every family module has the same functions: ``init_state(params, n_targets, measurement_dim)``,
@@ -24,9 +26,9 @@ from __future__ import annotations
 from types import ModuleType
 from typing import NamedTuple
 
-from . import akf, ar, kinematic, turn
+from . import akf, ar, ct, kinematic, turn
 
-__all__ = ["akf", "ar", "kinematic", "turn", "FamilyKind", "KINDS", "parts"]
+__all__ = ["akf", "ar", "ct", "kinematic", "turn", "FamilyKind", "KINDS", "parts"]
 
 
 class FamilyKind(NamedTuple):
@@ -43,13 +45,14 @@ class FamilyKind(NamedTuple):
 #: Family kinds and their parts: kinematic CV / CA, adaptive AR of the velocity and coordinated turns in real
 #: time, and the paper's AKF (frame-based). The warm-up rows: a kinematic state of order m is fitted by m rows
 #: (position and velocity from two, the acceleration from a third); a turn needs a velocity (two rows; with no
-#: turn rate yet it goes straight); the AR needs two velocities (its first one is taken for a jump), and the
-#: AKF's state model a row past its first step.
+#: turn rate yet it goes straight), as does a coordinated-turn filter (its speed and heading); the AR needs two
+#: velocities (its first one is taken for a jump), and the AKF's state model a row past its first step.
 KINDS = {
     "cv": FamilyKind(kinematic, "kinematic", order=2, long_step=True, warmup=2),
     "ca": FamilyKind(kinematic, "kinematic", order=3, warmup=3),
     "ar": FamilyKind(ar, "ar", warmup=3),
     "turn": FamilyKind(turn, "turn", warmup=2),
+    "ct": FamilyKind(ct, "ct", warmup=2),
     "akf": FamilyKind(akf, "akf_driver", clock="frames", warmup=3),
 }
 

@@ -1,0 +1,354 @@
+"""Compiled coordinated-turn Kalman family (:mod:`kalmix.core.families.ct`): same formulas in the same order.
+
+:func:`kernel` advances every target through its rows of a block: at each row it
+writes every expert's forecast of the row into the bank's shared buffer at the family's
+column ``offset``, then learns the row (a ``restart`` row starts the experts again from it);
+with ``ahead_times`` it also writes the forecast made after the row for that time. The
+module has the parts of every family's driver (:mod:`.kinematic` lists them).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numba as nb
+import numpy as np
+
+from ..families.ct import PLANE, SMALL_TURN
+from ..families.kinematic import RESTART_NIS
+from ._cache import JIT as _JIT
+from ._cache import KERNEL_JIT, configure_cache
+from .kinematic import step_delta   # the same clipped step in time units
+# the parts every time-based family's driver shares
+from .kinematic import check_gpu as check_gpu, pack as pack, unpack as unpack, work_arrays as work_arrays
+
+configure_cache()
+
+#: Relative cost of an expert's row (the engine hands the costliest family to a thread first).
+COST = 4.0
+#: The GPU staged engine's name for this family's stage.
+NAME = "ct"
+#: Whether a fresh install compiles the kernel in a second process (:mod:`._warm`): not this one.
+COMPILE_APART = False
+_TWO_PI = 2.0 * math.pi
+
+
+class Constants(NamedTuple):
+    """The family's parameters as :func:`kernel` takes them."""
+
+    q: np.ndarray    # (K,) process noise along the track
+    qw: np.ndarray   # (K,) turn-rate noise
+    r: np.ndarray    # (K,) measurement noise
+    v0: np.ndarray   # (K,) velocity variance before the filters start
+    length_unit: float
+    time_unit: float
+    initial_turn_variance: float
+    max_step: float
+    max_variance: float
+    max_velocity: float
+
+
+def constants(params) -> Constants:
+    """The family's parameters as :func:`kernel` takes them."""
+    return Constants(np.asarray(params.process_noise), np.asarray(params.turn_noise),
+                     np.asarray(params.measurement_noise), np.asarray(params.initial_variance),
+                     float(params.length_unit), float(params.time_unit), float(params.initial_turn_variance),
+                     float(params.max_step), float(params.max_variance), float(params.max_velocity))
+
+
+def scratch(params, p: int) -> tuple:
+    """One target's scratch of :func:`kernel`: the predicted state (mean, cov, further coordinates' mean and
+    cov), the Jacobian, three work matrices, the two gain columns and a velocity."""
+    square = lambda: np.empty((5, 5))  # noqa: E731
+    return (np.empty(5), square(), np.empty((2, p - PLANE)), np.empty((2, 2)), square(), square(), square(),
+            square(), np.empty(5), np.empty(5), np.empty(p))
+
+
+@nb.njit(inline="always", **_JIT)
+def _clip(x, bound):
+    """``x`` within ``+-bound`` (NaN stays NaN, as numpy's clip)."""
+    if x > bound:
+        return bound
+    if x < -bound:
+        return -bound
+    return x
+
+
+@nb.njit(inline="always", **_JIT)
+def _wrap(h):
+    return h - _TWO_PI * math.floor((h + math.pi) / _TWO_PI)
+
+
+@nb.njit(**_JIT)
+def _sandwich(left, middle, out, work):
+    """``out = left @ middle @ left.T`` (5 x 5), each entry summed in index order from 0."""
+    for i in range(5):
+        for j in range(5):
+            acc = 0.0
+            for l in range(5):
+                acc += left[i, l] * middle[l, j]
+            work[i, j] = acc
+    for i in range(5):
+        for j in range(5):
+            acc = 0.0
+            for l in range(5):
+                acc += work[i, l] * left[j, l]
+            out[i, j] = acc
+
+
+@nb.njit(**_JIT)
+def _symmetrise(matrix):
+    n = matrix.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            s = 0.5 * (matrix[i, j] + matrix[j, i])
+            matrix[i, j] = s
+            matrix[j, i] = s
+
+
+@nb.njit(**_JIT)
+def predict_expert(d, q, qw, mean, cov, extra_mean, extra_cov, m_out, c_out, em_out, ec_out, jac, work, noise):
+    """One expert's state extrapolated by ``d`` time units into ``m_out``, ``c_out``, ``em_out``, ``ec_out``."""
+    v = mean[2]
+    h = mean[3]
+    w = mean[4]
+    wd = w * d
+    small = abs(wd) < SMALL_TURN
+    s_h = math.sin(h)
+    c_h = math.cos(h)
+    h2 = h + wd
+    s_h2 = math.sin(h2)
+    c_h2 = math.cos(h2)
+    for i in range(5):
+        for j in range(5):
+            jac[i, j] = 1.0 if i == j else 0.0
+            noise[i, j] = 0.0
+    if small:
+        dx = v * d * c_h
+        dy = v * d * s_h
+        jac[0, 2] = d * c_h
+        jac[0, 3] = -v * d * s_h
+        jac[0, 4] = -0.5 * v * d * d * s_h
+        jac[1, 2] = d * s_h
+        jac[1, 3] = v * d * c_h
+        jac[1, 4] = 0.5 * v * d * d * c_h
+    else:
+        dx = v / w * (s_h2 - s_h)
+        dy = v / w * (c_h - c_h2)
+        jac[0, 2] = (s_h2 - s_h) / w
+        jac[0, 3] = v / w * (c_h2 - c_h)
+        jac[0, 4] = v * d * c_h2 / w - v / (w * w) * (s_h2 - s_h)
+        jac[1, 2] = (c_h - c_h2) / w
+        jac[1, 3] = v / w * (s_h2 - s_h)
+        jac[1, 4] = v * d * s_h2 / w - v / (w * w) * (c_h - c_h2)
+    jac[3, 4] = d
+    m_out[0] = mean[0] + dx
+    m_out[1] = mean[1] + dy
+    m_out[2] = v
+    m_out[3] = _wrap(h2)
+    m_out[4] = w
+    _sandwich(jac, cov, c_out, work)
+    d2 = d * d
+    d3 = d2 * d
+    noise[0, 0] = q * d3 / 6.0
+    noise[1, 1] = q * d3 / 6.0
+    noise[2, 2] = q * d
+    noise[3, 3] = qw * d3 / 3.0
+    noise[3, 4] = qw * d2 / 2.0
+    noise[4, 3] = qw * d2 / 2.0
+    noise[4, 4] = qw * d
+    for i in range(5):
+        for j in range(5):
+            c_out[i, j] = c_out[i, j] + noise[i, j]
+    _symmetrise(c_out)
+    for c in range(extra_mean.shape[1]):
+        em_out[0, c] = extra_mean[0, c] + d * extra_mean[1, c]
+        em_out[1, c] = extra_mean[1, c]
+    a00 = extra_cov[0, 0] + d * extra_cov[1, 0]
+    a01 = extra_cov[0, 1] + d * extra_cov[1, 1]
+    a10 = extra_cov[1, 0]
+    a11 = extra_cov[1, 1]
+    c00 = a00 + a01 * d + q * d3 / 3.0
+    c01 = a01 + q * d2 / 2.0
+    c10 = a10 + a11 * d + q * d2 / 2.0
+    c11 = a11 + q * d
+    off = 0.5 * (c01 + c10)
+    ec_out[0, 0] = c00
+    ec_out[0, 1] = off
+    ec_out[1, 0] = off
+    ec_out[1, 1] = c11
+
+
+@nb.njit(**_JIT)
+def _start_expert(k, n, z, position, d, r, bound, initial_turn_variance, mean, cov, extra_mean, extra_cov, velocity):
+    """Expert ``k`` of target ``n`` started from its last learned row and ``z (p,)``, ``d`` > 0 time units later."""
+    p = z.shape[0]
+    for c in range(p):
+        velocity[c] = _clip((z[c] - position[n, c]) / d, bound)
+        if velocity[c] != velocity[c]:
+            velocity[c] = 0.0
+    vx = velocity[0]
+    vy = velocity[1]
+    speed = math.sqrt(vx * vx + vy * vy)
+    d2 = d * d
+    speed_variance = 2.0 * r / d2
+    heading_variance = min(speed_variance / max(speed * speed, 1e-300), math.pi * math.pi)
+    for i in range(5):
+        for j in range(5):
+            cov[n, k, i, j] = 0.0
+    mean[n, k, 0] = z[0]
+    mean[n, k, 1] = z[1]
+    mean[n, k, 2] = speed
+    mean[n, k, 3] = math.atan2(vy, vx)
+    mean[n, k, 4] = 0.0
+    cov[n, k, 0, 0] = r
+    cov[n, k, 1, 1] = r
+    cov[n, k, 2, 2] = speed_variance
+    cov[n, k, 3, 3] = heading_variance
+    cov[n, k, 4, 4] = initial_turn_variance
+    for c in range(p - PLANE):
+        extra_mean[n, k, 0, c] = z[PLANE + c]
+        extra_mean[n, k, 1, c] = velocity[PLANE + c]
+    extra_cov[n, k, 0, 0] = r
+    extra_cov[n, k, 0, 1] = r / d
+    extra_cov[n, k, 1, 0] = r / d
+    extra_cov[n, k, 1, 1] = speed_variance
+
+
+@nb.njit(**_JIT)
+def _update_expert(k, n, z, r, bound, max_variance, old_mean, mean, cov, extra_mean, extra_cov, m, c_pred, em, ec, a,
+                   new_cov, work, g0, g1):
+    """Expert ``k`` of target ``n``: the EKF update of its predicted state (``m``, ``c_pred``, ``em``, ``ec``)
+    with ``z (p,)``, written to the state; returns False (the state unchanged) where the innovation is absurd."""
+    y0 = z[0] - m[0]
+    y1 = z[1] - m[1]
+    s00 = c_pred[0, 0] + r
+    s01 = c_pred[0, 1]
+    s10 = c_pred[1, 0]
+    s11 = c_pred[1, 1] + r
+    det = s00 * s11 - s01 * s10
+    i00 = s11 / det
+    i01 = -s01 / det
+    i10 = -s10 / det
+    i11 = s00 / det
+    nis = y0 * (i00 * y0 + i01 * y1) + y1 * (i10 * y0 + i11 * y1)
+    miss = y0 * y0 + y1 * y1
+    m0 = m[0] - old_mean[0]
+    m1 = m[1] - old_mean[1]
+    move = m0 * m0 + m1 * m1
+    if not (nis <= RESTART_NIS) and not (miss <= 0.25 * move):
+        return False
+    for i in range(5):
+        g0[i] = c_pred[i, 0] * i00 + c_pred[i, 1] * i10
+        g1[i] = c_pred[i, 0] * i01 + c_pred[i, 1] * i11
+    for i in range(5):
+        mean[n, k, i] = m[i] + (g0[i] * y0 + g1[i] * y1)
+    mean[n, k, 2] = _clip(mean[n, k, 2], bound)
+    mean[n, k, 3] = _wrap(mean[n, k, 3])
+    mean[n, k, 4] = _clip(mean[n, k, 4], math.pi)
+    for i in range(5):
+        for j in range(5):
+            a[i, j] = 1.0 if i == j else 0.0
+        a[i, 0] = a[i, 0] - g0[i]
+        a[i, 1] = a[i, 1] - g1[i]
+    _sandwich(a, c_pred, new_cov, work)
+    for i in range(5):
+        for j in range(5):
+            new_cov[i, j] = new_cov[i, j] + r * (g0[i] * g0[j] + g1[i] * g1[j])
+    _symmetrise(new_cov)
+    excess = 0.5 * (new_cov[0, 0] + new_cov[1, 1]) / max_variance
+    if excess <= 1.0:
+        excess = 1.0
+    for i in range(5):
+        for j in range(5):
+            cov[n, k, i, j] = new_cov[i, j] / excess
+    se = ec[0, 0] + r
+    k0 = ec[0, 0] / se
+    k1 = ec[1, 0] / se
+    for c in range(em.shape[1]):
+        innovation = z[PLANE + c] - em[0, c]
+        extra_mean[n, k, 0, c] = em[0, c] + k0 * innovation
+        extra_mean[n, k, 1, c] = em[1, c] + k1 * innovation
+    f00 = ec[0, 0] - k0 * ec[0, 0]
+    f01 = ec[0, 1] - k0 * ec[0, 1]
+    f10 = ec[1, 0] - k1 * ec[0, 0]
+    f11 = ec[1, 1] - k1 * ec[0, 1]
+    off = 0.5 * (f01 + f10)
+    extra_cov[n, k, 0, 0] = f00
+    extra_cov[n, k, 0, 1] = off
+    extra_cov[n, k, 1, 0] = off
+    extra_cov[n, k, 1, 1] = f11
+    return True
+
+
+@nb.njit(**_JIT)
+def _write_forecast(k, n, d, params, state, out_row, m, c_pred, em, ec, jac, work, noise):
+    """Expert ``k``'s forecast of target ``n`` ``d`` time units after its last learned row into ``out_row (p,)``
+    (NaN before the target's start), its predicted state left in the scratch."""
+    q, qw = params[0], params[1]
+    mean, cov, extra_mean, extra_cov, position, known, _, initialised = state
+    p = out_row.shape[0]
+    if not initialised[n]:
+        for i in range(p):
+            out_row[i] = np.nan
+    elif known[n] >= 2:
+        predict_expert(d, q[k], qw[k], mean[n, k], cov[n, k], extra_mean[n, k], extra_cov[n, k], m, c_pred, em, ec,
+                       jac, work, noise)
+        out_row[0] = m[0]
+        out_row[1] = m[1]
+        for c in range(p - PLANE):
+            out_row[PLANE + c] = em[0, c]
+    else:
+        for i in range(p):
+            out_row[i] = position[n, i]
+
+
+@nb.njit(**KERNEL_JIT)
+def kernel(lo, hi, params, state, rows, forecasts, work, scratch):
+    """The driver: targets ``lo .. hi - 1`` through their rows of the block (:mod:`.kinematic` lists the
+    arguments; ``rows.horizon``, the frame-based families' clock, is not read)."""
+    q, qw, r, v0, length_unit, time_unit, initial_turn_variance, max_step, max_variance, max_velocity = params
+    mean, cov, extra_mean, extra_cov, position, known, last_time, initialised = state
+    z, times, lengths, learn, restart, ahead_times, _ = rows
+    out, offset, out_ahead = forecasts
+    m, c_pred, em, ec, jac, mat_a, mat_b, noise, g0, g1, velocity = scratch
+    k_count = q.shape[0]
+    p = z.shape[2]
+    bound = max_velocity * length_unit
+    want_ahead = out_ahead.shape[0] > 0
+    for n in range(lo, hi):
+        for t in range(lengths[n]):
+            started = initialised[n]
+            delta = step_delta(times[t, n], last_time[n], time_unit, max_step)
+            running = started and known[n] >= 2 and learn[t, n] and not restart[t, n]
+            for k in range(k_count):
+                # the expert's forecast of this row, then its learning (its predicted state is in the scratch)
+                _write_forecast(k, n, delta, params, state, out[t, n, offset + k], m, c_pred, em, ec, jac, mat_a,
+                                noise)
+                if running:
+                    updated = _update_expert(k, n, z[t, n], r[k], bound, max_variance, mean[n, k], mean, cov,
+                                             extra_mean, extra_cov, m, c_pred, em, ec, mat_a, mat_b, noise, g0, g1)
+                    if not updated and delta > 0:   # an absurd innovation: the expert starts again
+                        _start_expert(k, n, z[t, n], position, delta, r[k], bound, initial_turn_variance, mean, cov,
+                                      extra_mean, extra_cov, velocity)
+                elif learn[t, n] and started and not restart[t, n] and known[n] == 1 and delta > 0:
+                    _start_expert(k, n, z[t, n], position, delta, r[k], bound, initial_turn_variance, mean, cov,
+                                  extra_mean, extra_cov, velocity)
+            if learn[t, n]:
+                if restart[t, n] or not started:
+                    known[n] = 1.0
+                elif known[n] == 1 and delta > 0:
+                    known[n] = 2.0
+                for i in range(p):
+                    position[n, i] = z[t, n, i]
+                last_time[n] = times[t, n]
+                initialised[n] = True
+            elif restart[t, n]:  # a restart on a missing row: start from the next present one
+                initialised[n] = False
+            # forecast made after this row, for a later time
+            if want_ahead:
+                ahead = step_delta(ahead_times[t, n], last_time[n], time_unit, max_step)
+                for k in range(k_count):
+                    _write_forecast(k, n, ahead, params, state, out_ahead[t, n, offset + k], m, c_pred, em, ec, jac,
+                                    mat_a, noise)
