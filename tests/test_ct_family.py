@@ -42,9 +42,10 @@ def test_it_learns_the_turn_rate_of_a_circle_where_a_cv_filter_cannot():
     cv_error = np.sqrt(np.mean((cv_experts - circle[100:, None, :]) ** 2, axis=(0, 2)))
     assert error.min() < 0.2 < 0.3 * cv_error.min(), (error.min(), cv_error.min())   # 0.18 and 0.69 measured
     exact = ce.run(make_bank(2, "ct", length_unit=0.1), circle[:, None, :], t[:, None], record_experts=True)
-    np.testing.assert_allclose(exact.experts[100:, 0], np.broadcast_to(circle[100:, None], (100, 9, 2)), atol=1e-9)
-    np.testing.assert_allclose(exact.state.families[0].mean[0, :, 4], omega, atol=1e-12)   # rad per time unit
-    np.testing.assert_allclose(exact.state.families[0].mean[0, :, 2], radius * omega, atol=1e-9)   # the speed
+    np.testing.assert_allclose(exact.experts[100:, 0], np.broadcast_to(circle[100:, None], (100, 6, 2)), atol=1e-6)
+    mean = exact.state.families[0].mean[0]                                                   # (K, [x, y, vx, vy, w])
+    np.testing.assert_allclose(mean[:, 4], omega, atol=1e-9)                                # rad per time unit
+    np.testing.assert_allclose(np.hypot(mean[:, 2], mean[:, 3]), radius * omega, rtol=1e-9)  # the speed
 
 
 def test_forecast_variance_grows_with_the_step_and_holds_the_first_row():
@@ -79,8 +80,8 @@ def test_the_grid_is_checked():
     bank = make_bank(2, "ct", ct_process_levels=(0.5,), ct_turn_levels=(1e-3, 1e-2), length_unit=2.0)
     params = bank.families[0].params
     np.testing.assert_allclose(params.process_noise, [2.0, 2.0])
-    np.testing.assert_allclose(params.turn_noise, [1e-3, 1e-2])
-    assert ct.expert_name(params, 1) == "ct(q=2, q_turn=0.01, r=4)"
+    np.testing.assert_allclose(params.turn_noise, [4e-3, 4e-2])   # in length units squared too
+    assert ct.expert_name(params, 1) == "ct(q=2, q_turn=0.04, r=4)"
 
 
 @pytest.mark.parametrize("p", [2, 3])

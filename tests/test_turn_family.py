@@ -64,11 +64,12 @@ def test_gain_zero_goes_straight_on_at_the_arc_speed_and_gain_one_follows_the_ci
     assert np.all(variances > 0) and variances.shape == (1, 2)
 
 
-def test_the_default_bank_has_the_turn_family():
+def test_the_default_bank_has_the_turn_families():
     bank = make_bank(2, **DEFAULT_BANK)
     kinds = [f.kind for f in bank.families]
-    assert "turn" in kinds and "ar" in kinds and "akf" in kinds and "cv" in kinds
-    assert bank.n_experts == 119
+    assert "turn" in kinds and "ct" in kinds and "ar" in kinds and "akf" in kinds and "cv" in kinds
+    assert bank.n_experts == 125
+    assert make_bank(1, **DEFAULT_BANK).n_experts == 119   # (one coordinate: no coordinated-turn filters)
 
 
 def test_turn_gains_are_checked():

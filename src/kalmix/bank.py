@@ -119,18 +119,18 @@ def _ar(order, unit, time_unit, forgetting, ridge, **options):
 #: weights are convex, so gains on both sides of 1 let the mixture reach any fraction of the turn.
 TURN_GAINS = (0.5, 1.0, 1.5)
 #: Process-noise levels q of the coordinated-turn Kalman experts (along the track), in length_unit^2 per time_unit^3.
-CT_PROCESS_LEVELS = (0.01, 0.1, 1.0)
-#: Turn-rate noise levels q_omega of the coordinated-turn Kalman experts, in rad^2 per time_unit^3.
-CT_TURN_LEVELS = (1e-3, 1e-2, 1e-1)
+CT_PROCESS_LEVELS = (0.01, 1.0)
+#: Turn noise levels q_j of the coordinated-turn Kalman experts (a lateral jerk), in length_unit^2 per time_unit^5.
+CT_TURN_LEVELS = (0.01, 0.3, 10.0)
 #: Measurement-noise level r of the coordinated-turn Kalman experts, in length_unit^2.
 CT_MEASUREMENT_LEVEL = 1.0
 
 
 def _ct(unit, time_unit, process_levels, turn_levels):
     q = np.repeat(np.asarray(process_levels, float), len(turn_levels)) * unit**2
-    qw = np.tile(np.asarray(turn_levels, float), len(process_levels))
+    qj = np.tile(np.asarray(turn_levels, float), len(process_levels)) * unit**2
     r = np.full(q.shape, CT_MEASUREMENT_LEVEL * unit**2)
-    return CTParams(process_noise=q, turn_noise=qw, measurement_noise=r,
+    return CTParams(process_noise=q, turn_noise=qj, measurement_noise=r,
                     initial_variance=np.full(q.shape, (KINEMATIC_INITIAL_SPREAD * unit) ** 2),
                     length_unit=float(unit), time_unit=float(time_unit))
 
@@ -198,12 +198,12 @@ def make_bank(
     - ``"turn"``: coordinated-turn experts (:mod:`kalmix.core.families.turn`), one per gain
       in ``turn_gains`` (3 experts);
     - ``"kinematic+ar+turn"``, ``"mixed+ar+turn"``: those banks and the turn family
-      (79, 119 experts; ``"mixed+ar+turn"`` is the default, :data:`DEFAULT_BANK`);
+      (79, 119 experts);
     - ``"ct"``: coordinated-turn Kalman filters (:mod:`kalmix.core.families.ct`), one per
-      pair (process level, turn-rate level): 3 x 3 = 9 experts, in the plane of the first two
+      pair (process level, turn level): 2 x 3 = 6 experts, in the plane of the first two
       coordinates (left out of a bank of one coordinate);
     - ``"kinematic+ar+turn+ct"``, ``"mixed+ar+turn+ct"``: those banks and the coordinated-turn
-      Kalman filters (88, 128 experts).
+      Kalman filters (85, 125 experts; ``"mixed+ar+turn+ct"`` is the default, :data:`DEFAULT_BANK`).
 
     Parameters
     ----------
@@ -265,7 +265,8 @@ def make_bank(
         The turn family's experts: fractions >= 0 of the last turn rate carried forward.
     ct_process_levels, ct_turn_levels : sequence of float
         The coordinated-turn Kalman grid: process-noise levels q along the track (in units of
-        ``length_unit**2`` per ``time_unit**3``) and turn-rate noise levels (rad^2 per ``time_unit**3``).
+        ``length_unit**2`` per ``time_unit**3``) and turn noise levels, a lateral jerk (``length_unit**2`` per
+        ``time_unit**5``).
     reach : float or None
         In time units: across a longer step (from a target's last learned row to the
         forecast's time) only the CV experts make the one-step forecast, when the bank has
@@ -359,8 +360,9 @@ def make_bank(
 
 
 #: The default bank and rule of ``kalmix predict`` / ``evaluate`` / :class:`kalmix.streaming.TrackPredictor`,
-#: chosen by the ablation on the shipped recordings and the paper scenario (benchmarks/results/ablation_*.json).
-DEFAULT_BANK = {"kind": "mixed+ar+turn", "rule": "boa"}
+#: chosen by the ablation on the shipped recordings and the paper scenario (benchmarks/results/ablation_*.json);
+#: the coordinated-turn Kalman filters by the model zoo and the recordings (CHANGELOG).
+DEFAULT_BANK = {"kind": "mixed+ar+turn+ct", "rule": "boa"}
 
 #: :func:`make_params` arguments of the paper's gate and its eq. 11/12 noise feedback: the AKF
 #: family of a bank has neither (its rule combines the experts), so ``akf_options`` refuses them.

@@ -30,7 +30,7 @@ class StreamConfig:
     ----------
     n_experts : int
         Size of the bank's AKF family (40 in the paper); the other families have their own
-        sizes (the default bank: 119 experts in all; ``n_experts=5`` gives 84).
+        sizes (the default bank: 125 experts in all; ``n_experts=5`` gives 90).
     seed : int
         Seed of the bank.
     length_unit : float or "auto"

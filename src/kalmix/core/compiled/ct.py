@@ -31,7 +31,6 @@ COST = 4.0
 NAME = "ct"
 #: Whether a fresh install compiles the kernel in a second process (:mod:`._warm`): not this one.
 COMPILE_APART = False
-_TWO_PI = 2.0 * math.pi
 
 
 class Constants(NamedTuple):
@@ -75,11 +74,6 @@ def _clip(x, bound):
     return x
 
 
-@nb.njit(inline="always", **_JIT)
-def _wrap(h):
-    return h - _TWO_PI * math.floor((h + math.pi) / _TWO_PI)
-
-
 @nb.njit(**_JIT)
 def _sandwich(left, middle, out, work):
     """``out = left @ middle @ left.T`` (5 x 5), each entry summed in index order from 0."""
@@ -110,53 +104,59 @@ def _symmetrise(matrix):
 @nb.njit(**_JIT)
 def predict_expert(d, q, qw, mean, cov, extra_mean, extra_cov, m_out, c_out, em_out, ec_out, jac, work, noise):
     """One expert's state extrapolated by ``d`` time units into ``m_out``, ``c_out``, ``em_out``, ``ec_out``."""
-    v = mean[2]
-    h = mean[3]
+    x = mean[0]
+    y = mean[1]
+    vx = mean[2]
+    vy = mean[3]
     w = mean[4]
-    wd = w * d
-    small = abs(wd) < SMALL_TURN
-    s_h = math.sin(h)
-    c_h = math.cos(h)
-    h2 = h + wd
-    s_h2 = math.sin(h2)
-    c_h2 = math.cos(h2)
+    u = w * d
+    half = 0.5 * u
+    sinc_half = 1.0 if half == 0.0 else math.sin(half) / half
+    c_half = math.cos(half)
+    s_half = math.sin(half)
+    along = sinc_half * c_half
+    across = s_half * sinc_half
+    c_u = math.cos(u)
+    s_u = math.sin(u)
+    if abs(u) < SMALL_TURN:
+        along_slope = -u / 3.0 + u * u * u / 30.0
+        across_slope = 0.5 - u * u / 8.0 + u * u * u * u / 144.0
+    else:
+        along_slope = (c_u - along) / u
+        across_slope = (s_u - across) / u
+    a1 = d * along
+    a2 = d * across
+    d2 = d * d
     for i in range(5):
         for j in range(5):
             jac[i, j] = 1.0 if i == j else 0.0
             noise[i, j] = 0.0
-    if small:
-        dx = v * d * c_h
-        dy = v * d * s_h
-        jac[0, 2] = d * c_h
-        jac[0, 3] = -v * d * s_h
-        jac[0, 4] = -0.5 * v * d * d * s_h
-        jac[1, 2] = d * s_h
-        jac[1, 3] = v * d * c_h
-        jac[1, 4] = 0.5 * v * d * d * c_h
-    else:
-        dx = v / w * (s_h2 - s_h)
-        dy = v / w * (c_h - c_h2)
-        jac[0, 2] = (s_h2 - s_h) / w
-        jac[0, 3] = v / w * (c_h2 - c_h)
-        jac[0, 4] = v * d * c_h2 / w - v / (w * w) * (s_h2 - s_h)
-        jac[1, 2] = (c_h - c_h2) / w
-        jac[1, 3] = v / w * (s_h2 - s_h)
-        jac[1, 4] = v * d * s_h2 / w - v / (w * w) * (c_h - c_h2)
-    jac[3, 4] = d
-    m_out[0] = mean[0] + dx
-    m_out[1] = mean[1] + dy
-    m_out[2] = v
-    m_out[3] = _wrap(h2)
+    jac[0, 2] = a1
+    jac[0, 3] = -a2
+    jac[0, 4] = d2 * (along_slope * vx - across_slope * vy)
+    jac[1, 2] = a2
+    jac[1, 3] = a1
+    jac[1, 4] = d2 * (across_slope * vx + along_slope * vy)
+    jac[2, 2] = c_u
+    jac[2, 3] = -s_u
+    jac[2, 4] = d * (-s_u * vx - c_u * vy)
+    jac[3, 2] = s_u
+    jac[3, 3] = c_u
+    jac[3, 4] = d * (c_u * vx - s_u * vy)
+    m_out[0] = x + a1 * vx - a2 * vy
+    m_out[1] = y + a2 * vx + a1 * vy
+    m_out[2] = c_u * vx - s_u * vy
+    m_out[3] = s_u * vx + c_u * vy
     m_out[4] = w
     _sandwich(jac, cov, c_out, work)
-    d2 = d * d
+    s2 = vx * vx + vy * vy
+    qw = qw / (s2 + qw)   # the turn rate's noise: the lateral jerk's over the speed squared
     d3 = d2 * d
-    noise[0, 0] = q * d3 / 6.0
-    noise[1, 1] = q * d3 / 6.0
-    noise[2, 2] = q * d
-    noise[3, 3] = qw * d3 / 3.0
-    noise[3, 4] = qw * d2 / 2.0
-    noise[4, 3] = qw * d2 / 2.0
+    for i in range(2):   # a white acceleration of density q on each axis
+        noise[i, i] = q * d3 / 3.0
+        noise[i, i + 2] = q * d2 / 2.0
+        noise[i + 2, i] = q * d2 / 2.0
+        noise[i + 2, i + 2] = q * d
     noise[4, 4] = qw * d
     for i in range(5):
         for j in range(5):
@@ -188,31 +188,28 @@ def _start_expert(k, n, z, position, d, r, bound, initial_turn_variance, mean, c
         velocity[c] = _clip((z[c] - position[n, c]) / d, bound)
         if velocity[c] != velocity[c]:
             velocity[c] = 0.0
-    vx = velocity[0]
-    vy = velocity[1]
-    speed = math.sqrt(vx * vx + vy * vy)
-    d2 = d * d
-    speed_variance = 2.0 * r / d2
-    heading_variance = min(speed_variance / max(speed * speed, 1e-300), math.pi * math.pi)
+    mean[n, k, 0] = z[0]
+    mean[n, k, 1] = z[1]
+    mean[n, k, 2] = velocity[0]
+    mean[n, k, 3] = velocity[1]
+    mean[n, k, 4] = 0.0
+    cross = r / d
+    speed_variance = 2.0 * r / (d * d)
     for i in range(5):
         for j in range(5):
             cov[n, k, i, j] = 0.0
-    mean[n, k, 0] = z[0]
-    mean[n, k, 1] = z[1]
-    mean[n, k, 2] = speed
-    mean[n, k, 3] = math.atan2(vy, vx)
-    mean[n, k, 4] = 0.0
-    cov[n, k, 0, 0] = r
-    cov[n, k, 1, 1] = r
-    cov[n, k, 2, 2] = speed_variance
-    cov[n, k, 3, 3] = heading_variance
+    for i in range(2):
+        cov[n, k, i, i] = r
+        cov[n, k, i, i + 2] = cross
+        cov[n, k, i + 2, i] = cross
+        cov[n, k, i + 2, i + 2] = speed_variance
     cov[n, k, 4, 4] = initial_turn_variance
     for c in range(p - PLANE):
         extra_mean[n, k, 0, c] = z[PLANE + c]
         extra_mean[n, k, 1, c] = velocity[PLANE + c]
     extra_cov[n, k, 0, 0] = r
-    extra_cov[n, k, 0, 1] = r / d
-    extra_cov[n, k, 1, 0] = r / d
+    extra_cov[n, k, 0, 1] = cross
+    extra_cov[n, k, 1, 0] = cross
     extra_cov[n, k, 1, 1] = speed_variance
 
 
@@ -245,7 +242,7 @@ def _update_expert(k, n, z, r, bound, max_variance, old_mean, mean, cov, extra_m
     for i in range(5):
         mean[n, k, i] = m[i] + (g0[i] * y0 + g1[i] * y1)
     mean[n, k, 2] = _clip(mean[n, k, 2], bound)
-    mean[n, k, 3] = _wrap(mean[n, k, 3])
+    mean[n, k, 3] = _clip(mean[n, k, 3], bound)
     mean[n, k, 4] = _clip(mean[n, k, 4], math.pi)
     for i in range(5):
         for j in range(5):

@@ -1,47 +1,46 @@
-"""Coordinated-turn Kalman experts: an extended Kalman filter of speed, heading and turn rate, in real time.
+"""Coordinated-turn Kalman experts: an extended Kalman filter of velocity and turn rate, in real time.
 
-Each expert is an extended Kalman filter (EKF) on the state :math:`[x, y, v, h, \\omega]` of the plane of
-the first two coordinates: position, speed, heading and turn rate (radians per time unit), the target
-moving on a circular arc at constant speed and turn rate over a step :math:`\\Delta` (in units of
-``time_unit``):
-
-.. math::
-
-    x' = x + \\frac{v}{\\omega}\\big(\\sin(h + \\omega\\Delta) - \\sin h\\big),\\quad
-    y' = y + \\frac{v}{\\omega}\\big(\\cos h - \\cos(h + \\omega\\Delta)\\big),\\quad
-    h' = h + \\omega\\Delta
-
-(:math:`x + v\\Delta\\cos h`, :math:`y + v\\Delta\\sin h` where :math:`|\\omega\\Delta| < 10^{-6}`), with
-the Jacobian of that map for the covariance and the process noise
+Each expert is an extended Kalman filter (EKF) on the state :math:`[x, y, v_x, v_y, \\omega]` of the plane of
+the first two coordinates: position, velocity and turn rate (radians per time unit), the target moving on a
+circular arc at constant speed and turn rate over a step :math:`\\Delta` (in units of ``time_unit``), the
+velocity turning by :math:`u = \\omega\\Delta`:
 
 .. math::
 
-    Q = \\operatorname{diag}\\big(q\\Delta^3/6,\\ q\\Delta^3/6,\\ q\\Delta\\big) \\oplus
-        q_\\omega \\begin{bmatrix} \\Delta^3/3 & \\Delta^2/2 \\\\ \\Delta^2/2 & \\Delta \\end{bmatrix}:
+    \\begin{bmatrix} x' \\\\ y' \\end{bmatrix} = \\begin{bmatrix} x \\\\ y \\end{bmatrix}
+        + \\Delta \\begin{bmatrix} s & -c \\\\ c & s \\end{bmatrix}
+          \\begin{bmatrix} v_x \\\\ v_y \\end{bmatrix},\\quad
+    \\begin{bmatrix} v_x' \\\\ v_y' \\end{bmatrix} = \\begin{bmatrix} \\cos u & -\\sin u \\\\ \\sin u & \\cos u
+        \\end{bmatrix} \\begin{bmatrix} v_x \\\\ v_y \\end{bmatrix},\\quad
+    s = \\frac{\\sin u}{u},\\ c = \\frac{1 - \\cos u}{u}
 
-white acceleration along the track (density ``process_noise`` :math:`q`, length^2 per time_unit^3, which also
-blurs the position across it) and a turn rate that drifts as a random walk (density ``turn_noise``
-:math:`q_\\omega`, rad^2 per time_unit^3). The measurement is the position with :math:`R = r I`; the update is
-in Joseph form. A third and further coordinate (an altitude) is a constant-velocity Kalman filter of the same
-:math:`q` and :math:`r` (as :mod:`.kinematic`'s, the coordinates sharing one covariance).
+(:math:`s` and :math:`c` computed from :math:`\\sin(u/2)` without the quotients' cancellation on a nearly
+straight track; in Cartesian velocity the filter has no singularity at rest, where a heading would have none),
+with the Jacobian of that map for the covariance, and the process noise of a white acceleration on each axis
+(density ``process_noise`` :math:`q`, length^2 per time_unit^3: the CV model's blocks
+:math:`q[\\Delta^3/3, \\Delta^2/2; \\Delta^2/2, \\Delta]`) and of a turn rate that drifts as a random walk of density
+:math:`q_\\omega = q_j / (|v|^2 + q_j)` (rad^2 per time_unit^3, at most 1): a white lateral jerk of density
+``turn_noise`` :math:`q_j` (length^2 per time_unit^5) over the speed squared, so that a fast target's heading is
+not taken to swing with every noisy row (a vessel sampled every half hour moves thousands of noise sizes a
+step). The measurement is the position with :math:`R = r I`; the update is in Joseph form. A third and further
+coordinate (an altitude) is a constant-velocity Kalman filter of the same :math:`q` and :math:`r` (as
+:mod:`.kinematic`'s, the coordinates sharing one covariance).
 
 Why a family of it: a mixture of filters each of fixed motion cannot follow a target that switches between
 straight runs and turns, since each filter's velocity lags the change; an interacting multiple-model filter
 mixes its filters' states at every step, which a rule over separate experts cannot. A filter whose state holds
-the turn rate follows both (``benchmarks/model_zoo.py``'s switching scenario: 1.13 -> 1.06 times the IMM
-reference). Its experts span the process and turn noise (:data:`kalmix.bank.CT_PROCESS_LEVELS`,
-:data:`kalmix.bank.CT_TURN_LEVELS`).
+the turn rate follows both (the model zoo's switching scenario, ``benchmarks/results/model_zoo.json``). Its
+experts span the process and turn noise (:data:`kalmix.bank.CT_PROCESS_LEVELS`, :data:`kalmix.bank.CT_TURN_LEVELS`).
 
-A target's first learned row sets its position; its second (a step later) starts every expert: speed and
-heading from the chord between the two, turn rate 0, the covariance ``diag(r, r, 2r/Δ², 2r/(Δ² v²), w0)``
-(the heading's variance at most :math:`\\pi^2`; ``w0`` = ``initial_turn_variance``). Before it, an expert
-forecasts the last position with the variance :math:`r + v_0 \\Delta^2` (``initial_variance`` :math:`v_0`). A
-row at the time of the last one (no step) is one more measurement of the same state. The speed is clipped to
-``max_velocity`` length units per time unit, the turn rate to :math:`\\pm\\pi` per time unit and the heading
-wrapped to :math:`[-\\pi, \\pi)`; steps are clipped to ``max_step`` and the position variance scaled down to
-``max_variance``, so that numbers stay finite for finite input. A measurement more than 1e6 standard deviations
-from an expert's forecast (:data:`kalmix.core.families.kinematic.RESTART_NIS`), at least half the motion it
-forecast away, starts that expert again from the last two rows. The compiled kernel
+A target's first learned row sets its position; its second (a step later) starts every expert: the velocity
+from the two, turn rate 0, with each axis' covariance of a two-point start (``r``, ``r/Δ``, ``2r/Δ²``) and the
+turn rate's variance ``initial_turn_variance``. Before it, an expert forecasts the last position with the
+variance :math:`r + v_0 \\Delta^2` (``initial_variance`` :math:`v_0`). A row at the time of the last one (no step)
+is one more measurement of the same state. The velocity is clipped to ``max_velocity`` length units per time
+unit and the turn rate to :math:`\\pm\\pi` per time unit; steps are clipped to ``max_step`` and the position
+variance scaled down to ``max_variance``, so that numbers stay finite for finite input. A measurement more
+than 1e6 standard deviations from an expert's forecast (:data:`kalmix.core.families.kinematic.RESTART_NIS`), at
+least half the motion it forecast away, starts that expert again from the last two rows. The compiled kernel
 (:mod:`kalmix.core.compiled.ct`) follows these formulas in the same order.
 """
 
@@ -52,7 +51,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._libm import atan2, cos, sin
+from .._libm import cos, sin
 from .._libm import ordered_matmul as _matmul
 from ..constraints import Levels, Real
 from .kinematic import RESTART_NIS, restarted
@@ -62,23 +61,24 @@ __all__ = ["CTParams", "CTState", "init_state", "forecast", "update", "expert_na
 
 #: The coordinates the turn is in: the first two (east and north of a geographic track; x and y).
 PLANE = 2
-#: A turn of less than this many radians over a step is taken as straight (the arc's formulas divide by it).
-SMALL_TURN = 1e-6
+#: Below a turn of this many radians over a step, the slopes of the turn's terms are their series (the quotients
+#: cancel).
+SMALL_TURN = 1e-3
 
 
 class CTParams(NamedTuple):
     """Constant parameters of one coordinated-turn Kalman family (K experts)."""
 
     process_noise: np.ndarray       # (K,) q, length^2 per time_unit^3 (along the track)
-    turn_noise: np.ndarray          # (K,) q_omega, rad^2 per time_unit^3
+    turn_noise: np.ndarray          # (K,) q_j, a lateral jerk: length^2 per time_unit^5
     measurement_noise: np.ndarray   # (K,) r, length^2
     initial_variance: np.ndarray    # (K,) v0: the velocity's variance before a target's second row
-    length_unit: float              # u: the speed clip is in these units
+    length_unit: float              # u: the velocity clip is in these units
     time_unit: float                # the time step unit (the typical sampling interval)
     initial_turn_variance: float = 0.1   # w0, rad^2 per time_unit^2
     max_step: float = 1e6           # longest step, in time units
     max_variance: float = 1e300     # position-variance cap (length^2)
-    max_velocity: float = 1e8       # speed clip, length units per time unit
+    max_velocity: float = 1e8       # velocity clip, length units per time unit
 
     #: What the fields a caller sets may be (:mod:`kalmix.core.constraints`): the noise levels, per expert.
     CONSTRAINTS = {"process_noise": Levels(Real(gt=0)), "turn_noise": Levels(Real(gt=0)),
@@ -90,7 +90,7 @@ class CTParams(NamedTuple):
 
 
 class CTState(NamedTuple):
-    mean: np.ndarray         # (N, K, 5) filtered [x, y, v, h, omega] at last_time
+    mean: np.ndarray         # (N, K, 5) filtered [x, y, vx, vy, omega] at last_time
     cov: np.ndarray          # (N, K, 5, 5)
     extra_mean: np.ndarray   # (N, K, 2, p - 2) position and velocity of each further coordinate
     extra_cov: np.ndarray    # (N, K, 2, 2)
@@ -112,7 +112,7 @@ def init_state(params: CTParams, n_targets: int, measurement_dim: int) -> CTStat
 
 
 def expert_name(params: CTParams, i: int, kind: str = "ct") -> str:
-    """Expert ``i``'s name in reports (``ct(q=0.1, q_turn=0.01, r=1)``)."""
+    """Expert ``i``'s name in reports (``ct(q=0.1, q_turn=0.01, r=1)``: ``q_turn`` is the lateral jerk)."""
     return (f"{kind}(q={params.process_noise[i]:.3g}, q_turn={params.turn_noise[i]:.3g}, "
             f"r={params.measurement_noise[i]:.3g})")
 
@@ -130,11 +130,6 @@ def step_delta(params: CTParams, state: CTState, time) -> np.ndarray:
     return np.clip(np.where(np.isfinite(delta), delta, 0.0), 0.0, params.max_step)
 
 
-def wrap(h):
-    """A heading in [-pi, pi)."""
-    return h - 2.0 * math.pi * np.floor((h + math.pi) / (2.0 * math.pi))
-
-
 def _symmetrise(cov):
     out = cov.copy()
     n = cov.shape[-1]
@@ -146,43 +141,64 @@ def _symmetrise(cov):
     return out
 
 
+def _turn_terms(u):
+    """For the turn :math:`u = \\omega\\Delta` of a step: ``sin u / u``, ``(1 - cos u) / u`` and their slopes,
+    ``cos u``, ``sin u``, free of the cancellation of the quotients on a nearly straight track."""
+    half = 0.5 * u
+    zero = half == 0.0
+    sinc_half = np.where(zero, 1.0, sin(half) / np.where(zero, 1.0, half))
+    c_half = cos(half)
+    s_half = sin(half)
+    along = sinc_half * c_half                                    # sin u / u
+    across = s_half * sinc_half                                   # (1 - cos u) / u
+    c_u = cos(u)
+    s_u = sin(u)
+    series = np.abs(u) < SMALL_TURN
+    safe = np.where(series, 1.0, u)
+    along_slope = np.where(series, -u / 3.0 + u * u * u / 30.0, (c_u - along) / safe)
+    across_slope = np.where(series, 0.5 - u * u / 8.0 + u * u * u * u / 144.0, (s_u - across) / safe)
+    return along, across, along_slope, across_slope, c_u, s_u
+
+
 def _predict(params: CTParams, state: CTState, delta):
     """Every expert's state extrapolated by ``delta (N,)`` time units: ``(mean, cov, extra_mean, extra_cov)``
     (the kernel's operations, in its order)."""
     d = np.broadcast_to(delta[:, None], state.mean.shape[:2])                      # (N, K)
-    x, y, v, h, w = (state.mean[..., i] for i in range(5))
+    x, y, vx, vy, w = (state.mean[..., i] for i in range(5))
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        wd = w * d
-        small = np.abs(wd) < SMALL_TURN
-        wn = np.where(small, 1.0, w)
-        s_h, c_h = sin(h), cos(h)
-        h2 = h + wd
-        s_h2, c_h2 = sin(h2), cos(h2)
-        dx = np.where(small, v * d * c_h, v / wn * (s_h2 - s_h))
-        dy = np.where(small, v * d * s_h, v / wn * (c_h - c_h2))
+        along, across, along_slope, across_slope, c_u, s_u = _turn_terms(w * d)
+        a1 = d * along
+        a2 = d * across
+        d2 = d * d
         jac = np.zeros(state.cov.shape)
         for i in range(5):
             jac[..., i, i] = 1.0
-        jac[..., 0, 2] = np.where(small, d * c_h, (s_h2 - s_h) / wn)
-        jac[..., 0, 3] = np.where(small, -v * d * s_h, v / wn * (c_h2 - c_h))
-        jac[..., 0, 4] = np.where(small, -0.5 * v * d * d * s_h, v * d * c_h2 / wn - v / (wn * wn) * (s_h2 - s_h))
-        jac[..., 1, 2] = np.where(small, d * s_h, (c_h - c_h2) / wn)
-        jac[..., 1, 3] = np.where(small, v * d * c_h, v / wn * (s_h2 - s_h))
-        jac[..., 1, 4] = np.where(small, 0.5 * v * d * d * c_h, v * d * s_h2 / wn - v / (wn * wn) * (c_h - c_h2))
-        jac[..., 3, 4] = d
-        mean = np.stack([x + dx, y + dy, v, wrap(h2), w], axis=-1)
+        jac[..., 0, 2] = a1
+        jac[..., 0, 3] = -a2
+        jac[..., 0, 4] = d2 * (along_slope * vx - across_slope * vy)
+        jac[..., 1, 2] = a2
+        jac[..., 1, 3] = a1
+        jac[..., 1, 4] = d2 * (across_slope * vx + along_slope * vy)
+        jac[..., 2, 2] = c_u
+        jac[..., 2, 3] = -s_u
+        jac[..., 2, 4] = d * (-s_u * vx - c_u * vy)
+        jac[..., 3, 2] = s_u
+        jac[..., 3, 3] = c_u
+        jac[..., 3, 4] = d * (c_u * vx - s_u * vy)
+        mean = np.stack([x + a1 * vx - a2 * vy, y + a2 * vx + a1 * vy, c_u * vx - s_u * vy, s_u * vx + c_u * vy, w],
+                        axis=-1)
         cov = _matmul(_matmul(jac, state.cov), np.swapaxes(jac, -1, -2))
         q = params.process_noise[None, :]
-        qw = params.turn_noise[None, :]
-        d2 = d * d
+        jerk = params.turn_noise[None, :]
+        s2 = vx * vx + vy * vy
+        qw = jerk / (s2 + jerk)   # the turn rate's noise: the lateral jerk's over the speed squared
         d3 = d2 * d
         noise = np.zeros(state.cov.shape)
-        noise[..., 0, 0] = q * d3 / 6.0
-        noise[..., 1, 1] = q * d3 / 6.0
-        noise[..., 2, 2] = q * d
-        noise[..., 3, 3] = qw * d3 / 3.0
-        noise[..., 3, 4] = qw * d2 / 2.0
-        noise[..., 4, 3] = qw * d2 / 2.0
+        for i in range(2):   # a white acceleration of density q on each axis (the CV model's blocks)
+            noise[..., i, i] = q * d3 / 3.0
+            noise[..., i, i + 2] = q * d2 / 2.0
+            noise[..., i + 2, i] = q * d2 / 2.0
+            noise[..., i + 2, i + 2] = q * d
         noise[..., 4, 4] = qw * d
         cov = _symmetrise(cov + noise)
         # the further coordinates: constant velocity
@@ -236,27 +252,23 @@ def _started(params: CTParams, state: CTState, z, delta):
         dd = np.where(delta > 0, delta, 1.0)
         velocity = np.clip((z - state.position) / dd[:, None], -bound, bound)          # (N, p)
         velocity = np.where(np.isnan(velocity), 0.0, velocity)
-        vx, vy = velocity[:, 0], velocity[:, 1]
-        speed = np.sqrt(vx * vx + vy * vy)
-        heading = atan2(vy, vx)
         mean = np.zeros((n, k, 5))
         mean[..., 0] = z[:, None, 0]
         mean[..., 1] = z[:, None, 1]
-        mean[..., 2] = speed[:, None]
-        mean[..., 3] = heading[:, None]
-        d2 = (dd * dd)[:, None]
-        speed_variance = 2.0 * r / d2
-        heading_variance = np.minimum(speed_variance / np.maximum((speed * speed)[:, None], 1e-300), math.pi * math.pi)
+        mean[..., 2] = velocity[:, None, 0]
+        mean[..., 3] = velocity[:, None, 1]
+        cross = r / dd[:, None]
+        speed_variance = 2.0 * r / (dd * dd)[:, None]
         cov = np.zeros((n, k, 5, 5))
-        cov[..., 0, 0] = r
-        cov[..., 1, 1] = r
-        cov[..., 2, 2] = speed_variance
-        cov[..., 3, 3] = heading_variance
+        for i in range(2):   # the two-point start of each axis: the velocity shares the last measurement's error
+            cov[..., i, i] = r
+            cov[..., i, i + 2] = cross
+            cov[..., i + 2, i] = cross
+            cov[..., i + 2, i + 2] = speed_variance
         cov[..., 4, 4] = params.initial_turn_variance
         extra_mean = np.stack([np.broadcast_to(z[:, None, PLANE:], (n, k, z.shape[1] - PLANE)),
                                np.broadcast_to(velocity[:, None, PLANE:], (n, k, z.shape[1] - PLANE))], axis=-2)
-        extra_cov = np.stack([np.stack([r, r / dd[:, None]], -1), np.stack([r / dd[:, None], speed_variance], -1)],
-                             -2)
+        extra_cov = np.stack([np.stack([r, cross], -1), np.stack([cross, speed_variance], -1)], -2)
     return mean, cov, extra_mean, extra_cov
 
 
@@ -288,7 +300,7 @@ def update(params: CTParams, state: CTState, measurement: np.ndarray, time, lear
         new_mean = mean + (gain0 * y0[..., None] + gain1 * y1[..., None])
         bound = params.max_velocity * params.length_unit
         new_mean[..., 2] = np.clip(new_mean[..., 2], -bound, bound)
-        new_mean[..., 3] = wrap(new_mean[..., 3])
+        new_mean[..., 3] = np.clip(new_mean[..., 3], -bound, bound)
         new_mean[..., 4] = np.clip(new_mean[..., 4], -math.pi, math.pi)
         a = np.broadcast_to(np.eye(5), cov.shape).copy()                            # A = I - K H
         a[..., :, 0] = a[..., :, 0] - gain0
