@@ -79,7 +79,7 @@ CHECK_STAGED = textwrap.dedent("""
     cases = [(glitched, times), (sparse, sparse_times), (adversarial, adversarial_times)]
     gaps = np.zeros(glitched.shape[:2], dtype=bool)
     gaps[9, 0] = gaps[0, 2] = gaps[15, 1] = True     # restart rows (a present and a missing one)
-    banks = [make_bank(2, "mixed+ar+turn", n_akf=8 if small else 40, reach=8.0, lead=3.0),
+    banks = [make_bank(2, "mixed+ar+turn+ct", n_akf=8 if small else 40, reach=8.0, lead=3.0),
              make_bank(2, "kinematic+ar", rule="fixed_share", reach=8.0)]
     if not small:   # the AKF family with another rule (in the simulator, everything runs as Python: slow)
         banks.append(make_bank(2, "mixed+ar+turn", rule="mlpoly"))
@@ -124,7 +124,7 @@ CHECK_STAGED = textwrap.dedent("""
 
 
 #: The state leaves' bound is not met on a real GPU: after the adversarial tracks the BOA regrets of the
-#: mixed+ar+turn bank (the default) ended 1.57e-6 (relative) from the reference's on an H100, with BOA's clip on
+#: mixed+ar+turn bank (then the default) ended 1.57e-6 (relative) from the reference's on an H100, with BOA's clip on
 #: or off alike, every output within 1e-9 (docs/gpu.md, "How close to the CPU"). Finding which device function
 #: and which running sum carry it needs a GPU; there, a state past the bound is an expected failure that names
 #: the value measured (the outputs are still held to 1e-9 first), and a state within it passes.
@@ -149,10 +149,10 @@ def _check(env, script=CHECK, *, real_gpu=False, exact=False):
 
 
 def test_gpu_refuses_what_it_cannot_run():
-    from kalmix.bank import make_bank
+    from kalmix.bank import DEFAULT_BANK, make_bank
     from kalmix.core.compiled import gpu
 
-    gpu.check_bank(make_bank(2, "mixed+ar+turn"))     # the default bank runs there
+    gpu.check_bank(make_bank(2, **DEFAULT_BANK))     # the default bank runs there
     with pytest.raises(ValueError, match="eigenvalues"):
         gpu.check_bank(make_bank(3, "mixed", n_akf=8, akf_options={"order": 3, "prior_degree": 2}))
     with pytest.raises(ValueError, match="run_fused: kinematic banks"):
