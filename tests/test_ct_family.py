@@ -2,6 +2,7 @@
 filter, the compiled kernel computes the reference's bits (adversarial input included), and its grid is checked."""
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from kalmix.bank import make_bank
@@ -9,6 +10,7 @@ from kalmix.core import engine
 from kalmix.core.compiled import engine as ce
 from kalmix.core.families import ct
 from kalmix.core.testing import check_bank
+from kalmix.streaming import StreamConfig, TrackPredictor
 
 
 def _experts(z, t, compiled=True, **options):
@@ -70,6 +72,42 @@ def test_one_coordinate_has_no_plane_to_turn_in():
     assert "ct" in [f.kind for f in make_bank(2, "mixed+ar+turn+ct").families]
     with pytest.raises(ValueError, match="'ct' needs at least 2 coordinates"):
         make_bank(1, "ct")
+
+
+def test_a_track_predictor_runs_the_ct_bank_alone_on_a_plane_and_refuses_it_on_a_line():
+    """``--bank ct`` / ``StreamConfig(bank="ct")``: the settings are checked before the first row, when the
+    number of coordinates is not known yet; a bank that needs a plane is refused only on a track of one."""
+    t = np.arange(30.0)
+    table = pd.DataFrame({"track_id": "a", "time": t, "x": np.cos(t / 5) * 10, "y": np.sin(t / 5) * 10})
+    out = TrackPredictor(StreamConfig(bank="ct", length_unit=0.1, time_unit=1.0)).process_table(table)
+    assert np.isfinite(out[["pred_x", "pred_y"]].to_numpy()).all()
+    with pytest.raises(ValueError, match="'ct' needs at least 2 coordinates"):
+        TrackPredictor(StreamConfig(bank="ct", length_unit=0.1, time_unit=1.0)).process_table(table[["track_id",
+                                                                                                    "time", "x"]])
+
+
+@pytest.mark.parametrize("turn", [0.0, 3e-4, -9.99e-4, 1.01e-3, 0.4, -2.5, 3.1])
+def test_the_jacobian_is_the_transitions_slope(turn):
+    """The covariance's Jacobian (the compiled kernel's, which computes the reference's bits) against central
+    differences of the transition, on either side of the small-turn series (``turn``: radians over the step)."""
+    from kalmix.core.compiled import ct as compiled
+
+    d = 1.7
+    state = np.array([3.0, -1.0, 2.0, -0.7, turn / d])
+
+    def predict(mean):
+        out = [np.empty(5), np.empty((5, 5)), np.empty((2, 0)), np.empty((2, 2)), np.empty((5, 5)), np.empty((5, 5)),
+               np.empty((5, 5))]
+        compiled.predict_expert(d, 0.1, 0.1, mean, np.eye(5), np.empty((2, 0)), np.eye(2), *out)
+        return out[0], out[4]   # the predicted mean, the Jacobian
+
+    jacobian = predict(state)[1]
+    for j in range(5):
+        h = 1e-6
+        step = np.zeros(5)
+        step[j] = h
+        slope = (predict(state + step)[0] - predict(state - step)[0]) / (2 * h)
+        np.testing.assert_allclose(jacobian[:, j], slope, rtol=1e-7, atol=1e-8, err_msg=f"column {j}")
 
 
 def test_the_grid_is_checked():
