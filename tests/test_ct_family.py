@@ -2,6 +2,7 @@
 filter, the compiled kernel computes the reference's bits (adversarial input included), and its grid is checked."""
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from kalmix.bank import make_bank
@@ -9,6 +10,7 @@ from kalmix.core import engine
 from kalmix.core.compiled import engine as ce
 from kalmix.core.families import ct
 from kalmix.core.testing import check_bank
+from kalmix.streaming import StreamConfig, TrackPredictor
 
 
 def _experts(z, t, compiled=True, **options):
@@ -72,6 +74,42 @@ def test_one_coordinate_has_no_plane_to_turn_in():
         make_bank(1, "ct")
 
 
+def test_a_track_predictor_runs_the_ct_bank_alone_on_a_plane_and_refuses_it_on_a_line():
+    """``--bank ct`` / ``StreamConfig(bank="ct")``: the settings are checked before the first row, when the
+    number of coordinates is not known yet; a bank that needs a plane is refused only on a track of one."""
+    t = np.arange(30.0)
+    table = pd.DataFrame({"track_id": "a", "time": t, "x": np.cos(t / 5) * 10, "y": np.sin(t / 5) * 10})
+    out = TrackPredictor(StreamConfig(bank="ct", length_unit=0.1, time_unit=1.0)).process_table(table)
+    assert np.isfinite(out[["pred_x", "pred_y"]].to_numpy()).all()
+    with pytest.raises(ValueError, match="'ct' needs at least 2 coordinates"):
+        TrackPredictor(StreamConfig(bank="ct", length_unit=0.1, time_unit=1.0)).process_table(table[["track_id",
+                                                                                                    "time", "x"]])
+
+
+@pytest.mark.parametrize("turn", [0.0, 3e-4, -9.99e-4, 1.01e-3, 0.4, -2.5, 3.1])
+def test_the_jacobian_is_the_transitions_slope(turn):
+    """The covariance's Jacobian (the compiled kernel's, which computes the reference's bits) against central
+    differences of the transition, on either side of the small-turn series (``turn``: radians over the step)."""
+    from kalmix.core.compiled import ct as compiled
+
+    d = 1.7
+    state = np.array([3.0, -1.0, 2.0, -0.7, turn / d])
+
+    def predict(mean):
+        out = [np.empty(5), np.empty((5, 5)), np.empty((2, 0)), np.empty((2, 2)), np.empty((5, 5)), np.empty((5, 5)),
+               np.empty((5, 5))]
+        compiled.predict_expert(d, 0.1, 0.1, mean, np.eye(5), np.empty((2, 0)), np.eye(2), *out)
+        return out[0], out[4]   # the predicted mean, the Jacobian
+
+    jacobian = predict(state)[1]
+    for j in range(5):
+        h = 1e-6
+        step = np.zeros(5)
+        step[j] = h
+        slope = (predict(state + step)[0] - predict(state - step)[0]) / (2 * h)
+        np.testing.assert_allclose(jacobian[:, j], slope, rtol=1e-7, atol=1e-8, err_msg=f"column {j}")
+
+
 def test_the_grid_is_checked():
     with pytest.raises(ValueError, match=r"ct_turn_levels\[1\]: expected a finite number > 0, got -1.0"):
         make_bank(2, "ct", ct_turn_levels=(0.1, -1.0))
@@ -111,3 +149,19 @@ def test_the_bank_with_it_keeps_the_contract_on_irregular_steps_with_restarts():
     restart = np.zeros((120, 3), bool)
     restart[[40, 80], [0, 2]] = True
     check_bank(make_bank(2, "kinematic+ar+turn+ct", length_unit=0.5, lead=3.0), z, t, restart=restart)
+
+
+@pytest.mark.xfail(strict=True, reason="an expert of little acceleration noise takes an abrupt turn for a growing "
+                                       "oscillation of its turn rate, and none of its innovations is absurd enough "
+                                       "(1e6 standard deviations) to start it again")
+def test_every_expert_is_back_on_the_track_after_an_abrupt_turn():
+    """A target at 20 noise sizes a step turns by 90 degrees at once: every expert forecasts within 10 noise sizes
+    50 rows later (the experts of q 0.01 and a lateral jerk of 0.3 or 10 are at 100 to 300 noise sizes, spinning
+    at up to pi radians a step)."""
+    t = np.arange(260.0)
+    velocity = np.where(t[:, None] < 150, [1.0, 0.0], [0.0, 1.0])
+    z = np.cumsum(velocity, axis=0) + np.random.default_rng(0).normal(0, 0.05, (260, 2))
+    bank = make_bank(2, "ct", length_unit=0.05)   # the noise's size, as kalmix predict estimates the unit
+    experts = ce.run(bank, z[:, None], t[:, None], record_experts=True).experts[:, 0]
+    error = np.sqrt(np.mean(np.sum((experts[200:] - z[200:, None]) ** 2, axis=-1), axis=0))   # (K,)
+    assert error.max() < 10 * 0.05, error

@@ -196,14 +196,15 @@ class StreamConfig:
         if not isinstance(self.rule_options, dict):
             raise TypeError(f"rule_options: expected a dict of the rule's parameters, got {self.rule_options!r}")
         # every bank argument is checked now, not at the first row (a lead against a time unit still to be
-        # learned is checked when it is learned: here as one unit)
+        # learned is checked when it is learned: here as one unit), on a plane: the coordinates are not known
+        # yet, and a bank of the coordinated-turn Kalman filters alone needs two (a track of one is refused then)
         length = self.numeric_length_unit()
         make_params(1, self.n_experts, seed=self.seed, length_unit=length, **self.options)
         why = short_lead(self.lead, self.time_unit)   # (a learned unit comes here too: replace(config, time_unit=))
         if why is not None:
             warnings.warn(why, RuntimeWarning, stacklevel=3)
         unit = self.time_unit if self.time_unit is not None else (self.lead if self.lead is not None else 1.0)
-        make_bank(1, self.bank, rule=self.rule, length_unit=length, time_unit=unit,
+        make_bank(2, self.bank, rule=self.rule, length_unit=length, time_unit=unit,
                   seed=self.seed, n_akf=self.n_experts, akf_options=self.options, lead=self.lead_time(),
                   rule_options=self.rule_options, reach=self.bank_reach(), lead_delay=self.lead_delay)
 

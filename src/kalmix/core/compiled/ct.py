@@ -37,7 +37,7 @@ class Constants(NamedTuple):
     """The family's parameters as :func:`kernel` takes them."""
 
     q: np.ndarray    # (K,) process noise along the track
-    qw: np.ndarray   # (K,) turn-rate noise
+    qw: np.ndarray   # (K,) turn noise q_j, a lateral jerk (the turn rate's is q_j / (|v|^2 + q_j))
     r: np.ndarray    # (K,) measurement noise
     v0: np.ndarray   # (K,) velocity variance before the filters start
     length_unit: float

@@ -6,8 +6,8 @@
   squares with forgetting, a persistence prior and a jump test for relocations);
 - :mod:`.turn`: coordinated-turn extrapolation (the last turn rate and speed carried
   forward) in real time, in any dimension;
-- :mod:`.ct`: coordinated-turn Kalman filters (an extended Kalman filter of speed, heading and turn
-  rate) in real time, in the plane of the first two coordinates;
+- :mod:`.ct`: coordinated-turn Kalman filters (an extended Kalman filter of position, velocity and
+  turn rate) in real time, in the plane of the first two coordinates;
 - :mod:`.akf`: the paper's state-model adaptive Kalman filters (frame-based).
 
 Every family module has the same functions: ``init_state(params, n_targets, measurement_dim)``,
@@ -45,7 +45,7 @@ class FamilyKind(NamedTuple):
 #: Family kinds and their parts: kinematic CV / CA, adaptive AR of the velocity and coordinated turns in real
 #: time, and the paper's AKF (frame-based). The warm-up rows: a kinematic state of order m is fitted by m rows
 #: (position and velocity from two, the acceleration from a third); a turn needs a velocity (two rows; with no
-#: turn rate yet it goes straight), as does a coordinated-turn filter (its speed and heading); the AR needs two
+#: turn rate yet it goes straight), as does a coordinated-turn filter (its velocity); the AR needs two
 #: velocities (its first one is taken for a jump), and the AKF's state model a row past its first step.
 KINDS = {
     "cv": FamilyKind(kinematic, "kinematic", order=2, long_step=True, warmup=2),

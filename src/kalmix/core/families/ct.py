@@ -15,7 +15,7 @@ velocity turning by :math:`u = \\omega\\Delta`:
     s = \\frac{\\sin u}{u},\\ c = \\frac{1 - \\cos u}{u}
 
 (:math:`s` and :math:`c` computed from :math:`\\sin(u/2)` without the quotients' cancellation on a nearly
-straight track; in Cartesian velocity the filter has no singularity at rest, where a heading would have none),
+straight track; in Cartesian velocity the filter has no singularity at rest, where a heading would have one),
 with the Jacobian of that map for the covariance, and the process noise of a white acceleration on each axis
 (density ``process_noise`` :math:`q`, length^2 per time_unit^3: the CV model's blocks
 :math:`q[\\Delta^3/3, \\Delta^2/2; \\Delta^2/2, \\Delta]`) and of a turn rate that drifts as a random walk of density
@@ -36,12 +36,13 @@ A target's first learned row sets its position; its second (a step later) starts
 from the two, turn rate 0, with each axis' covariance of a two-point start (``r``, ``r/Δ``, ``2r/Δ²``) and the
 turn rate's variance ``initial_turn_variance``. Before it, an expert forecasts the last position with the
 variance :math:`r + v_0 \\Delta^2` (``initial_variance`` :math:`v_0`). A row at the time of the last one (no step)
-is one more measurement of the same state. The velocity is clipped to ``max_velocity`` length units per time
-unit and the turn rate to :math:`\\pm\\pi` per time unit; steps are clipped to ``max_step`` and the position
-variance scaled down to ``max_variance``, so that numbers stay finite for finite input. A measurement more
-than 1e6 standard deviations from an expert's forecast (:data:`kalmix.core.families.kinematic.RESTART_NIS`), at
-least half the motion it forecast away, starts that expert again from the last two rows. The compiled kernel
-(:mod:`kalmix.core.compiled.ct`) follows these formulas in the same order.
+is one more measurement of the same state (before the second row, it replaces the position held). The velocity
+is clipped to ``max_velocity`` length units per time unit and the turn rate to :math:`\\pm\\pi` per time unit;
+steps are clipped to ``max_step`` and the position variance scaled down to ``max_variance``, so that numbers
+stay finite for finite input. A measurement more than 1e6 standard deviations from an expert's forecast
+(:data:`kalmix.core.families.kinematic.RESTART_NIS`), at least half the motion it forecast away, starts that
+expert again from the last two rows. The compiled kernel (:mod:`kalmix.core.compiled.ct`) follows these formulas
+in the same order.
 """
 
 from __future__ import annotations
