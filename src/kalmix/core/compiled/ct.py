@@ -15,8 +15,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from ..families.ct import PLANE, SMALL_TURN
-from ..families.kinematic import RESTART_NIS
+from ..families.ct import LOST_NIS, PLANE, SMALL_TURN
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
 from .kinematic import step_delta   # the same clipped step in time units
@@ -214,10 +213,11 @@ def _start_expert(k, n, z, position, d, r, bound, initial_turn_variance, mean, c
 
 
 @nb.njit(**_JIT)
-def _update_expert(k, n, z, r, bound, max_variance, old_mean, mean, cov, extra_mean, extra_cov, m, c_pred, em, ec, a,
+def _update_expert(k, n, z, r, bound, max_variance, mean, cov, extra_mean, extra_cov, m, c_pred, em, ec, a,
                    new_cov, work, g0, g1):
     """Expert ``k`` of target ``n``: the EKF update of its predicted state (``m``, ``c_pred``, ``em``, ``ec``)
-    with ``z (p,)``, written to the state; returns False (the state unchanged) where the innovation is absurd."""
+    with ``z (p,)``, written to the state; returns False (the state unchanged) where the innovation's NIS is beyond
+    ``LOST_NIS``."""
     y0 = z[0] - m[0]
     y1 = z[1] - m[1]
     s00 = c_pred[0, 0] + r
@@ -230,11 +230,7 @@ def _update_expert(k, n, z, r, bound, max_variance, old_mean, mean, cov, extra_m
     i10 = -s10 / det
     i11 = s00 / det
     nis = y0 * (i00 * y0 + i01 * y1) + y1 * (i10 * y0 + i11 * y1)
-    miss = y0 * y0 + y1 * y1
-    m0 = m[0] - old_mean[0]
-    m1 = m[1] - old_mean[1]
-    move = m0 * m0 + m1 * m1
-    if not (nis <= RESTART_NIS) and not (miss <= 0.25 * move):
+    if not (nis <= LOST_NIS):
         return False
     for i in range(5):
         g0[i] = c_pred[i, 0] * i00 + c_pred[i, 1] * i10
@@ -324,9 +320,9 @@ def kernel(lo, hi, params, state, rows, forecasts, work, scratch):
                 _write_forecast(k, n, delta, params, state, out[t, n, offset + k], m, c_pred, em, ec, jac, mat_a,
                                 noise)
                 if running:
-                    updated = _update_expert(k, n, z[t, n], r[k], bound, max_variance, mean[n, k], mean, cov,
+                    updated = _update_expert(k, n, z[t, n], r[k], bound, max_variance, mean, cov,
                                              extra_mean, extra_cov, m, c_pred, em, ec, mat_a, mat_b, noise, g0, g1)
-                    if not updated and delta > 0:   # an absurd innovation: the expert starts again
+                    if not updated and delta > 0:   # a lost expert starts again
                         _start_expert(k, n, z[t, n], position, delta, r[k], bound, initial_turn_variance, mean, cov,
                                       extra_mean, extra_cov, velocity)
                 elif learn[t, n] and started and not restart[t, n] and known[n] == 1 and delta > 0:

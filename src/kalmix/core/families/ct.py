@@ -39,10 +39,11 @@ variance :math:`r + v_0 \\Delta^2` (``initial_variance`` :math:`v_0`). A row at 
 is one more measurement of the same state (before the second row, it replaces the position held). The velocity
 is clipped to ``max_velocity`` length units per time unit and the turn rate to :math:`\\pm\\pi` per time unit;
 steps are clipped to ``max_step`` and the position variance scaled down to ``max_variance``, so that numbers
-stay finite for finite input. A measurement more than 1e6 standard deviations from an expert's forecast
-(:data:`kalmix.core.families.kinematic.RESTART_NIS`), at least half the motion it forecast away, starts that
-expert again from the last two rows. The compiled kernel (:mod:`kalmix.core.compiled.ct`) follows these formulas
-in the same order.
+stay finite for finite input. A measurement more than 10 standard deviations from an expert's forecast
+(:data:`LOST_NIS`) starts that expert again from the last two rows: after an abrupt manoeuvre a filter of little
+noise can take the change for a growing oscillation of its turn rate, spinning ever faster, confident and off the
+track, with no single innovation beyond the other families' 1e6 standard deviations. The compiled kernel
+(:mod:`kalmix.core.compiled.ct`) follows these formulas in the same order.
 """
 
 from __future__ import annotations
@@ -55,13 +56,17 @@ import numpy as np
 from .._libm import cos, sin
 from .._libm import ordered_matmul as _matmul
 from ..constraints import Levels, Real
-from .kinematic import RESTART_NIS, restarted
+from .kinematic import restarted
 
 __all__ = ["CTParams", "CTState", "init_state", "forecast", "update", "expert_name", "one_expert", "PLANE",
-           "SMALL_TURN"]
+           "SMALL_TURN", "LOST_NIS"]
 
 #: The coordinates the turn is in: the first two (east and north of a geographic track; x and y).
 PLANE = 2
+#: An innovation whose NIS (squared distance in its own standard deviations, over the plane's two coordinates) is
+#: above this, 10 standard deviations, starts the expert again from the last two rows: under its own model it never
+#: comes (a probability of e^-50), and a filter lost after a manoeuvre comes back at once.
+LOST_NIS = 100.0
 #: Below a turn of this many radians over a step, the slopes of the turn's terms are their series (the quotients
 #: cancel).
 SMALL_TURN = 1e-3
@@ -312,10 +317,6 @@ def update(params: CTParams, state: CTState, measurement: np.ndarray, time, lear
         excess = np.maximum(0.5 * (new_cov[..., 0, 0] + new_cov[..., 1, 1]) / params.max_variance, 1.0)
         new_cov = new_cov / excess[..., None, None]
         nis = y0 * (i00 * y0 + i01 * y1) + y1 * (i10 * y0 + i11 * y1)
-        miss = y0 * y0 + y1 * y1
-        m0 = mean[..., 0] - state.mean[..., 0]
-        m1 = mean[..., 1] - state.mean[..., 1]
-        move = m0 * m0 + m1 * m1
         # the further coordinates
         e00, e01, e10, e11 = (extra_cov[..., i, j] for i in range(2) for j in range(2))
         se = e00 + r
@@ -330,7 +331,7 @@ def update(params: CTParams, state: CTState, measurement: np.ndarray, time, lear
         off = 0.5 * (f01 + f10)
         new_extra_cov = np.stack([np.stack([f00, off], -1), np.stack([off, f11], -1)], -2)
     running = learn & state.initialised & (state.known >= 2)                       # (N,)
-    absurd = ~(nis <= RESTART_NIS) & ~(miss <= 0.25 * move)                         # (N, K)
+    absurd = ~(nis <= LOST_NIS)                                                     # (N, K)
     begin = learn & state.initialised & (delta > 0) & (state.known == 1)
     fresh = _started(params, state, z, delta)
     again = (begin[:, None] | (running[:, None] & absurd & (delta > 0)[:, None]))    # (N, K)
