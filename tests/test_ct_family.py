@@ -123,22 +123,22 @@ def test_the_grid_is_checked():
 
 
 @pytest.mark.parametrize("p", [2, 3])
-def test_compiled_equals_reference_after_huge_jumps_values_and_a_5000_row_gap(p):
-    """1e8 jumps, 1e200 values, a 5,000-row NaN gap and constant input on a turning track: the contract
+def test_compiled_equals_reference_after_huge_jumps_values_and_a_long_gap(p):
+    """1e8 jumps, 1e200 values, a 1,000-row NaN gap and constant input on a turning track: the contract
     (compiled == spec bit for bit, resume, batch == single streams) and finite forecasts after it."""
     rng = np.random.default_rng(3)
-    t = np.arange(6000.0)
-    z = np.column_stack([np.cos(t / 30) * 20, np.sin(t / 30) * 20, t / 50]) + rng.normal(0, 0.1, (6000, 3))
+    t = np.arange(2000.0)
+    z = np.column_stack([np.cos(t / 30) * 20, np.sin(t / 30) * 20, t / 50]) + rng.normal(0, 0.1, (2000, 3))
     z[150] += 1e8                          # a glitch
     z[300:] += np.array([1e8, -1e8, 0.0])  # a relocation
     z[400] = 1e200                         # an absurd value
-    z[500:5500] = np.nan                   # a 5,000-row gap
-    z[5800:] = z[5799]                     # constant input
+    z[500:1500] = np.nan                   # a 1,000-row gap
+    z[1800:] = z[1799]                     # constant input
     z = np.stack([z, np.column_stack([t * 0.5, -t, np.sin(t)])], axis=1)[..., :p]   # and a straight track
     times = np.broadcast_to(t[:, None], z.shape[:2]).copy()
     bank = make_bank(p, "ct", length_unit=0.3)
     check_bank(bank, z, times)
-    assert np.isfinite(ce.run(bank, z, times).forecasts[5600:]).all()
+    assert np.isfinite(ce.run(bank, z, times).forecasts[1600:]).all()
 
 
 def test_the_bank_with_it_keeps_the_contract_on_irregular_steps_with_restarts():
