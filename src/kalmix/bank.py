@@ -118,7 +118,8 @@ def _ar(order, unit, time_unit, forgetting, ridge, **options):
 #: Gains of the coordinated-turn experts (the fraction of the last turn rate carried forward). The rules'
 #: weights are convex, so gains on both sides of 1 let the mixture reach any fraction of the turn.
 TURN_GAINS = (0.5, 1.0, 1.5)
-#: Process-noise levels q of the coordinated-turn Kalman experts (along the track), in length_unit^2 per time_unit^3.
+#: Process-noise levels q of the coordinated-turn Kalman experts (a white acceleration on each axis), in
+#: length_unit^2 per time_unit^3.
 CT_PROCESS_LEVELS = (0.01, 1.0)
 #: Turn noise levels q_j of the coordinated-turn Kalman experts (a lateral jerk), in length_unit^2 per time_unit^5.
 CT_TURN_LEVELS = (0.01, 0.3, 10.0)
@@ -264,7 +265,7 @@ def make_bank(
     turn_gains : sequence of float
         The turn family's experts: fractions >= 0 of the last turn rate carried forward.
     ct_process_levels, ct_turn_levels : sequence of float
-        The coordinated-turn Kalman grid: process-noise levels q along the track (in units of
+        The coordinated-turn Kalman grid: process-noise levels q on each axis (in units of
         ``length_unit**2`` per ``time_unit**3``) and turn noise levels, a lateral jerk (``length_unit**2`` per
         ``time_unit**5``).
     reach : float or None

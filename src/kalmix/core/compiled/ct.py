@@ -35,7 +35,7 @@ COMPILE_APART = False
 class Constants(NamedTuple):
     """The family's parameters as :func:`kernel` takes them."""
 
-    q: np.ndarray    # (K,) process noise along the track
+    q: np.ndarray    # (K,) process noise (a white acceleration on each axis)
     qw: np.ndarray   # (K,) turn noise q_j, a lateral jerk (the turn rate's is q_j / (|v|^2 + q_j))
     r: np.ndarray    # (K,) measurement noise
     v0: np.ndarray   # (K,) velocity variance before the filters start

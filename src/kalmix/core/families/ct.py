@@ -75,7 +75,7 @@ SMALL_TURN = 1e-3
 class CTParams(NamedTuple):
     """Constant parameters of one coordinated-turn Kalman family (K experts)."""
 
-    process_noise: np.ndarray       # (K,) q, length^2 per time_unit^3 (along the track)
+    process_noise: np.ndarray       # (K,) q, length^2 per time_unit^3 (a white acceleration on each axis)
     turn_noise: np.ndarray          # (K,) q_j, a lateral jerk: length^2 per time_unit^5
     measurement_noise: np.ndarray   # (K,) r, length^2
     initial_variance: np.ndarray    # (K,) v0: the velocity's variance before a target's second row
