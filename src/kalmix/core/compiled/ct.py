@@ -18,7 +18,7 @@ import numpy as np
 from ..families.ct import LOST_NIS, PLANE, SMALL_TURN
 from ._cache import JIT as _JIT
 from ._cache import KERNEL_JIT, configure_cache
-from .kinematic import step_delta   # the same clipped step in time units
+from .kinematic import sandwich, step_delta, symmetrise   # the same products, clipped step and symmetrising
 # the parts every time-based family's driver shares
 from .kinematic import check_gpu as check_gpu, pack as pack, unpack as unpack, work_arrays as work_arrays
 
@@ -74,33 +74,6 @@ def _clip(x, bound):
 
 
 @nb.njit(**_JIT)
-def _sandwich(left, middle, out, work):
-    """``out = left @ middle @ left.T`` (5 x 5), each entry summed in index order from 0."""
-    for i in range(5):
-        for j in range(5):
-            acc = 0.0
-            for l in range(5):
-                acc += left[i, l] * middle[l, j]
-            work[i, j] = acc
-    for i in range(5):
-        for j in range(5):
-            acc = 0.0
-            for l in range(5):
-                acc += work[i, l] * left[j, l]
-            out[i, j] = acc
-
-
-@nb.njit(**_JIT)
-def _symmetrise(matrix):
-    n = matrix.shape[0]
-    for i in range(n):
-        for j in range(i + 1, n):
-            s = 0.5 * (matrix[i, j] + matrix[j, i])
-            matrix[i, j] = s
-            matrix[j, i] = s
-
-
-@nb.njit(**_JIT)
 def predict_expert(d, q, qw, mean, cov, extra_mean, extra_cov, m_out, c_out, em_out, ec_out, jac, work, noise):
     """One expert's state extrapolated by ``d`` time units into ``m_out``, ``c_out``, ``em_out``, ``ec_out``."""
     x = mean[0]
@@ -147,7 +120,7 @@ def predict_expert(d, q, qw, mean, cov, extra_mean, extra_cov, m_out, c_out, em_
     m_out[2] = c_u * vx - s_u * vy
     m_out[3] = s_u * vx + c_u * vy
     m_out[4] = w
-    _sandwich(jac, cov, c_out, work)
+    sandwich(5, jac, cov, c_out, work)
     s2 = vx * vx + vy * vy
     qw = qw / (s2 + qw)   # the turn rate's noise: the lateral jerk's over the speed squared
     d3 = d2 * d
@@ -160,7 +133,7 @@ def predict_expert(d, q, qw, mean, cov, extra_mean, extra_cov, m_out, c_out, em_
     for i in range(5):
         for j in range(5):
             c_out[i, j] = c_out[i, j] + noise[i, j]
-    _symmetrise(c_out)
+    symmetrise(5, c_out)
     for c in range(extra_mean.shape[1]):
         em_out[0, c] = extra_mean[0, c] + d * extra_mean[1, c]
         em_out[1, c] = extra_mean[1, c]
@@ -245,11 +218,11 @@ def _update_expert(k, n, z, r, bound, max_variance, mean, cov, extra_mean, extra
             a[i, j] = 1.0 if i == j else 0.0
         a[i, 0] = a[i, 0] - g0[i]
         a[i, 1] = a[i, 1] - g1[i]
-    _sandwich(a, c_pred, new_cov, work)
+    sandwich(5, a, c_pred, new_cov, work)
     for i in range(5):
         for j in range(5):
             new_cov[i, j] = new_cov[i, j] + r * (g0[i] * g0[j] + g1[i] * g1[j])
-    _symmetrise(new_cov)
+    symmetrise(5, new_cov)
     excess = 0.5 * (new_cov[0, 0] + new_cov[1, 1]) / max_variance
     if excess <= 1.0:
         excess = 1.0

@@ -48,7 +48,7 @@ COMPILE_APART = False
 
 
 @nb.njit(**_JIT)
-def _sandwich(order, left, middle, out, work):
+def sandwich(order, left, middle, out, work):
     """``out = left @ middle @ left.T`` on the leading ``order x order`` block."""
     for i in range(order):
         for j in range(order):
@@ -65,7 +65,7 @@ def _sandwich(order, left, middle, out, work):
 
 
 @nb.njit(**_JIT)
-def _symmetrise(order, matrix):
+def symmetrise(order, matrix):
     for i in range(order):
         for j in range(i + 1, order):
             s = 0.5 * (matrix[i, j] + matrix[j, i])
@@ -91,14 +91,14 @@ def _extrapolate(order, delta, q, mean, cov, m_out, c_out, f, work):
             for j in range(order):
                 acc += f[i, j] * mean[j, c]
             m_out[i, c] = acc
-    _sandwich(order, f, cov, c_out, work)
+    sandwich(order, f, cov, c_out, work)
     for i in range(order):
         for j in range(order):
             a = order - 1 - i
             b = order - 1 - j
             m = a + b + 1
             c_out[i, j] = c_out[i, j] + q * delta**m / (m * _FACT[a] * _FACT[b])
-    _symmetrise(order, c_out)
+    symmetrise(order, c_out)
 
 
 @nb.njit(inline="always", **_JIT)
@@ -204,11 +204,11 @@ def _update(order, r, max_variance, z, mean_k, cov_k, m_pred, c_pred, work, gain
     for i in range(order):
         for j in range(order):
             a[i, j] = (1.0 if i == j else 0.0) - (gain[i] if j == 0 else 0.0)
-    _sandwich(order, a, c_pred, cov_k, work)
+    sandwich(order, a, c_pred, cov_k, work)
     for i in range(order):
         for j in range(order):
             cov_k[i, j] = cov_k[i, j] + r * gain[i] * gain[j]
-    _symmetrise(order, cov_k)
+    symmetrise(order, cov_k)
     excess = cov_k[0, 0] / max_variance
     if excess > 1.0:
         for i in range(order):

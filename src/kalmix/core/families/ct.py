@@ -56,7 +56,7 @@ import numpy as np
 from .._libm import cos, sin
 from .._libm import ordered_matmul as _matmul
 from ..constraints import Levels, Real
-from .kinematic import restarted
+from .kinematic import restarted, step_delta, symmetrise   # the same clipped step, restart and symmetrising
 
 __all__ = ["CTParams", "CTState", "init_state", "forecast", "update", "expert_name", "one_expert", "PLANE",
            "SMALL_TURN", "LOST_NIS"]
@@ -130,23 +130,6 @@ def one_expert(params: CTParams, i: int) -> CTParams:
                            initial_variance=params.initial_variance[i:i + 1])
 
 
-def step_delta(params: CTParams, state: CTState, time) -> np.ndarray:
-    """Steps from the last learned row to ``time`` in time units, ``(N,)``, clipped to [0, max_step]."""
-    delta = (np.asarray(time, dtype=np.float64) - state.last_time) / params.time_unit
-    return np.clip(np.where(np.isfinite(delta), delta, 0.0), 0.0, params.max_step)
-
-
-def _symmetrise(cov):
-    out = cov.copy()
-    n = cov.shape[-1]
-    for i in range(n):
-        for j in range(i + 1, n):
-            s = 0.5 * (cov[..., i, j] + cov[..., j, i])
-            out[..., i, j] = s
-            out[..., j, i] = s
-    return out
-
-
 def _turn_terms(u):
     """For the turn :math:`u = \\omega\\Delta` of a step: ``sin u / u``, ``(1 - cos u) / u`` and their slopes,
     ``cos u``, ``sin u``, free of the cancellation of the quotients on a nearly straight track."""
@@ -206,7 +189,7 @@ def _predict(params: CTParams, state: CTState, delta):
             noise[..., i + 2, i] = q * d2 / 2.0
             noise[..., i + 2, i + 2] = q * d
         noise[..., 4, 4] = qw * d
-        cov = _symmetrise(cov + noise)
+        cov = symmetrise(cov + noise)
         # the further coordinates: constant velocity
         em, ec = state.extra_mean, state.extra_cov
         extra_mean = np.stack([em[..., 0, :] + d[..., None] * em[..., 1, :], em[..., 1, :]], axis=-2)
@@ -313,7 +296,7 @@ def update(params: CTParams, state: CTState, measurement: np.ndarray, time, lear
         a[..., :, 1] = a[..., :, 1] - gain1
         outer = gain0[..., :, None] * gain0[..., None, :] + gain1[..., :, None] * gain1[..., None, :]
         new_cov = _matmul(_matmul(a, cov), np.swapaxes(a, -1, -2)) + r[..., None, None] * outer
-        new_cov = _symmetrise(new_cov)
+        new_cov = symmetrise(new_cov)
         excess = np.maximum(0.5 * (new_cov[..., 0, 0] + new_cov[..., 1, 1]) / params.max_variance, 1.0)
         new_cov = new_cov / excess[..., None, None]
         nis = y0 * (i00 * y0 + i01 * y1) + y1 * (i10 * y0 + i11 * y1)

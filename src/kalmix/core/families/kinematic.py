@@ -54,7 +54,7 @@ from .._libm import ordered_sum
 from ..constraints import Levels, Real
 
 __all__ = ["KinematicParams", "KinematicState", "init_state", "forecast", "update", "transition", "process_noise",
-           "RESTART_NIS", "CARRY_NIS", "restarted", "carried_start", "expert_name", "one_expert"]
+           "RESTART_NIS", "CARRY_NIS", "restarted", "carried_start", "expert_name", "one_expert", "symmetrise"]
 
 
 class KinematicParams(NamedTuple):
@@ -167,7 +167,7 @@ def _power(x, m: int):
     return out
 
 
-def _symmetrise(cov):
+def symmetrise(cov):
     """Off-diagonal pairs replaced by their mean; the diagonal kept as it is."""
     out = cov.copy()
     for i in range(cov.shape[-1]):
@@ -184,7 +184,7 @@ def _predict(params: KinematicParams, state: KinematicState, delta: np.ndarray):
     m, denominator = _noise_terms(params.order)   # entry (i, j) gains (q * delta**m) / denominator, in that order
     with np.errstate(over="ignore", invalid="ignore"):
         cov = cov + params.process_noise[None, :, None, None] * _powers(delta, params.order)[:, None, m] / denominator
-    return mean, _symmetrise(cov)
+    return mean, symmetrise(cov)
 
 
 def forecast(params: KinematicParams, state: KinematicState, time, frames: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -273,7 +273,7 @@ def update(params: KinematicParams, state: KinematicState, measurement: np.ndarr
     a[..., :, 0] = a[..., :, 0] - gain
     new_cov = _matmul(_matmul(a, cov), np.swapaxes(a, -1, -2)) \
         + r[..., None, None] * gain[..., :, None] * gain[..., None, :]
-    new_cov = _symmetrise(new_cov)
+    new_cov = symmetrise(new_cov)
     excess = np.maximum(new_cov[..., 0, 0] / params.max_variance, 1.0)
     new_cov = new_cov / excess[..., None, None]
 
