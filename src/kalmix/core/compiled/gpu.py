@@ -63,11 +63,19 @@ def gpu_available() -> bool:
     return bool(os.environ.get("NUMBA_ENABLE_CUDASIM") == "1" or cuda.is_available())
 
 
-def _body(orders, warm, far, q, r, initial, time_unit, max_step, max_variance, reach, mean, cov, last_time, initialised,
-           rule_params, rule_state, threshold, max_rejects, warmup, window, position, velocity, seen, spread, count,
-           rejects, outliers, points, low, high, cal_window, cal_rate, cal_level, z_level, cal_max_variance,
-           max_log_scale, cal_initial, variance, n_errors, log_scale, z, times, lengths, learn, out, out_std,
-           ahead_times, out_ahead, out_ahead_std):
+def _body(experts, expert_state, rule_params, rule_state, screen_params, screen_state, calibration,
+          calibration_state, block, outputs):
+    """One thread's target through its rows; the arguments are tuples of the parts each stage owns (:func:`run_fused`
+    packs them): the experts' parameters and state, the rule's, the glitch screen's, the calibration's, the block's
+    rows and the outputs."""
+    orders, warm, far, q, r, initial, time_unit, max_step, max_variance, reach = experts
+    mean, cov, last_time, initialised = expert_state
+    threshold, max_rejects, warmup, window = screen_params
+    position, velocity, seen, spread, count, rejects, outliers, points, low, high = screen_state
+    cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale, cal_initial = calibration
+    variance, n_errors, log_scale = calibration_state
+    z, times, lengths, learn, ahead_times = block
+    out, out_std, out_ahead, out_ahead_std = outputs
     n = cuda.grid(1)
     if n >= z.shape[1]:
         return
@@ -263,15 +271,15 @@ def run_fused(bank: Bank, measurements, times, state: BankState | None = None, *
     cuda.synchronize()
     launched = time.perf_counter()
     kernel[blocks, threads_per_block](
-        device["orders"], device["warm"], device["far"], device["q"], device["r"], device["initial"], device["tu"],
-        max_step, max_variance, float(bank.reach), device["mean"], device["cov"], device["last_time"],
-        device["initialised"],
+        (device["orders"], device["warm"], device["far"], device["q"], device["r"], device["initial"], device["tu"],
+         max_step, max_variance, float(bank.reach)),
+        (device["mean"], device["cov"], device["last_time"], device["initialised"]),
         pack_rule_params(bank), rule_dev,
-        float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window), *screen_dev,
-        *pack_calibration(bank.calibration_params),
-        device["variance"], device["n_errors"], device["log_scale"],
-        device["z"], device["times"], device["lengths"], device["learn"], out, out_std, device["ahead_times"],
-        out_ahead, out_ahead_std)
+        (float(sp.threshold), float(sp.max_rejects), float(sp.warmup), float(sp.window)), tuple(screen_dev),
+        pack_calibration(bank.calibration_params),
+        (device["variance"], device["n_errors"], device["log_scale"]),
+        (device["z"], device["times"], device["lengths"], device["learn"], device["ahead_times"]),
+        (out, out_std, out_ahead, out_ahead_std))
     cuda.synchronize()
     kernel_seconds = time.perf_counter() - launched
     rows = np.arange(t_count)[:, None] < lengths[None, :]
