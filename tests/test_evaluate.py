@@ -63,6 +63,10 @@ def test_length_unit_follows_the_rule_and_can_be_given():
     fixed = evaluate_table(table, n_experts=2, peers=False, length_unit=0.5, tracks=["t0"], max_samples=50)
     assert fixed.length_unit == 0.5 and set(fixed.per_track) == {"t0"}
     assert "IMM (filterpy)" not in fixed.predictors
+    # without the peer libraries the filters in real time stay (kalmix's own): on irregular steps the frame-counting
+    # filters alone made the verdict's yardstick (an 89 % "win" on an AIS-like file)
+    assert {"CV Kalman (real dt)", "CA Kalman (real dt)"} <= set(auto.predictors)
+    assert not any("filterpy" in name or "river" in name for name in auto.predictors)
 
 
 def test_a_given_length_unit_is_the_mixtures_and_the_peers_keep_the_rules():

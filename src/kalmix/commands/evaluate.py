@@ -57,7 +57,8 @@ _OPTION_HELP = ("A kalmix.bank.make_params argument, KEY=VALUE (JSON value), rep
 @click.option("--peers/--no-peers", default=True, show_default=True,
               help="Include the peers (CV/CA Kalman filters in real time; where installed, filterpy's IMM and MMAE "
                    "bank, river's Holt-Winters, padasip's RLS AR, statsmodels' local linear trend), each tuned on "
-                   "the tuning part; --no-peers: the mixture and kalmix's own baselines only.")
+                   "the tuning part; --no-peers: the mixture, kalmix's own baselines and the CV/CA Kalman filters in "
+                   "real time only (no peer library).")
 @click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False), help="Write the results as JSON.")
 @click.option("--per-coordinate", is_flag=True, default=False,
               help="Errors per coordinate (each coordinate's |e| pooled) instead of each row's distance |e|.")

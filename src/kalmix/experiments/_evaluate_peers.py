@@ -40,8 +40,9 @@ def _leave_out(label, error, tuned, log) -> None:
     tuned[label] = {"left_out": reason}
 
 
-def run_peer_models(streams, tuning, unit, horizon, predictions, tuned, log):
-    """Tune every installed peer of :mod:`kalmix.peer_models` on the tuning part and run it on every segment.
+def run_peer_models(streams, tuning, unit, horizon, predictions, tuned, log, own_only: bool = False):
+    """Tune every installed peer of :mod:`kalmix.peer_models` on the tuning part and run it on every segment
+    (``own_only``: only those that need no other package, the CV and CA Kalman filters in real time).
 
     A peer with ``max_rows`` runs on the first rows of each segment (:func:`~kalmix.peer_models.row_budget`);
     its rows past that are not predicted, which the ``tuned`` entry says (``rows_evaluated``).
@@ -51,7 +52,7 @@ def run_peer_models(streams, tuning, unit, horizon, predictions, tuned, log):
     time_unit = auto_time_unit(np.where(tuning, streams.times, np.nan) if tuning.any() else streams.times)
     segments = [(streams.values[:n, j], streams.times[:n, j], tuning[:n, j]) for j, n in enumerate(streams.lengths)]
     for name, peer in PEERS.items():
-        if not available(peer):
+        if not available(peer) or (own_only and peer.needs):
             continue
         label = PEER_LABELS.get(name, name)
         keep = row_budget(streams.lengths, peer.max_rows)

@@ -107,7 +107,8 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
         Keep only these track ids.
     peers : bool
         Include the peers: filterpy's IMM (the ``peers`` extra) and those of
-        :mod:`kalmix.peer_models` whose packages are installed.
+        :mod:`kalmix.peer_models` whose packages are installed. False: of those, only the CV and CA
+        Kalman filters in real time (kalmix's own, no other package).
     tune_units : bool
         Tune the mixture's length unit on the tuning part (else the rule's value).
     options : dict, optional
@@ -168,7 +169,9 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     run_fixed_filters(streams, tuning, tune_scored, peer_unit, unit, horizon, tuning_fraction, predictions, tuned, log)
     if peers:
         run_imm(streams, tune_scored, peer_unit, tuned["CV Kalman"]["measurement_noise"], predictions, tuned, log)
-        run_peer_models(streams, tune_scored, peer_unit, horizon, predictions, tuned, log)
+    # without the peer libraries, still the filters in real time: the frame-counting ones alone would be the
+    # verdict's yardstick on irregular steps, which they cannot follow
+    run_peer_models(streams, tune_scored, peer_unit, horizon, predictions, tuned, log, own_only=not peers)
     log("single AKF")
     akf_params = make_params(p, 1, seed=seed, length_unit=unit, **{**options, "adapt_noise": False})
     predictions["single AKF"] = run_mixture(akf_params, values, horizon, lengths=streams.lengths)[:2]
