@@ -225,6 +225,13 @@ def test_an_id_column_named_like_one_is_taken_with_a_note(cli, tmp_path):
     assert "taking 'vessel' as the track id" in piped.stderr and piped.stdout.startswith("vessel,time,")
     single = _run(cli, ["predict", str(path), *FAST, "--id", "none"])   # the user's choice: one track
     assert single.exit_code == 0 and "repeat a timestamp" in single.stderr and single.stdout.startswith("time,")
+    assert "no track id column was found" not in single.stderr
+    bare = tmp_path / "bare.csv"   # no id column at all: the repeated times say the rows may be several targets'
+    bare.write_text("\n".join(line.split(",", 1)[1] for line in _csv(rows, header="id,time,x,y").splitlines()))
+    merged = _run(cli, ["predict", str(bare), *FAST])
+    assert merged.exit_code == 0 and "repeat a timestamp within their track" in merged.stderr
+    assert "no track id column was found, so every row is taken as one target's: rows of several targets need an " \
+           "id column" in merged.stderr
 
 
 @pytest.mark.parametrize("header, column, why", [

@@ -86,8 +86,20 @@ def test_a_file_none_of_whose_times_can_be_read_says_why(cli, tmp_path):
     lines = ["track_id,time,x,y"] + [f"a,2024-03-01 00:00:{i:02d} UTC,{i},0" for i in range(5)]
     result = _run(cli, ["predict", _write(tmp_path / "utc.csv", lines), *FAST])
     assert result.exit_code == 1
-    assert "has no rows with a time (5 bad row(s) skipped; the first, line 2: column 'time' must hold a number or an " \
+    assert "has no row to read (5 bad row(s) skipped; the first, line 2: column 'time' must hold a number or an " \
            "ISO 8601 date-time" in result.stderr and "got '2024-03-01 00:00:00 UTC'" in result.stderr
+
+
+def test_a_file_of_bad_rows_fails_without_leaving_an_output_file(cli, tmp_path):
+    """Every position unreadable: the error names the bad rows (not the times, which are fine), and the ``-o`` file
+    the run created holds no prediction, so it is removed rather than left as if the run had written something."""
+    lines = ["time,x,y"] + [f"{i},{i},{'north' if i % 2 else 'south'}" for i in range(4)]
+    out = tmp_path / "out.csv"
+    result = _run(cli, ["predict", _write(tmp_path / "texty.csv", lines), *FAST, "-o", str(out)])
+    assert result.exit_code == 1
+    assert "has no row to read (4 bad row(s) skipped; the first, line 2: column 'y' must hold a number, got " \
+           "'south')" in result.stderr
+    assert not out.exists()
 
 
 def test_on_bad_row_fail_stops_at_the_row_naming_its_line(cli, tmp_path):

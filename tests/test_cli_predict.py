@@ -451,7 +451,10 @@ def test_explicit_column_names(cli, tmp_path):
 @pytest.mark.parametrize("content, args, message", [
     ("t,px,py\n0,1,2\n", ["--position", "px,pz"], "not found; available columns"),
     ("t,a,b\n0,1,2\n", [], "Could not detect position columns"),
-    ("t;x;y\n0;1;2\n", [], "looks separated by semicolons: kalmix reads comma-separated CSV"),
+    ("t;x;y\n0;1;2\n", [], "looks separated by semicolons: kalmix reads comma-separated CSV; convert it first "
+                          "(e.g. pandas.read_csv(path, sep=';', decimal=',')"),
+    ("t;x;y\n0;1,5;2\n", ["--position", "x,y"], "not found; available columns: ['t;x;y']. The header looks "
+                                                "separated by semicolons"),
     ("0,1,2\n1,1,3\n", [], "The column names are numbers: the first line must be a header"),
     # a used column named as the table's id / time column inside, or one column in two roles, gave
     # silently wrong output (positions in the id column; times as a position)
@@ -530,6 +533,21 @@ def test_unsorted_and_duplicate_times_are_handled_with_a_warning(cli, tmp_path):
 def test_streaming_refuses_parquet_output(cli, tmp_path):
     result = _run(cli, ["predict", "-", "-o", str(tmp_path / "x.parquet")], input="t,x\n0,1\n")
     assert result.exit_code == 1 and "CSV or JSON lines" in result.stderr
+
+
+@pytest.mark.parametrize("name, hint", [("out.xlsx", "spreadsheets open the .csv"), ("out.csv.gz", "| gzip >"),
+                                        ("out.feather", None)])
+def test_an_output_name_of_another_format_is_refused(cli, tmp_path, name, hint):
+    """``-o out.xlsx`` wrote CSV text under a spreadsheet's name (and ``.csv.gz`` uncompressed text): refused before
+    any work, naming what is written; a name without a suffix (a device, a pipe) is still CSV."""
+    source = tmp_path / "t.csv"
+    source.write_text("t,x\n0,1\n1,2\n2,3\n")
+    result = _run(cli, ["predict", str(source), "-o", str(tmp_path / name), *FAST])
+    assert result.exit_code == 1 and not (tmp_path / name).exists()
+    assert "--output: expected a file name ending in .csv, .parquet or .jsonl" in result.stderr
+    assert hint is None or hint in result.stderr
+    plain = _run(cli, ["predict", str(source), "-o", str(tmp_path / "predictions"), *FAST])
+    assert plain.exit_code == 0 and (tmp_path / "predictions").read_text().startswith("t,segment,pred_x,std_x\n")
 
 
 def test_big_file_in_chunks_with_bounded_memory(cli, tmp_path):

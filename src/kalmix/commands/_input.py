@@ -21,6 +21,28 @@ def file_format(path) -> str:
     return "csv"
 
 
+#: The suffixes of an output file name, and the format written to each.
+OUTPUT_SUFFIXES = {".csv": "csv", ".txt": "csv", ".parquet": "parquet", ".pq": "parquet", ".jsonl": "jsonl",
+                   ".ndjson": "jsonl", ".json": "jsonl"}
+
+
+def output_format(path) -> str:
+    """``"csv"``, ``"parquet"`` or ``"jsonl"`` for ``-o PATH`` by its suffix (CSV for a name without one: a device,
+    a pipe); ``ValueError`` for a suffix of another format, which would get CSV under its name."""
+    suffix = os.path.splitext(os.fspath(path))[1].lower()
+    if not suffix:
+        return "csv"
+    if suffix in OUTPUT_SUFFIXES:
+        return OUTPUT_SUFFIXES[suffix]
+    hint = {".xlsx": "spreadsheets open the .csv", ".xls": "spreadsheets open the .csv",
+            ".tsv": "kalmix writes comma-separated values"}.get(suffix)
+    if suffix in (".gz", ".zip", ".bz2", ".xz", ".zst"):
+        hint = ("kalmix writes no compressed text: write .parquet (compressed), or pipe the CSV, e.g. "
+                "'kalmix predict INPUT | gzip > out.csv.gz'")
+    raise ValueError(f"--output: expected a file name ending in .csv, .parquet or .jsonl ('-' or none: CSV on "
+                     f"stdout), got {os.fspath(path)!r}" + (f" ({hint})" if hint else ""))
+
+
 def input_format(path) -> str:
     """``"parquet"`` or ``"csv"`` for a track file INPUT; ``ValueError`` for what is read otherwise."""
     name, kind = os.fspath(path).lower(), file_format(path)

@@ -37,6 +37,7 @@ class Run:
         self.untimed = 0   # stdin rows skipped for want of a time
         self.saved = False   # the state file was written by this run
         self.unit = "chunk"
+        self.one_track = False   # a file without a track id column: every row is one track's
 
     def open_output(self, fmt=None):
         """Open ``-o`` (checked against the state file's record when resuming) once the input is known good."""
@@ -72,13 +73,13 @@ class Run:
 
     def finish(self, failed: bool = False) -> None:
         """Close the output and save the state (both reflect the last commit); after a failure, an output file
-        this run created and never wrote to is removed."""
+        this run created and wrote no prediction to is removed."""
         try:
             self.save()
         finally:
             self.bad.close()
             if self.sink is not None:
-                self.sink.discard_if_empty() if failed else self.sink.close()
+                self.sink.discard_if_empty(self.measured > 0) if failed else self.sink.close()
 
     def report(self) -> None:
         """Summary warnings; on a stop signal or a closed stdout, one line and a non-zero exit."""
@@ -104,7 +105,9 @@ class Run:
         if self.dropped["repeated"]:
             click.echo(f"kalmix: warning: {self.dropped['repeated']} row(s) repeat a timestamp within their track: "
                        "the last row of each repeated time is predicted, the others' output rows have empty "
-                       "predictions", err=True)
+                       "predictions" + ("; no track id column was found, so every row is taken as one target's: "
+                                        "rows of several targets need an id column (--id names one not recognised)"
+                                        if self.one_track else ""), err=True)
         if self.dropped["late"]:
             click.echo(f"kalmix: warning: {self.dropped['late']} row(s) came at or before their track's last time in "
                        "the rows read before them (a file is read a chunk at a time, see --chunk-rows, and rows cannot "

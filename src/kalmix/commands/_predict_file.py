@@ -160,6 +160,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     from ..io.tables import DroppedRowWarning
 
     in_fmt, columns = track_file(path, time_column, position_columns, id_column)
+    run.one_track = columns.track_id is None and id_column is None   # none found (not --id none)
     check_resumed(run.engine, columns)
     run.open_output()
     show = sys.stderr.isatty() if progress is None else progress

@@ -15,7 +15,7 @@ import click
 
 from ..bank import BANK_KINDS, DEFAULT_BANK, MAX_HORIZON, MAX_SEED, recipe_parts
 from ._common import position_names, user_errors as _user_errors
-from ._input import file_format, sample_reader
+from ._input import output_format, sample_reader
 from ._options import (GAP_HELP, REACH_HELP, check_directory, column_options, distinct_files, parse_length_unit,
                        parse_max_gap, parse_mixture_options, parse_reach, reach_setting)
 
@@ -284,10 +284,10 @@ def predict(input_path, time_column, position_columns, id_column, geographic, ho
     reach = parse_reach(reach)
     options = parse_mixture_options(mixture_options, bank=True)
     output = None if output == "-" else output   # stdout, as '-' for INPUT is stdin
-    out_fmt = file_format(output) if output else "csv"
     given = _given(("save_every", "scheduler", "workers", "partitions", "on_bad_row", "rejects"))
     with _user_errors():
         _check_options(input_path, output, state_path, rejects, on_bad_row, engine_kind, backend, given)
+        out_fmt = output_format(output) if output and engine_kind != "dask" else "csv"
     with _user_errors(), SignalGuard() as guard, \
             (StateLock(state_path) if state_path else contextlib.nullcontext()):
         engine = None

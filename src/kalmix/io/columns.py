@@ -75,7 +75,9 @@ def _header_hint(columns) -> str:
         separator = next((name for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "bars"))
                           if sep in columns[0]), None)
         if separator:
-            return f" The header looks separated by {separator}: kalmix reads comma-separated CSV."
+            sep = {"semicolons": "';', decimal=','", "tabs": "'\\t'", "bars": "'|'"}[separator]
+            return (f" The header looks separated by {separator}: kalmix reads comma-separated CSV; convert it first "
+                    f"(e.g. pandas.read_csv(path, sep={sep}).to_csv('tracks.csv', index=False)).")
     try:
         [float(name) for name in columns]
     except ValueError:
@@ -86,7 +88,8 @@ def _header_hint(columns) -> str:
 def require_columns(columns: Sequence[str], wanted: Sequence[str], what: str) -> None:
     missing = [c for c in wanted if c not in columns]
     if missing:
-        raise ValueError(f"{what}: column(s) {missing} not found; available columns: {list(columns)}")
+        raise ValueError(f"{what}: column(s) {missing} not found; available columns: {list(columns)}."
+                         + _header_hint(list(columns)))
 
 
 def check_output_names(columns: "TrackColumns") -> None:

@@ -109,7 +109,9 @@ def normalise_table(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
     back = int(decreasing.sum())
     if back:
         first = out["track_id"].iloc[int(np.argmax(decreasing))]
-        warnings.warn(f"Times decrease at {back} row(s) within tracks (the first in track {first!r}); sorted each "
+        first = first.item() if isinstance(first, np.generic) else first   # 3, not np.int64(3)
+        where = f" (the first in track {first!r})" if out["track_id"].nunique() > 1 else ""
+        warnings.warn(f"Times decrease at {back} row(s) within tracks{where}; sorted each "
                       "track's rows by time (stable)", RuntimeWarning, stacklevel=3)
     if first_appearance:
         first = pd.factorize(out["track_id"], sort=False)[0]

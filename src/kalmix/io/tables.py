@@ -357,8 +357,9 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
     if offset == 0:
         raise ValueError(f"The track file {os.fspath(path)!r} has no rows (only a header)")
     if kept == 0:
-        raise ValueError(f"The track file {os.fspath(path)!r} has no rows with a time" + (
-            f" ({skipped} bad row(s) skipped; the first, {first_bad})" if skipped else ""))
+        raise ValueError(f"The track file {os.fspath(path)!r} has no row to read ({skipped} bad row(s) skipped; the "
+                         f"first, {first_bad})" if skipped else
+                         f"The track file {os.fspath(path)!r} has no rows with a time")
 
 
 def _given_column(batch, name: str | None) -> pd.Series | None:
