@@ -8,8 +8,9 @@ For the weights :math:`w_k` and the awake experts' forecasts :math:`y_k` of one 
     \\qquad \\bar y = \\sum_k w_k y_k,
 
 where :math:`V_k` is expert :math:`k`'s running mean squared error per coordinate (over
-its last ~``window`` learned rows; ``initial_variance`` before the first) and :math:`s`
-a running scale. The variances are the experts' own errors, measured the same way for
+its last ~``window`` learned rows; ``initial_variance`` before the first, and counted as one more
+error until there are ``window`` of them, so that a coordinate an expert has foreseen exactly once
+does not get an interval of width zero) and :math:`s` a running scale. The variances are the experts' own errors, measured the same way for
 every family, so the covariance needs nothing from the experts but their forecasts.
 
 The scale keeps the intervals honest (adaptive conformal inference, Gibbs & Candès
@@ -107,7 +108,7 @@ def update(params: CalibrationParams, state: CalibrationState, weights, experts,
         squared = (z[:, None, :] - experts) ** 2
     learn_k = go[:, None] & awake & np.isfinite(squared).all(axis=-1)
     count = np.where(learn_k, np.minimum(state.count + 1.0, params.window), state.count)
-    step = 1.0 / np.maximum(count, 1.0)
+    step = 1.0 / np.minimum(count + 1.0, params.window)   # the initial variance one more error, up to the window
     with np.errstate(over="ignore", invalid="ignore"):
         variance = np.minimum(state.variance + step[..., None] * (squared - state.variance), params.max_variance)
     return CalibrationState(np.where(learn_k[..., None], variance, state.variance), count,

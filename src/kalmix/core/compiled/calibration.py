@@ -113,6 +113,6 @@ def _calibrate(x, y, awake, count, mix, cov, issued, use_issued, variance, n_err
         if not ok:
             continue
         n_errors[k] = min(n_errors[k] + 1.0, window)
-        step = 1.0 / max(n_errors[k], 1.0)
+        step = 1.0 / min(n_errors[k] + 1.0, window)   # the initial variance one more error (the spec's)
         for c in range(p):
             variance[k, c] = min(variance[k, c] + step * ((y[c] - x[k, c]) ** 2 - variance[k, c]), max_variance)
