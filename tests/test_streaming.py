@@ -39,6 +39,18 @@ CLIP_MEMBERS = ("state/rule/error_scale", "state/rule/error_count", "state/lead/
 BLEND_MEMBERS = ("state/lead/blend/", "state/lead/candidates")
 
 
+def test_the_front_door_needs_no_arguments():
+    """``TrackPredictor()`` runs ``kalmix predict``'s defaults (it asked for a config every field of which has a
+    default), and ``dir(kalmix)`` lists the names imported on first use (tab completion)."""
+    import kalmix
+
+    engine = TrackPredictor()
+    assert engine.config == StreamConfig()
+    assert {"TrackPredictor", "StreamConfig", "RowPrediction", "MixturePredictor"} <= set(dir(kalmix))
+    with pytest.raises(TypeError, match="config: expected a StreamConfig, got dict"):
+        TrackPredictor({"n_experts": 4})
+
+
 def test_rows_equal_batched_table():
     """stdin (step_row) and a file (process_table) agree wherever their definitions agree: the lead
     (here the horizon of 3 time units) on every row, pred_/std_ where the next row comes one reference

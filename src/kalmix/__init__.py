@@ -27,3 +27,8 @@ def __getattr__(name):
 
         return getattr(streaming, name)
     raise AttributeError(f"module 'kalmix' has no attribute {name!r}")
+
+
+def __dir__():
+    """The module's names, those imported when first asked for too (tab completion lists them)."""
+    return sorted(set(globals()) | set(_STREAMING))

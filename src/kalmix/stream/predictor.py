@@ -29,7 +29,8 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, PopulationPrio
 
     Parameters
     ----------
-    config : StreamConfig
+    config : StreamConfig, optional
+        The settings; by default ``StreamConfig()``, those of ``kalmix predict``.
     position_names : sequence of str, optional
         Names of the measured coordinates (kept in the state file).
     backend : {"cpu", "gpu"}
@@ -51,9 +52,11 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, PopulationPrio
         ``-o`` file there); kept as is by :meth:`save` / :meth:`load`.
     """
 
-    def __init__(self, config: StreamConfig, position_names=None, *, backend: str = "cpu"):
+    def __init__(self, config: StreamConfig | None = None, position_names=None, *, backend: str = "cpu"):
         import copy
 
+        if config is None:   # the defaults, as kalmix predict runs them
+            config = StreamConfig()
         if not isinstance(config, StreamConfig):
             raise TypeError(f"config: expected a StreamConfig, got {type(config).__name__} {config!r:.80}")
         self.backend = check_backend(backend)
