@@ -10,8 +10,9 @@ For the weights :math:`w_k` and the awake experts' forecasts :math:`y_k` of one 
 where :math:`V_k` is expert :math:`k`'s running mean squared error per coordinate (over
 its last ~``window`` learned rows; ``initial_variance`` before the first, and counted as one more
 error until there are ``window`` of them, so that a coordinate an expert has foreseen exactly once
-does not get an interval of width zero) and :math:`s` a running scale. The variances are the experts' own errors, measured the same way for
-every family, so the covariance needs nothing from the experts but their forecasts.
+does not get an interval of width zero) and :math:`s` a running scale. The variances are the
+experts' own errors, measured the same way for every family, so the covariance needs nothing from
+the experts but their forecasts.
 
 The scale keeps the intervals honest (adaptive conformal inference, Gibbs & Candès
 2021): after each learned row, with ``miss`` the fraction of coordinates outside
