@@ -25,7 +25,7 @@ from .kinematic import check_gpu as check_gpu, pack as pack, unpack as unpack, w
 configure_cache()
 #: :func:`.kinematic.sandwich` inlined here, so that its size (5) is a constant of the loops, which LLVM unrolls:
 #: the same operations in the same order (the same bits), the family's rows in a fifth less time.
-_sandwich = nb.njit(inline="always", **_JIT)(sandwich.py_func)
+_sandwich = nb.njit(inline="always", **_JIT)(getattr(sandwich, "py_func", sandwich))   # (a function without numba)
 
 #: Relative cost of an expert's row (the engine hands the costliest family to a thread first).
 COST = 4.0
