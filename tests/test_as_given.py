@@ -286,3 +286,95 @@ def test_the_output_keeps_only_the_id_and_time_of_the_input(cli, tmp_path):
     side = pd.concat([source, out.drop(columns=["track_id", "time"])], axis=1)
     assert list(side.columns) == ["track_id", "time", "x", "y", "note", *PREDICTED]
     assert (out["track_id"] == source["track_id"]).all() and (out["time"] == source["time"]).all()
+
+
+def _typed_outputs(cli, tmp_path, text, chunk_rows, stem="in"):
+    """``text`` (a CSV file) predicted to CSV, JSON lines and Parquet with ``--chunk-rows``: the CSV read as text,
+    the JSON lines' records, the Parquet table (pyarrow)."""
+    import pyarrow.parquet as pq
+
+    path = tmp_path / f"{stem}.csv"
+    path.write_text(text)
+    outs = {}
+    for suffix in ("csv", "jsonl", "parquet"):
+        target = tmp_path / f"{stem}-{chunk_rows}.{suffix}"
+        result = _run(cli, ["predict", str(path), "--length-unit", "0.05", "--no-progress", "--chunk-rows",
+                            str(chunk_rows), "-o", str(target)])
+        assert result.exit_code == 0, result.output
+        outs[suffix] = target
+    rows = [json.loads(line) for line in outs["jsonl"].read_text().splitlines()]
+    return _text(outs["csv"].read_text()), rows, pq.read_table(outs["parquet"])
+
+
+SEVEN = "track_id,time,x,y\n0,0.0,0,0\n0,0.1,0.1,0\n0,0.2,0.2,0\n0,0.3,0.3,0\n0,{bad},0.4,0\n0,0.5,0.5,0\n0,0.6,0.6,0\n"
+
+
+@pytest.mark.parametrize("bad", ["ERR", "abc", "2024-05-01T00:00:00Z", "1e0x", "inf", "NA"])
+@pytest.mark.parametrize("chunk_rows", [3, 100])
+def test_a_bad_time_keeps_the_time_column_one_type_in_every_chunk(cli, tmp_path, bad, chunk_rows):
+    """A time that is not read (text, a stray date-time, an infinity, a missing one), in the second chunk of
+    three or in the only one: the Parquet output is written (it failed on a schema that changed from double to
+    text midway) with a float64 time column, JSON lines' times are numbers in every chunk (they turned into
+    text in the chunk with the bad cell), the row that could not be read has a null time and empty predictions,
+    and each format has the CSV output's rows and predictions, bit for bit."""
+    import pyarrow as pa
+
+    csv_out, rows, table = _typed_outputs(cli, tmp_path, SEVEN.format(bad=bad), chunk_rows)
+    assert csv_out["time"].tolist() == ["0.0", "0.1", "0.2", "0.3", bad, "0.5", "0.6"]   # CSV: as written
+    assert table.schema.field("time").type == pa.float64()
+    expected = [0.0, 0.1, 0.2, 0.3, None, 0.5, 0.6]
+    assert table.column("time").to_pylist() == expected
+    assert [row["time"] for row in rows] == expected
+    assert all(type(row["time"]) in (float, type(None)) for row in rows)
+    parquet = table.to_pandas()
+    for name in PREDICTED:
+        want = csv_out[name].to_numpy(np.float64)
+        np.testing.assert_array_equal(parquet[name].to_numpy(np.float64), want)
+        np.testing.assert_array_equal(np.array([np.nan if row[name] is None else row[name] for row in rows]), want)
+    assert csv_out["pred_x"].isna().tolist() == [i == 4 for i in range(7)]
+    piped = _run(cli, ["predict", "-", "--length-unit", "0.05", "--no-progress", "-o", str(tmp_path / "piped.jsonl")],
+                 input=SEVEN.format(bad=bad))   # stdin's JSON lines: the same times (it gave the bad text)
+    assert piped.exit_code == 0, piped.output
+    assert [json.loads(line)["time"] for line in (tmp_path / "piped.jsonl").read_text().splitlines()] == expected
+
+
+def test_a_date_time_column_stays_text_when_its_first_chunk_has_no_time(cli, tmp_path):
+    """A column of date-times whose first chunk holds no time that can be read (missing, bad) and whose third
+    holds only missing ones: text in every chunk of the Parquet output (a first chunk written as float64 made
+    the rest fail), the times not read null in Parquet and JSON lines, and as written in CSV."""
+    import pyarrow as pa
+
+    given = ["NA", "ERR", "2024-05-01T00:00:02Z", "2024-05-01T00:00:03+02:00", "", "null", "7",
+             "2024-05-01T00:00:07Z"]
+    text = "track_id,time,x,y\n" + "".join(f"a,{t},{i * 0.1:.1f},0\n" for i, t in enumerate(given))
+    csv_out, rows, table = _typed_outputs(cli, tmp_path, text, 2)
+    assert csv_out["time"].tolist() == given
+    expected = [None, None, "2024-05-01T00:00:02Z", "2024-05-01T00:00:03+02:00", None, None, None,
+                "2024-05-01T00:00:07Z"]
+    assert table.schema.field("time").type in (pa.string(), pa.large_string())
+    assert table.column("time").to_pylist() == expected
+    assert [row["time"] for row in rows] == expected
+
+
+def test_missing_time_texts_come_back_as_written_from_a_file_and_from_stdin(cli, tmp_path):
+    """``NA``, ``null``, ``nan``, ``N/A``, ``None`` (pandas' missing-value texts) in a time column: a missing time,
+    its row not predicted; in a CSV output the text as written from a file (it came back empty) as from stdin,
+    in JSON lines null from both (stdin gave the text); numbers as written (``0.10``)."""
+    missing = ["NA", "null", "nan", "N/A", "None"]
+    times = ["0.00", "0.10", *missing, "0.20", "0.30"]
+    text = "track_id,time,x,y\n" + "".join(f"a,{t},{i * 0.1:.2f},0\n" for i, t in enumerate(times))
+    csv_out, rows, table = _typed_outputs(cli, tmp_path, text, 100)
+    assert csv_out["time"].tolist() == times
+    assert csv_out["pred_x"].isna().tolist() == [t in missing for t in times]
+    expected = [None if t in missing else float(t) for t in times]
+    assert [row["time"] for row in rows] == expected and table.column("time").to_pylist() == expected
+    args = ["--length-unit", "0.05", "--no-progress"]
+    piped = _run(cli, ["predict", "-", *args], input=text)
+    assert piped.exit_code == 0, piped.output
+    given = ["track_id", "time", "segment"]   # (stdin forecasts a row for a time it cannot know yet: other numbers)
+    pd.testing.assert_frame_equal(_text(piped.stdout)[given], csv_out[given])
+    piped = _run(cli, ["predict", "-", *args, "-o", str(tmp_path / "piped.jsonl")], input=text)
+    assert piped.exit_code == 0, piped.output
+    assert [{name: json.loads(line)[name] for name in given}
+            for line in (tmp_path / "piped.jsonl").read_text().splitlines()] == [
+        {name: row[name] for name in given} for row in rows]

@@ -177,6 +177,25 @@ def test_a_chunk_of_bad_rows_only_keeps_its_places(cli, tmp_path):
     assert "10 bad row(s) skipped (lines 2, 3, 4, 5, 6, 7, 8, 9, 10, 11;" in result.stderr
 
 
+@pytest.mark.parametrize("empty", [[0, 1], [2, 3]])
+def test_a_parquet_chunk_whose_ids_are_all_empty_fits_the_parquet_output(cli, tmp_path, empty):
+    """A Parquet file of binary ids, one chunk of two bad rows with no id (the first or a later one): the Parquet
+    output keeps the ids' type in every chunk (the chunk without an id had no type, and the writer refused it
+    midway, or the rest of the file after it), the rows in their places."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    ids = [None if i in empty else b"a" for i in range(6)]
+    frame = pd.DataFrame({"track_id": ids, "time": np.arange(6.0), "x": np.arange(6.0), "y": np.zeros(6)})
+    frame.to_parquet(tmp_path / "in.parquet", index=False)
+    result = _run(cli, ["predict", str(tmp_path / "in.parquet"), *FAST, "--chunk-rows", "2", "-o",
+                        str(tmp_path / "out.parquet")])
+    assert result.exit_code == 0, result.output
+    table = pq.read_table(tmp_path / "out.parquet")
+    assert table.schema.field("track_id").type == pa.binary() and table.column("track_id").to_pylist() == ids
+    assert table.column("segment").to_pylist() == [None if i in empty else 0 for i in range(6)]
+
+
 def test_a_resumed_run_reports_and_rejects_a_bad_row_once(cli, tmp_path):
     """The rows an earlier run wrote are left out of a resumed run's output, its bad rows with them."""
     lines = _with(_lines(60), 11, "a,0.9,oops,1")

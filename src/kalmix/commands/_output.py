@@ -132,6 +132,29 @@ def csv_text(frame, header: bool) -> str:
     return head + sink.getvalue().to_pybytes().decode("utf-8")
 
 
+def _typed(table, types):
+    """A Parquet piece that fits ``types``: a schema (the file's, once written), whose types a column of the piece
+    with another takes (a column without values, Arrow's null type, as nulls of that type; any other cast as Arrow
+    casts safely, left as it is where it cannot be), or a dict of types by name, which only columns without
+    values take. So a piece whose id or time happens to have no value, or a value read otherwise, fits the file
+    instead of failing it midway."""
+    import pyarrow as pa
+
+    every = isinstance(types, pa.Schema)
+    for name in types.names if every else list(types):
+        i = table.schema.get_field_index(name)
+        want = types.field(name).type if every else types[name]
+        if i < 0 or table.schema.field(i).type == want or not (every or pa.types.is_null(table.schema.field(i).type)):
+            continue
+        column = table.column(i)
+        try:
+            column = pa.nulls(len(column), want) if pa.types.is_null(column.type) else column.cast(want)
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
+            continue
+        table = table.set_column(i, table.schema.field(i).with_type(want), column)
+    return table
+
+
 class OutputClosed(Exception):
     """The reader of stdout went away (broken pipe)."""
 
@@ -175,6 +198,9 @@ class Output:
         self._handle = None
         self._parquet = None
         self._parquet_empty = None   # an empty table, written at close if no rows come (see write_frame)
+        #: Parquet: the types of columns a piece may give without one (every value missing, in a column of
+        #: Python objects), by name: the input's own, for its id and time columns
+        self.types: dict = {}
         self._regular = False
         self._failed = False
         self._created = False
@@ -238,7 +264,8 @@ class Output:
         if self.fmt == "parquet":
             import pyarrow as pa
             import pyarrow.parquet as pq
-            table = pa.Table.from_pandas(frame, preserve_index=False)
+            table = _typed(pa.Table.from_pandas(frame, preserve_index=False),
+                           self.types if self._parquet is None else self._parquet.schema)
             if self._parquet is None and not len(frame):
                 # no rows (a resumed run's chunks already done): its empty columns have no type, and a writer made
                 # from them would refuse the first real rows ("schema does not match"); the file is made at the

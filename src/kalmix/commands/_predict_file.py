@@ -72,13 +72,14 @@ def merge(frames, chunk):
     return out.iloc[np.lexsort((out["time"].to_numpy(), codes))].reset_index(drop=True)
 
 
-def given_rows(frame, chunk, columns, fmt, kept: list | None = None):
+def given_rows(frame, chunk, columns, fmt, kept: list | None = None, time_kind: str | None = None):
     """A chunk's output: ``frame``, the predictions of the chunk rows the engine stepped (in chunk order, as
     :func:`merge` gives them), laid out on the chunk's file rows in file order, each with its id and time as
     the file gave them (:class:`kalmix.io.tables.AsGiven`; the time as :func:`given_times` writes it in
     ``fmt``). A file row not stepped (no time, an earlier row of a repeated time) has empty predictions and
     segment; one a resumed run skips as done before, or that shares such a row's fate, is left out (its run
-    wrote it). ``kept``: given a list, receives which file rows are written (a boolean array)."""
+    wrote it). ``kept``: given a list, receives which file rows are written (a boolean array). ``time_kind``:
+    the file's time kind where the rows read so far have not decided it (a first pass over the file found it)."""
     import pandas as pd
 
     given = chunk.attrs["as_given"]
@@ -114,8 +115,8 @@ def given_rows(frame, chunk, columns, fmt, kept: list | None = None):
         if isinstance(out["row"], pd.arrays.IntegerArray):
             out["row"][np.isnan(number)] = pd.NA
     else:
-        times = given.times if every else given.times[written]
-        out[columns.time] = given_times(times.reset_index(drop=True), fmt)
+        times, read = (given.times, given.read_times) if every else (given.times[written], given.read_times[written])
+        out[columns.time] = given_times(times.reset_index(drop=True), fmt, read, given.time_kind or time_kind)
     stepped = source >= 0
     whole = bool(stepped.all())
     for name in frame.columns[2:]:
@@ -132,23 +133,25 @@ def given_rows(frame, chunk, columns, fmt, kept: list | None = None):
     return pd.DataFrame(out)
 
 
-def given_times(times, fmt):
+def given_times(times, fmt, read, kind):
     """A time column as the input gave it, for an output of format ``fmt``: a CSV file's or stdin's text as
-    written in a CSV output; in JSON lines and Parquet, text that holds numbers as those numbers (JSON: whole
-    numbers as integers, the others as floats; Parquet: float64, one type for every chunk), date-time text as
-    it is. Any other column (Parquet's own types) as it is."""
+    written in a CSV output; in JSON lines and Parquet, text by the file's time kind (``kind``, None before a
+    time could be read), one type for every chunk of the file: numbers as the numbers read (``read``, NaN where
+    a time is missing or bad; JSON: whole numbers as integers, the others as floats; Parquet: float64),
+    date-times as their text, and a time missing or bad (neither a number nor a date-time of the column's kind)
+    as null. Any other column (Parquet's own types) as it is."""
     import pandas as pd
 
     if fmt == "csv" or not pd.api.types.is_string_dtype(times):
         return times
-    numbers = pd.to_numeric(times, errors="coerce")
-    if int(numbers.notna().sum()) != int(times.notna().sum()):
-        return times   # date-times
+    unread = np.isnan(read)
+    if kind == "date-time":
+        return times.mask(unread)
     if fmt == "parquet":
-        return numbers.astype(np.float64)
+        return pd.Series(read, dtype=np.float64)
     whole = times.str.strip().str.fullmatch(r"[+-]?\d+").fillna(False).to_numpy(bool)
-    return pd.Series([int(text) if integer else float(number) for text, number, integer
-                      in zip(times.tolist(), numbers.tolist(), whole.tolist())], dtype=object)
+    return pd.Series([None if missing else int(text) if integer else number for text, number, integer, missing
+                      in zip(times.tolist(), read.tolist(), whole.tolist(), unread.tolist())], dtype=object)
 
 
 def predict_file(run, path, settings, unit, time_column, position_columns, id_column, chunk_rows, progress):
@@ -167,7 +170,12 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     total = None
     if in_fmt == "parquet":
         import pyarrow.parquet as pq
-        total = pq.ParquetFile(path).metadata.num_rows
+        with pq.ParquetFile(path) as parquet:
+            total = parquet.metadata.num_rows
+            schema = parquet.schema_arrow
+        # a chunk whose ids (or times) are all missing has Python objects without a type: the input's, in Parquet
+        run.sink.types = {name: schema.field(name).type for name in (columns.track_id, columns.time)
+                          if name is not None}
     elif show:
         total = count_rows(path)
     names = list(columns.positions)
@@ -180,9 +188,11 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     offset = 0   # file rows before the chunk
     said_unavailable = False
     clocks = _clocks(run.engine, settings)
+    kind: dict = {}   # the time column's kind, as the first pass over a file of several chunks finds it
     ahead = (_lookahead(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
                                           ids_as_text=True, on_bad_row=run.on_bad_row,
-                                          clock_resets=_clocks(run.engine, settings), late_rows="skip"))
+                                          clock_resets=_clocks(run.engine, settings), late_rows="skip",
+                                          time_kind=kind))
              if total_rows > chunk_rows else [])
     with tqdm(total=total, unit="rows", file=sys.stderr, disable=not show,
               desc="kalmix predict", smoothing=0.1) as bar, warnings.catch_warnings():
@@ -201,12 +211,13 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                 said_unavailable = _check_degrees(chunk, names, axes, offset - chunk.attrs.get("file_rows", len(chunk)),
                                                   said_unavailable)
             if not len(chunk):   # every row bad or without a time: their output rows, nothing to step
-                _write_unstepped(run, chunk, columns, settings)
+                _write_unstepped(run, chunk, columns, settings, kind.get("kind"))
                 bar.update(chunk.attrs.get("file_rows", 0))
                 continue
             if run.engine is None:
                 run.engine = _first_engine(chunk, names, unit, axes, settings, columns.positions, run.backend)
-            _step_chunk(run, chunk, names, ahead[index] if index < len(ahead) else {}, clocks, columns, bar)
+            _step_chunk(run, chunk, names, ahead[index] if index < len(ahead) else {}, clocks, columns, bar,
+                        kind.get("kind"))
             bar.update(chunk.attrs.get("file_rows", len(chunk)) - len(chunk))
             run.units.check(run.engine)
 
@@ -228,9 +239,9 @@ def _first_engine(chunk, names, unit, axes, settings, positions, backend):
     return new_engine(settings, chosen, positions, backend)
 
 
-def _step_chunk(run, chunk, names, later, clocks, columns, bar) -> None:
+def _step_chunk(run, chunk, names, later, clocks, columns, bar, time_kind=None) -> None:
     """Step a chunk piece by piece (``later``: :func:`_lookahead`'s next times of its tracks), then write its
-    output rows and commit; rolled back if stopped before the commit."""
+    output rows (``time_kind``: as :func:`given_rows`) and commit; rolled back if stopped before the commit."""
     import pandas as pd
 
     from ..streaming import next_row_times
@@ -250,7 +261,7 @@ def _step_chunk(run, chunk, names, later, clocks, columns, bar) -> None:
                 run.guard.tick()
         _keep_clocks(engine, clocks, pd.unique(chunk["track_id"]))
         written: list = []
-        frame = given_rows(merge(frames, chunk), chunk, columns, run.sink.fmt, written)
+        frame = given_rows(merge(frames, chunk), chunk, columns, run.sink.fmt, written, time_kind)
         with run.guard.deferred():
             run.sink.write_frame(frame)
             _log_bad_rows(run, chunk, written[0])
@@ -308,9 +319,9 @@ def _log_bad_rows(run, chunk, written) -> None:
                 [t for t, k in zip(bad.texts, keep) if k])
 
 
-def _write_unstepped(run, chunk, columns, settings) -> None:
+def _write_unstepped(run, chunk, columns, settings, time_kind=None) -> None:
     """Write the output rows of a chunk without a row to step (every row bad or without a time): the id and time
-    as given, empty predictions."""
+    as given (``time_kind``: as :func:`given_rows`), empty predictions."""
     import pandas as pd
 
     from ..streaming import StreamConfig, TrackPredictor
@@ -322,7 +333,7 @@ def _write_unstepped(run, chunk, columns, settings) -> None:
                               name: pd.Series(dtype=np.float64)
                               for names in engine.output_columns().values() for name in names}})
     written: list = []
-    out = given_rows(frame, chunk, columns, run.sink.fmt, written)
+    out = given_rows(frame, chunk, columns, run.sink.fmt, written, time_kind)
     with run.guard.deferred():
         run.sink.write_frame(out)
         _log_bad_rows(run, chunk, written[0])

@@ -171,7 +171,8 @@ class _Batches:
                 if measured is not None:
                     self.previous_written = written
                 if written:
-                    time_out = given if self.reader.is_json else given_time(given, run.sink.fmt)   # JSON: its own
+                    time_out = given if self.reader.is_json else given_time(   # JSON: its own
+                        given, run.sink.fmt, measured is not None, self.reader.time_kind.get("kind"))
                     records.append(_row_record(result, track, time_out, columns, prefixes))
                     if isinstance(row, BadLine):
                         rejected.append(row)
@@ -224,20 +225,28 @@ def _row_record(result, track, time, columns, prefixes):
     return out
 
 
-def given_time(value, fmt):
+def given_time(value, fmt, read=True, kind=None):
     """A stdin row's time as given, for an output of format ``fmt``: CSV text as written in CSV; in JSON lines,
-    text that holds a number as that number (a whole number as an integer), other text (a date-time) as it
-    is; a JSON value, or a row number, as it is."""
+    as a file's (:func:`._predict_file.given_times`): text that holds a number as that number (a whole number as
+    an integer), a date-time as its text, by the column's kind (``kind``, None before a time was read), and a
+    time missing or bad (``read`` False: a row not stepped, whose time may still be one) as null; a JSON value,
+    or a row number, as it is."""
     if fmt != "jsonl" or not isinstance(value, str):
         return value
     text = value.strip()
     try:
         number = float(text)
     except ValueError:
-        return value
-    if not math.isfinite(number):
-        return value
-    return int(text) if text.lstrip("+-").isdigit() else number
+        number = None
+    if number is not None:
+        if not math.isfinite(number) or kind == "date-time":
+            return None
+        return int(text) if text.lstrip("+-").isdigit() else number
+    if read or kind == "number":
+        return value if read else None
+    from ..io.values import iso_seconds
+
+    return None if math.isnan(iso_seconds([value], errors="coerce")[0]) else value
 
 
 class _StreamClocks:

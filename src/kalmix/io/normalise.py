@@ -58,12 +58,14 @@ def normalise_table(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
             ids = ids.astype(np.float32)
         mark(ids.isna().to_numpy(), lambda i: f"column {cols.track_id!r} (track id) is empty")
     out = pd.DataFrame({"track_id": ids})
+    kind = {} if time_kind is None else time_kind
+    read_times = None   # the times read, in file order (NaN: missing or bad)
     if cols.time is None:
         out["time"] = np.nan   # numbered below, once the bad rows are known
     else:
         column = raw[cols.time].reset_index(drop=True)
-        kind = {} if time_kind is None else time_kind
-        out["time"], wrong = read_floats(column, dates=True, kind=kind)
+        read_times, wrong = read_floats(column, dates=True, kind=kind)
+        out["time"] = read_times.copy()   # (the table's own: its times may be moved, those read are kept)
         mark(wrong, lambda i: bad_value(column, i, cols.time, True, kind))
     for p in cols.positions:
         column = raw[p].reset_index(drop=True)
@@ -137,7 +139,8 @@ def normalise_table(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
     if clocks is not None and clocks.found:
         out.attrs["clock_resets"] = list(clocks.found)
     if as_given:
-        out.attrs["as_given"] = AsGiven.of(raw, cols, sorted_places, dup, no_time | bad | late, given_time)
+        out.attrs["as_given"] = AsGiven.of(raw, cols, sorted_places, dup, no_time | bad | late, given_time,
+                                           read_times, kind.get("kind"))
     if bad.any():
         out.attrs["bad_rows"] = BadRows.of(raw, cols, np.flatnonzero(bad), why, offset, lines, named)
     return out.reset_index(drop=True)
@@ -165,8 +168,14 @@ class AsGiven:
         File rows the chunk was made from.
     ids, times : pandas.Series or None
         The id and time columns, ``rows`` values in file order, as read: a CSV's text exactly as
-        written (a missing time as NaN), a Parquet column's own type (integers nullable). None
-        for a column the file does not have.
+        written (an empty time as NaN; ``NA`` as ``NA``), a Parquet column's own type (integers
+        nullable). None for a column the file does not have.
+    read_times : ndarray of float or None
+        The times as read, ``rows`` values in file order: numbers, or a date-time's seconds since 1970
+        UTC; NaN for a time that is missing or bad. None without a time column.
+    time_kind : str or None
+        The file's time column's kind, ``"number"`` or ``"date-time"``, as its first time that could be
+        read (in this chunk or an earlier one) decided it; None before any, or for Parquet datetimes.
     places : ndarray of int, shape (len(chunk),)
         Each chunk row's file row (counted from the chunk's first).
     owner : ndarray of int, shape (rows,)
@@ -177,14 +186,15 @@ class AsGiven:
         row was stepped (not skipped as already done).
     """
 
-    def __init__(self, rows, ids, times, places, owner):
+    def __init__(self, rows, ids, times, places, owner, read_times=None, time_kind=None):
         self.rows, self.ids, self.times, self.places, self.owner = rows, ids, times, places, owner
+        self.read_times, self.time_kind = read_times, time_kind
 
     def __deepcopy__(self, memo):   # in attrs, as _RowOrder: shared by the frames pandas derives, not copied
         return self
 
     @classmethod
-    def of(cls, raw, cols, sorted_places, dup, no_time, given_time=None) -> AsGiven:
+    def of(cls, raw, cols, sorted_places, dup, no_time, given_time=None, read_times=None, time_kind=None) -> AsGiven:
         """From :func:`normalise_table`'s steps: ``sorted_places`` the file rows with a time sorted by track and time,
         ``dup`` which of them an equal time follows (dropped), ``no_time`` which file rows have no time."""
         n = len(raw)
@@ -201,7 +211,7 @@ class AsGiven:
         if given_time is None and cols.time is not None:
             given_time = raw[cols.time]
         times = None if given_time is None else given_time.reset_index(drop=True)
-        return cls(n, ids, times, sorted_places[~dup], owner)
+        return cls(n, ids, times, sorted_places[~dup], owner, read_times, time_kind)
 
 
 #: What a reader does with a bad row: ``"skip"`` it (left out of the table, listed in ``attrs["bad_rows"]``

@@ -85,18 +85,25 @@ _FORMATS = ("csv", "parquet")
 
 def csv_options(cols: TrackColumns, ids_as_text: bool, time_as_text: bool = False) -> dict:
     """``pd.read_csv`` arguments that read the id column as text exactly as written (empty = missing) and, with
-    ``time_as_text``, the time column as text (missing as pandas reads it: empty, ``NA``, ``nan``, ...), which
-    :func:`to_float` turns into the same numbers as pandas' own reading."""
+    ``time_as_text``, the time column as text exactly as written too (empty = missing; ``NA``, ``nan``, ... kept
+    as their text, which :func:`missing_as_pandas` then makes missing as pandas' own reading would)."""
     text = [name for name, wanted in ((cols.track_id, ids_as_text), (cols.time, time_as_text))
             if wanted and name is not None]
     if not text:
         return {}
     from pandas._libs.parsers import STR_NA_VALUES
 
-    missing = {name: sorted(STR_NA_VALUES) for name in cols.names if name != cols.track_id}
-    if cols.track_id is not None:
-        missing[cols.track_id] = [""] if ids_as_text else sorted(STR_NA_VALUES)
+    missing = {name: [""] if name in text else sorted(STR_NA_VALUES) for name in cols.names}
     return {"dtype": {name: str for name in text}, "keep_default_na": False, "na_values": missing}
+
+
+def missing_as_pandas(text: pd.Series) -> pd.Series:
+    """A column read as text exactly as written (:func:`csv_options`) with pandas' missing-value texts (``NA``,
+    ``nan``, ``null``, ``N/A``, ``None``, ``#N/A``, ...; matched as written, as pandas does) missing: what
+    pandas' own reading of the column gives."""
+    from pandas._libs.parsers import STR_NA_VALUES
+
+    return text.mask(text.isin(STR_NA_VALUES))
 
 
 def _format_of(source: Any, format: str | None) -> str:
@@ -240,7 +247,8 @@ def _checked_column(path, cols: TrackColumns, ids_as_text: bool) -> int | None:
 def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None = None,
                       chunk_rows: int = 1_000_000, format: str | None = None, ids_as_text: bool = False,
                       as_given: bool = False, on_bad_row: str = "fail", bad_texts: bool = False,
-                      clock_resets=None, late_rows: str = "fail") -> Iterator[pd.DataFrame]:
+                      clock_resets=None, late_rows: str = "fail", time_kind: dict | None = None
+                      ) -> Iterator[pd.DataFrame]:
     """Read a huge CSV or Parquet track file in bounded memory, chunk by chunk.
 
     Chunks of at most `chunk_rows` file rows come in file order (pandas
@@ -269,7 +277,8 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         Read a CSV id column as text exactly as written (see the module docstring).
     as_given : bool, default False
         Also keep each chunk's file rows as the file gave them, in ``chunk.attrs["as_given"]``
-        (:class:`AsGiven`): a CSV time column is then read as text (the same numbers).
+        (:class:`AsGiven`): a CSV time column is then read as text exactly as written (``NA`` stays ``NA``),
+        and read into the same numbers.
     on_bad_row : {'fail', 'skip'}, default 'fail'
         As in :func:`read_tracks`: ``'skip'`` leaves a bad row out of its chunk, lists it in
         ``chunk.attrs["bad_rows"]`` (:class:`BadRows`) and warns (:class:`BadRowWarning`) once a
@@ -286,6 +295,10 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         ``ValueError``; ``'skip'`` leaves it out of its chunk like a row without a time (counted in
         ``chunk.attrs["dropped"]["late"]``, kept in ``as_given`` as a row not predicted) and warns
         (:class:`DroppedRowWarning`).
+    time_kind : dict, optional
+        Where the read keeps the time column's kind: ``time_kind["kind"]`` is ``"number"`` or ``"date-time"``
+        once the file's first time that can be read decides it (absent before, and for a column of Parquet
+        datetimes or durations), for a caller to look at during or after the read.
 
     Yields
     ------
@@ -302,7 +315,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
     check_unique_columns(path, fmt, cols)
     last: dict = {}
     counts: dict | None = {} if cols.time is None else None
-    time_kind: dict = {}
+    time_kind = {} if time_kind is None else time_kind
     clocks = None if clock_resets is None or cols.time is None else (
         clock_resets if isinstance(clock_resets, ClockResets) else ClockResets(clock_resets))
     offset = kept = skipped = 0
@@ -317,7 +330,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         else:
             reader = stack.enter_context(pd.read_csv(path, usecols=cols.names, chunksize=int(chunk_rows),
                                                      **csv_options(cols, ids_as_text, as_given)))
-            batches = ((raw, None) for raw in reader)
+            batches = (_as_written(raw, cols.time) if as_given else (raw, None) for raw in reader)
             lines = CsvLines(path, texts=bad_texts, check=_checked_column(path, cols, ids_as_text))
             stack.callback(lines.close)
         batches = iter(batches)
@@ -360,6 +373,16 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         raise ValueError(f"The track file {os.fspath(path)!r} has no row to read ({skipped} bad row(s) skipped; the "
                          f"first, {first_bad})" if skipped else
                          f"The track file {os.fspath(path)!r} has no rows with a time")
+
+
+def _as_written(raw: pd.DataFrame, name: str | None) -> tuple[pd.DataFrame, pd.Series | None]:
+    """A CSV chunk whose time column was read as text exactly as written: the chunk with that column's missing
+    texts missing (:func:`missing_as_pandas`: the numbers pandas' reading gives), and the text to give back."""
+    if name is None:
+        return raw, None
+    written = raw[name]
+    raw[name] = missing_as_pandas(written)
+    return raw, written
 
 
 def _given_column(batch, name: str | None) -> pd.Series | None:
