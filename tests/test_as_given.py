@@ -255,6 +255,86 @@ def test_an_unnamed_column_that_looks_like_an_id_stops_the_run(cli, tmp_path, he
     assert evaluate.exit_code == 1 and f"pass --id {column}" in evaluate.stderr
 
 
+def _collars(offsets=(0.0, 0.37)):
+    """Two GPS collars 500 apart whose fixes never share a time (the second 0.37 s later), their ids in a column
+    not named like ids: ``time,collar,x,y`` rows in time order."""
+    rows = sorted((k + offset, unit, 2 * k, y) for unit, offset, y in zip((1001, 1002), offsets, (0, 500))
+                  for k in range(30))
+    return "time,collar,x,y\n" + "".join(f"{t:.2f},{unit},{x},{y}\n" for t, unit, x, y in rows)
+
+
+@pytest.mark.parametrize("suffix", ["csv", "parquet"])
+def test_ids_of_fixes_that_never_share_a_time_stop_the_run(cli, tmp_path, suffix):
+    """GPS collars, AIS and ADS-B almost never repeat a time exactly: an undetected id column of whole numbers
+    merged the tracks with a note and exit 0 (one track jumping 500 between rows). Its values change where the
+    positions jump, far more than the rows of one value move: the run stops naming it, in Python too."""
+    from kalmix.streaming import StreamConfig, TrackPredictor
+
+    table = pd.read_csv(io.StringIO(_collars()))
+    path = tmp_path / f"in.{suffix}"
+    table.to_parquet(path) if suffix == "parquet" else path.write_text(_collars())
+    result = _run(cli, ["predict", str(path), "--length-unit", "1", "-o", str(tmp_path / "out.csv")])
+    assert result.exit_code == 1 and "'collar' (whole numbers that change where the positions jump: a median step " \
+        "of 500 where the value changes, 2 between rows of one value)" in result.stderr, result.output
+    assert "pass --id collar, or --id none" in result.stderr and not (tmp_path / "out.csv").exists()
+    evaluate = _run(cli, ["evaluate", str(path), "--no-peers"])
+    assert evaluate.exit_code == 1 and "pass --id collar" in evaluate.stderr
+    with pytest.raises(ValueError, match="pass --id collar"):
+        TrackPredictor(StreamConfig(length_unit=1.0)).process_table(table)
+    named = _run(cli, ["predict", str(path), "--length-unit", "1", "--id", "collar"])
+    assert named.exit_code == 0 and named.stdout.startswith("collar,time,segment,pred_x"), named.output
+    assert _run(cli, ["predict", str(path), "--length-unit", "1", "--id", "none"]).exit_code == 0
+
+
+def test_one_track_with_columns_of_whole_numbers_runs(cli, tmp_path):
+    """A single target's file with a status code, a satellite count, a fix-quality flag (its bad fixes jumping
+    away) and a frame counter beside the positions is one track: it runs, as before, each column named in the
+    note on unused columns."""
+    rng = np.random.default_rng(5)
+    n = 300
+    xy = np.cumsum(rng.normal(0, 1, (n, 2)) + [1.0, 0.3], 0)
+    bad = rng.random(n) < 0.1
+    xy[bad] += rng.normal(0, 300, (bad.sum(), 2))
+    times = np.cumsum(rng.uniform(0.5, 1.5, n))
+    status, sats = rng.integers(0, 3, n), np.clip(8 + np.cumsum(rng.integers(-1, 2, n)) // 10, 4, 14)
+    path = tmp_path / "in.csv"
+    path.write_text("time,x,y,status,sats,fix,frame_count\n" + "".join(
+        f"{times[k]:.3f},{xy[k, 0]:.3f},{xy[k, 1]:.3f},{status[k]},{sats[k]},{int(not bad[k])},{k}\n"
+        for k in range(n)))
+    result = _run(cli, ["predict", str(path), "--length-unit", "1", "--no-progress"])
+    assert result.exit_code == 0 and result.stdout.startswith("time,segment,pred_x"), result.output
+    assert "unused columns: 'status', 'sats', 'fix', 'frame_count'" in result.stderr
+
+
+def test_a_header_with_spaces_around_its_names(cli, tmp_path):
+    """`` Track_ID , Time , X , Y ``: detected, but ``--position X,Y`` and ``--time time`` were 'not found' and the
+    output named ``pred_ X ``. Options now match names as detection does; the added columns are named from the
+    names without their spaces (``pred_X``), the id and time columns keep their names as given, and a stopped run
+    resumes to the same bytes."""
+    rows = _orders(_rows(n=15))["interleaved"]
+    path = tmp_path / "in.csv"
+    path.write_text(_csv(rows, header=" Track_ID , Time , X , Y "))
+    detected = _run(cli, ["predict", str(path), *FAST])
+    assert detected.exit_code == 0, detected.output
+    assert detected.stdout.startswith(" Track_ID , Time ,segment,pred_X,pred_Y,std_X,std_Y\n")
+    out = pd.read_csv(io.StringIO(detected.stdout), dtype=str, keep_default_na=False)
+    assert list(zip(out[" Track_ID "], out[" Time "])) == [(a, b) for a, b, _, _ in rows]
+    for options in (["--position", "X,Y"], ["--time", "time", "--id", "track_id", "--position", "x", "--position",
+                                                                            "y"]):
+        named = _run(cli, ["predict", str(path), *FAST, *options])
+        assert named.exit_code == 0 and named.stdout == detected.stdout, (options, named.output)
+    evaluate = _run(cli, ["evaluate", str(path), "--no-peers", "--time", "TIME", "--position", "X,Y"])
+    assert evaluate.exit_code == 0, evaluate.output
+    args = ["predict", str(path), *FAST, "--chunk-rows", "9", "--save-every", "1", "--position", "X,Y"]
+    whole, out, state = tmp_path / "whole.csv", tmp_path / "out.csv", str(tmp_path / "s.npz")
+    assert _run(cli, [*args, "-o", str(whole)]).exit_code == 0
+    assert whole.read_text() == detected.stdout
+    first = _run(cli, [*args, "--state", state, "-o", str(out)], env={TEST_HOOK: "SIGTERM:2"})
+    assert first.exit_code == 128 + signal.SIGTERM, first.output
+    second = _run(cli, [*args, "--state", state, "-o", str(out)])
+    assert second.exit_code == 0 and out.read_bytes() == whole.read_bytes(), second.output
+
+
 def test_stdin_stops_at_the_line_that_shows_a_second_word_in_an_unused_column(cli):
     """On stdin the rows are not there to be read ahead: the line that shows a second word in an unused column
     stops the run, before it is stepped; the rows before it (one word: one track) are answered."""

@@ -92,6 +92,114 @@ def test_detect_columns_explicit_missing_lists_columns():
         detect_columns(["t", "x", "y"], time="when")
 
 
+def test_options_name_columns_as_detection_matches_them():
+    """A header with spaces around its names (`` Time ``, `` X ``) was detected, but ``--time time`` or ``--position
+    X,Y`` were 'not found': a name given matches a column exactly, else ignoring case and surrounding spaces."""
+    from kalmix.streaming import find_columns
+
+    header = [" Track_ID ", " Time ", " X ", " Y "]
+    detected = TrackColumns(" Time ", (" X ", " Y "), " Track_ID ")
+    assert detect_columns(header) == detected
+    assert detect_columns(header, time="time", positions=["X", "y"], track_id="TRACK_ID") == detected
+    assert detect_columns(header, positions="x") == TrackColumns(" Time ", (" X ",), " Track_ID ")
+    assert find_columns(header, time="Time", positions=["X", "Y"], track_id="track_id")[0] == detected
+    # an exact match wins over one that ignores case or spaces; two of those are an error naming both
+    assert detect_columns(["t", "x", "X", "y"], positions=["X", "y"]).positions == ("X", "y")
+    with pytest.raises(ValueError, match=r"--position\): 'x' matches the columns ' x' and 'X ' .*exactly"):
+        detect_columns(["t", " x", "X ", "y"], positions=["x", "y"])
+    with pytest.raises(ValueError, match=r"time='when'.*available columns"):
+        detect_columns(header, time="when")
+
+
+def test_predictions_are_named_from_the_position_names_without_their_spaces():
+    """`` X `` gave ``pred_ X ``; now ``pred_X``. Two positions that differ only by spaces would give two columns
+    of one name: refused, as an id named like an added column is."""
+    from kalmix.io.columns import check_output_names
+    from kalmix.streaming import StreamConfig, TrackPredictor
+
+    table = pd.DataFrame({" id ": [1, 1, 1, 2, 2, 2], " t ": [0.0, 1, 2, 0, 1, 2], " X ": [0.0, 1, 2, 5, 6, 7],
+                          " Y ": [0.0, 0, 0.1, 5, 5, 5.1]})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = TrackPredictor(StreamConfig(length_unit=1.0, n_experts=2, seed=0)).process_table(table)
+    assert list(out.columns) == [" id ", " t ", "segment", "pred_X", "pred_Y", "std_X", "std_Y"]
+    assert out[" id "].tolist() == table[" id "].tolist() and out[" t "].tolist() == table[" t "].tolist()
+    with pytest.raises(ValueError, match=r"differ only by surrounding spaces"):
+        check_output_names(TrackColumns("t", ("x", " x"), None))
+    with pytest.raises(ValueError, match=r"the track id column is named 'pred_X'"):
+        check_output_names(TrackColumns("t", (" X ", "Y"), "pred_X"))
+
+
+def _one_track(n=2000, seed=0):
+    """One target's fixes (a random walk with drift) at irregular times, as CSV text columns."""
+    rng = np.random.default_rng(seed)
+    times = np.cumsum(rng.uniform(0.5, 1.5, n))
+    xy = np.cumsum(rng.normal(0, 1, (n, 2)) + [1.0, 0.3], 0)
+    return rng, times, xy
+
+
+def _candidates(times, xy, **others):
+    from kalmix.io.columns import id_candidates
+
+    sample = pd.DataFrame({"time": [f"{v:.6f}" for v in times], "x": [f"{v:.3f}" for v in xy[:, 0]],
+                           "y": [f"{v:.3f}" for v in xy[:, 1]], **{k: [str(v) for v in c] for k, c in others.items()}})
+    header = list(sample.columns)
+    return id_candidates(detect_columns(header), header, sample)
+
+
+def test_whole_numbers_that_change_where_the_positions_jump_are_ids():
+    """Tracks whose fixes never share a time (GPS collars, AIS, ADS-B) told apart by a column of whole numbers
+    that is not detected: the rows of one value move a little, the rows where the value changes jump between
+    targets. They were one track, silently; the column is now named as an id (interleaved, or one track after
+    another with the time going back)."""
+    rng = np.random.default_rng(3)
+    rows = []
+    for unit in range(40):
+        start, times = rng.uniform(0, 50_000, 2), rng.uniform(0, 10) + np.arange(60) * rng.uniform(5, 15)
+        path = start + np.cumsum(rng.normal(5, 2, (60, 2)), 0)
+        rows += [(times[k], 366_000_000 + unit, path[k]) for k in range(60)]
+    for order in (lambda row: row[0], lambda row: (row[1], row[0])):
+        rows.sort(key=order)
+        found = _candidates(np.array([r[0] for r in rows]), np.array([r[2] for r in rows]), unit=[r[1] for r in rows])
+        assert [name for name, _ in found] == ["unit"]
+        assert found[0][1].startswith("whole numbers that change where the positions jump: a median step of ")
+    # two collars 500 apart, 0.37 s out of step
+    rows = sorted((k + offset, unit, (2.0 * k, y)) for unit, offset, y in ((1001, 0.0, 0), (1002, 0.37, 500))
+                  for k in range(30))
+    found = _candidates(np.array([r[0] for r in rows]), np.array([r[2] for r in rows]), collar=[r[1] for r in rows])
+    assert found == [("collar", "whole numbers that change where the positions jump: a median step of 500 where "
+                                "the value changes, 2 between rows of one value")]
+
+
+def test_a_column_of_one_track_is_not_taken_for_ids():
+    """The whole numbers a single track's file holds beside its positions change where the target moves as
+    usual, never, rarely, at every row, or where a bad fix jumps away and back: not ids."""
+    rng, times, xy = _one_track()
+    n = len(times)
+    bad = rng.random(n) < 0.1
+    outliers = xy + np.where(bad[:, None], rng.normal(0, 300, (n, 2)), 0)
+    quality = rng.integers(0, 3, n)
+    moving = (np.arange(n) // 20) % 2
+    halts = np.cumsum(np.where(moving[:, None] == 1, rng.normal(2, 0.5, (n, 2)), rng.normal(0, 0.01, (n, 2))), 0)
+    trip = np.arange(n) // 100
+    cases = [
+        (xy, {"status": rng.integers(0, 3, n)}),                                   # a status code
+        (xy, {"sats": np.clip(8 + np.cumsum(rng.integers(-1, 2, n)) // 10, 4, 14)}),  # a satellite count
+        (xy, {"counter": np.arange(n)}),                                            # a frame counter
+        (xy, {"const": np.full(n, 7)}),                                             # constant
+        (xy, {"mode": np.arange(n) // 500}),                                        # changes rarely
+        (outliers, {"fix": np.where(bad, 0, 1)}),                                   # a flag on jumping bad fixes
+        (xy + np.where(quality[:, None] == 0, rng.normal(0, 200, (n, 2)), 0), {"quality": quality}),
+        (halts, {"moving": moving}),                                                # stopped / moving
+        (xy + trip[:, None] * 1000.0, {"trip": trip}),                              # trips one after another
+        (xy + (np.arange(n) % 2)[:, None] * 5.0, {"receiver": np.arange(n) % 2}),   # two receivers 5 apart
+    ]
+    for positions, column in cases:
+        assert _candidates(times, positions, **column) == [], list(column)
+    # and the positions decide nothing with too few rows or changes
+    assert _candidates(times[:6], xy[:6], unit=[1, 2, 1, 2, 1, 2]) == []
+
+
 def test_more_than_three_positions():
     with pytest.raises(ValueError, match=r"Expected 1 to 3 position columns, got 4"):
         detect_columns(["a", "b", "c", "d"], positions=["a", "b", "c", "d"])

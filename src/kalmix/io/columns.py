@@ -92,6 +92,36 @@ def require_columns(columns: Sequence[str], wanted: Sequence[str], what: str) ->
                          + _header_hint(list(columns)))
 
 
+def match_columns(columns: Sequence[str], wanted: Sequence[str], what: str) -> list[str]:
+    """The columns of ``columns`` that the names ``wanted`` (an option's, an argument's) name: a column of that
+    exact name, else the one column whose name is that name ignoring case and surrounding spaces, as detection
+    matches (``time`` names `` Time ``). ``ValueError`` naming ``what`` for a name that matches no column, or
+    two columns only that way."""
+    columns = [str(c) for c in columns]
+    found, missing = [], []
+    for name in map(str, wanted):
+        if name in columns:
+            found.append(name)
+            continue
+        key = name.strip().lower()
+        matches = list(dict.fromkeys(c for c in columns if c.strip().lower() == key))
+        if len(matches) > 1:
+            raise ValueError(f"{what}: {name!r} matches the columns {matches[0]!r} and {matches[1]!r} (ignoring case "
+                             "and surrounding spaces); name one of them exactly")
+        if matches:
+            found.append(matches[0])
+        else:
+            missing.append(name)
+    require_columns(columns, missing, what)
+    return found
+
+
+def output_name(position) -> str:
+    """The name a position column gives the columns predictions add (``pred_<name>``, ``std_<name>``, ...): its
+    name without surrounding spaces (`` X `` gives ``pred_X``)."""
+    return str(position).strip()
+
+
 def check_output_names(columns: "TrackColumns") -> None:
     """``ValueError`` when a column that predictions keep (the id, the time, or ``row`` without a time
     column) has the name of a column they add: ``segment``, ``pred_<position>``, ``std_<position>``,
@@ -99,7 +129,11 @@ def check_output_names(columns: "TrackColumns") -> None:
     the two kept columns would share a name. Either would write two columns of one name."""
     import re
 
-    positions = set(columns.positions)
+    positions = {output_name(name) for name in columns.positions}
+    if len(positions) < len(columns.positions):
+        raise ValueError(f"the position columns {list(columns.positions)} differ only by surrounding spaces, and the "
+                         "columns predictions add are named from them without those (pred_<name>, ...); rename one in "
+                         "the input")
     made = {"segment"} | {prefix + name for name in positions for prefix in ("pred_", "std_", "lead_", "lead_std_")}
     kept = [("the track id column", columns.track_id), ("the time column", columns.time or "row")]
     for what, name in kept:
@@ -118,7 +152,8 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
     """Find the time, position and track id columns among a file's column names.
 
     Matching is case-insensitive and ignores surrounding spaces. Explicit
-    arguments win over detection and must name existing columns.
+    arguments win over detection and must name existing columns: a column of
+    that exact name, else the one column that matches it as detection does.
 
     - time: first of ``time, t, timestamp, seconds, time_s, ..., frame, step``;
       none found means row order is time.
@@ -150,18 +185,20 @@ def detect_columns(columns: Sequence[str], *, time: str | None = None,
     Raises
     ------
     ValueError
-        If an explicit name is not a column, or no position columns are found.
+        If an explicit name matches no column (or two, ignoring case and
+        spaces), or no position columns are found.
     """
     columns = [str(c) for c in columns]
     lookup: dict[str, str] = {}
     for c in columns:
         lookup.setdefault(c.strip().lower(), c)
-    for name, flag, value in (("time", "--time", time), ("track_id", "--id", track_id)):
-        if value is not None:
-            require_columns(columns, [value], f"{name}={value!r} ({flag})")
+    if time is not None:
+        time = match_columns(columns, [time], f"time={time!r} (--time)")[0]
+    if track_id is not None:
+        track_id = match_columns(columns, [track_id], f"track_id={track_id!r} (--id)")[0]
     if positions is not None:
         positions = (positions,) if isinstance(positions, str) else tuple(positions)
-        require_columns(columns, positions, f"positions={list(positions)} (--position)")
+        positions = tuple(match_columns(columns, positions, f"positions={list(positions)} (--position)"))
     else:
         for prefix in _PREFIXES:
             for a, b, c in _AXES:
@@ -299,18 +336,93 @@ def looks_like_a_word(value) -> bool:
     return True
 
 
+#: A column's values must change at least so many times between rows with positions (in the rows read) before
+#: the positions' jumps there can say that it holds track ids ...
+JUMP_CHANGES = 5
+#: ... and the median step across a change be so many times the median step between one value's rows.
+JUMP_RATIO = 10.0
+
+
+def _numbers(column: pd.Series) -> np.ndarray:
+    """A sample's column as float64, NaN where it holds no number (CSV text, or a Parquet column's type)."""
+    if pd.api.types.is_bool_dtype(column):
+        return np.full(len(column), np.nan)
+    if pd.api.types.is_numeric_dtype(column):
+        return column.to_numpy(np.float64, na_value=np.nan)
+    return pd.to_numeric(column.astype(object).where(column.notna()).map(
+        lambda v: v.strip() if isinstance(v, str) else v), errors="coerce").to_numpy(np.float64, na_value=np.nan)
+
+
+def _seconds(column: pd.Series) -> np.ndarray:
+    """A sample's time column as float64 seconds (numbers, dates, ISO 8601 text), NaN where it holds none: only to
+    tell whether the time goes back."""
+    if pd.api.types.is_datetime64_any_dtype(column):
+        when = pd.to_datetime(column, utc=True)
+        return np.where(when.isna(), np.nan, when.to_numpy("datetime64[ns]").astype(np.int64) / 1e9)
+    if pd.api.types.is_timedelta64_dtype(column):
+        return column.dt.total_seconds().to_numpy(np.float64, na_value=np.nan)
+    seconds = _numbers(column)
+    if np.isnan(seconds).all() and not pd.api.types.is_numeric_dtype(column) and column.notna().any():
+        seconds = iso_seconds(column.astype(object).where(column.notna()), errors="coerce")
+    return seconds
+
+
+def position_jumps(values: pd.Series, positions: np.ndarray, times: np.ndarray | None = None) -> str | None:
+    """Why a column of whole numbers (``values``, rows in file order) holds track ids, from the positions
+    ``(n, p)`` of the same rows; None when they do not say so. The rows whose value and positions are given are
+    read in order: where the value changes (at least :data:`JUMP_CHANGES` times), the median step between
+    consecutive rows is :data:`JUMP_RATIO` times the median step between consecutive rows of one value, for
+    three in four of the values with three such steps or more (two at least); and the values are not one after
+    another (a value comes back after another, or the time goes back where the value changes): the rows of
+    several targets, each moving a little, far apart. A status code, a count, a flag or a frame number changes
+    where the positions move as usual; a trip or leg number of one track goes on in time."""
+    missing = values.isna().to_numpy() | values.astype(str).str.strip().str.lower().isin(MISSING_TEXT).to_numpy()
+    keep = ~missing & np.isfinite(positions).all(axis=1)
+    if keep.sum() < 2 * JUMP_CHANGES:
+        return None
+    codes = pd.factorize(values[keep].astype(str))[0]
+    where = positions[keep]
+    steps = np.sqrt(((where[1:] - where[:-1]) ** 2).sum(axis=1))
+    changes = codes[1:] != codes[:-1]
+    if changes.sum() < JUMP_CHANGES:
+        return None
+    recurs = changes.sum() + 1 > codes.max() + 1
+    if not recurs and times is not None:
+        at = np.asarray(times, dtype=np.float64)[keep]
+        recurs = bool((at[1:][changes] < at[:-1][changes]).any())
+    if not recurs:
+        return None
+    across = float(np.median(steps[changes]))
+    order = np.argsort(codes, kind="stable")   # each value's rows, in file order
+    grouped, moved = codes[order], np.sqrt(((where[order][1:] - where[order][:-1]) ** 2).sum(axis=1))
+    same = grouped[1:] == grouped[:-1]
+    per_value = pd.Series(moved[same]).groupby(grouped[1:][same]).agg(["median", "size"])
+    within = per_value.loc[per_value["size"] >= 3, "median"].to_numpy()
+    if len(within) < 2 or not across > 0 or 4 * (JUMP_RATIO * within <= across).sum() < 3 * len(within):
+        return None
+    def amount(step):
+        return f"{step:,.0f}" if step >= 100 else f"{step:.3g}"
+
+    return (f"whole numbers that change where the positions jump: a median step of {amount(across)} where the value "
+            f"changes, {amount(float(np.median(within)))} between rows of one value")
+
+
 def id_candidates(columns: TrackColumns, header: Sequence[str], sample: pd.DataFrame | None = None
                   ) -> list[tuple[str, str]]:
     """The columns of ``header`` that ``columns`` leaves unused and that look like a track id, each with why:
     its name (:func:`id_like_name`) or, in ``sample`` (the first rows of the file; None: names only), repeated
-    text values (two or more different words, some on several rows) or whole numbers that tell apart rows of
-    one time (the time column repeats, and far less within each of the column's values). Empty when
+    text values (two or more different words, some on several rows), whole numbers that tell apart rows of
+    one time (the time column repeats, and far less within each of the column's values), or whole numbers
+    whose changes jump the positions (:func:`position_jumps`; ``sample`` holds the positions). Empty when
     ``columns`` has an id."""
     if columns.track_id is not None:
         return []
     found = []
     used = {columns.time, *columns.positions}
     times = None if sample is None or columns.time not in sample.columns else sample[columns.time]
+    positions = seconds = None
+    if sample is not None and all(name in sample.columns for name in columns.positions):
+        positions = np.column_stack([_numbers(sample[name]) for name in columns.positions])
     for name in map(str, header):
         if name in used:
             continue
@@ -331,4 +443,11 @@ def id_candidates(columns: TrackColumns, header: Sequence[str], sample: pd.DataF
             repeated = int(pairs["time"].duplicated().sum())
             if repeated and 2 * int(pairs.duplicated().sum()) <= repeated:
                 found.append((name, "whole numbers that tell apart rows of one time"))
+                continue
+        if kind == "integer" and distinct >= 2 and positions is not None:
+            if seconds is None and times is not None:
+                seconds = _seconds(times)
+            why = position_jumps(column, positions, seconds)
+            if why is not None:
+                found.append((name, why))
     return found

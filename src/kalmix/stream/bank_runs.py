@@ -193,9 +193,12 @@ class BankRuns:
 
     def output_columns(self) -> dict:
         """Output key (``pred``, ``std``, ``lead``, ``lead_std``) -> its columns' names: ``pred_<pos>``,
-        ``std_<pos>``, ...; for geographic positions the standard deviations are in metres east, north (and
-        up): ``std_east_m``, ``std_north_m`` (``lead_std_east_m``, ``std<H>_east_m``)."""
-        names = list(self.position_names or ())
+        ``std_<pos>``, ... (:func:`kalmix.io.columns.output_name`: no surrounding spaces); for geographic
+        positions the standard deviations are in metres east, north (and up): ``std_east_m``, ``std_north_m``
+        (``lead_std_east_m``, ``std<H>_east_m``)."""
+        from ..io.columns import output_name
+
+        names = [output_name(name) for name in self.position_names or ()]
         if self.axes is not None:
             from ..io.geo import std_names
 

@@ -183,6 +183,8 @@ class TrackClocks:
         for a vessel's drifting course and wrong for an accelerating target, which the data tell."""
         import pandas as pd
 
+        from ..io.columns import output_name
+
         names = list(names) if names is not None else [c for c in table.columns if c not in ("track_id", "time")]
         sample = table[["track_id", "time", *names]].iloc[:PILOT_ROWS].reset_index(drop=True)
         sample = sample.assign(time=column_seconds(sample["time"]))   # (the pilot's output times are seconds)
@@ -194,7 +196,7 @@ class TrackClocks:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 out = pilot.process_table(sample, names)
-            columns = [f"pred_{name}" for name in names]
+            columns = [f"pred_{output_name(name)}" for name in names]
             if len(out) == len(sample):
                 pred = out[columns].to_numpy(np.float64)
             else:   # (rows skipped for their time: each sample row's forecast by its track and time, if any)

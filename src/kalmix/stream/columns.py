@@ -49,15 +49,16 @@ def find_columns(header, *, time: str | None = None, positions=None, track_id: s
 def guess_id(columns, header, sample=None):
     """``columns`` with the unused column taken as the track id when exactly one is named like one (vessel,
     player_id, ...; a note says so); a ``ValueError`` naming them when unused columns look like ids otherwise
-    (repeated words, whole numbers that tell apart rows of one time) or when several are named so: without an
-    id every row would be one track, the tracks' rows mixed, and never silently. Returns the columns and the
-    notes."""
+    (repeated words, whole numbers that tell apart rows of one time or change where the positions jump) or when
+    several are named so: without an id every row would be one track, the tracks' rows mixed, and never
+    silently. Returns the columns and the notes."""
     from ..io.columns import ID_SAMPLE_ROWS, detect_columns, id_candidates
 
     unused = [name for name in header if name not in {columns.time, *columns.positions}]
     if not unused:
         return columns, []
-    rows = sample([*unused, *([columns.time] if columns.time else [])], ID_SAMPLE_ROWS) if sample else None
+    wanted = [*unused, *([columns.time] if columns.time else []), *columns.positions]
+    rows = sample(wanted, ID_SAMPLE_ROWS) if sample else None
     found = id_candidates(columns, header, rows)
     named = [name for name, why in found if why == "its name"]
     if len(named) == 1:
