@@ -479,3 +479,109 @@ def test_a_row_that_goes_back_across_a_chunk_boundary_keeps_its_place_with_empty
         chunks = list(iter_track_chunks(path, chunk_rows=12, late_rows="skip"))
     assert [c.attrs["dropped"]["late"] for c in chunks] == [0, 1, 0, 0]
     assert sum(map(len, chunks)) == len(late) - 1 - 2
+
+
+def _cp1252_tracks(first="Jos\xe9", second="b"):
+    """Text of two tracks whose ids are ``first`` and ``second``, with a column not used ("note") that holds an
+    accented word: to be written in Windows-1252, as a Windows export."""
+    return "track_id,time,x,y,note\n" + "".join(f"{i},{k},{k * 0.5 + o},{k * 0.1},caf\xe9\n" for k in range(10)
+                                                for i, o in (("a", 0), (first, 100)))
+
+
+def test_a_csv_file_not_in_utf8_names_its_line_and_how_to_convert_it(cli, tmp_path):
+    """Before: "Error: 'utf-8' codec can't decode byte 0xe9 in position 3: unexpected end of data", naming
+    neither the file, nor the line, nor what to do. Bytes that are not UTF-8 in a column not used were read and
+    still are (pandas reads only the columns used), as on stdin."""
+    path = tmp_path / "export.csv"
+    path.write_bytes(_cp1252_tracks().encode("cp1252"))
+    said = (f"The track file {str(path)!r} is not UTF-8 text: line 3: column 'track_id' holds bytes that are not "
+            f"UTF-8, b'Jos\\xe9' ('José' if they are Windows-1252). Convert it to UTF-8 first: iconv -f cp1252 -t "
+            f"utf-8 {path} > {tmp_path / 'export-utf8.csv'}")
+    for args in (["predict", str(path), *FAST], ["predict", str(path), *FAST, "--chunk-rows", "4"],
+                 ["evaluate", str(path), "--no-peers"]):
+        result = _run(cli, args)
+        assert result.exit_code == 1 and said in result.stderr, result.stderr
+    with pytest.raises(ValueError, match="line 3: column 'track_id' holds bytes that are not UTF-8"):
+        read_tracks(path)
+    header = tmp_path / "header.csv"
+    header.write_bytes("track_id,time,x,y,caf\xe9\na,0,1,2,3\n".encode("cp1252"))
+    result = _run(cli, ["predict", str(header), *FAST])
+    assert result.exit_code == 1 and "is not UTF-8 text: line 1: the header holds bytes that are not UTF-8, " \
+                                      "b'caf\\xe9'" in result.stderr
+    path.write_bytes(_cp1252_tracks(first="b").encode("cp1252"))   # only the unused column: predicted
+    result = _run(cli, ["predict", str(path), *FAST])
+    assert result.exit_code == 0 and "bad row" not in result.stderr
+    assert _read(result.stdout)["segment"].notna().all()
+    piped = _run(cli, ["predict", "-", *FAST], input=path.read_bytes())
+    assert piped.exit_code == 0 and piped.stdout == result.stdout and "bad row" not in piped.stderr
+
+
+def test_bytes_not_utf8_on_stdin_make_bad_rows_and_valid_output(cli, tmp_path):
+    """Before: under a C.UTF-8 locale (stdin's errors 'surrogateescape') the bytes came back raw in the output, the
+    rows not bad; -o out.csv crashed ("surrogates not allowed") and JSON lines out held lone surrogates
+    ("Jos\\udce9") that strict parsers refuse. As docs/your-data.md says, a row whose id, time or position
+    holds bytes that are not UTF-8 is a bad row, whatever the locale; a column not used may hold them."""
+    feed = _cp1252_tracks().encode("cp1252")
+    out, rejects = tmp_path / "out.csv", tmp_path / "rejects.csv"
+    result = _run(cli, ["predict", "-", *FAST, "-o", str(out), "--rejects", str(rejects)], input=feed)
+    assert result.exit_code == 0, result.stderr
+    assert ("line 3: bad row skipped: column 'track_id' holds bytes that are not UTF-8, b'Jos\\xe9' ('José' if "
+            "they are Windows-1252); convert the input to UTF-8 first (... | iconv -f cp1252 -t utf-8 | kalmix "
+            "predict -)") in result.stderr
+    predicted = pd.read_csv(out, dtype={"track_id": str}, encoding="utf-8")
+    assert len(predicted) == 20 and predicted["segment"].isna().tolist() == [k % 2 == 1 for k in range(20)]
+    assert predicted["track_id"].isna().tolist() == [k % 2 == 1 for k in range(20)]
+    listed = pd.read_csv(rejects, dtype=str, encoding="utf-8")
+    assert listed["line"].tolist()[:2] == ["3", "5"] and listed["input"][0] == "Jos\\xe9,0,100.0,0.0,caf\\xe9"
+    lines = "".join(json.dumps({"id": i, "t": k, "x": k + o, "y": 0, "name": "caf\xe9"}, ensure_ascii=False) + "\n"
+                    for k in range(6) for i, o in (("Jos\xe9", 0), ("b", 100))).encode("cp1252")
+    result = _run(cli, ["predict", "-", *FAST], input=lines)
+    assert result.exit_code == 0 and "\\udc" not in result.stdout and result.stdout.isascii()
+    rows = [json.loads(line) for line in result.stdout.splitlines()]
+    assert [row["id"] for row in rows] == [None, "b"] * 6 and [row["segment"] is None for row in rows] == [True,
+                                                                                                          False] * 6
+    # a real pipe, under a locale whose stdin keeps such bytes as surrogates
+    done = subprocess.run([sys.executable, "-m", "kalmix.cli", "predict", "-", *FAST, "-o", str(out)], input=feed,
+                          capture_output=True, env={**os.environ, "PYTHONIOENCODING": "utf-8:surrogateescape"})
+    assert done.returncode == 0, done.stderr.decode()
+    assert out.read_bytes().decode("utf-8") and "10 bad row(s) skipped (lines 3, 5," in done.stderr.decode()
+
+
+def test_a_quoted_field_that_holds_a_line_break_is_one_row_on_stdin(cli, tmp_path):
+    """Before: on stdin each line was a row, so a quoted note over two lines gave an extra ',,,,,,' output row and
+    'line 4: bad row skipped: expected 5 fields like the header, got 2'; a file read it as one record. Now one
+    output row per record (RFC 4180), named by its first line, as in a file."""
+    text = 'track_id,time,x,y,note\nA,0,0,0,"ok"\nA,1,1,0,"multi\nline, note"\nA,2,2,0.01,x\nA,3,3,0,""""\n'
+    path = tmp_path / "notes.csv"
+    path.write_text(text)
+    piped = _run(cli, ["predict", "-", *FAST], input=text)
+    filed = _run(cli, ["predict", str(path), *FAST])
+    assert piped.exit_code == 0 and "bad row" not in piped.stderr, piped.stderr
+    assert piped.stdout == filed.stdout and len(_read(piped.stdout)) == 4
+    text = 'id,t,x,y\n"a\nb",0,1,2\n\n"a\nb",1,2,3\n"a\nb",2,oops,4\n'   # (the file's test above)
+    piped = _run(cli, ["predict", "-", *FAST], input=text)
+    assert piped.exit_code == 0 and "line 7: bad row skipped: column 'x' must hold a number, got 'oops'" \
+        in piped.stderr
+    assert _read(piped.stdout)["id"].tolist() == ["a\nb"] * 3
+    text = 'track_id,time,x,y,note\nA,0,0,0,ok\nA,1,1,0,"never closed\nA,2,2,0,x\nA,3,3,0,x\n'
+    piped = _run(cli, ["predict", "-", *FAST], input=text)
+    assert piped.exit_code == 0 and "line 3: bad row skipped: a quoted field is not closed" in piped.stderr
+    assert len(_read(piped.stdout)) == 2
+
+
+@pytest.mark.parametrize("text, open_", [
+    ('a,1,2\n', False), ('a,"1,2"\n', False), ('a,"multi\n', True), ('"a\n', True), ('a,5" screen\n', False),
+    ('a,"x""\n', True), ('a,"x"""\n', False), ('a,"x"y,"z\n', True), ('a,"x"y,z\n', False)])
+def test_a_csv_line_ends_inside_quotes_as_pythons_csv_reads_it(text, open_):
+    import csv
+
+    from kalmix.commands._stdin_lines import CsvRecords, Unclosed, ends_quoted
+
+    assert ends_quoted(text) is open_
+    assert (len(list(csv.reader(io.StringIO(text + "next,line\n")))) == 1) is open_   # the record goes on
+    records = CsvRecords(limit=20)
+    assert records.add(1, 'a,"x\n') is None and records.add(2, 'y",z\n') == (1, 'a,"x\ny",z\n')
+    assert records.add(3, 'a,"xx\n') is None
+    over = records.add(4, "x" * 20 + "\n")   # over the limit, still open: taken as it is (a bad row)
+    assert over == (3, 'a,"xx\n' + "x" * 20 + "\n") and isinstance(over[1], Unclosed) and records.rest() is None
+    assert not isinstance(records.add(5, 'a,"x\n') or records.add(6, 'x"\n')[1], Unclosed)

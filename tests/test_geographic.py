@@ -15,7 +15,8 @@ import pytest
 from click.testing import CliRunner
 
 from kalmix.cli import build
-from kalmix.io import geo
+from kalmix.io import geo, read_tracks
+from kalmix.io.tables import BadRowWarning
 from kalmix.streaming import ColumnNoteWarning, LengthUnitWarning, StreamConfig, TrackPredictor
 
 FAST = ["--experts", "4", "--seed", "1", "--no-progress"]
@@ -122,16 +123,43 @@ def test_aircraft_across_the_antimeridian_and_a_track_over_the_pole(cli, tmp_pat
         assert (track["segment"] == 0).all()   # no restart at the antimeridian or the pole
 
 
-def test_bad_degrees_are_refused_naming_the_row(cli, tmp_path):
+def test_bad_degrees_are_bad_rows_in_a_file_in_parquet_and_on_stdin_alike(cli, tmp_path):
+    """Before: one latitude of 120 stopped a file's, a Parquet file's and evaluate's run (rc 1, "row 7 (counted
+    from 0 after the header)"), where on stdin it was a bad row skipped (line 9) and the run went on. Now a bad
+    row everywhere: skipped, its place kept, listed by --rejects; --on-bad-row fail stops naming it. AIS's "not
+    available" (longitude 181) stays a missing position, predicted across."""
     frame = _ais(n=10)
     frame.loc[7, "LAT"] = 120.0
+    frame.loc[3, "LON"] = 181.0
     frame.to_csv(tmp_path / "bad.csv", index=False)
-    result = _run(cli, ["predict", str(tmp_path / "bad.csv"), *FAST])
-    assert result.exit_code != 0
-    assert "row 7 (counted from 0 after the header): position column 'LAT' must hold a latitude in degrees, -90 to " \
-           "90, got 120.0" in result.stderr
+    frame.to_parquet(tmp_path / "bad.parquet")
+    why = ("position column 'LAT' must hold a latitude in degrees, -90 to 90, got 120.0 (geographic coordinates; "
+           "pass --no-geographic")
+    empty = {}
+    for name, place, key in (("bad.csv", "line 9", "line"), ("bad.parquet", "row 7, counted from 0", "row")):
+        out, rejects = tmp_path / f"{name}.out.csv", tmp_path / f"{name}.rejects.csv"
+        result = _run(cli, ["predict", str(tmp_path / name), *FAST, "-o", str(out), "--rejects", str(rejects)])
+        assert result.exit_code == 0, result.stderr
+        assert f"1 bad row(s) skipped ({place}" in result.stderr
+        predicted = pd.read_csv(out)
+        assert len(predicted) == 20 and predicted["MMSI"].tolist() == frame["MMSI"].tolist()
+        empty[name] = predicted["segment"].isna().tolist()
+        assert empty[name] == [k == 7 for k in range(20)]   # (row 3, longitude 181: predicted, as a missing fix)
+        listed = pd.read_csv(rejects, dtype=str)
+        assert listed[key].tolist() == (["9"] if key == "line" else ["7"]) and listed["reason"][0].startswith(why)
+        failed = _run(cli, ["predict", str(tmp_path / name), *FAST, "--on-bad-row", "fail"])
+        assert failed.exit_code != 0 and f"{place.replace(', counted from 0', ' (counted from 0)')}: {why}" \
+            in failed.stderr
+    piped = _run(cli, ["predict", "-", *FAST], input=(tmp_path / "bad.csv").read_text())
+    assert piped.exit_code == 0 and f"line 9: bad row skipped: {why}" in piped.stderr
+    assert pd.read_csv(io.StringIO(piped.stdout))["segment"].isna().tolist() == empty["bad.csv"]
     result = _run(cli, ["evaluate", str(tmp_path / "bad.csv"), "--no-peers"])
-    assert result.exit_code != 0 and "row 7 (counted from 0 after the header)" in result.stderr
+    assert result.exit_code == 0, result.stderr
+    assert "1 bad row(s) skipped (line 9; the first: position column 'LAT' must hold a latitude" in result.stderr
+    with pytest.warns(BadRowWarning, match=r"1 bad row\(s\) skipped \(line 9;"):
+        table = read_tracks(tmp_path / "bad.csv", ids_as_text=True, on_bad_row="skip", geographic=None)
+    assert len(table) == 19 and table.attrs["bad_rows"].places == ["line 9"]
+    assert len(read_tracks(tmp_path / "bad.csv", on_bad_row="skip")) == 20   # (geographic=False: not checked)
     with pytest.raises(ValueError, match=r"table: row 7 \(counted from 0\): position column 'LAT' must hold a "
                                          r"latitude"):
         TrackPredictor(StreamConfig(length_unit=5.0)).process_table(frame)
@@ -286,7 +314,7 @@ def test_frames_round_trip_and_move_with_a_long_track():
 def test_ais_not_available_fixes_are_missing_positions_not_errors(cli, tmp_path):
     """AIS reports latitude 91 / longitude 181 when it has no fix: such a row kept its place only after an error
     that stopped the run (a new user's finding). It is now a missing position, as an empty cell, in a file, on
-    stdin and in Python, said once; any other latitude beyond 90 is still an error naming its row."""
+    stdin and in Python, said once; any other latitude beyond 90 is still a bad row naming its line."""
     frame = _ais(n=60)
     blanked = frame.copy()
     dirty = frame.copy()
@@ -315,5 +343,6 @@ def test_ais_not_available_fixes_are_missing_positions_not_errors(cli, tmp_path)
     np.testing.assert_array_equal(out[predictions].to_numpy(), want[predictions].to_numpy())
     dirty.loc[40, "LAT"] = 91.5
     dirty.to_csv(tmp_path / "bad.csv", index=False)
-    bad = _run(cli, ["predict", str(tmp_path / "bad.csv"), *args])
-    assert bad.exit_code == 1 and "row 40" in bad.stderr and "got 91.5" in bad.stderr
+    bad = _run(cli, ["predict", str(tmp_path / "bad.csv"), *args])   # a bad row (line 42), not a missing one
+    assert bad.exit_code == 0 and "1 bad row(s) skipped (line 42: position column 'LAT'" in bad.stderr
+    assert "got 91.5" in bad.stderr

@@ -68,7 +68,8 @@ def sample_reader(path, fmt):
                 with pq.ParquetFile(path) as parquet:
                     batch = next(parquet.iter_batches(batch_size=rows, columns=list(dict.fromkeys(names))), None)
                 return None if batch is None else batch.to_pandas()
-            frame = pd.read_csv(path, nrows=rows, dtype=str, keep_default_na=False, na_values=[""])
+            frame = pd.read_csv(path, nrows=rows, dtype=str, keep_default_na=False, na_values=[""],
+                                encoding_errors="surrogateescape")   # (bytes not UTF-8: as on stdin)
             return frame[[name for name in dict.fromkeys(names) if name in frame.columns]]
         except (ValueError, UnicodeDecodeError, OSError, pd.errors.ParserError):
             return None

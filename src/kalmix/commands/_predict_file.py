@@ -192,7 +192,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
     ahead = (_lookahead(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
                                           ids_as_text=True, on_bad_row=run.on_bad_row,
                                           clock_resets=_clocks(run.engine, settings), late_rows="skip",
-                                          time_kind=kind))
+                                          time_kind=kind, geographic=axes))
              if total_rows > chunk_rows else [])
     with tqdm(total=total, unit="rows", file=sys.stderr, disable=not show,
               desc="kalmix predict", smoothing=0.1) as bar, warnings.catch_warnings():
@@ -200,7 +200,7 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
         for index, chunk in enumerate(iter_track_chunks(path, columns=columns, chunk_rows=chunk_rows, format=in_fmt,
                                                         ids_as_text=True, as_given=True, on_bad_row=run.on_bad_row,
                                                         bad_texts=run.bad.path is not None,
-                                                        clock_resets=clocks, late_rows="skip")):
+                                                        clock_resets=clocks, late_rows="skip", geographic=axes)):
             for why, count in chunk.attrs.get("dropped", {}).items():
                 run.dropped[why] += count
             run.ids.see_many(pd.unique(chunk["track_id"]).tolist())

@@ -11,7 +11,7 @@ import numpy as np
 from ._input import input_columns
 from ._predict_common import check_resumed, geographic_axes, new_engine, reset_step, track_key
 from ._predict_notes import STDIN_WARNINGS
-from ._stdin_lines import first_line, line_batches
+from ._stdin_lines import CsvRecords, first_line, line_batches
 from ._stdin_rows import BadLine, RowReader, header_of
 
 
@@ -49,7 +49,9 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
         raise ValueError("stdin: closed (INPUT '-' reads the tracks from standard input; give a file name)")
     warm_up_meanwhile(run, settings, unit)
     skip = run.on_bad_row == "skip"
-    batches = line_batches(stdin, undecodable=skip)
+    # UTF-8 whatever the locale, as a file; bytes that are not UTF-8 kept (as lone surrogates) for the columns
+    # used to refuse, so that those of a column not used (a vessel's name in Windows-1252) cost no row
+    batches = line_batches(stdin, encoding="utf-8", errors="surrogateescape")
     line_number, first, rest = first_line(batches)
     is_json, header, pending = header_of(first, line_number)
     columns = input_columns(header, time_column, position_columns, id_column)
@@ -70,6 +72,7 @@ def predict_stream(run, stdin, settings, unit, time_column, position_columns, id
     batch.take(rest, [reader.read(number, first, record) for number, record in pending])
     for lines in batches:
         batch.take(lines, [])
+    batch.take([], [], end=True)
     batch.finish()
 
 
@@ -86,6 +89,7 @@ class _Batches:
         self.empties = _EmptyWatch(self.columns.positions if position_columns is None else ())
         self.clocks = _StreamClocks(self.engine, reset_step(settings), run.clock_reset)
         self.warned: dict[str, int] = {}
+        self.records = None if reader.is_json else CsvRecords()   # a CSV record may go on over lines
 
     def warn(self, kind, text):
         """A line's warning; after STDIN_WARNINGS of a kind, one line that says the rest are only counted (a
@@ -97,20 +101,27 @@ class _Batches:
             click.echo("kalmix: (further warnings like the last are only counted: the total comes at the end)",
                        err=True)
 
-    def take(self, lines, rows):
+    def take(self, lines, rows, end: bool = False):
         """Parse ``lines`` after ``rows``, step and write them, then warn line by line. A bad line (one that
         does not parse, or whose values are not an id, a time and positions) is, with ``--on-bad-row skip``,
         a row not stepped, warned of and counted; with ``fail``, the rows before it are stepped, written and
-        warned about, then it raises. Lines read are finished, warnings included, whatever signal comes (the
-        signal is raised after them)."""
+        warned about, then it raises. A CSV record whose quoted field holds a line break is one row, of its
+        first line, once its last line is there (``end``: the input's end, where an unfinished one is taken as
+        it is). Lines read are finished, warnings included, whatever signal comes (the signal is raised after
+        them)."""
         run, warn = self.run, self.warn
         error = None
         with run.guard.deferred():
             try:
                 for raw in lines:
                     self.line_number += 1
-                    if raw.strip():
-                        rows.append(self.reader.read(self.line_number, raw))
+                    record = (self.line_number, raw) if self.records is None else self.records.add(
+                        self.line_number, raw)
+                    if record is not None and record[1].strip():
+                        rows.append(self.reader.read(*record))
+                last = None if self.records is None or not end else self.records.rest()
+                if last is not None:
+                    rows.append(self.reader.read(*last))
             except Exception as bad:   # noqa: BLE001 - raised below, once the rows before it are done
                 error = bad
             rows[:], undated = self.reader.dates(rows)

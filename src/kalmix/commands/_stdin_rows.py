@@ -12,12 +12,23 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ._stdin_lines import Undecodable
+from ..io.values import as_bytes, not_unicode, not_utf8
+from ._stdin_lines import Unclosed
+
+
+def _check_utf8(value, column, line_number) -> None:
+    """A ``ValueError`` naming line ``line_number`` when ``value`` is text of bytes that are not UTF-8 (read with
+    ``surrogateescape``: a line's other columns may hold such bytes, a column used may not)."""
+    if not_unicode(value):
+        why, source = not_utf8(column, value)
+        raise ValueError(f"line {line_number}: {why}; convert the input to UTF-8 first (... | iconv -f {source} -t "
+                         "utf-8 | kalmix predict -)")
 
 
 def _parse_number(text, column, line_number):
     if text is None:
         return math.nan
+    _check_utf8(text, column, line_number)
     if isinstance(text, (int, float)) and not isinstance(text, bool):
         try:
             value = float(text)
@@ -39,6 +50,7 @@ def _parse_number(text, column, line_number):
 
 def _parse_time(text, column, line_number):
     """A row's time: a number, or text left for :func:`_dated` (ISO 8601 date-times, converted together)."""
+    _check_utf8(text, column, line_number)
     try:
         return _parse_number(text, column, line_number)
     except ValueError:
@@ -76,6 +88,7 @@ def _parse_id(value, column, line_number):
     if value is None or value == "" or isinstance(value, (dict, list, bool)):   # (true would be track 1)
         raise ValueError(f"line {line_number}: column {column!r} (track id) must hold an id (text or a number), "
                          f"got {json.dumps(value) if isinstance(value, bool) else repr(value)}")
+    _check_utf8(value, column, line_number)
     return value
 
 
@@ -170,14 +183,21 @@ def header_of(first, number):
     """What stdin's first line ``first`` (line ``number``) says: whether the lines are JSON, the column names (a CSV
     header's, or the keys of a JSON-lines record), and the rows it already holds as ``(line, record)`` (a JSON
     record is the first row; a CSV header none)."""
-    if first.lstrip().startswith("{"):
+    is_json = first.lstrip().startswith("{")
+    if is_json:
         record = json_line(first, number)
-        return True, list(record), [(number, record)]
-    try:
-        header = next(csv.reader([first]))
-    except csv.Error as error:
-        raise ValueError(f"line {number}: not a CSV header: {error}") from None
-    return False, header, []
+        header, rows = list(record), [(number, record)]
+    else:
+        try:
+            header, rows = next(csv.reader([first])), []
+        except csv.Error as error:
+            raise ValueError(f"line {number}: not a CSV header: {error}") from None
+    for name in header:   # (the names come back in the output: a file's header must be UTF-8 too)
+        if not_unicode(name):
+            why, source = not_utf8(name, name)
+            raise ValueError(f"line {number}: {'a key' if is_json else 'the header'}{why[why.index(' holds'):]}; "
+                             f"convert the input to UTF-8 first (... | iconv -f {source} -t utf-8 | kalmix predict -)")
+    return is_json, header, rows
 
 
 class RowReader:
@@ -200,10 +220,10 @@ class RowReader:
         self.words = _IdColumnWatch(columns, header, id_column)
 
     def parse(self, raw, number):
-        if isinstance(raw, Undecodable):
-            raise ValueError(f"line {number}: {raw.reason}")
         if self.is_json:
             return json_line(raw, number)
+        if isinstance(raw, Unclosed):   # (a record that goes on to the next lines comes whole: CsvRecords)
+            raise ValueError(f"line {number}: a quoted field is not closed (a stray '\"'?)")
         try:
             row = next(csv.reader([raw]))
         except csv.Error as error:
@@ -282,10 +302,14 @@ class RowReader:
                     if columns.track_id else 0
             with contextlib.suppress(ValueError, IndexError, KeyError, TypeError):
                 given = self.get(record, columns.time, number) if columns.time else None
+            given = None if not_unicode(given) else given   # (not written: no UTF-8 output can hold it)
         reason = str(error)
         prefix = f"line {number}: "
+        text = str(raw).rstrip("\r\n")
+        if not_unicode(text):   # its bytes that are not UTF-8 as \xe9, in a rejects file
+            text = as_bytes(text).decode("utf-8", "backslashreplace")
         return BadLine(number, track, math.nan, None, given, reason[len(prefix):] if reason.startswith(prefix)
-                       else reason, str(raw).rstrip("\r\n"))
+                       else reason, text)
 
     def undated_row(self, row, reason) -> BadLine:
         """The :class:`BadLine` of a row whose time text is not a date-time after all (:func:`_dated`)."""

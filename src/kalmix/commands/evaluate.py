@@ -139,10 +139,10 @@ def _read_table(input_path, dataset, time_column, position_columns, id_column, g
     fmt, columns = track_file(input_path, time_column, position_columns, id_column)
     with warnings.catch_warnings():   # said below, as kalmix predict says it
         warnings.simplefilter("ignore", BadRowWarning)
-        table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True, on_bad_row="skip")
+        table = read_tracks(input_path, columns=columns, format=fmt, ids_as_text=True, on_bad_row="skip",
+                            geographic=geographic)   # a latitude beyond ±90°, a longitude beyond ±180°: bad rows
     if "bad_rows" in table.attrs:
         click.echo(f"kalmix: warning: {table.attrs['bad_rows'].summary()}: not evaluated", err=True)
-    _check_file_degrees(table, list(columns.positions), geographic)
     return table, os.path.basename(input_path)
 
 
@@ -202,23 +202,6 @@ def _write_outputs(result, json_path, plot_path, shown, intervals_path, plot_tra
     if intervals_path:
         plot_intervals(result, intervals_path, plot_track)
         click.echo(f"wrote {intervals_path}")
-
-
-def _check_file_degrees(table, names, geographic) -> None:
-    """A ``ValueError`` naming the first file row (counted from 0 after the header) whose latitude is beyond ±90° or
-    longitude beyond ±180°, when the positions are geographic."""
-    from ..io.geo import check_degrees, resolve_axes
-
-    axes = resolve_axes(names, geographic)
-    if axes is None:
-        return
-    order = table.attrs.get("file_order")
-    places = np.asarray(getattr(order, "places", np.arange(len(table))))
-    if len(places) != len(table):
-        places = np.arange(len(table))
-    rank = np.argsort(places, kind="stable")
-    check_degrees(table[names].to_numpy(np.float64)[rank], axes, names,
-                  lambda i: f"row {int(places[rank[i]])} (counted from 0 after the header)")
 
 
 def _wanted_tracks(tracks: str, table) -> list[str]:

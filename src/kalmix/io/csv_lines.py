@@ -33,10 +33,8 @@ class CsvLines:
 
     def __init__(self, path, texts: bool = False, check: int | None = None):
         import csv
-        import gzip
 
-        opener = gzip.open if os.fspath(path).lower().endswith(".gz") else open
-        self.handle = opener(path, "rt", encoding="utf-8-sig", errors="replace", newline="")
+        self.handle = _open_text(path, "replace")
         self.keep = texts
         self.pending: list[str] = []
         self.limit = csv.field_size_limit()
@@ -147,3 +145,90 @@ class CsvLines:
 def _blank(record) -> bool:
     """A csv record of a line pandas skips (empty, or spaces and tabs only)."""
     return not record or (len(record) == 1 and not record[0].strip(" \t"))
+
+
+def _open_text(path, errors: str):
+    """A CSV file (``.gz``: compressed) as UTF-8 text, a byte order mark taken off; ``errors`` as ``open``'s."""
+    import gzip
+
+    opener = gzip.open if os.fspath(path).lower().endswith(".gz") else open
+    return opener(path, "rt", encoding="utf-8-sig", errors=errors, newline="")
+
+
+_UTF16 = (b"\xff\xfe", b"\xfe\xff")   # UTF-16's byte order marks
+
+
+def _start(path, size: int) -> bytes:
+    import gzip
+
+    with (gzip.open if os.fspath(path).lower().endswith(".gz") else open)(path, "rb") as handle:
+        return handle.read(size)
+
+
+def binary(path) -> bool:
+    """Whether a file that is not UTF-8 is no text at all (a zero byte in its first 4 KB, as text in UTF-16 has,
+    without UTF-16's byte order mark)."""
+    start = _start(path, 4096)
+    return b"\0" in start and start[:2] not in _UTF16
+
+
+def _first_not_utf8(path, names):
+    """``(line, why, encoding)`` of the first place where a CSV file's header, or a column of ``names`` in its
+    rows, holds bytes that are not UTF-8 (:func:`kalmix.io.values.not_utf8`); None where none is found."""
+    import csv
+
+    from .values import not_unicode, not_utf8
+
+    with _open_text(path, "surrogateescape") as handle:
+        reader = csv.reader(handle)
+        try:
+            header = next(reader, [])
+            for column in header:
+                if not_unicode(column):
+                    why, source = not_utf8(column, column)
+                    return 1, "the header" + why[why.index(" holds"):], source
+            wanted = [(header.index(column), column) for column in names if column in header]
+            before = reader.line_num
+            for record in reader:
+                for i, column in wanted:
+                    if i < len(record) and not_unicode(record[i]):
+                        return (before + 1, *not_utf8(column, record[i]))
+                before = reader.line_num
+        except csv.Error:   # (a field over csv's limit: the search stops there)
+            return None
+    return None
+
+
+def not_utf8_error(path, names) -> ValueError:
+    """The error of a CSV file whose text is not UTF-8 (for pandas' ``UnicodeDecodeError``, which says neither
+    where nor how to fix it): the first line where the header or a column of ``names`` holds bytes that are not
+    UTF-8, what they are likely to be, and a command that converts the file."""
+    import shlex
+
+    name = os.fspath(path)
+    found = ((1, "it starts with UTF-16's byte order mark", "utf-16") if _start(path, 2) in _UTF16 else
+             _first_not_utf8(path, names))
+    if found is None:
+        return ValueError(f"The track file {name!r} is not UTF-8 text; convert it to UTF-8 first (iconv -f ENCODING "
+                          "-t utf-8, or in Python pandas.read_csv(path, encoding=...).to_csv(...))")
+    line, why, source = found
+    packed = name.lower().endswith(".gz")
+    converted = os.path.splitext(name[:-3] if packed else name)[0] + "-utf8.csv"
+    command = (f"gunzip -c {shlex.quote(name)} | iconv -f {source} -t utf-8" if packed else
+               f"iconv -f {source} -t utf-8 {shlex.quote(name)}") + f" > {shlex.quote(converted)}"
+    return ValueError(f"The track file {name!r} is not UTF-8 text: line {line}: {why}. Convert it to UTF-8 first: "
+                      f"{command} (in Python: pandas.read_csv(path, encoding={source!r}).to_csv(...))")
+
+
+def utf8_chunks(chunks, path, names):
+    """pandas' chunks of a CSV file as they come; a value that is not UTF-8 in a column read raises
+    :func:`not_utf8_error`'s error instead of pandas' ``UnicodeDecodeError``."""
+    chunks = iter(chunks)
+    while True:
+        try:
+            chunk = next(chunks)
+        except StopIteration:
+            return
+        except UnicodeDecodeError:
+            raise not_utf8_error(path, names) from None
+        yield chunk

@@ -33,7 +33,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-__all__ = ["GeoAxes", "geographic_axes", "resolve_axes", "check_degrees", "to_local", "from_local", "chord",
+__all__ = ["GeoAxes", "geographic_axes", "resolve_axes", "check_degrees", "beyond_degrees",
+           "degrees_problem", "to_local", "from_local", "chord",
            "origin_of", "assign_frames", "std_names", "geographic_note", "NOT_AVAILABLE", "not_available",
            "without_not_available", "local_table", "REANCHOR_M", "LATITUDE_NAMES",
            "LONGITUDE_NAMES", "ALTITUDE_NAMES"]
@@ -159,27 +160,38 @@ def without_not_available(values, axes: GeoAxes) -> np.ndarray:
     return values
 
 
-def check_degrees(values, axes: GeoAxes, names: Sequence[str] | None, where: Callable[[int], str]) -> None:
-    """``ValueError`` at the first row of ``values (n, p)`` whose latitude is beyond ±90° or longitude beyond
-    ±180° (NaN is a missing fix, and so is AIS's "not available", :data:`NOT_AVAILABLE`); ``where(i)`` names row
-    ``i`` (``"row 17 (counted from 0)"``)."""
+def beyond_degrees(values, axes: GeoAxes) -> np.ndarray:
+    """``(n,)`` bool: the rows of ``values (n, p)`` (degrees) whose latitude is beyond ±90° or longitude beyond
+    ±180° (NaN is a missing fix, and so is AIS's "not available", :data:`NOT_AVAILABLE`: neither is beyond)."""
     values = without_not_available(values, axes)
     if values.size == 0:
-        return
-    lat, lon = values[:, axes.lat], values[:, axes.lon]
+        return np.zeros(len(values), dtype=bool)
     with np.errstate(invalid="ignore"):
-        bad = (np.abs(lat) > 90.0) | (np.abs(lon) > 180.0)
+        return (np.abs(values[:, axes.lat]) > 90.0) | (np.abs(values[:, axes.lon]) > 180.0)
+
+
+def degrees_problem(row, axes: GeoAxes, names: Sequence[str] | None) -> str:
+    """What is wrong with ``row (p,)``, one of :func:`beyond_degrees`' rows: which column must hold what, and its
+    value (``names``: the position columns' names, None where they have none)."""
+    lat, lon = float(row[axes.lat]), float(row[axes.lon])
+    if abs(lat) > 90.0:
+        column, what, value = axes.lat, "a latitude in degrees, -90 to 90", lat
+    else:
+        column, what, value = axes.lon, "a longitude in degrees, -180 to 180", lon
+    which = "latitude" if column == axes.lat else "longitude"
+    label = repr(names[column]) if names is not None else f"{column} (the {which})"
+    return (f"position column {label} must hold {what}, got {value!r} (geographic coordinates; pass "
+            "--no-geographic, geographic=False in Python, if they are not)")
+
+
+def check_degrees(values, axes: GeoAxes, names: Sequence[str] | None, where: Callable[[int], str]) -> None:
+    """``ValueError`` at the first row of ``values (n, p)`` whose latitude is beyond ±90° or longitude beyond
+    ±180° (:func:`beyond_degrees`); ``where(i)`` names row ``i`` (``"row 17 (counted from 0)"``)."""
+    bad = beyond_degrees(values, axes)
     if not bad.any():
         return
     i = int(np.flatnonzero(bad)[0])
-    if abs(lat[i]) > 90.0:
-        column, what, value = axes.lat, "a latitude in degrees, -90 to 90", lat[i]
-    else:
-        column, what, value = axes.lon, "a longitude in degrees, -180 to 180", lon[i]
-    which = "latitude" if column == axes.lat else "longitude"
-    label = repr(names[column]) if names is not None else f"{column} (the {which})"
-    raise ValueError(f"{where(i)}: position column {label} must hold {what}, got {float(value)!r} (geographic "
-                     "coordinates; pass --no-geographic, geographic=False in Python, if they are not)")
+    raise ValueError(f"{where(i)}: {degrees_problem(np.asarray(values, dtype=np.float64)[i], axes, names)}")
 
 
 def _origins(origins, n):

@@ -20,7 +20,7 @@ def normalise_table(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
                counts: dict | None = None, first_appearance: bool = False, as_given: bool = False,
                given_time: pd.Series | None = None, *, on_bad_row: str = "fail", lines: ChunkLines | None = None,
                time_kind: dict | None = None, where: str = "row", clocks: ClockResets | None = None,
-               after: dict | None = None) -> pd.DataFrame:
+               after: dict | None = None, geographic=None) -> pd.DataFrame:
     """Validate one raw table (or chunk) into the canonical sorted long table; ``as_given``: with its rows as
     the file gave them in ``attrs["as_given"]`` (:class:`AsGiven`; ``given_time``: the time column's values
     to keep, when not ``raw``'s own).
@@ -33,7 +33,8 @@ def normalise_table(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
     track's clock that restarts starts a new segment (:class:`ClockResets`) instead of being sorted into the
     rows before it. ``after``: each track's last time in a file's chunks before this one; a row at or before it
     (a late row, which the chunks read cannot be reordered with) is left out like a row without a time, kept in
-    ``as_given`` as a row not stepped, and counted in ``attrs["dropped"]["late"]``."""
+    ``as_given`` as a row not stepped, and counted in ``attrs["dropped"]["late"]``. ``geographic``: the positions'
+    :class:`~kalmix.io.geo.GeoAxes`, whose latitude beyond ±90° or longitude beyond ±180° makes a bad row."""
     if len(raw) == 0:
         raise ValueError("The track file has no rows (only a header or nothing at all)")
     if on_bad_row not in ON_BAD_ROW:
@@ -71,6 +72,11 @@ def normalise_table(raw: pd.DataFrame, cols: TrackColumns, offset: int = 0,
         column = raw[p].reset_index(drop=True)
         out[p], wrong = read_floats(column)
         mark(wrong, lambda i, column=column, p=p: bad_value(column, i, p))
+    if geographic is not None:
+        from .geo import beyond_degrees, degrees_problem
+
+        degrees = out[list(cols.positions)].to_numpy(np.float64)
+        mark(beyond_degrees(degrees, geographic), lambda i: degrees_problem(degrees[i], geographic, cols.positions))
     named = (lambda i: f"line {lines.lines[i]}") if lines is not None and lines.lines is not None else (
         lambda i: f"row {offset + i} (counted from 0{' after the header' if where == 'row' else ''})")
     if bad.any() and on_bad_row == "fail":

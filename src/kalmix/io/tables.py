@@ -56,7 +56,7 @@ from .columns import column_notes as column_notes
 from .columns import id_candidates as id_candidates
 from .columns import id_like_name as id_like_name
 from .columns import looks_like_a_word as looks_like_a_word
-from .csv_lines import CsvLines
+from .csv_lines import CsvLines, binary, not_utf8_error, utf8_chunks
 from .normalise import ON_BAD_ROW, BadRows, BadRowWarning, DroppedRowWarning, in_file_order, normalise_table
 from .normalise import AsGiven as AsGiven
 from .values import MISSING_TEXT as MISSING_TEXT
@@ -137,6 +137,8 @@ def read_header(source: Any, fmt: str) -> list[str]:
     except pd.errors.EmptyDataError:
         raise ValueError(f"The track file {name!r} is empty (no header, no rows)") from None
     except UnicodeDecodeError as error:
+        if isinstance(source, (str, os.PathLike)) and not binary(source):   # text, not in UTF-8
+            raise not_utf8_error(source, []) from None
         raise ValueError(f"The track file {name!r} is not a CSV text file (UTF-8 expected; "
                          f"{error.reason} at byte {error.start})") from None
 
@@ -164,7 +166,8 @@ def _resolve(header: list[str], columns: TrackColumns | None) -> TrackColumns:
 
 
 def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: TrackColumns | None = None,
-                format: str | None = None, ids_as_text: bool = False, on_bad_row: str = "fail") -> pd.DataFrame:
+                format: str | None = None, ids_as_text: bool = False, on_bad_row: str = "fail",
+                geographic=False) -> pd.DataFrame:
     """Read a CSV (optionally ``.gz``) or Parquet track file into a track table.
 
     Parameters
@@ -184,6 +187,9 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
         position that is not a finite number; see :data:`ON_BAD_ROW`): ``'fail'`` raises a
         ``ValueError`` naming its line (CSV file) or row; ``'skip'`` leaves it out, with a
         :class:`BadRowWarning`, and lists it in ``attrs["bad_rows"]`` (:class:`BadRows`).
+    geographic : bool, None or GeoAxes, default False
+        Whether the positions are latitude and longitude (:func:`kalmix.io.geo.resolve_axes`: None detects it
+        from their names); if so, a latitude beyond ±90° or a longitude beyond ±180° is a bad row too.
 
     Returns
     -------
@@ -208,7 +214,10 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
             import pyarrow.parquet as pq
             raw = pq.read_table(path_or_buffer, columns=cols.names).to_pandas()
         else:
-            raw = pd.read_csv(path_or_buffer, usecols=cols.names, **csv_options(cols, ids_as_text))
+            try:
+                raw = pd.read_csv(path_or_buffer, usecols=cols.names, **csv_options(cols, ids_as_text))
+            except UnicodeDecodeError:
+                raise not_utf8_error(path_or_buffer, cols.names) from None
             if len(raw):
                 reader = CsvLines(path_or_buffer, check=_checked_column(path_or_buffer, cols, ids_as_text))
                 try:
@@ -225,7 +234,8 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
                 raise ValueError("The track file has no rows (it is empty)") from None
         cols = _resolve([str(c) for c in raw.columns], columns)
     table = normalise_table(raw, cols, first_appearance=ids_as_text and fmt == "csv" and is_path,
-                       on_bad_row=on_bad_row, lines=lines, where="parquet" if fmt == "parquet" else "row")
+                       on_bad_row=on_bad_row, lines=lines, where="parquet" if fmt == "parquet" else "row",
+                       geographic=_axes(cols, geographic))
     bad = table.attrs.get("bad_rows")
     if table.empty:
         raise ValueError("The track file has no rows with a time" if bad is None else
@@ -233,6 +243,13 @@ def read_tracks(path_or_buffer: str | os.PathLike | io.IOBase, *, columns: Track
     if bad is not None:
         warnings.warn(bad.summary(), BadRowWarning, stacklevel=2)
     return table
+
+
+def _axes(cols: TrackColumns, geographic):
+    """The positions' :class:`~kalmix.io.geo.GeoAxes` by ``geographic`` (the readers' argument), or None."""
+    from .geo import GeoAxes, resolve_axes
+
+    return geographic if isinstance(geographic, GeoAxes) else resolve_axes(list(cols.positions), geographic)
 
 
 def _checked_column(path, cols: TrackColumns, ids_as_text: bool) -> int | None:
@@ -247,8 +264,8 @@ def _checked_column(path, cols: TrackColumns, ids_as_text: bool) -> int | None:
 def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None = None,
                       chunk_rows: int = 1_000_000, format: str | None = None, ids_as_text: bool = False,
                       as_given: bool = False, on_bad_row: str = "fail", bad_texts: bool = False,
-                      clock_resets=None, late_rows: str = "fail", time_kind: dict | None = None
-                      ) -> Iterator[pd.DataFrame]:
+                      clock_resets=None, late_rows: str = "fail", time_kind: dict | None = None,
+                      geographic=False) -> Iterator[pd.DataFrame]:
     """Read a huge CSV or Parquet track file in bounded memory, chunk by chunk.
 
     Chunks of at most `chunk_rows` file rows come in file order (pandas
@@ -299,6 +316,8 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         Where the read keeps the time column's kind: ``time_kind["kind"]`` is ``"number"`` or ``"date-time"``
         once the file's first time that can be read decides it (absent before, and for a column of Parquet
         datetimes or durations), for a caller to look at during or after the read.
+    geographic : bool, None or GeoAxes, default False
+        As in :func:`read_tracks`: latitudes beyond ±90° and longitudes beyond ±180° are bad rows.
 
     Yields
     ------
@@ -313,6 +332,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
     fmt = _format_of(path, format)
     cols = _resolve(read_header(path, fmt), columns)
     check_unique_columns(path, fmt, cols)
+    axes = _axes(cols, geographic)
     last: dict = {}
     counts: dict | None = {} if cols.time is None else None
     time_kind = {} if time_kind is None else time_kind
@@ -330,7 +350,8 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
         else:
             reader = stack.enter_context(pd.read_csv(path, usecols=cols.names, chunksize=int(chunk_rows),
                                                      **csv_options(cols, ids_as_text, as_given)))
-            batches = (_as_written(raw, cols.time) if as_given else (raw, None) for raw in reader)
+            batches = (_as_written(raw, cols.time) if as_given else (raw, None)
+                       for raw in utf8_chunks(reader, path, cols.names))
             lines = CsvLines(path, texts=bad_texts, check=_checked_column(path, cols, ids_as_text))
             stack.callback(lines.close)
         batches = iter(batches)
@@ -346,7 +367,7 @@ def iter_track_chunks(path: str | os.PathLike, *, columns: TrackColumns | None =
             chunk = normalise_table(raw, cols, offset, counts, first_appearance=ids_as_text and fmt == "csv",
                                as_given=as_given, given_time=given_time, on_bad_row=on_bad_row, lines=where,
                                time_kind=time_kind, where="parquet" if fmt == "parquet" else "row", clocks=clocks,
-                               after=last if late_rows == "skip" else None)
+                               after=last if late_rows == "skip" else None, geographic=axes)
             bad = chunk.attrs.get("bad_rows")
             if bad is not None:
                 skipped += len(bad)

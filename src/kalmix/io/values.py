@@ -3,6 +3,8 @@ since 1970 UTC), the same bits from a file and from stdin; and why a value that 
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pandas as pd
 
@@ -157,3 +159,45 @@ def to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.nd
             f"header) holds {s.iloc[i:i + 1].tolist()[0]!r}. Empty cells and 'nan' are read as "
             "missing measurements.")
     return out
+
+
+_LONE_SURROGATE = re.compile("[\ud800-\udfff]")
+
+
+def not_unicode(text) -> bool:
+    """Whether ``text`` holds a lone surrogate: bytes that were not UTF-8, decoded with ``surrogateescape`` (or
+    a JSON ``\\udce9`` escape), which no UTF-8 output can write."""
+    return isinstance(text, str) and not text.isascii() and _LONE_SURROGATE.search(text) is not None
+
+
+def guess_encoding(data: bytes) -> tuple[str, str, str]:
+    """What bytes that are not UTF-8 may be: the encoding's ``iconv`` name, its common name and ``data`` read in it.
+    UTF-16 when they start with its byte order mark, else Windows-1252 (Windows exports), Latin-1 where that
+    cannot read them."""
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        source, label = "utf-16", "UTF-16"
+    else:
+        try:
+            data.decode("cp1252")
+            source, label = "cp1252", "Windows-1252"
+        except UnicodeDecodeError:
+            source, label = "latin1", "Latin-1"
+    return source, label, data.decode(source, "replace").replace("\ufeff", "")
+
+
+def as_bytes(text: str) -> bytes:
+    """The bytes a text with lone surrogates (:func:`not_unicode`) was decoded from (``surrogateescape``); a
+    surrogate that stands for no byte (a JSON escape) as UTF-8 with ``backslashreplace``."""
+    try:
+        return text.encode("utf-8", "surrogateescape")
+    except UnicodeEncodeError:
+        return text.encode("utf-8", "backslashreplace")
+
+
+def not_utf8(name, text: str) -> tuple[str, str]:
+    """Why a value ``text`` of column ``name`` with lone surrogates (:func:`not_unicode`) is wrong, naming its
+    bytes and what they read as in the encoding they are likely in (:func:`guess_encoding`); and that
+    encoding's ``iconv`` name, to say how to convert the input."""
+    data = as_bytes(text)
+    source, label, shown = guess_encoding(data)
+    return f"column {name!r} holds bytes that are not UTF-8, {data!r} ({shown!r} if they are {label})", source
