@@ -139,12 +139,13 @@ class _Batches:
                     warn("untimed", f"line {number}: no time, row skipped")
                     continue
                 result = next(results)
+                shown = row[4] if len(row) > 4 and row[4] is not None else time   # the time as written
                 if result is None:
-                    warn("skipped", f"line {number}: time {time!r} is not after the previous time of track {track!r}; "
-                                    "row skipped")
+                    warn("skipped", f"line {number}: time {shown!r} is not after the previous time of track "
+                                    f"{track!r}; row skipped")
                 elif result.time_glitch:
-                    warn("glitch", f"line {number}: time {time!r} comes back before the jump ahead of track {track!r}; "
-                                   "that jump's timestamp was taken as wrong and the track goes on")
+                    warn("glitch", f"line {number}: time {shown!r} comes back before the jump ahead of track "
+                                   f"{track!r}; that jump's timestamp was taken as wrong and the track goes on")
         run.units.check(self.engine)
         if rows:
             run.guard.tick()
