@@ -90,8 +90,9 @@ class Run:
         if bad is not None:
             click.echo(f"kalmix: warning: {bad}", err=True)
         if engine is not None and engine.skipped > self.skipped0:
-            fate = ("their output rows have empty predictions" if self.unit == "row" else   # stdin's rows
-                    "not written (a file's rows skipped are left out of the output)")
+            fate = ("not written (a file's rows skipped are left out of the output)" if self.unit != "row" else
+                    "those the state file had done are left out of the output, the others' output rows have empty "
+                    "predictions" if self.resuming else "their output rows have empty predictions")   # stdin's rows
             click.echo(f"kalmix: warning: skipped {engine.skipped - self.skipped0} row(s) at or before their "
                        f"track's last time (already processed or out of order); {fate}", err=True)
         if self.untimed:
