@@ -171,6 +171,16 @@ def test_whole_numbers_that_change_where_the_positions_jump_are_ids():
                                 "the value changes, 2 between rows of one value")]
 
 
+def test_a_row_number_is_not_taken_for_ids():
+    """A saved pandas index (header ``,time,x,y``: ``Unnamed: 0``) beside two targets at each time tells apart
+    the rows of one time, but every value is its own: taken for an id it made one-row tracks of every row (the
+    run stopped, advising ``--id 'Unnamed: 0'``). A column of whole numbers that repeat still is one."""
+    times = np.repeat(np.arange(40.0), 2)
+    xy = np.column_stack([np.arange(80.0), np.tile([0.0, 100.0], 40)])
+    assert _candidates(times, xy, **{"Unnamed: 0": list(range(80))}) == []
+    assert [name for name, _ in _candidates(times, xy, unit=[7, 9] * 40)] == ["unit"]
+
+
 def test_a_column_of_one_track_is_not_taken_for_ids():
     """The whole numbers a single track's file holds beside its positions change where the target moves as
     usual, never, rarely, at every row, or where a bad fix jumps away and back: not ids."""

@@ -438,7 +438,8 @@ def id_candidates(columns: TrackColumns, header: Sequence[str], sample: pd.DataF
         if kind == "text" and 2 <= distinct < len(values):
             shown = ", ".join(repr(v) for v in values.unique()[:3])
             found.append((name, f"repeated text values: {shown}, ..."))
-        elif kind == "integer" and distinct >= 2 and times is not None:
+        elif kind == "integer" and 2 <= distinct < len(values) and times is not None:
+            # (every value distinct: a row number, a saved pandas index, not tracks of one row each)
             pairs = pd.DataFrame({"id": column, "time": times}).dropna()
             repeated = int(pairs["time"].duplicated().sum())
             if repeated and 2 * int(pairs.duplicated().sum()) <= repeated:
