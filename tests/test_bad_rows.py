@@ -102,6 +102,42 @@ def test_a_file_of_bad_rows_fails_without_leaving_an_output_file(cli, tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("fmt", ["csv", "jsonl", "parquet"])
+def test_a_file_of_bad_rows_leaves_an_earlier_output_as_it_was(cli, tmp_path, fmt):
+    """The output rows of a file without a row to step are held back until one comes: a file that has none fails
+    with the -o file it names as it was (an old one unchanged: it was cut to the bad rows' empty predictions; a new
+    Parquet file not made: it was left holding them)."""
+    bad = _write(tmp_path / "bad.csv", ["id,t,x,y", "1,0,a,b", "1,1,c,d"])
+    fresh, old = tmp_path / f"fresh.{fmt}", tmp_path / f"old.{fmt}"
+    assert _run(cli, ["predict", _write(tmp_path / "good.csv", _lines(40)), *FAST, "-o", str(old)]).exit_code == 0
+    before = old.read_bytes()
+    for out in (fresh, old):
+        result = _run(cli, ["predict", bad, *FAST, "-o", str(out)])
+        assert result.exit_code == 1 and "has no row to read" in result.stderr
+    assert not fresh.exists() and old.read_bytes() == before
+
+
+def test_a_resumed_run_leaves_out_the_bad_rows_its_first_run_wrote(cli, tmp_path):
+    """Bad rows at a file's head, in chunks of their own: a resumed run of the same file wrote them again (and
+    listed them again in --rejects), as if they were its own; they share the fate of the first row after them."""
+    rows = ["id,t,x,y", "1,abc,0,0", "1,,1,0", "1,NA,2,0"] + [f"1,{k},{k},{0.1 * k}" for k in range(3, 24)]
+    path = _write(tmp_path / "t.csv", rows)
+    out, state, rejects = tmp_path / "out.csv", str(tmp_path / "s.npz"), tmp_path / "rejects.csv"
+    args = ["predict", path, *FAST, "--chunk-rows", "3", "-o", str(out), "--state", state, "--rejects", str(rejects)]
+    assert _run(cli, args).exit_code == 0
+    written, listed = out.read_bytes(), rejects.read_bytes()
+    assert len(written.splitlines()) == len(rows)
+    again = _run(cli, args)   # nothing left to do
+    assert again.exit_code == 0 and out.read_bytes() == written and rejects.read_bytes() == listed
+    whole = tmp_path / "whole.csv"
+    half = _write(tmp_path / "half.csv", rows[:13])
+    assert _run(cli, ["predict", half, *FAST, "--chunk-rows", "3", "-o", str(whole), "--state", str(tmp_path / "h.npz")]
+                ).exit_code == 0
+    assert _run(cli, ["predict", path, *FAST, "--chunk-rows", "3", "-o", str(whole), "--state", str(tmp_path / "h.npz")]
+                ).exit_code == 0
+    assert whole.read_bytes() == written
+
+
 def test_on_bad_row_fail_stops_at_the_row_naming_its_line(cli, tmp_path):
     lines = _lines(40)
     path = _write(tmp_path / "t.csv", _with(lines, 30, "b,0.8,abc,1.0"))

@@ -194,6 +194,11 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                                           clock_resets=_clocks(run.engine, settings), late_rows="skip",
                                           time_kind=kind, geographic=axes))
              if total_rows > chunk_rows else [])
+    # the chunks before the first row to step (every row bad or without a time) are written with it, sharing its
+    # fate: a file with no row to step fails at its end and leaves the output as it was (a new file not made, an old
+    # one unchanged), and a resumed run leaves them out where that row was done before (its run wrote them)
+    pending: list = []
+    stepping = False
     with tqdm(total=total, unit="rows", file=sys.stderr, disable=not show,
               desc="kalmix predict", smoothing=0.1) as bar, warnings.catch_warnings():
         warnings.simplefilter("ignore", DroppedRowWarning)   # counted here and said at the end (Run.report)
@@ -211,15 +216,32 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                 said_unavailable = _check_degrees(chunk, names, axes, offset - chunk.attrs.get("file_rows", len(chunk)),
                                                   said_unavailable)
             if not len(chunk):   # every row bad or without a time: their output rows, nothing to step
-                _write_unstepped(run, chunk, columns, settings, kind.get("kind"))
+                if not stepping:
+                    pending.append(chunk)
+                else:
+                    _write_unstepped(run, chunk, columns, settings, kind.get("kind"))
                 bar.update(chunk.attrs.get("file_rows", 0))
                 continue
             if run.engine is None:
                 run.engine = _first_engine(chunk, names, unit, axes, settings, columns.positions, run.backend)
+            if pending and not (run.resuming and _done_before(run.engine, chunk)):
+                for held in pending:
+                    _write_unstepped(run, held, columns, settings, kind.get("kind"))
+            pending.clear()
+            stepping = True
             _step_chunk(run, chunk, names, ahead[index] if index < len(ahead) else {}, clocks, columns, bar,
                         kind.get("kind"))
             bar.update(chunk.attrs.get("file_rows", len(chunk)) - len(chunk))
             run.units.check(run.engine)
+
+
+def _done_before(engine, chunk) -> bool:
+    """Whether the chunk's first row in file order is one a resumed run skips as done before (its time not after
+    its track's last in the state file)."""
+    first = int(np.argmin(chunk.attrs["as_given"].places))
+    ids = np.empty(1, dtype=object)
+    ids[0] = chunk["track_id"].iloc[first]
+    return not bool(engine.stepped_rows(ids, chunk["time"].to_numpy()[first:first + 1])[0])
 
 
 def _first_engine(chunk, names, unit, axes, settings, positions, backend):
