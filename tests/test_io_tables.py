@@ -183,7 +183,8 @@ def test_a_row_number_is_not_taken_for_ids():
 
 def test_a_column_of_one_track_is_not_taken_for_ids():
     """The whole numbers a single track's file holds beside its positions change where the target moves as
-    usual, never, rarely, at every row, or where a bad fix jumps away and back: not ids."""
+    usual, never, rarely, at every row, or where a bad fix (or a burst of them, each somewhere else) jumps away and
+    back: not ids."""
     rng, times, xy = _one_track()
     n = len(times)
     bad = rng.random(n) < 0.1
@@ -192,6 +193,8 @@ def test_a_column_of_one_track_is_not_taken_for_ids():
     moving = (np.arange(n) // 20) % 2
     halts = np.cumsum(np.where(moving[:, None] == 1, rng.normal(2, 0.5, (n, 2)), rng.normal(0, 0.01, (n, 2))), 0)
     trip = np.arange(n) // 100
+    bursts = (np.arange(n) % 40 >= 20) & (np.arange(n) % 40 < 23)   # bad fixes 3 rows at a time, each burst moved
+    burst_xy = xy + np.where(bursts[:, None], np.repeat(rng.normal(0, 50, (n // 40 + 1, 2)), 40, axis=0)[:n], 0)
     cases = [
         (xy, {"status": rng.integers(0, 3, n)}),                                   # a status code
         (xy, {"sats": np.clip(8 + np.cumsum(rng.integers(-1, 2, n)) // 10, 4, 14)}),  # a satellite count
@@ -203,6 +206,8 @@ def test_a_column_of_one_track_is_not_taken_for_ids():
         (halts, {"moving": moving}),                                                # stopped / moving
         (xy + trip[:, None] * 1000.0, {"trip": trip}),                              # trips one after another
         (xy + (np.arange(n) % 2)[:, None] * 5.0, {"receiver": np.arange(n) % 2}),   # two receivers 5 apart
+        (burst_xy, {"fix": np.where(bursts, 1, 3)}),                               # a flag on bursts of bad fixes
+        (burst_xy, {"sats": np.where(bursts, 4, 9)}),                              # a count that drops in them
     ]
     for positions, column in cases:
         assert _candidates(times, positions, **column) == [], list(column)

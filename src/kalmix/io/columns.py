@@ -372,10 +372,12 @@ def position_jumps(values: pd.Series, positions: np.ndarray, times: np.ndarray |
     ``(n, p)`` of the same rows; None when they do not say so. The rows whose value and positions are given are
     read in order: where the value changes (at least :data:`JUMP_CHANGES` times), the median step between
     consecutive rows is :data:`JUMP_RATIO` times the median step between consecutive rows of one value, for
-    three in four of the values with three such steps or more (two at least); and the values are not one after
-    another (a value comes back after another, or the time goes back where the value changes): the rows of
-    several targets, each moving a little, far apart. A status code, a count, a flag or a frame number changes
-    where the positions move as usual; a trip or leg number of one track goes on in time."""
+    three in four of the values with three such steps or more (two at least), and likewise the step from a value's
+    last row where it comes back, for three in four of the values that come back twice or more (where two do); and
+    the values are not one after another (a value comes back after another, or the time goes back where the value
+    changes): the rows of several targets, each moving a little, far apart. A status code, a count, a flag or a
+    frame number changes where the positions move as usual (or jump to bad fixes that are each somewhere else); a
+    trip or leg number of one track goes on in time."""
     missing = values.isna().to_numpy() | values.astype(str).str.strip().str.lower().isin(MISSING_TEXT).to_numpy()
     keep = ~missing & np.isfinite(positions).all(axis=1)
     if keep.sum() < 2 * JUMP_CHANGES:
@@ -399,6 +401,17 @@ def position_jumps(values: pd.Series, positions: np.ndarray, times: np.ndarray |
     per_value = pd.Series(moved[same]).groupby(grouped[1:][same]).agg(["median", "size"])
     within = per_value.loc[per_value["size"] >= 3, "median"].to_numpy()
     if len(within) < 2 or not across > 0 or 4 * (JUMP_RATIO * within <= across).sum() < 3 * len(within):
+        return None
+    # where the value comes back, the step from that value's last row: a target's own track goes on there; a flag
+    # on bursts of bad fixes (each burst somewhere else) or a count that drops during them does not
+    last: dict = {}
+    back: dict = {}
+    for i, code in enumerate(codes.tolist()):
+        if i and code != codes[i - 1] and code in last:
+            back.setdefault(code, []).append(float(np.sqrt(((where[i] - where[last[code]]) ** 2).sum())))
+        last[code] = i
+    again = np.array([np.median(steps_back) for steps_back in back.values() if len(steps_back) >= 2])
+    if len(again) >= 2 and 4 * (JUMP_RATIO * again <= across).sum() < 3 * len(again):
         return None
     def amount(step):
         return f"{step:,.0f}" if step >= 100 else f"{step:.3g}"
