@@ -138,6 +138,17 @@ def test_a_resumed_run_leaves_out_the_bad_rows_its_first_run_wrote(cli, tmp_path
     assert whole.read_bytes() == written
 
 
+def test_a_quote_never_closed_names_the_file(cli, tmp_path):
+    """A quote opened in a field and never closed takes the rest of a file into it: the error names the file and
+    says so (it was pandas' bare 'Error tokenizing data'); on stdin the line is a bad row."""
+    lines = ["t,x,y,note"] + [f"{k},{k},{k},ok" for k in range(9)] + ['9,9,9,"unclosed'] + [
+        f"{k},{k},{k},ok" for k in range(10, 14)]
+    result = _run(cli, ["predict", _write(tmp_path / "q.csv", lines), *FAST])
+    assert result.exit_code == 1 and "Traceback" not in result.stderr
+    assert "The track file" in result.stderr and "q.csv' cannot be read as CSV" in result.stderr
+    assert "a quote opened in a field and never closed" in result.stderr
+
+
 def test_on_bad_row_fail_stops_at_the_row_naming_its_line(cli, tmp_path):
     lines = _lines(40)
     path = _write(tmp_path / "t.csv", _with(lines, 30, "b,0.8,abc,1.0"))

@@ -48,6 +48,7 @@ class Run:
     def clock_reset(self, place, track, before, after) -> None:
         """Say (the first :data:`STDIN_WARNINGS`) that a track's clock restarted at ``place``, and count it."""
         self.resets += 1
+        track = track.item() if hasattr(track, "item") else track   # 3, not np.int64(3)
         if self.resets <= STDIN_WARNINGS:
             click.echo(f"kalmix: note: track {track!r}: its time goes back from {before:g} to {after:g} at {place} and "
                        "goes on from there (a clock that restarted?): a new segment starts there, the rows before "

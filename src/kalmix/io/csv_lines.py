@@ -222,7 +222,8 @@ def not_utf8_error(path, names) -> ValueError:
 
 def utf8_chunks(chunks, path, names):
     """pandas' chunks of a CSV file as they come; a value that is not UTF-8 in a column read raises
-    :func:`not_utf8_error`'s error instead of pandas' ``UnicodeDecodeError``."""
+    :func:`not_utf8_error`'s error instead of pandas' ``UnicodeDecodeError``, and a text pandas cannot split into
+    fields (a quote never closed) an error that names the file."""
     chunks = iter(chunks)
     while True:
         try:
@@ -231,4 +232,7 @@ def utf8_chunks(chunks, path, names):
             return
         except UnicodeDecodeError:
             raise not_utf8_error(path, names) from None
+        except pd.errors.ParserError as error:
+            raise ValueError(f"The track file {os.fspath(path)!r} cannot be read as CSV: {error} (a quote opened in a "
+                             "field and never closed takes the rest of the file into that field)") from None
         yield chunk
