@@ -129,6 +129,7 @@ def test_a_resumed_run_leaves_out_the_bad_rows_its_first_run_wrote(cli, tmp_path
     assert len(written.splitlines()) == len(rows)
     again = _run(cli, args)   # nothing left to do
     assert again.exit_code == 0 and out.read_bytes() == written and rejects.read_bytes() == listed
+    assert "have no time" not in again.stderr and "bad row" not in again.stderr   # nor counted again
     whole = tmp_path / "whole.csv"
     half = _write(tmp_path / "half.csv", rows[:13])
     assert _run(cli, ["predict", half, *FAST, "--chunk-rows", "3", "-o", str(whole), "--state", str(tmp_path / "h.npz")]
@@ -136,6 +137,14 @@ def test_a_resumed_run_leaves_out_the_bad_rows_its_first_run_wrote(cli, tmp_path
     assert _run(cli, ["predict", path, *FAST, "--chunk-rows", "3", "-o", str(whole), "--state", str(tmp_path / "h.npz")]
                 ).exit_code == 0
     assert whole.read_bytes() == written
+
+
+@pytest.mark.parametrize("name", ["rejects.parquet", "rejects.jsonl", "rejects.csv.gz"])
+def test_rejects_of_another_format_are_refused(cli, tmp_path, name):
+    """--rejects writes CSV: a name of another format (it got CSV under that name) is refused before any work."""
+    result = _run(cli, ["predict", _write(tmp_path / "t.csv", _lines(20)), *FAST, "--rejects", str(tmp_path / name)])
+    assert result.exit_code == 2 and "expected a .csv file name" in result.output
+    assert not (tmp_path / name).exists()
 
 
 def test_a_quote_never_closed_names_the_file(cli, tmp_path):

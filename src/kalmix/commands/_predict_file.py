@@ -227,6 +227,10 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
             if pending and not (run.resuming and _done_before(run.engine, chunk)):
                 for held in pending:
                     _write_unstepped(run, held, columns, settings, kind.get("kind"))
+            else:   # done before: neither written nor counted again
+                for held in pending:
+                    for why, count in held.attrs.get("dropped", {}).items():
+                        run.dropped[why] -= count
             pending.clear()
             stepping = True
             _step_chunk(run, chunk, names, ahead[index] if index < len(ahead) else {}, clocks, columns, bar,

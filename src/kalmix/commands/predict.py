@@ -50,6 +50,9 @@ def _check_options(input_path, output, state_path, rejects, on_bad_row, engine_k
     if backend == "gpu":
         click.echo("kalmix: --backend gpu compiles its kernels once in each run, at the first rows (about 4 "
                    "minutes for the default bank on an H100)", err=True)
+    if rejects is not None and os.path.splitext(rejects)[1].lower() not in ("", ".csv", ".txt"):
+        raise click.BadParameter(f"expected a .csv file name (the rows skipped are written as CSV), got {rejects!r}",
+                                 param_hint="--rejects")
     if rejects is not None and on_bad_row == "fail":
         raise click.BadParameter("lists the bad rows skipped, and --on-bad-row fail skips none",
                                  param_hint="--rejects")
