@@ -21,19 +21,14 @@ def file_format(path) -> str:
     return "csv"
 
 
-#: The suffixes of an output file name, and the format written to each.
-OUTPUT_SUFFIXES = {".csv": "csv", ".txt": "csv", ".parquet": "parquet", ".pq": "parquet", ".jsonl": "jsonl",
-                   ".ndjson": "jsonl", ".json": "jsonl"}
-
-
 def output_format(path) -> str:
-    """``"csv"``, ``"parquet"`` or ``"jsonl"`` for ``-o PATH`` by its suffix (CSV for a name without one: a device,
-    a pipe); ``ValueError`` for a suffix of another format, which would get CSV under its name."""
+    """``"csv"``, ``"parquet"`` or ``"jsonl"`` for ``-o PATH`` by its suffix (:func:`file_format`; CSV for ``.csv``,
+    ``.txt`` or a name without one: a device, a pipe); ``ValueError`` for a suffix of another format, which would
+    get CSV under its name."""
     suffix = os.path.splitext(os.fspath(path))[1].lower()
-    if not suffix:
-        return "csv"
-    if suffix in OUTPUT_SUFFIXES:
-        return OUTPUT_SUFFIXES[suffix]
+    kind = file_format(path)
+    if kind != "csv" or suffix in ("", ".csv", ".txt"):
+        return kind
     hint = {".xlsx": "spreadsheets open the .csv", ".xls": "spreadsheets open the .csv",
             ".tsv": "kalmix writes comma-separated values"}.get(suffix)
     if suffix in (".gz", ".zip", ".bz2", ".xz", ".zst"):

@@ -352,14 +352,13 @@ class Output:
             entry.update(bytes=self.bytes, lines=self.lines)
         return entry
 
-    def discard_if_empty(self, predicted: bool = True) -> None:
-        """Close after a failure: a file this run created and wrote nothing to (or, ``predicted`` False, only rows
-        without a prediction) is removed, a file that was there before and not written to yet is left as it was (a
-        run that fails before its first prediction changes nothing)."""
+    def discard_if_empty(self) -> None:
+        """Close after a failure: a file this run created and wrote nothing to is removed, a file that was there
+        before and not written to yet is left as it was (a run that fails before its first row changes nothing)."""
         self._empty_first = False
         self._parquet_empty = None
         self.close()
-        if self._created and (self.bytes == 0 or not predicted):
+        if self._created and self.bytes == 0:
             with contextlib.suppress(OSError):
                 os.unlink(self.path)
 

@@ -74,13 +74,14 @@ class Run:
 
     def finish(self, failed: bool = False) -> None:
         """Close the output and save the state (both reflect the last commit); after a failure, an output file
-        this run created and wrote no prediction to is removed."""
+        this run created and never wrote to is removed (a file's rows are held until its first row to step:
+        :func:`._predict_file.predict_file`)."""
         try:
             self.save()
         finally:
             self.bad.close()
             if self.sink is not None:
-                self.sink.discard_if_empty(self.measured > 0) if failed else self.sink.close()
+                self.sink.discard_if_empty() if failed else self.sink.close()
 
     def report(self) -> None:
         """Summary warnings; on a stop signal or a closed stdout, one line and a non-zero exit."""

@@ -25,18 +25,16 @@ PIECE_ROWS = 65_536
 _MAX_PIECES = 64
 
 
-def _check_degrees(chunk, names, axes, offset, said: bool = False) -> bool:
-    """A ``ValueError`` naming the first file row of a chunk (``offset``: the file rows before it) whose latitude is
-    beyond ±90° or longitude beyond ±180°; a warning, once (``said``: already), at the first row with AIS's
-    latitude 91 or longitude 181 ("not available": a missing position). Returns whether it was said."""
-    from ..io.geo import check_degrees, not_available
+def _say_not_available(chunk, names, axes, offset, said: bool = False) -> bool:
+    """A warning, once (``said``: already), at a chunk's first file row (``offset``: the file rows before it) with
+    AIS's latitude 91 or longitude 181 ("not available": a missing position). Returns whether it was said. (A
+    latitude beyond ±90° or a longitude beyond ±180° otherwise is a bad row, left out of the chunk by the reader.)"""
+    from ..io.geo import not_available
 
     given = chunk.attrs.get("as_given")
     places = np.asarray(given.places) if given is not None else np.arange(len(chunk))
     order = np.argsort(places, kind="stable")   # file order: the first such row of the file is named
     values = chunk[names].to_numpy(np.float64)[order]
-    check_degrees(values, axes, names,
-                  lambda i: f"row {offset + int(places[order[i]])} (counted from 0 after the header)")
     gone = np.flatnonzero(not_available(values, axes))
     if len(gone) and not said:
         row = offset + int(places[order[gone[0]]])
@@ -213,8 +211,9 @@ def predict_file(run, path, settings, unit, time_column, position_columns, id_co
                 run.clock_reset(place, track, before, after)
             offset += chunk.attrs.get("file_rows", len(chunk))
             if axes is not None:
-                said_unavailable = _check_degrees(chunk, names, axes, offset - chunk.attrs.get("file_rows", len(chunk)),
-                                                  said_unavailable)
+                said_unavailable = _say_not_available(chunk, names, axes,
+                                                      offset - chunk.attrs.get("file_rows", len(chunk)),
+                                                      said_unavailable)
             if not len(chunk):   # every row bad or without a time: their output rows, nothing to step
                 if not stepping:
                     pending.append(chunk)

@@ -16,13 +16,17 @@ from ..io.values import as_bytes, not_unicode, not_utf8
 from ._stdin_lines import Unclosed
 
 
+def _convert(source: str) -> str:
+    """How to convert stdin from the encoding ``source`` (``iconv``'s name) to UTF-8."""
+    return f"convert the input to UTF-8 first (... | iconv -f {source} -t utf-8 | kalmix predict -)"
+
+
 def _check_utf8(value, column, line_number) -> None:
     """A ``ValueError`` naming line ``line_number`` when ``value`` is text of bytes that are not UTF-8 (read with
     ``surrogateescape``: a line's other columns may hold such bytes, a column used may not)."""
     if not_unicode(value):
         why, source = not_utf8(column, value)
-        raise ValueError(f"line {line_number}: {why}; convert the input to UTF-8 first (... | iconv -f {source} -t "
-                         "utf-8 | kalmix predict -)")
+        raise ValueError(f"line {line_number}: {why}; {_convert(source)}")
 
 
 def _parse_number(text, column, line_number):
@@ -194,9 +198,8 @@ def header_of(first, number):
             raise ValueError(f"line {number}: not a CSV header: {error}") from None
     for name in header:   # (the names come back in the output: a file's header must be UTF-8 too)
         if not_unicode(name):
-            why, source = not_utf8(name, name)
-            raise ValueError(f"line {number}: {'a key' if is_json else 'the header'}{why[why.index(' holds'):]}; "
-                             f"convert the input to UTF-8 first (... | iconv -f {source} -t utf-8 | kalmix predict -)")
+            why, source = not_utf8(name, name, "a key" if is_json else "the header")
+            raise ValueError(f"line {number}: {why}; {_convert(source)}")
     return is_json, header, rows
 
 

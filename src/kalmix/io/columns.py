@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .values import MISSING_TEXT, iso_seconds
+from .values import MISSING_TEXT, iso_seconds, read_floats
 
 _TIME_NAMES = ("time", "t", "timestamp", "seconds", "time_s", "t_s", "sec", "secs", "ts",
                "elapsed", "datetime", "date_time", "frame", "frame_id", "frame_idx",
@@ -343,30 +343,6 @@ JUMP_CHANGES = 5
 JUMP_RATIO = 10.0
 
 
-def _numbers(column: pd.Series) -> np.ndarray:
-    """A sample's column as float64, NaN where it holds no number (CSV text, or a Parquet column's type)."""
-    if pd.api.types.is_bool_dtype(column):
-        return np.full(len(column), np.nan)
-    if pd.api.types.is_numeric_dtype(column):
-        return column.to_numpy(np.float64, na_value=np.nan)
-    return pd.to_numeric(column.astype(object).where(column.notna()).map(
-        lambda v: v.strip() if isinstance(v, str) else v), errors="coerce").to_numpy(np.float64, na_value=np.nan)
-
-
-def _seconds(column: pd.Series) -> np.ndarray:
-    """A sample's time column as float64 seconds (numbers, dates, ISO 8601 text), NaN where it holds none: only to
-    tell whether the time goes back."""
-    if pd.api.types.is_datetime64_any_dtype(column):
-        when = pd.to_datetime(column, utc=True)
-        return np.where(when.isna(), np.nan, when.to_numpy("datetime64[ns]").astype(np.int64) / 1e9)
-    if pd.api.types.is_timedelta64_dtype(column):
-        return column.dt.total_seconds().to_numpy(np.float64, na_value=np.nan)
-    seconds = _numbers(column)
-    if np.isnan(seconds).all() and not pd.api.types.is_numeric_dtype(column) and column.notna().any():
-        seconds = iso_seconds(column.astype(object).where(column.notna()), errors="coerce")
-    return seconds
-
-
 def position_jumps(values: pd.Series, positions: np.ndarray, times: np.ndarray | None = None) -> str | None:
     """Why a column of whole numbers (``values``, rows in file order) holds track ids, from the positions
     ``(n, p)`` of the same rows; None when they do not say so. The rows whose value and positions are given are
@@ -413,6 +389,7 @@ def position_jumps(values: pd.Series, positions: np.ndarray, times: np.ndarray |
     again = np.array([np.median(steps_back) for steps_back in back.values() if len(steps_back) >= 2])
     if len(again) >= 2 and 4 * (JUMP_RATIO * again <= across).sum() < 3 * len(again):
         return None
+
     def amount(step):
         return f"{step:,.0f}" if step >= 100 else f"{step:.3g}"
 
@@ -435,7 +412,7 @@ def id_candidates(columns: TrackColumns, header: Sequence[str], sample: pd.DataF
     times = None if sample is None or columns.time not in sample.columns else sample[columns.time]
     positions = seconds = None
     if sample is not None and all(name in sample.columns for name in columns.positions):
-        positions = np.column_stack([_numbers(sample[name]) for name in columns.positions])
+        positions = np.column_stack([read_floats(sample[name])[0] for name in columns.positions])
     for name in map(str, header):
         if name in used:
             continue
@@ -459,8 +436,8 @@ def id_candidates(columns: TrackColumns, header: Sequence[str], sample: pd.DataF
                 found.append((name, "whole numbers that tell apart rows of one time"))
                 continue
         if kind == "integer" and distinct >= 2 and positions is not None:
-            if seconds is None and times is not None:
-                seconds = _seconds(times)
+            if seconds is None and times is not None:   # (only to tell whether the time goes back)
+                seconds = read_floats(times, dates=True)[0]
             why = position_jumps(column, positions, seconds)
             if why is not None:
                 found.append((name, why))

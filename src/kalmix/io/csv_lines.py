@@ -10,6 +10,8 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
+from .values import UTF16_BOMS
+
 
 class ChunkLines(NamedTuple):
     """A CSV chunk's rows as :class:`CsvLines` read them: each row's line (counted from 1 with the header),
@@ -147,21 +149,20 @@ def _blank(record) -> bool:
     return not record or (len(record) == 1 and not record[0].strip(" \t"))
 
 
-def _open_text(path, errors: str):
-    """A CSV file (``.gz``: compressed) as UTF-8 text, a byte order mark taken off; ``errors`` as ``open``'s."""
+def _open(path, mode: str, **options):
+    """A CSV file opened as ``open`` does, through gzip when its name ends in ``.gz``."""
     import gzip
 
-    opener = gzip.open if os.fspath(path).lower().endswith(".gz") else open
-    return opener(path, "rt", encoding="utf-8-sig", errors=errors, newline="")
+    return (gzip.open if os.fspath(path).lower().endswith(".gz") else open)(path, mode, **options)
 
 
-_UTF16 = (b"\xff\xfe", b"\xfe\xff")   # UTF-16's byte order marks
+def _open_text(path, errors: str):
+    """A CSV file (``.gz``: compressed) as UTF-8 text, a byte order mark taken off; ``errors`` as ``open``'s."""
+    return _open(path, "rt", encoding="utf-8-sig", errors=errors, newline="")
 
 
 def _start(path, size: int) -> bytes:
-    import gzip
-
-    with (gzip.open if os.fspath(path).lower().endswith(".gz") else open)(path, "rb") as handle:
+    with _open(path, "rb") as handle:
         return handle.read(size)
 
 
@@ -169,7 +170,7 @@ def binary(path) -> bool:
     """Whether a file that is not UTF-8 is no text at all (a zero byte in its first 4 KB, as text in UTF-16 has,
     without UTF-16's byte order mark)."""
     start = _start(path, 4096)
-    return b"\0" in start and start[:2] not in _UTF16
+    return b"\0" in start and start[:2] not in UTF16_BOMS
 
 
 def _first_not_utf8(path, names):
@@ -185,8 +186,7 @@ def _first_not_utf8(path, names):
             header = next(reader, [])
             for column in header:
                 if not_unicode(column):
-                    why, source = not_utf8(column, column)
-                    return 1, "the header" + why[why.index(" holds"):], source
+                    return (1, *not_utf8(column, column, "the header"))
             wanted = [(header.index(column), column) for column in names if column in header]
             before = reader.line_num
             for record in reader:
@@ -206,7 +206,7 @@ def not_utf8_error(path, names) -> ValueError:
     import shlex
 
     name = os.fspath(path)
-    found = ((1, "it starts with UTF-16's byte order mark", "utf-16") if _start(path, 2) in _UTF16 else
+    found = ((1, "it starts with UTF-16's byte order mark", "utf-16") if _start(path, 2) in UTF16_BOMS else
              _first_not_utf8(path, names))
     if found is None:
         return ValueError(f"The track file {name!r} is not UTF-8 text; convert it to UTF-8 first (iconv -f ENCODING "

@@ -162,6 +162,8 @@ def to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.nd
 
 
 _LONE_SURROGATE = re.compile("[\ud800-\udfff]")
+#: UTF-16's byte order marks (little, big endian).
+UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
 
 
 def not_unicode(text) -> bool:
@@ -174,7 +176,7 @@ def guess_encoding(data: bytes) -> tuple[str, str, str]:
     """What bytes that are not UTF-8 may be: the encoding's ``iconv`` name, its common name and ``data`` read in it.
     UTF-16 when they start with its byte order mark, else Windows-1252 (Windows exports), Latin-1 where that
     cannot read them."""
-    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+    if data.startswith(UTF16_BOMS):
         source, label = "utf-16", "UTF-16"
     else:
         try:
@@ -194,10 +196,11 @@ def as_bytes(text: str) -> bytes:
         return text.encode("utf-8", "backslashreplace")
 
 
-def not_utf8(name, text: str) -> tuple[str, str]:
-    """Why a value ``text`` of column ``name`` with lone surrogates (:func:`not_unicode`) is wrong, naming its
-    bytes and what they read as in the encoding they are likely in (:func:`guess_encoding`); and that
-    encoding's ``iconv`` name, to say how to convert the input."""
+def not_utf8(name, text: str, where: str | None = None) -> tuple[str, str]:
+    """Why a value ``text`` of column ``name`` (or of ``where``: "the header") with lone surrogates
+    (:func:`not_unicode`) is wrong, naming its bytes and what they read as in the encoding they are likely in
+    (:func:`guess_encoding`); and that encoding's ``iconv`` name, to say how to convert the input."""
     data = as_bytes(text)
     source, label, shown = guess_encoding(data)
-    return f"column {name!r} holds bytes that are not UTF-8, {data!r} ({shown!r} if they are {label})", source
+    where = f"column {name!r}" if where is None else where
+    return f"{where} holds bytes that are not UTF-8, {data!r} ({shown!r} if they are {label})", source
