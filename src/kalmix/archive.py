@@ -187,10 +187,13 @@ def open_archive(path: str | os.PathLike, *, magic: str, version: int | tuple[in
                  max_meta_bytes: int = 1 << 30):
     """Open a file written by :func:`write_archive`, checking its magic string and version.
 
-    Yields an :class:`Archive`. Raises ``FileNotFoundError`` for a missing file and
-    ``ValueError`` naming ``what`` was expected for a directory, a corrupt, foreign
+    Yields an :class:`Archive`. Raises ``TypeError`` for a ``path`` that is not a path, ``FileNotFoundError``
+    for a missing file and ``ValueError`` naming ``what`` was expected for a directory, a corrupt, foreign
     (``.npy``, pickle, other zip) or other-version file.
     """
+    if not isinstance(path, (str, bytes, os.PathLike)):   # (os.path.isdir takes an int for a file descriptor)
+        raise TypeError(f"path: expected the path of a {what} (str or os.PathLike), got {type(path).__name__} "
+                        f"{path!r:.80}")
     if os.path.isdir(path):
         raise ValueError(f"{path}: expected a {what}, got a directory")
     bad = f"{path}: not a {what} (expected a .npz written by {written_by})"

@@ -449,6 +449,7 @@ def predict_table(table, config: dict, positions, *, chunk_rows: int = 200_000, 
             continue
         batch = table.iloc[a:b]
         engine = TrackPredictor(StreamConfig(**config), positions)
+        engine.warn_skipped = False   # (as kalmix predict: the rows are read sorted, skipped ones counted there)
         parts = [batch.iloc[rows] for rows in _rank_major_chunks(batch, chunk_rows)]
         for part, later in zip(parts, next_row_times(parts)):   # a track's next row may be in a later part
             frames.append(engine.process_table(part, list(positions), later))

@@ -48,8 +48,9 @@ errors (:mod:`kalmix.core.lead`); a ``horizon`` H > 1 is the lead of H time unit
 
 A row whose time is not after its track's previous time (out of order or a repeated
 timestamp) cannot be undone in a stream: it is skipped and counted in
-:attr:`TrackPredictor.skipped`; the first one that :meth:`~TrackPredictor.step_row` or
-:meth:`~TrackPredictor.step_rows` skips gives a :class:`SkippedRowWarning` (a sensor clock
+:attr:`TrackPredictor.skipped`; the first one that :meth:`~TrackPredictor.step_row`,
+:meth:`~TrackPredictor.step_rows` or :meth:`~TrackPredictor.process_table` skips gives a
+:class:`SkippedRowWarning` (a sensor clock
 that restarts would otherwise skip every later row of its track in silence). (File inputs
 are sorted and de-duplicated when read, see :mod:`kalmix.io.tables`.)
 

@@ -272,6 +272,7 @@ def _step_chunk(run, chunk, names, later, clocks, columns, bar, time_kind=None) 
     from ..streaming import next_row_times
 
     engine = run.engine
+    engine.warn_skipped = False   # skipped rows are counted and said at the end (Run.report)
     mark = engine.checkpoint(pd.unique(chunk["track_id"]))
     committed = False
     try:

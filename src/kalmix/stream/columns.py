@@ -72,3 +72,17 @@ def guess_id(columns, header, sample=None):
                          f"every row is one track, the tracks' rows mixed: pass --id {found[0][0]}, or --id none "
                          "if the input holds a single track")
     return columns, []
+
+
+def names_argument(names, where: str = "position_names") -> tuple | None:
+    """A ``position_names`` argument as a tuple (one text: one name; None as it is); ``TypeError`` for what is not
+    a sequence of names (a number, say, which ``tuple()`` would call not iterable)."""
+    if names is None:
+        return None
+    if isinstance(names, str):
+        return (names,)
+    try:
+        return tuple(names)
+    except TypeError:
+        raise TypeError(f"{where}: expected a sequence of column names, got {type(names).__name__} "
+                        f"{names!r:.80}") from None

@@ -65,7 +65,8 @@ def silence_variance(mean, position, last_time, time, threshold) -> np.ndarray:
 
 
 class SkippedRowWarning(RuntimeWarning):
-    """A row was skipped because its time was not after its track's last time (said once per predictor)."""
+    """A row was skipped because it had no time, or its time was not after its track's last time (said once per
+    predictor)."""
 
 
 class GapTracker:

@@ -13,6 +13,7 @@ import numpy as np
 from ..core.engine import Bank
 from .bank_runs import BankRuns, check_backend
 from .clocks import TrackClocks
+from .columns import names_argument
 from .config import StreamConfig
 from .gaps import GapTracker
 from .ids import id_to_json
@@ -43,8 +44,8 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, PopulationPrio
     skipped : int
         Rows skipped because their time was not after their track's previous time.
     warn_skipped : bool
-        Whether the next row that :meth:`step_row` / :meth:`step_rows` skips for its time gives a
-        :class:`SkippedRowWarning` (once: then False).
+        Whether the next row that :meth:`step_row`, :meth:`step_rows` or :meth:`process_table` skips for its
+        time gives a :class:`SkippedRowWarning` (once: then False).
     rows : int
         Rows processed (including skipped ones), counted over saves and resumes.
     output : dict or None
@@ -61,9 +62,10 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, PopulationPrio
             raise TypeError(f"config: expected a StreamConfig, got {type(config).__name__} {config!r:.80}")
         self.backend = check_backend(backend)
         self.config = copy.deepcopy(config)   # the predictor learns its time unit into it: not the caller's
-        if isinstance(position_names, str):
-            position_names = (position_names,)
-        self.position_names = None if position_names is None else tuple(position_names)
+        self.position_names = names_argument(position_names)
+        if self.position_names == ():
+            raise ValueError("position_names: expected one name per coordinate, got none (None: the names come "
+                             "from the first table or labelled row)")
         if self.position_names is not None and len(set(self.position_names)) != len(self.position_names):
             raise ValueError(f"position_names: expected distinct names, got {list(self.position_names)}")
         self.params: Bank | None = None
@@ -154,6 +156,9 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, PopulationPrio
 
     def rollback(self, checkpoint: "Checkpoint") -> None:
         """Undo everything done since ``checkpoint`` was taken."""
+        if not isinstance(checkpoint, Checkpoint):
+            raise TypeError(f"checkpoint: expected what TrackPredictor.checkpoint() returned, got "
+                            f"{type(checkpoint).__name__} {checkpoint!r:.80}")
         self.rows, self.skipped, self.position_names = checkpoint.rows, checkpoint.skipped, checkpoint.position_names
         self.outliers = checkpoint.outliers
         if checkpoint.settings is not None:   # a length unit or geographic setting chosen since

@@ -53,6 +53,8 @@ class RowSteps:
 
         All or nothing: the track's tracker and state change only once the step succeeded.
         """
+        if isinstance(z, (str, bytes)):   # ("12" would be read as the one coordinate 12)
+            raise TypeError(f"z: expected the coordinates (numbers, NaN for a missing one), got the text {z!r:.80}")
         z, names = self._by_name(z, "z", self.position_names, self._may_adopt())
         if z is None:   # the whole row missing: as many NaN as the predictor has coordinates
             if self.params is None:
@@ -202,6 +204,8 @@ class RowSteps:
         except (TypeError, ValueError, OverflowError):
             raise ValueError(f"times: expected numbers, dates and times (datetime, ISO text) or durations, "
                              f"got {times!r:.80}") from None
+        if isinstance(values, (str, bytes)):
+            raise TypeError(f"values: expected a (n, p) array of coordinates, got the text {values!r:.80}")
         values, names = self._rows_by_name(values, self.position_names)
         try:
             values = _measurements(values, None if self.params is None else self.params.measurement_dim)

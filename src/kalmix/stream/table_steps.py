@@ -8,7 +8,8 @@ import warnings
 import numpy as np
 
 from ..core.engine import BankState, tree_map
-from .columns import ColumnNoteWarning, find_columns
+from .columns import ColumnNoteWarning, find_columns, names_argument
+from .gaps import SkippedRowWarning
 from .ids import factorize_ids, id_to_json
 from .times import column_seconds, next_row_times
 
@@ -94,7 +95,8 @@ class TableSteps:
         pandas.DataFrame
             ``track_id, time, segment, pred_<pos>..., std_<pos>...`` (and ``pred<H>_<pos>``,
             ``std<H>_<pos>`` for a horizon H > 1, or ``lead_<pos>``, ``lead_std_<pos>`` with a
-            lead), one row per input row that was not skipped, in table order. A table whose
+            lead), one row per input row that was not skipped (a row without a time, or not after its
+            track's last time: the first gives a :class:`SkippedRowWarning`), in table order. A table whose
             columns were detected keeps its id and time columns' names and values as given
             (no id column: none; no time column: ``row``, each track's row number).
         """
@@ -103,6 +105,7 @@ class TableSteps:
         if not isinstance(table, pd.DataFrame):
             raise TypeError(f"table: expected a pandas DataFrame (track_id, time and position columns), got "
                             f"{type(table).__name__}")
+        position_names = names_argument(position_names)
         source, table, position_names, columns = table, *self._front_door(table, position_names)
         if next_times is not None:
             try:
@@ -149,14 +152,30 @@ class TableSteps:
         except BaseException:
             self.rollback(saved)
             raise
+        rows = np.concatenate(kept) if kept else np.zeros(0, dtype=np.int64)
+        if len(rows) < len(table) and self.warn_skipped:
+            self._warn_skipped_rows(table, rows)
         if columns is None:
             return frame
-        rows = np.concatenate(kept) if kept else np.zeros(0, dtype=np.int64)
         if columns.time is not None:   # the time as given (the frame's is in seconds)
             frame["time"] = source[columns.time].iloc[rows].to_numpy()
         if columns.track_id is not None:
             frame["track_id"] = source[columns.track_id].iloc[rows].to_numpy()
         return with_input_names(frame, columns)
+
+    def _warn_skipped_rows(self, table, kept) -> None:
+        """Once (:attr:`warn_skipped`), as :meth:`step_row` warns: rows of ``table`` not stepped (not in ``kept``) for
+        their time, at or before their track's last time, or none."""
+        self.warn_skipped = False
+        skipped = np.ones(len(table), dtype=bool)
+        skipped[kept] = False
+        i = int(np.flatnonzero(skipped)[0])
+        track, time = id_to_json(table["track_id"].iloc[i]), id_to_json(table["time"].iloc[i])
+        warnings.warn(f"table: {int(skipped.sum())} row(s) skipped, the first in row {i} (counted from 0; track "
+                      f"{track!r}, time {time!r}): a row without a time, or not after its track's last time, is "
+                      "skipped (a stream cannot go back: a clock that restarts skips every later row of the track); "
+                      "the output has a row per row kept; TrackPredictor.skipped counts skipped rows; this is said "
+                      "once", SkippedRowWarning, stacklevel=3)
 
     def _front_door(self, table, position_names):
         """``(table, positions, columns)``: a table as :meth:`_process_table` takes it (``track_id``, ``time`` in

@@ -10,14 +10,21 @@ import numpy as np
 
 def column_seconds(column) -> np.ndarray:
     """A table's time column as float seconds: datetimes since 1970 UTC, durations in seconds (as
-    :func:`kalmix.io.read_tracks` reads them), numbers as they are."""
+    :func:`kalmix.io.read_tracks` reads them), numbers as they are, ISO 8601 text as datetimes; ``ValueError``
+    naming the first value that is none of them."""
     import pandas as pd
 
     if pd.api.types.is_datetime64_any_dtype(column) or pd.api.types.is_timedelta64_dtype(column):
         from ..io.values import to_float
 
         return to_float(column.reset_index(drop=True), "time", 0)
-    return column.to_numpy(np.float64)
+    try:
+        return column.to_numpy(np.float64)
+    except (TypeError, ValueError):   # text: ISO 8601 date-times, as step_row, a file and a detected column take them
+        from ..io.values import to_float
+
+        name = column.name if isinstance(column.name, str) else "time"
+        return to_float(column.reset_index(drop=True), name, 0, dates=True)
 
 
 def row_times(times) -> np.ndarray:
