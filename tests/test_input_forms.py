@@ -3,7 +3,10 @@ stop with an error that says what they look like and how to convert them; the --
 Parquet binary column are written as the main output is."""
 
 import gzip
+import io
 
+import numpy as np
+import pandas as pd
 import pytest
 from click.testing import CliRunner
 
@@ -70,3 +73,50 @@ def test_utf16_is_told_by_a_zero_in_every_other_byte():
     assert utf16_without_bom("\u4e2d,\u6587\n".encode("utf-16le")) is None   # (Chinese: few zero bytes)
     assert utf16_without_bom(bytes(range(256)) * 4) is None   # zeros at one parity only, too few
     assert utf16_without_bom(b"\0" * 64) is None   # zeros in both parities
+
+
+def test_the_rejects_file_ends_its_lines_as_the_output_does(cli, tmp_path):
+    """Before: csv's default "\\r\\n" line ends in the --rejects file, "\\n" in the output."""
+    lines = _text().splitlines()
+    lines[5] = "a,2,oops,1"
+    path, rejects, out = tmp_path / "t.csv", tmp_path / "rejects.csv", tmp_path / "out.csv"
+    path.write_text("\n".join(lines) + "\n")
+    result = _run(cli, ["predict", str(path), *FAST, "--rejects", str(rejects), "-o", str(out)])
+    assert result.exit_code == 0, result.stderr
+    written = rejects.read_bytes()
+    assert b"\r" not in written and b"\r" not in out.read_bytes()
+    assert written.decode() == "line,reason,input\n6,\"column 'x' must hold a number, got 'oops'\",\"a,2,oops,1\"\n"
+
+
+def test_binary_ids_of_a_parquet_file_are_text_in_csv_output(cli, tmp_path):
+    """Before: a Parquet id column of bytes came out as Python's b'a' in CSV (JSON lines wrote a). Ids that are
+    UTF-8 are their text, as the same file with text ids gives, bytes that are not as JSON lines write them
+    (\\xe9); the Parquet output keeps the bytes."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pd.read_csv(io.StringIO(_text()))
+    text = tmp_path / "text.parquet"
+    table.to_parquet(text, index=False)
+    binary = tmp_path / "binary.parquet"
+    pq.write_table(pa.table({"id": pa.array([v.encode() for v in table["id"]], pa.binary()),
+                             **{name: table[name] for name in ("t", "x", "y")}}), binary)
+    for args in ([], ["--chunk-rows", "3"]):
+        said = _run(cli, ["predict", str(binary), *FAST, *args])
+        assert said.exit_code == 0 and "b'" not in said.stdout
+        assert said.stdout == _run(cli, ["predict", str(text), *FAST, *args]).stdout
+    odd = tmp_path / "odd.parquet"
+    pq.write_table(pa.table({"id": pa.array([b"\xe9t\xe9" if v == "a" else b"b" for v in table["id"]]),
+                             **{name: table[name] for name in ("t", "x", "y")}}), odd)
+    csv_out, jsonl_out = tmp_path / "out.csv", tmp_path / "out.jsonl"
+    for out in (csv_out, jsonl_out):
+        assert _run(cli, ["predict", str(odd), *FAST, "-o", str(out)]).exit_code == 0
+    ids = pd.read_csv(csv_out, dtype={"id": str})["id"]
+    assert ids.tolist() == ["\\xe9t\\xe9", "b"] * 10
+    assert pd.read_json(jsonl_out, lines=True, dtype={"id": str})["id"].tolist() == ids.tolist()
+    parquet_out = tmp_path / "out.parquet"
+    assert _run(cli, ["predict", str(odd), *FAST, "-o", str(parquet_out)]).exit_code == 0
+    kept = pq.read_table(parquet_out)
+    assert kept.schema.field("id").type == pa.binary()
+    assert kept.column("id").to_pylist() == [b"\xe9t\xe9", b"b"] * 10
+    assert np.isfinite(pd.read_csv(csv_out)["pred_x"].iloc[2:]).all()
