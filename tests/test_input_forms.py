@@ -120,3 +120,7 @@ def test_binary_ids_of_a_parquet_file_are_text_in_csv_output(cli, tmp_path):
     assert kept.schema.field("id").type == pa.binary()
     assert kept.column("id").to_pylist() == [b"\xe9t\xe9", b"b"] * 10
     assert np.isfinite(pd.read_csv(csv_out)["pred_x"].iloc[2:]).all()
+    from kalmix.commands._output import csv_text
+
+    frame = pd.DataFrame({"track_id": [b"ab", None, b"\xe9"], "x": [1.0, 2.0, 3.0]})
+    assert csv_text(frame, header=True) == "track_id,x\nab,1.0\n,2.0\n\\xe9,3.0\n"
