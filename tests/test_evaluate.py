@@ -462,6 +462,45 @@ def test_the_verdict_names_the_best_tuned_peer_and_the_percentage():
     assert alone["best_peer"] is None and "no tuned peer" in alone["text"]
 
 
+def test_the_verdict_gives_no_percentage_of_rounding_errors():
+    """RMS under ROUNDING of the data's spread (an exactly straight track) are rounding: the verdict says so
+    instead of a percentage of them (1e-15 against 1e-16 read "kalmix is 900 % higher")."""
+    from kalmix.experiments.evaluate import verdict
+
+    rounding = _summaries(mixture=1e-15, CV_Kalman=1e-16)
+    both = verdict(rounding, {"0": rounding}, 1, {"overall": 100.0, "0": 100.0})
+    for entry in (both["one_step"], both["per_track"]["0"]["one_step"]):
+        assert entry["text"] == ("kalmix's RMS 1e-15, the best tuned peer CV Kalman 1e-16: both predict it to "
+                                 "rounding precision (RMS under 1e-09 of the data's spread, 100)")
+    peer = verdict(_summaries(mixture=1e-3, CV_Kalman=0.0), {}, 1, {"overall": 100.0})["one_step"]
+    assert peer["text"].endswith("CV Kalman predicts it to rounding precision (RMS under 1e-09 of the data's "
+                                 "spread, 100), kalmix does not")
+    assert verdict(_summaries(mixture=1e-15, CV_Kalman=1e-3), {}, 1, {"overall": 100.0})["one_step"]["text"] \
+        .endswith("kalmix predicts it to rounding precision (RMS under 1e-09 of the data's spread, 100), "
+                  "CV Kalman does not")
+    ordinary = verdict(rounding, {}, 1, {"overall": 1e-8})["one_step"]   # (a spread that small: not rounding)
+    assert ordinary["text"].endswith("kalmix is 900 % higher (worse)")
+
+
+def test_evaluate_of_a_straight_track_says_rounding(tmp_path):
+    """kalmix evaluate on an exactly straight track (x = t, y = 2t): the verdict's RMS are rounding, no
+    percentage of them ("inf %" against a peer's exact 0)."""
+    t = np.arange(200.0)
+    path = tmp_path / "straight.csv"
+    pd.DataFrame({"t": t, "x": t, "y": 2 * t}).to_csv(path, index=False)
+    out = CliRunner().invoke(build(), ["evaluate", str(path), "--experts", "2", "--json", str(tmp_path / "r.json")])
+    assert out.exit_code == 0, out.output
+    data = json.loads((tmp_path / "r.json").read_text())
+    assert max(data["verdict"]["one_step"]["kalmix_rms"], data["verdict"]["one_step"]["best_peer_rms"]) < 398e-9
+    line = out.stdout.splitlines()[1]
+    assert "%" not in line and "both predict it to rounding precision" in line and "spread, 398)" in line
+    from kalmix.experiments.evaluate import spreads
+
+    assert spreads(split_streams(pd.DataFrame({"track_id": [0] * 3 + [1] * 3, "time": [0.0, 1, 2] * 2,
+                                               "x": [0.0, 1, 5, 10, 12, np.nan], "y": [0.0, -7, 2, 0, 0, 1]}))
+                   ) == {"0": 9.0, "1": 2.0, "overall": 9.0}
+
+
 def test_evaluate_says_who_wins_in_text_and_json(tmp_path):
     """The first lines of the text and the JSON's verdict agree with the ranked table: the best tuned peer is the
     lowest RMS among the peers, the percentage is kalmix's RMS against it, one step and H steps ahead; the table

@@ -24,7 +24,7 @@ __all__ = ["json_value", "csv_value", "jsonl_text", "csv_text", "OutputClosed", 
 def json_value(value):
     """A prediction value for JSON lines: NaN/inf as null, numpy scalars as Python numbers, dates, times and
     durations (Parquet id columns) in ISO 8601 (NaT and pandas' NA as null), decimals as their text, bytes as
-    UTF-8 text."""
+    UTF-8 text (a byte that is not UTF-8 as ``\\xe9``)."""
     if isinstance(value, (float, np.floating)):
         return None if not math.isfinite(value) else float(value)
     if isinstance(value, (np.integer, np.bool_)):
@@ -97,14 +97,29 @@ def jsonl_text(frame) -> str:
     return "".join("{" + ", ".join(row) + "}\n" for row in zip(*columns))
 
 
+def _bytes_as_text(frame):
+    """``frame`` with its columns of bytes (a Parquet file's binary ids) as the text JSON lines write
+    (:func:`json_value`: UTF-8), not Python's ``b'...'``."""
+    from pandas.api.types import infer_dtype
+
+    binary = [i for i in range(frame.shape[1]) if frame.iloc[:, i].dtype == object
+              and infer_dtype(frame.iloc[:, i], skipna=True) == "bytes"]
+    if binary:
+        frame = frame.copy()
+        for i in binary:
+            frame.isetitem(i, frame.iloc[:, i].map(json_value, na_action="ignore"))
+    return frame
+
+
 def csv_text(frame, header: bool) -> str:
     """``frame`` as CSV lines (``header`` first): Arrow's writer (much faster than pandas' ``to_csv``), floats
     round-tripping, NaN as an empty field; pandas' writer when a value or name needs quotes, or for
-    columns Arrow writes otherwise (dates, bytes, other objects)."""
+    columns Arrow writes otherwise (dates, other objects); bytes as JSON lines write them (:func:`json_value`)."""
     import pyarrow as pa
     import pyarrow.compute as pa_compute
     import pyarrow.csv as pa_csv
 
+    frame = _bytes_as_text(frame)
     if not _arrow_writes_as_pandas(frame):
         return frame.to_csv(None, index=False, header=header, lineterminator="\n")
     head = ",".join(csv_value(name) for name in frame.columns) + "\n" if header else ""

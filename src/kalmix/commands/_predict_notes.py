@@ -60,7 +60,7 @@ class BadRowLog:
                                errors="backslashreplace")   # (a line of stdin's that is not UTF-8)
         except OSError as error:
             raise ValueError(f"--rejects: cannot write {self.path!r}: {error.strerror or error}") from None
-        self.writer = csv.writer(self.handle)
+        self.writer = csv.writer(self.handle, lineterminator="\n")   # (as the output: csv's own is "\r\n")
         if not append:
             self.writer.writerow([kind, "reason", "input"])
             self.handle.flush()

@@ -12,7 +12,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..io.values import as_bytes, not_unicode, not_utf8
+from ..io.values import GZIP_MAGIC, as_bytes, not_unicode, not_utf8, utf16_without_bom
 from ._stdin_lines import Unclosed
 
 
@@ -187,6 +187,15 @@ def header_of(first, number):
     """What stdin's first line ``first`` (line ``number``) says: whether the lines are JSON, the column names (a CSV
     header's, or the keys of a JSON-lines record), and the rows it already holds as ``(line, record)`` (a JSON
     record is the first row; a CSV header none)."""
+    start = as_bytes(first)
+    if start.startswith(GZIP_MAGIC):
+        raise ValueError(f"line {number}: the input looks gzip-compressed (it starts with the bytes 1f 8b); "
+                         "decompress it first (zcat FILE | kalmix predict -), or pass the .gz file's path, which "
+                         "kalmix reads directly")
+    wide = utf16_without_bom(start) if "\0" in first else None
+    if wide:
+        raise ValueError(f"line {number}: the input looks like {wide.upper()} text without a byte order mark "
+                         f"(every other byte is zero); {_convert(wide)}")
     is_json = first.lstrip().startswith("{")
     if is_json:
         record = json_line(first, number)

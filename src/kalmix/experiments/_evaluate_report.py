@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._evaluate_scores import KALMIX, NOT_AHEAD, EvaluationResult, ranking, verdict
+from ._evaluate_scores import KALMIX, NOT_AHEAD, EvaluationResult, ranking, spreads, verdict
 
 
 #: Fewer scored rows than this: the interval line of ``kalmix evaluate`` says they are too few to judge.
@@ -61,7 +61,8 @@ def format_result(result: EvaluationResult, per_track: bool = True) -> str:
                  "mixture)")
     else:
         units = f"length unit {result.length_unit:.4g}"
-    verdict_ = result.verdict or verdict(result.overall, result.per_track, result.horizon)
+    verdict_ = result.verdict or verdict(result.overall, result.per_track, result.horizon,
+                                               spreads(result.streams))
     lines = [f"verdict on {result.dataset}:"] + _verdict_lines(result, verdict_, "  ")
     for which in ("one_step", "horizon"):   # a subsample or no figure; the frame IMM's one-step-only is its row's
         for name, why in verdict_.get(which, {}).get("left_out", {}).items():

@@ -54,8 +54,26 @@ KALMIX = "mixture"
 NOT_AHEAD = "no forecast this far ahead"
 
 
-def _compare(summaries: dict, which: str) -> dict:
-    """kalmix against the best tuned peer in ``summaries`` (``{row: {"one_step" | "horizon": summary}}``)."""
+#: An RMS under this fraction of the data's spread (:func:`spreads`) is rounding: the verdict compares no such
+#: RMS by percentage (on an exactly straight track 1e-15 against 1e-16 is "900 % higher").
+ROUNDING = 1e-9
+
+
+def spreads(streams: Streams) -> dict:
+    """Each track's spread (``{track as text: largest max - min of a coordinate}``), the yardstick of
+    :data:`ROUNDING`; ``"overall"``: the largest."""
+    out = {}
+    for i, track in enumerate(streams.track_ids):
+        values = streams.values[:, streams.track_of == i].reshape(-1, streams.values.shape[-1])
+        out[str(track)] = float(max((np.ptp(c[np.isfinite(c)]) for c in values.T if np.isfinite(c).any()),
+                                    default=0.0))
+    out["overall"] = max(out.values(), default=0.0)
+    return out
+
+
+def _compare(summaries: dict, which: str, spread: float = 0.0) -> dict:
+    """kalmix against the best tuned peer in ``summaries`` (``{row: {"one_step" | "horizon": summary}}``);
+    ``spread``: the data's (:func:`spreads`), under whose :data:`ROUNDING` fraction an RMS is rounding."""
     own = (summaries.get(KALMIX) or {}).get(which) or {}
     kalmix, count = own.get("rms"), own.get("count")
     peers, left_out = {}, {}
@@ -80,25 +98,34 @@ def _compare(summaries: dict, which: str) -> dict:
     best = min(peers, key=peers.get)   # the first in table order on a tie
     rms = peers[best]
     percent = 100.0 * (kalmix - rms) / rms if rms > 0 else (0.0 if kalmix == rms else math.inf)
+    exact = kalmix <= ROUNDING * spread, rms <= ROUNDING * spread
     if kalmix == rms:
         how = "kalmix is level with it"
+    elif any(exact):   # (a percentage of rounding errors says nothing)
+        how = ("both predict" if all(exact) else "kalmix predicts" if exact[0] else f"{best} predicts") + \
+            f" it to rounding precision (RMS under {ROUNDING:g} of the data's spread, {spread:.4g})" + \
+            ("" if all(exact) else f", {best if exact[0] else 'kalmix'} does not")
     else:
         how = f"kalmix is {abs(percent):.3g} % {'lower (better)' if kalmix < rms else 'higher (worse)'}"
     return {**out, "best_peer": best, "best_peer_rms": rms, "percent": percent, "kalmix_better": bool(kalmix < rms),
             "text": f"kalmix's RMS {kalmix:.4g}, the best tuned peer {best} {rms:.4g}: {how}"}
 
 
-def verdict(overall: dict, per_track: dict, horizon: int) -> dict:
+def verdict(overall: dict, per_track: dict, horizon: int, spread: dict | None = None) -> dict:
     """Who wins: kalmix's RMS against the best tuned peer's, one step ahead and (``horizon > 1``) ``horizon`` ahead.
 
     Each entry (:func:`_compare`) holds ``kalmix_rms``, ``best_peer``, ``best_peer_rms``,
     ``percent`` (kalmix's RMS relative to the peer's, in %: negative when kalmix is
     better), ``kalmix_better``, every compared peer's RMS, the peers left out with why
     (no forecast that far ahead, a subsample), and a sentence. ``per_track`` holds the same per track.
+    ``spread`` (:func:`spreads`): the data's, overall and per track; where kalmix's or the peer's RMS is under
+    :data:`ROUNDING` of it, the sentence says that RMS is rounding instead of a percentage.
     """
     which = ("one_step", "horizon") if horizon > 1 else ("one_step",)
-    return {**{w: _compare(overall, w) for w in which},
-            "per_track": {track: {w: _compare(rows, w) for w in which} for track, rows in per_track.items()}}
+    spread = spread or {}
+    return {**{w: _compare(overall, w, spread.get("overall", 0.0)) for w in which},
+            "per_track": {track: {w: _compare(rows, w, spread.get(track, 0.0)) for w in which}
+                          for track, rows in per_track.items()}}
 
 
 def ranking(summaries: dict, horizon: int) -> dict:

@@ -49,13 +49,13 @@ from ..streaming import length_unit_rule
 from ._evaluate_mixture import UNIT_FACTORS, run_kalmix, run_mixture, tune_unit
 from ._evaluate_peers import run_fixed_filters, run_imm, run_peer_models
 from ._evaluate_report import PLOT_ROWS, format_result, plot_rows, track_columns
-from ._evaluate_scores import (ERROR_METRICS, KALMIX, NOT_PEERS, EvaluationResult, error_measure, ranking, summarise,
-                               verdict)
+from ._evaluate_scores import (ERROR_METRICS, KALMIX, NOT_PEERS, ROUNDING, EvaluationResult, error_measure, ranking,
+                               spreads, summarise, verdict)
 from ._evaluate_segments import Streams, shift, split_streams
 
 __all__ = ["Streams", "EvaluationResult", "split_streams", "evaluate_table", "PREDICTORS", "ERROR_METRICS",
-           "NOT_PEERS", "KALMIX", "UNIT_FACTORS", "error_measure", "verdict", "ranking", "format_result",
-           "track_columns", "PLOT_ROWS", "plot_rows"]
+           "NOT_PEERS", "KALMIX", "UNIT_FACTORS", "error_measure", "verdict", "spreads", "ROUNDING", "ranking",
+           "format_result", "track_columns", "PLOT_ROWS", "plot_rows"]
 
 #: Row names in table order.
 PREDICTORS = ("mixture", "AKF mixture (paper)", "no prediction", "CV Kalman", "CA Kalman",
@@ -181,8 +181,8 @@ def evaluate_table(table, *, horizon: int = 1, n_experts: int = 40, seed: int = 
     return EvaluationResult(horizon=int(horizon), length_unit=unit, tuning_fraction=tuning_fraction,
                             tuned=tuned, predictors=list(predictions), overall=overall, per_track=per_track,
                             streams=streams, errors=errors_one, intervals=intervals, metric=metric,
-                            verdict=verdict(overall, per_track, horizon), ranking=ranking(overall, horizon),
-                            units=units)
+                            verdict=verdict(overall, per_track, horizon, spreads(streams)),
+                            ranking=ranking(overall, horizon), units=units)
 
 
 def _keep_tracks(table, tracks):

@@ -10,7 +10,7 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from .values import UTF16_BOMS
+from .values import UTF16_BOMS, utf16_without_bom
 
 
 class ChunkLines(NamedTuple):
@@ -168,9 +168,15 @@ def _start(path, size: int) -> bytes:
 
 def binary(path) -> bool:
     """Whether a file that is not UTF-8 is no text at all (a zero byte in its first 4 KB, as text in UTF-16 has,
-    without UTF-16's byte order mark)."""
+    neither after UTF-16's byte order mark nor in every other place as UTF-16 without it has)."""
     start = _start(path, 4096)
-    return b"\0" in start and start[:2] not in UTF16_BOMS
+    return b"\0" in start and start[:2] not in UTF16_BOMS and utf16_without_bom(start) is None
+
+
+def utf16_file(path) -> bool:
+    """Whether a file's first 4 KB look like UTF-16 without a byte order mark
+    (:func:`kalmix.io.values.utf16_without_bom`): read as UTF-8, its every other character is a zero."""
+    return utf16_without_bom(_start(path, 4096)) is not None
 
 
 def _first_not_utf8(path, names):
@@ -206,8 +212,11 @@ def not_utf8_error(path, names) -> ValueError:
     import shlex
 
     name = os.fspath(path)
-    found = ((1, "it starts with UTF-16's byte order mark", "utf-16") if _start(path, 2) in UTF16_BOMS else
-             _first_not_utf8(path, names))
+    start = _start(path, 4096)
+    wide = utf16_without_bom(start)
+    found = ((1, "it starts with UTF-16's byte order mark", "utf-16") if start[:2] in UTF16_BOMS else
+             (1, f"it looks like {wide.upper()} text without a byte order mark (every other byte is zero)", wide)
+             if wide else _first_not_utf8(path, names))
     if found is None:
         return ValueError(f"The track file {name!r} is not UTF-8 text; convert it to UTF-8 first (iconv -f ENCODING "
                           "-t utf-8, or in Python pandas.read_csv(path, encoding=...).to_csv(...))")

@@ -56,7 +56,7 @@ from .columns import column_notes as column_notes
 from .columns import id_candidates as id_candidates
 from .columns import id_like_name as id_like_name
 from .columns import looks_like_a_word as looks_like_a_word
-from .csv_lines import CsvLines, binary, not_utf8_error, utf8_chunks
+from .csv_lines import CsvLines, binary, not_utf8_error, utf16_file, utf8_chunks
 from .normalise import ON_BAD_ROW, BadRows, BadRowWarning, DroppedRowWarning, in_file_order, normalise_table
 from .normalise import AsGiven as AsGiven
 from .values import MISSING_TEXT as MISSING_TEXT
@@ -133,7 +133,7 @@ def read_header(source: Any, fmt: str) -> list[str]:
             return list(parquet.schema_arrow.names)
     name = os.fspath(source) if isinstance(source, (str, os.PathLike)) else getattr(source, "name", "(a buffer)")
     try:
-        return [str(c) for c in pd.read_csv(source, nrows=0).columns]
+        header = [str(c) for c in pd.read_csv(source, nrows=0).columns]
     except pd.errors.EmptyDataError:
         raise ValueError(f"The track file {name!r} is empty (no header, no rows)") from None
     except UnicodeDecodeError as error:
@@ -141,6 +141,9 @@ def read_header(source: Any, fmt: str) -> list[str]:
             raise not_utf8_error(source, []) from None
         raise ValueError(f"The track file {name!r} is not a CSV text file (UTF-8 expected; "
                          f"{error.reason} at byte {error.start})") from None
+    if any("\0" in column for column in header) and isinstance(source, (str, os.PathLike)) and utf16_file(source):
+        raise not_utf8_error(source, [])   # (UTF-16 without a byte order mark reads as UTF-8 with zeros between)
+    return header
 
 
 def check_unique_columns(source: Any, fmt: str, cols: TrackColumns) -> None:

@@ -164,6 +164,19 @@ def to_float(s: pd.Series, name: str, offset: int, dates: bool = False) -> np.nd
 _LONE_SURROGATE = re.compile("[\ud800-\udfff]")
 #: UTF-16's byte order marks (little, big endian).
 UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
+#: The first bytes of gzip-compressed data.
+GZIP_MAGIC = b"\x1f\x8b"
+
+
+def utf16_without_bom(data: bytes) -> str | None:
+    """``"utf-16le"`` or ``"utf-16be"`` (``iconv``'s names) when ``data``, the start of a text, looks like UTF-16
+    without a byte order mark: a zero byte in at least 3 of 4 of the places of one parity (the high bytes of
+    Latin text), none in the other; else None."""
+    low, high = data[0::2], data[1::2]
+    for zeros, letters, name in ((high, low, "utf-16le"), (low, high, "utf-16be")):
+        if len(zeros) >= 2 and 4 * zeros.count(0) >= 3 * len(zeros) and 0 not in letters:
+            return name
+    return None
 
 
 def not_unicode(text) -> bool:
