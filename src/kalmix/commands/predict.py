@@ -196,7 +196,7 @@ def _local_only(given, output):
                    "one of them alone, with adaptive AR models of the velocity (+ar, ar), coordinated-turn "
                    "extrapolations (+turn, turn) and coordinated-turn Kalman filters (+ct, ct) "
                    f"[default: {DEFAULT_BANK['kind']}].")
-@click.option("--rule", default=None, type=click.Choice(["boa", "mlpoly", "fixed_share"]),
+@click.option("--rule", default=None, type=click.Choice(["boa", "boa_blend", "mlpoly", "fixed_share"]),
               help="Aggregation rule [default: boa].")
 @click.option("--time-unit", default=None, type=click.FloatRange(min=0, min_open=True),
               help="Typical sampling interval (the time unit, in the time column's units) that scales the CV/CA "
