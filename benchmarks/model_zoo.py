@@ -494,9 +494,10 @@ def score(s: Scenario, tracks, predictors: dict, stds: dict):
 
 
 #: The ``kalmix predict`` runs of every scenario: the defaults, without the gap rule, without the population
-#: prior.
+#: prior, with the BOA-blend rule.
 RUNS = (("kalmix", ()), ("kalmix --max-gap none", ("--max-gap", "none")),
-        ("kalmix --no-population-prior", ("--no-population-prior",)))
+        ("kalmix --no-population-prior", ("--no-population-prior",)),
+        ("kalmix --rule boa_blend", ("--rule", "boa_blend")))
 
 
 def run_scenario(s: Scenario, directory: Path, source: Path | None = None, log=print) -> dict:

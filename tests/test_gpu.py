@@ -30,7 +30,7 @@ CHECK = textwrap.dedent("""
     sparse, _ = benign_tracks(seed=3, t_count=40)
     steps = np.random.default_rng(3).choice([1.0, 1.0, 2.0, 6.0, 20.0], size=sparse.shape[:2])
     sparse_times = np.cumsum(steps, axis=0)
-    for rule in ("boa", "mlpoly", "fixed_share"):
+    for rule in ("boa", "boa_blend", "mlpoly", "fixed_share"):
         bank = make_bank(2, "kinematic", rule=rule, length_unit=0.3, reach=8.0)
         assert bank.far_experts() is not None
         for z, t in (benign_tracks(seed=1, t_count=40), adversarial_tracks(seed=2, t_count=40), (glitched, times),

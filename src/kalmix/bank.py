@@ -73,7 +73,8 @@ BANK_KINDS = ("mixed", "kinematic", "akf", "ar", "kinematic+ar", "mixed+ar", "tu
 #: ball's kick, caps every learning rate for the rest of the track. BOA's regrets see the errors clipped
 #: at 3 times their RMS so far (``clip``, :mod:`kalmix.core.aggregators.boa`), so a kick or a relocation
 #: does not move the weights. Both were chosen by the ablation (benchmarks/results/ablation_*.json).
-DEFAULT_RULE_OPTIONS = {"boa": {"bound_forgetting": 0.99, "clip": 3.0}}
+DEFAULT_RULE_OPTIONS = {"boa": {"bound_forgetting": 0.99, "clip": 3.0},
+                        "boa_blend": {"bound_forgetting": 0.99, "clip": 3.0}}
 #: make_bank's ``reach`` (time units): off by default. A reach helps on tracks sampled at irregular intervals
 #: (benchmarks/results/irregular_sampling.json); it hurts on regular tracks across missed rows, where staying
 #: near the last position beats extrapolating a velocity (a lost player). ``kalmix predict`` and
@@ -210,7 +211,7 @@ def make_bank(
     ----------
     measurement_dim : int
         p, coordinates per measurement.
-    rule : {"boa", "mlpoly", "fixed_share"}
+    rule : {"boa", "boa_blend", "mlpoly", "fixed_share"}
         The aggregation rule (:mod:`kalmix.core.aggregators`).
     length_unit : float
         Measurement-noise size in data units; every noise level is a multiple of its square.

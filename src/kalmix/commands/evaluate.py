@@ -16,6 +16,7 @@ import numpy as np
 
 from ..archive import save_figure
 from ..bank import DEFAULT_BANK, MAX_HORIZON, MAX_SEED
+from ..core.aggregators import RULES
 from ._common import figure_format_problem, user_errors as _user_errors
 from ._input import track_file
 from ._options import (GAP_HELP, REACH_HELP, check_directory, column_options, distinct_files, parse_length_unit,
@@ -38,6 +39,8 @@ _OPTION_HELP = ("A kalmix.bank.make_params argument, KEY=VALUE (JSON value), rep
               help="Experts of the bank's AKF family (as predict's --experts) and of the AKF mixture row.")
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(0, MAX_SEED),
               help="Seed of the bank and of the AKF mixture row.")
+@click.option("--rule", default=DEFAULT_BANK["rule"], show_default=True, type=click.Choice(list(RULES)),
+              help="The mixture's aggregation rule, as predict's --rule.")
 @click.option("--length-unit", default="auto", show_default=True,
               help="The mixtures' length unit (and the other AKF rows'; the peers' noise grids keep the "
                    "rule's); 'auto': the second-difference rule on the tuning part.")
@@ -73,7 +76,7 @@ _OPTION_HELP = ("A kalmix.bank.make_params argument, KEY=VALUE (JSON value), rep
 @click.option("--per-track/--no-per-track", default=True, show_default=True, help="Print the per-track tables.")
 @click.option("--option", "mixture_options", multiple=True, help=_OPTION_HELP)
 def evaluate(input_path, dataset, time_column, position_columns, id_column, geographic, horizon, n_experts, seed,
-             length_unit, time_unit, tuning_fraction, max_gap, max_gap_factor, reach, max_samples, tracks, peers,
+             rule, length_unit, time_unit, tuning_fraction, max_gap, max_gap_factor, reach, max_samples, tracks, peers,
              json_path, per_coordinate, plot_path, plot_rows, intervals_path, plot_track, per_track, mixture_options):
     """Compare the mixture's prediction errors with the predictors you would use instead.
 
@@ -104,7 +107,7 @@ def evaluate(input_path, dataset, time_column, position_columns, id_column, geog
                                 max_gap_factor=math.inf if never else max_gap_factor, max_samples=max_samples,
                                 tracks=wanted, peers=peers, options=options, geographic=geographic,
                                 metric="per-coordinate" if per_coordinate else "euclidean",
-                                bank_options={**DEFAULT_BANK, "reach": reach_setting(reach),
+                                bank_options={**DEFAULT_BANK, "rule": rule, "reach": reach_setting(reach),
                                               **({} if time_unit is None else {"time_unit": time_unit})},
                                 log=lambda message: click.echo(f"kalmix: {message}", err=True))
         result.dataset = label

@@ -14,6 +14,7 @@ import os
 import click
 
 from ..bank import BANK_KINDS, DEFAULT_BANK, MAX_HORIZON, MAX_SEED, recipe_parts
+from ..core.aggregators import RULES
 from ._common import position_names, user_errors as _user_errors
 from ._input import output_format, sample_reader
 from ._options import (GAP_HELP, REACH_HELP, check_directory, column_options, distinct_files, parse_length_unit,
@@ -196,8 +197,10 @@ def _local_only(given, output):
                    "one of them alone, with adaptive AR models of the velocity (+ar, ar), coordinated-turn "
                    "extrapolations (+turn, turn) and coordinated-turn Kalman filters (+ct, ct) "
                    f"[default: {DEFAULT_BANK['kind']}].")
-@click.option("--rule", default=None, type=click.Choice(["boa", "mlpoly", "fixed_share"]),
-              help="Aggregation rule [default: boa].")
+@click.option("--rule", default=None, type=click.Choice(list(RULES)),
+              help="Aggregation rule: BOA; boa_blend, BOA on the linearised and on the exact regrets, blended "
+                   "(follows the right expert where the others are far off at some rows: constant acceleration at "
+                   "irregular steps; 12-15 % slower, 3 kB more per track); ML-Poly; fixed share [default: boa].")
 @click.option("--time-unit", default=None, type=click.FloatRange(min=0, min_open=True),
               help="Typical sampling interval (the time unit, in the time column's units) that scales the CV/CA "
                    "experts' noise "

@@ -56,7 +56,8 @@ def format_result(result: EvaluationResult, per_track: bool = True) -> str:
     if "length_unit" in bank and "time_unit" in bank:
         units = (f"the mixture's length unit {bank['length_unit']:.4g} and time unit {bank['time_unit']:.4g}, "
                  f"the AKF rows' length unit {result.length_unit:.4g}\n(kalmix predict --length-unit "
-                 f"{bank['length_unit']!r} --time-unit {bank['time_unit']!r} --no-population-prior, with this "
+                 f"{bank['length_unit']!r} --time-unit {bank['time_unit']!r} --no-population-prior"
+                 + (f" --rule {bank['rule']}" if bank.get("rule", "boa") != "boa" else "") + ", with this "
                  "command's --experts, --seed, gap flags, --reach and --option but the gate's, runs the same "
                  "mixture)")
     else:

@@ -18,7 +18,8 @@ On by default (``StreamConfig(population_prior=False)``, ``kalmix predict --no-p
 track empty); not with Dask, whose partitions do not see each other's tracks. ``kalmix predict`` steps a file
 chunk by chunk, each chunk's tracks one after another: it cuts a chunk in file order where a summary falls
 (:meth:`PopulationPrior.summary_cuts`), so that a file, any of its chunkings and the same rows on stdin learn the
-same bits. Only BOA (the default rule) has a prior; a bank with another rule starts every track empty.
+same bits. BOA (the default rule) and BOA-blend have a prior (:data:`PRIOR_FIELDS`); a bank with another rule
+starts every track empty.
 """
 
 from __future__ import annotations
@@ -27,8 +28,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["POPULATION_ROWS", "MIN_ROWS", "FIRST_SNAPSHOT", "SNAPSHOT_EVERY", "Prior", "snapshot_points",
-           "summarise", "start_rule", "PopulationPrior"]
+__all__ = ["POPULATION_ROWS", "MIN_ROWS", "FIRST_SNAPSHOT", "SNAPSHOT_EVERY", "PRIOR_FIELDS", "Prior", "prior_width",
+           "prior_parts", "snapshot_points", "summarise", "start_rule", "PopulationPrior"]
 
 #: Pseudo-rows of the population a new track starts with (the weight of the prior, in rows of the track's own).
 POPULATION_ROWS = 100
@@ -40,6 +41,26 @@ FIRST_SNAPSHOT = 32
 SNAPSHOT_EVERY = 65536
 #: Tracks whose states are read at once for a summary.
 SUMMARY_BATCH = 4096
+
+
+#: The rules a population prior starts, and the fields of their states it starts: groups of (regret, variance,
+#: bound), each ``(N, width)``; a prior holds the groups side by side (BOA-blend: its two rules' and its blend's).
+PRIOR_FIELDS = {"boa": (("regret", "variance", "bound"),),
+                "boa_blend": (("regret", "variance", "bound"), ("exact_regret", "exact_variance", "exact_bound"),
+                              ("blend_regret", "blend_variance", "blend_bound"))}
+
+
+def prior_width(bank) -> int:
+    """The length of the arrays of a prior of ``bank``'s rule (its experts for BOA); 0 for a rule without one."""
+    fields = PRIOR_FIELDS.get(bank.rule, ())
+    state = bank.rule_module.init(bank.rule_params, 1, bank.n_experts)
+    return sum(getattr(state, group[0]).shape[-1] for group in fields)
+
+
+def prior_parts(rule_name: str, rule_state) -> tuple:
+    """``(regret, variance, bound)`` of a rule state as a prior takes them, its groups side by side ``(N, width)``."""
+    groups = PRIOR_FIELDS[rule_name]
+    return tuple(np.concatenate([getattr(rule_state, group[i]) for group in groups], axis=-1) for i in range(3))
 
 
 class Prior(NamedTuple):
@@ -96,16 +117,19 @@ def summarise(parts) -> Prior | None:
                  np.median(np.concatenate(bounds), axis=0), count)
 
 
-def start_rule(rule_state, prior: Prior | None):
-    """``rule_state`` (a fresh BOA state of n targets) starting from ``prior`` (unchanged without one)."""
+def start_rule(rule_state, prior: Prior | None, rule_name: str = "boa"):
+    """``rule_state`` (a fresh state of rule ``rule_name``, n targets) starting from ``prior`` (unchanged without
+    one)."""
     if prior is None:
         return rule_state
     n = rule_state.regret.shape[0]
-
-    def rows(value):
-        return np.broadcast_to(value, (n, len(value))).copy()
-
-    return rule_state._replace(regret=rows(prior.regret), variance=rows(prior.variance), bound=rows(prior.bound))
+    values, start = {}, 0
+    for group in PRIOR_FIELDS[rule_name]:
+        width = getattr(rule_state, group[0]).shape[-1]
+        for name, value in zip(group, (prior.regret, prior.variance, prior.bound)):
+            values[name] = np.broadcast_to(value[start:start + width], (n, width)).copy()
+        start += width
+    return rule_state._replace(**values)
 
 
 class PopulationPrior:
@@ -115,14 +139,14 @@ class PopulationPrior:
     @property
     def prior(self) -> Prior | None:
         """The population prior a new track starts from now (None: the rule's own start)."""
-        if not self.priors or self.params is None or self.params.rule != "boa":
+        if not self.priors or self.params is None or self.params.rule not in PRIOR_FIELDS:
             return None
         return self.priors[-1]
 
     def with_prior(self, state):
         """``state`` (new tracks' :class:`~kalmix.core.engine.BankState`) with its rule started from :attr:`prior`."""
         prior = self.prior
-        return state if prior is None else state._replace(rule=start_rule(state.rule, prior))
+        return state if prior is None else state._replace(rule=start_rule(state.rule, prior, self.params.rule))
 
     @property
     def stepped(self) -> int:
@@ -158,7 +182,7 @@ class PopulationPrior:
         """After stepping rows (:attr:`stepped` was ``before``): a summary if a point was reached."""
         if not self.config.population_prior or not snapshot_points(before, self.stepped):
             return
-        if self.params is None or self.params.rule != "boa":
+        if self.params is None or self.params.rule not in PRIOR_FIELDS:
             return
         # in one order whatever order the tracks were stored in (a Parquet chunk sorted by id, a new track cut by a
         # gap, a resumed state file): a floating-point sum depends on the order of its terms
@@ -168,7 +192,7 @@ class PopulationPrior:
             for begin in range(0, len(tracks), SUMMARY_BATCH):
                 these = tracks[begin:begin + SUMMARY_BATCH]
                 rule = self.states.gather(these, self._new_states).rule
-                yield rule.regret, rule.variance, rule.bound, [self.track_rows[t] for t in these]
+                yield (*prior_parts(self.params.rule, rule), [self.track_rows[t] for t in these])
 
         prior = summarise(parts())
         if prior is not None:

@@ -17,7 +17,7 @@ from ..core.engine import tree_leaves, tree_map
 from .config import StreamConfig
 from .gaps import GapTracker
 from .ids import id_from_meta, id_to_meta
-from .population import Prior
+from .population import Prior, prior_width
 
 #: Format version of the state files :meth:`TrackPredictor.save` writes. :meth:`TrackPredictor.load` reads
 #: versions 3 to 16 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
@@ -94,7 +94,7 @@ class StateFile:
                            for entry in meta["tracks"]]
                 engine.track_rows = {track: int(entry.get("rows", 0))
                                      for (track, _, _), entry in zip(entries, meta["tracks"]) if entry.get("rows")}
-                k = None if engine.params is None else engine.params.n_experts
+                k = None if engine.params is None else prior_width(engine.params)
                 engine.priors = [Prior(*(archive.array(f"population/{i}/{name}", (k,), np.float64,
                                                        label=f"population/{i}/{name}")
                                          for name in ("regret", "variance", "bound")), int(tracks))

@@ -18,9 +18,9 @@ family can sit in a bank. The compiled versions are in :mod:`kalmix.core.compile
 """
 
 from ._common import linearised_regret, normalise_awake
-from . import boa, fixed_share, mlpoly  # noqa: E402
+from . import boa, boa_blend, fixed_share, mlpoly  # noqa: E402
 
 #: name -> module, in the order of the ablation table.
-RULES = {"boa": boa, "mlpoly": mlpoly, "fixed_share": fixed_share}
+RULES = {"boa": boa, "boa_blend": boa_blend, "mlpoly": mlpoly, "fixed_share": fixed_share}
 
-__all__ = ["RULES", "boa", "mlpoly", "fixed_share", "normalise_awake", "linearised_regret"]
+__all__ = ["RULES", "boa", "boa_blend", "mlpoly", "fixed_share", "normalise_awake", "linearised_regret"]

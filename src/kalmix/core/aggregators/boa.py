@@ -140,10 +140,16 @@ def weights(params: Params, state: State, awake: np.ndarray) -> np.ndarray:
     return (1.0 - params.share) * w + floor
 
 
-def update(params: Params, state: State, experts, measurement, awake, learn) -> State:
+def update(params: Params, state: State, experts, measurement, awake, learn, exact: bool = False) -> State:
+    """Learn a row (see the module). ``exact``: the squared loss's own regrets, :math:`\\lVert \\hat y - y
+    \\rVert^2 - \\lVert x_k - y \\rVert^2`, instead of the linearised ones (:mod:`.boa_blend`'s second rule)."""
     w = weights(params, state, awake)
     y = np.where(learn[:, None], measurement, 0.0)
     mix, whole = mixture_and_regret(w, experts, y, awake)   # the whole regret: the range bound's
+    if exact:   # the linearised regret less the squared distance of the expert from the mixture
+        x = np.where(awake[..., None], experts, 0.0)
+        with np.errstate(over="ignore", invalid="ignore"):
+            whole = np.where(awake, whole - ordered_sum((x - mix[:, None, :]) * (x - mix[:, None, :])), 0.0)
     factor, squared = clip_factor(params, state, mix - y)
     with np.errstate(over="ignore", invalid="ignore"):
         r = whole * factor[:, None]   # the regret of the clipped error (linear in it)

@@ -54,6 +54,24 @@ class BoaState(NamedTuple):
     error_count: np.ndarray   # (N,)
 
 
+class BoaBlendState(NamedTuple):
+    """BOA-blend's state (:class:`kalmix.core.aggregators.boa_blend.State`)."""
+
+    regret: np.ndarray              # (N, K) the linearised rule's
+    variance: np.ndarray            # (N, K)
+    bound: np.ndarray               # (N, K)
+    error_scale: np.ndarray         # (N,)
+    error_count: np.ndarray         # (N,)
+    exact_regret: np.ndarray        # (N, K) the exact rule's
+    exact_variance: np.ndarray      # (N, K)
+    exact_bound: np.ndarray         # (N, K)
+    exact_error_scale: np.ndarray   # (N,)
+    exact_error_count: np.ndarray   # (N,)
+    blend_regret: np.ndarray        # (N, 2) the blend's, over the two rules' mixtures
+    blend_variance: np.ndarray      # (N, 2)
+    blend_bound: np.ndarray         # (N, 2)
+
+
 class MLPolyParams(NamedTuple):
     """ML-Poly's parameters (:class:`kalmix.core.aggregators.mlpoly.Params`)."""
 
@@ -93,7 +111,8 @@ class CompiledRule(NamedTuple):
 
 
 #: Each rule's compiled parameters and state, by its name in :data:`kalmix.core.aggregators.RULES`.
-COMPILED_RULES = {"boa": CompiledRule(BoaParams, BoaState), "mlpoly": CompiledRule(MLPolyParams, MLPolyState),
+COMPILED_RULES = {"boa": CompiledRule(BoaParams, BoaState), "boa_blend": CompiledRule(BoaParams, BoaBlendState),
+                  "mlpoly": CompiledRule(MLPolyParams, MLPolyState),
                   "fixed_share": CompiledRule(FixedShareParams, FixedShareState)}
 
 
@@ -146,9 +165,10 @@ def _mix(x, w, awake, out):
 
 
 @nb.njit(inline="always", **_JIT)
-def _regrets(x, y, mix, awake, r):
-    """The linearised regrets ``r (K,)`` of the awake experts (0 for the others); returns the largest squared
-    one (inf if one overflows)."""
+def _regrets(x, y, mix, awake, r, exact):
+    """The linearised regrets ``r (K,)`` of the awake experts (0 for the others), or with ``exact`` the squared
+    loss's own (:math:`\\lVert \\hat y - y \\rVert^2 - \\lVert x_k - y \\rVert^2`, the linearised one less
+    :math:`\\lVert x_k - \\hat y \\rVert^2`); returns the largest squared one (inf if one overflows)."""
     biggest = 0.0
     for k in range(r.shape[0]):
         if awake[k]:
@@ -156,6 +176,11 @@ def _regrets(x, y, mix, awake, r):
             for ci in range(x.shape[1]):
                 acc += (mix[ci] - y[ci]) * (mix[ci] - x[k, ci])
             r[k] = 2.0 * acc   # the whole regret (BOA's range bound takes it)
+            if exact:
+                far = 0.0
+                for ci in range(x.shape[1]):
+                    far += (x[k, ci] - mix[ci]) * (x[k, ci] - mix[ci])
+                r[k] = r[k] - far
         else:
             r[k] = 0.0
         if not math.isfinite(r[k] * r[k]):
@@ -178,14 +203,16 @@ def boa_column(state, n):
                     state.error_count[n:n + 1])
 
 
-@nb.njit(**_JIT)
-def boa_weights(params, s, awake, count, w, logw):
+@nb.njit(inline="always", **_JIT)
+def _boa_weights(params, regret, variance, bound, awake, count, w, logw):
+    """BOA's weights of the awake experts into ``w (K,)`` from its arrays ``regret, variance, bound (K,)``
+    (``logw`` scratch; it may be ``w`` itself)."""
     k_count = w.shape[0]
     top = 0.0
     log_k = math.log(max(k_count, 2)) / params.delay
     for k in range(k_count):
-        if s.variance[k] > 0:
-            eta = min(1.0 / (2.0 * s.bound[k]), math.sqrt(log_k / s.variance[k]))
+        if variance[k] > 0:
+            eta = min(1.0 / (2.0 * bound[k]), math.sqrt(log_k / variance[k]))
             logw[k] = eta
             if eta > top:
                 top = eta
@@ -194,14 +221,17 @@ def boa_weights(params, s, awake, count, w, logw):
     fallback = top if top > 0 else 1.0
     for k in range(k_count):
         eta = logw[k] if logw[k] >= 0 else fallback
-        logw[k] = math.log(eta) + eta * s.regret[k]
+        logw[k] = math.log(eta) + eta * regret[k]
     _softmax(logw, awake, w)
     _share(w, awake, count, params.share)
 
 
-@nb.njit(**_JIT)
-def boa_learn(params, s, x, y, awake, count, w, mix, r):
-    k_count = w.shape[0]
+@nb.njit(inline="always", **_JIT)
+def _boa_learn(params, regret, variance, bound, error_scale, error_count, x, y, awake, mix, r, exact):
+    """BOA learns a row (the experts' forecasts ``x (K, p)``, their mixture ``mix``, the measurement ``y``) into
+    its arrays: ``regret, variance, bound (K,)``, the clip's ``error_scale, error_count (1,)``; ``r`` scratch;
+    ``exact``: the squared loss's regrets instead of the linearised ones."""
+    k_count = x.shape[0]
     p = x.shape[1]
     # the clip (see the spec, kalmix.core.aggregators.boa): the error shrunk to clip x its running RMS
     factor = 1.0
@@ -213,27 +243,37 @@ def boa_learn(params, s, x, y, awake, count, w, mix, r):
         if not math.isfinite(squared):
             return  # an overflowing squared error norm teaches nothing
         norm = math.sqrt(squared)
-        if s.error_count[0] >= CLIP_WARMUP and s.error_scale[0] > 0:
-            limit = params.clip * math.sqrt(s.error_scale[0])
+        if error_count[0] >= CLIP_WARMUP and error_scale[0] > 0:
+            limit = params.clip * math.sqrt(error_scale[0])
             if norm > limit:
                 factor = limit / norm
-    biggest = _regrets(x, y, mix, awake, r)
+    biggest = _regrets(x, y, mix, awake, r, exact)
     if not math.isfinite(biggest):
         return  # an overflowing regret teaches nothing
     if clipping:
-        s.error_count[0] = min(s.error_count[0] + 1.0, CLIP_MEMORY)
-        s.error_scale[0] = s.error_scale[0] + (squared - s.error_scale[0]) / s.error_count[0]
+        error_count[0] = min(error_count[0] + 1.0, CLIP_MEMORY)
+        error_scale[0] = error_scale[0] + (squared - error_scale[0]) / error_count[0]
     rho = params.forgetting
     log_k = math.log(max(k_count, 2)) / params.delay
     for k in range(k_count):
         if awake[k]:
             rk = r[k] * factor   # the regret of the clipped error (the whole one's, scaled)
-            variance = rho * s.variance[k] + rk * rk
-            bound = max(params.bound_forgetting * s.bound[k], abs(r[k]))
-            eta = min(1.0 / (2.0 * bound), math.sqrt(log_k / variance)) if variance > 0 else 0.0
-            s.regret[k] = rho * s.regret[k] + rk - eta * rk * rk
-            s.variance[k] = variance
-            s.bound[k] = bound
+            v = rho * variance[k] + rk * rk
+            b = max(params.bound_forgetting * bound[k], abs(r[k]))
+            eta = min(1.0 / (2.0 * b), math.sqrt(log_k / v)) if v > 0 else 0.0
+            regret[k] = rho * regret[k] + rk - eta * rk * rk
+            variance[k] = v
+            bound[k] = b
+
+
+@nb.njit(**_JIT)
+def boa_weights(params, s, awake, count, w, logw):
+    _boa_weights(params, s.regret, s.variance, s.bound, awake, count, w, logw)
+
+
+@nb.njit(**_JIT)
+def boa_learn(params, s, x, y, awake, count, w, mix, r):
+    _boa_learn(params, s.regret, s.variance, s.bound, s.error_scale, s.error_count, x, y, awake, mix, r, False)
 
 
 @nb.njit(inline="always", **_JIT)
@@ -251,6 +291,121 @@ def boa_cold(s):
         s.bound[k] = 0.0
     s.error_scale[0] = 0.0
     s.error_count[0] = 0.0
+
+
+# ---------------------------------------------------------------------------------------------------- BOA-blend
+@nb.njit(inline="always", **_JIT)
+def boa_blend_target(state, n):
+    return BoaBlendState(state.regret[n], state.variance[n], state.bound[n], state.error_scale[n:n + 1],
+                         state.error_count[n:n + 1], state.exact_regret[n], state.exact_variance[n],
+                         state.exact_bound[n], state.exact_error_scale[n:n + 1], state.exact_error_count[n:n + 1],
+                         state.blend_regret[n], state.blend_variance[n], state.blend_bound[n])
+
+
+@nb.njit(inline="always", **_JIT)
+def boa_blend_column(state, n):
+    return BoaBlendState(state.regret[:, n], state.variance[:, n], state.bound[:, n], state.error_scale[n:n + 1],
+                         state.error_count[n:n + 1], state.exact_regret[:, n], state.exact_variance[:, n],
+                         state.exact_bound[:, n], state.exact_error_scale[n:n + 1], state.exact_error_count[n:n + 1],
+                         state.blend_regret[:, n], state.blend_variance[:, n], state.blend_bound[:, n])
+
+
+@nb.njit(inline="always", **_JIT)
+def _blend_eta(params, variance, bound, log_2):
+    return min(1.0 / (2.0 * bound), math.sqrt(log_2 / variance)) if variance > 0 else -1.0
+
+
+@nb.njit(inline="always", **_JIT)
+def _blend_share(params, s):
+    """The blend's weight on the linearised rule (BOA over the two rules' mixtures, without a share)."""
+    log_2 = math.log(2.0) / params.delay
+    eta0 = _blend_eta(params, s.blend_variance[0], s.blend_bound[0], log_2)
+    eta1 = _blend_eta(params, s.blend_variance[1], s.blend_bound[1], log_2)
+    top = max(max(eta0, eta1), 0.0)
+    fallback = top if top > 0 else 1.0
+    eta0 = eta0 if eta0 >= 0 else fallback
+    eta1 = eta1 if eta1 >= 0 else fallback
+    l0 = math.log(eta0) + eta0 * s.blend_regret[0]
+    l1 = math.log(eta1) + eta1 * s.blend_regret[1]
+    high = max(l0, l1)
+    if not math.isfinite(high):
+        high = 0.0
+    a = math.exp(l0 - high)
+    total = 0.0 + a + math.exp(l1 - high)
+    return a / total if total > 0 else 0.0
+
+
+@nb.njit(**_JIT)
+def boa_blend_weights(params, s, awake, count, w, logw):
+    beta = _blend_share(params, s)
+    _boa_weights(params, s.regret, s.variance, s.bound, awake, count, w, logw)
+    _boa_weights(params, s.exact_regret, s.exact_variance, s.exact_bound, awake, count, logw, logw)
+    for k in range(w.shape[0]):
+        w[k] = beta * w[k] + (1.0 - beta) * logw[k]
+
+
+@nb.njit(**_JIT)
+def boa_blend_learn(params, s, x, y, awake, count, w, mix, r):
+    k_count = x.shape[0]
+    p = x.shape[1]
+    beta = _blend_share(params, s)
+    _boa_weights(params, s.regret, s.variance, s.bound, awake, count, w, r)   # w: the linearised rule's
+    _boa_weights(params, s.exact_regret, s.exact_variance, s.exact_bound, awake, count, r, r)   # r: the exact's
+    g0 = 0.0
+    g1 = 0.0
+    for ci in range(p):
+        lin = 0.0
+        ex = 0.0
+        for k in range(k_count):
+            if awake[k]:
+                lin += w[k] * x[k, ci]
+                ex += r[k] * x[k, ci]
+        both = beta * lin + (1.0 - beta) * ex
+        g0 += (both - y[ci]) * (both - lin)
+        g1 += (both - y[ci]) * (both - ex)
+        mix[ci] = ex
+    g0 = 2.0 * g0
+    g1 = 2.0 * g1
+    if math.isfinite(g0 * g0) and math.isfinite(g1 * g1):   # (an overflowing regret teaches nothing)
+        rho = params.forgetting
+        log_2 = math.log(2.0) / params.delay
+        for j in range(2):
+            rj = g0 if j == 0 else g1
+            v = rho * s.blend_variance[j] + rj * rj
+            b = max(params.bound_forgetting * s.blend_bound[j], abs(rj))
+            eta = min(1.0 / (2.0 * b), math.sqrt(log_2 / v)) if v > 0 else 0.0
+            s.blend_regret[j] = rho * s.blend_regret[j] + rj - eta * rj * rj
+            s.blend_variance[j] = v
+            s.blend_bound[j] = b
+    _boa_learn(params, s.exact_regret, s.exact_variance, s.exact_bound, s.exact_error_scale, s.exact_error_count,
+               x, y, awake, mix, r, True)
+    _mix(x, w, awake, mix)
+    _boa_learn(params, s.regret, s.variance, s.bound, s.error_scale, s.error_count, x, y, awake, mix, r, False)
+
+
+@nb.njit(inline="always", **_JIT)
+def boa_blend_restart(s):
+    """The experts start again: so do both rules' error scales."""
+    s.error_scale[0] = 0.0
+    s.error_count[0] = 0.0
+    s.exact_error_scale[0] = 0.0
+    s.exact_error_count[0] = 0.0
+
+
+@nb.njit(inline="always", **_JIT)
+def boa_blend_cold(s):
+    for k in range(s.regret.shape[0]):
+        s.regret[k] = 0.0
+        s.variance[k] = 0.0
+        s.bound[k] = 0.0
+        s.exact_regret[k] = 0.0
+        s.exact_variance[k] = 0.0
+        s.exact_bound[k] = 0.0
+    for j in range(2):
+        s.blend_regret[j] = 0.0
+        s.blend_variance[j] = 0.0
+        s.blend_bound[j] = 0.0
+    boa_blend_restart(s)
 
 
 # ---------------------------------------------------------------------------------------------------- ML-Poly
@@ -285,7 +440,7 @@ def mlpoly_weights(params, s, awake, count, w, logw):
 
 @nb.njit(**_JIT)
 def mlpoly_learn(params, s, x, y, awake, count, w, mix, r):
-    biggest = _regrets(x, y, mix, awake, r)
+    biggest = _regrets(x, y, mix, awake, r, False)
     if not math.isfinite(biggest):
         return  # an overflowing regret teaches nothing
     rho = params.forgetting
@@ -386,6 +541,8 @@ class _Rows(NamedTuple):
 
 
 _ROWS = {BoaState: _Rows(boa_target, boa_column, boa_weights, boa_learn, boa_restart, boa_cold),
+         BoaBlendState: _Rows(boa_blend_target, boa_blend_column, boa_blend_weights, boa_blend_learn,
+                              boa_blend_restart, boa_blend_cold),
          MLPolyState: _Rows(mlpoly_target, mlpoly_column, mlpoly_weights, mlpoly_learn, mlpoly_restart,
                             mlpoly_cold),
          FixedShareState: _Rows(fixed_share_target, fixed_share_column, fixed_share_weights, fixed_share_learn,
