@@ -212,16 +212,17 @@ def test_a_file_its_chunks_and_stdin_learn_in_the_order_the_rows_came(tmp_path):
     for name in outputs:
         states[name] = TrackPredictor.load(tmp_path / f"{name}.kalmix")
     whole = states["one"]
-    assert len(whole.priors) == 3   # after rows 64, 128 and 256 of 480 (at row 32 no track has learned 3 rows)
+    # stdin summarises after rows 64, 128 and 256 of 480 (at row 32 no track has learned 3 rows); every track
+    # starts in the first 40 rows, so a file makes only the summary a later row could start from, the last
+    assert (len(states["stdin"].priors), len(whole.priors)) == (3, 1)
     for name in ("chunks", "more"):
         pd.testing.assert_frame_equal(outputs[name], outputs["one"])
     lead = ["lead_x", "lead_y", "lead_std_x", "lead_std_y"]
     pd.testing.assert_frame_equal(outputs["stdin"][lead], outputs["one"][lead])
     for name in ("chunks", "more", "stdin"):
-        assert len(states[name].priors) == len(whole.priors)
-        for a, b in zip(whole.priors, states[name].priors):
-            np.testing.assert_array_equal(a.regret, b.regret)
-            np.testing.assert_array_equal(a.bound, b.bound)
+        last = states[name].priors[-1]
+        np.testing.assert_array_equal(last.regret, whole.priors[-1].regret)
+        np.testing.assert_array_equal(last.bound, whole.priors[-1].bound)
         _same_states(whole, states[name])
 
 
@@ -293,3 +294,42 @@ def test_a_parquet_file_sorted_by_id_learns_as_its_rows_came(tmp_path):
     for name in ("rows", "csv"):
         pd.testing.assert_frame_equal(outputs[name], outputs["whole"])
         _same_priors_and_states(states["whole"], states[name])
+
+
+def test_summaries_a_later_track_starts_from_are_made_in_a_file_as_on_stdin(tmp_path):
+    """Tracks that start one after another through the feed: a file makes (and its new tracks start from) the
+    summaries a new track comes after, whatever its chunks; the forecasts and states are a stream's bits."""
+    from click.testing import CliRunner
+
+    from kalmix.cli import build
+
+    table = _short_tracks(tracks=60)
+    table["time"] += 3000.0 * table["track_id"].str[1:].astype(int)   # track k starts k x 50 min in
+    table = table.sort_values("time", kind="stable")
+    source = tmp_path / "tracks.csv"
+    table.to_csv(source, index=False)
+    runner = CliRunner()
+    fixed = ["--length-unit", "27", "--time-unit", "1800", "--reach", "1.5", "--lead", "1800"]
+    outputs, states = {}, {}
+    for name, flags in (("one", []), ("chunks", ["--chunk-rows", "45"]), ("more", ["--chunk-rows", "100"])):
+        result = runner.invoke(build(), ["predict", str(source), "-o", str(tmp_path / f"{name}.csv"), *fixed,
+                                         "--state", str(tmp_path / f"{name}.kalmix"), *flags])
+        assert result.exit_code == 0, result.output
+        outputs[name] = pd.read_csv(tmp_path / f"{name}.csv")
+    result = runner.invoke(build(), ["predict", "-", "-o", str(tmp_path / "stdin.csv"), *fixed,
+                                     "--state", str(tmp_path / "stdin.kalmix")], input=source.read_text())
+    assert result.exit_code == 0, result.output
+    outputs["stdin"] = pd.read_csv(tmp_path / "stdin.csv")
+    for name in outputs:
+        states[name] = TrackPredictor.load(tmp_path / f"{name}.kalmix")
+    whole = states["one"]
+    # after rows 32, 64, ..., 512 of 720: a new track starts after each
+    assert len(whole.priors) == len(states["stdin"].priors) == 5
+    for name in ("chunks", "more"):
+        pd.testing.assert_frame_equal(outputs[name], outputs["one"])
+    lead = ["lead_x", "lead_y", "lead_std_x", "lead_std_y"]
+    pd.testing.assert_frame_equal(outputs["stdin"][lead], outputs["one"][lead])
+    for name in ("chunks", "more", "stdin"):
+        for a, b in zip(whole.priors, states[name].priors):
+            np.testing.assert_array_equal(a.regret, b.regret)
+        _same_states(whole, states[name])

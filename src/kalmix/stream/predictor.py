@@ -93,6 +93,8 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, PopulationPrio
         self.track_rows: dict = {}
         #: the population priors summarised so far (:mod:`.population`): new tracks start from the last
         self.priors: list = []
+        #: summary point -> whether its summary is made, as decided for rows being stepped (.population)
+        self.summary_plan: dict = {}
 
     def warm_up(self, measurement_dim: int | None = None) -> None:
         """Load the compiled kernels this predictor's runs use now (or compile them, on a fresh install).
@@ -185,6 +187,7 @@ class TrackPredictor(RowSteps, TableSteps, TrackClocks, BankRuns, PopulationPrio
                 self.track_rows.pop(track, None)
             else:
                 self.track_rows[track] = rows
+        self.summary_plan = {}   # (decided for rows now undone)
         if len(self.priors) != checkpoint.priors:   # summaries made since: new tracks start as they would have
             del self.priors[checkpoint.priors:]
             if self.params is not None:
