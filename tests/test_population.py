@@ -333,3 +333,25 @@ def test_summaries_a_later_track_starts_from_are_made_in_a_file_as_on_stdin(tmp_
         for a, b in zip(whole.priors, states[name].priors):
             np.testing.assert_array_equal(a.regret, b.regret)
         _same_states(whole, states[name])
+
+
+def test_with_a_lead_head_the_prior_starts_the_lead_weights_and_their_blend():
+    """A new track's lead rule and blend start from the population's (``lead_prior``), not even; without it, only
+    its one-step rule does."""
+    table = _short_tracks(tracks=30)
+    table = table.sort_values("time", kind="stable")
+    for lead_prior in (True, False):
+        engine = TrackPredictor(StreamConfig(length_unit=27.0, time_unit=1800.0, horizon=3, lead_prior=lead_prior))
+        engine.process_table(table)
+        assert engine.priors
+        fresh = engine._new_states(1)
+        prior, k = engine.priors[-1], engine.params.n_experts
+        np.testing.assert_array_equal(fresh.rule.regret[0], prior.regret[:k])
+        if lead_prior:
+            assert prior.regret.shape == (2 * k + 2,)
+            np.testing.assert_array_equal(fresh.lead.rule.regret[0], prior.regret[k:2 * k])
+            np.testing.assert_array_equal(fresh.lead.blend.regret[0], prior.regret[2 * k:])
+            assert np.any(fresh.lead.rule.regret != 0) and np.any(fresh.lead.blend.regret != 0)
+        else:
+            assert prior.regret.shape == (k,)
+            assert not np.any(fresh.lead.rule.regret) and not np.any(fresh.lead.blend.regret)

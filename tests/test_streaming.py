@@ -147,9 +147,12 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     blend starts again at the save (the same file as version 13, resumed; the uninterrupted run but for the lead
     forecasts after the save: test_version_13_files_resume_with_the_blend_started_again). Before version 15 the
     screen counted a track's learned rows up to 2: the file's counts are capped so. Before version 16 there was no
-    ``gap_floor`` setting (none)."""
+    ``gap_floor`` setting (none). Before version 17 the population prior started a new track's one-step rule only
+    (``lead_prior`` False)."""
     import json
 
+    if version < 17:   # the population prior started the one-step rule only
+        config, settings = {**config, "lead_prior": False}, (*settings, "lead_prior")
     if version < 16:   # no gap floor setting (a stream settles it at none)
         settings = (*settings, "gap_floor")
     if version < 9:
@@ -173,7 +176,7 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     first.save(tmp_path / "s.npz")
     saved = dict(np.load(tmp_path / "s.npz"))
     meta = json.loads(str(saved["meta"]))
-    assert meta["format_version"] == STATE_FORMAT_VERSION == 16
+    assert meta["format_version"] == STATE_FORMAT_VERSION == 17
     if version < 14:
         whole = part + _rows(_without_blend(tmp_path, saved, dict(meta, format_version=13)), table.iloc[cut:])
     meta["format_version"] = version
@@ -421,6 +424,14 @@ def test_version_12_files_resume_without_the_population_prior(tmp_path):
     assert second.config.gap_min_steps == 1 and second.config.population_prior is False
     assert second.priors == [] and second.track_rows == {}
     assert np.array_equal(_next(resumed), _next(whole), equal_nan=True)
+
+
+def test_version_16_files_resume_with_the_prior_starting_the_one_step_rule_only(tmp_path):
+    whole, resumed, second, _ = _as_older_file(tmp_path, CONFIG, 70, 16)
+    assert second.config.lead_prior is False and second.priors
+    for field in ("next", "ahead"):
+        assert np.array_equal(np.array([getattr(r, field) for r in resumed]),
+                              np.array([getattr(r, field) for r in whole]), equal_nan=True), field
 
 
 def test_version_14_files_resume_with_their_tracks_warmed_up(tmp_path):

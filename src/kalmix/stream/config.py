@@ -71,6 +71,11 @@ class StreamConfig:
         Whether a new track's rule starts from what the tracks before it learned
         (:mod:`kalmix.stream.population`), or empty. Files before format version 13 resume without it;
         :func:`kalmix.dask_predict.predict_dask` runs without it.
+    lead_prior : bool
+        With a lead head (``lead``, ``horizon``) and the population prior: whether the prior also starts a new
+        track's lead weights and their blend (a lead head learns each error H rows late: on its own it spends a
+        short track learning what the tracks before it showed), or only its one-step rule. Files before format
+        version 17 resume without it.
     options : dict
         Other arguments of :func:`kalmix.bank.make_params` (the AKF family).
     bank : str
@@ -122,6 +127,7 @@ class StreamConfig:
     gap_reference: str = "spread"
     gap_min_steps: int = 4
     population_prior: bool = True
+    lead_prior: bool = True
     options: dict = field(default_factory=dict)
     bank: str = DEFAULT_BANK["kind"]
     rule: str = DEFAULT_BANK["rule"]
@@ -175,6 +181,10 @@ class StreamConfig:
             raise TypeError(f"population_prior: expected True or False, got {type(self.population_prior).__name__} "
                             f"{self.population_prior!r:.80}")
         self.population_prior = bool(self.population_prior)
+        if not isinstance(self.lead_prior, (bool, np.bool_)):
+            raise TypeError(f"lead_prior: expected True or False, got {type(self.lead_prior).__name__} "
+                            f"{self.lead_prior!r:.80}")
+        self.lead_prior = bool(self.lead_prior)
         if self.gap_reference not in GAP_REFERENCES:
             raise ValueError(f"gap_reference: expected one of {', '.join(map(repr, GAP_REFERENCES))}, got "
                              f"{self.gap_reference!r:.80}")

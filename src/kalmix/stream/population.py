@@ -32,8 +32,8 @@ import numpy as np
 
 from .ids import factorize_ids, id_to_json
 
-__all__ = ["POPULATION_ROWS", "MIN_ROWS", "FIRST_SNAPSHOT", "SNAPSHOT_EVERY", "PRIOR_FIELDS", "Prior", "prior_width",
-           "prior_parts", "snapshot_points", "summarise", "start_rule", "PopulationPrior"]
+__all__ = ["POPULATION_ROWS", "MIN_ROWS", "FIRST_SNAPSHOT", "SNAPSHOT_EVERY", "PRIOR_FIELDS", "Prior", "prior_paths",
+           "prior_width", "prior_parts", "snapshot_points", "summarise", "start_rule", "start_state", "PopulationPrior"]
 
 #: Pseudo-rows of the population a new track starts with (the weight of the prior, in rows of the track's own).
 POPULATION_ROWS = 100
@@ -54,17 +54,48 @@ PRIOR_FIELDS = {"boa": (("regret", "variance", "bound"),),
                               ("blend_regret", "blend_variance", "blend_bound"))}
 
 
-def prior_width(bank) -> int:
-    """The length of the arrays of a prior of ``bank``'s rule (its experts for BOA); 0 for a rule without one."""
-    fields = PRIOR_FIELDS.get(bank.rule, ())
-    state = bank.rule_module.init(bank.rule_params, 1, bank.n_experts)
-    return sum(getattr(state, group[0]).shape[-1] for group in fields)
+def prior_paths(bank, lead: bool = True) -> tuple:
+    """The rule states a prior starts, as paths in a :class:`~kalmix.core.engine.BankState`: the one-step rule's
+    and, with a lead head and ``lead`` (``StreamConfig.lead_prior``), the lead weights' and their blend's
+    (:mod:`kalmix.core.lead`), which learn a track's H-step errors H rows late, and would start each track even,
+    however the tracks before it went."""
+    return (("rule",),) + ((("lead", "rule"), ("lead", "blend")) if bank.lead is not None and lead else ())
 
 
-def prior_parts(rule_name: str, rule_state) -> tuple:
-    """``(regret, variance, bound)`` of a rule state as a prior takes them, its groups side by side ``(N, width)``."""
-    groups = PRIOR_FIELDS[rule_name]
-    return tuple(np.concatenate([getattr(rule_state, group[i]) for group in groups], axis=-1) for i in range(3))
+def _at(state, path):
+    for name in path:
+        state = getattr(state, name)
+    return state
+
+
+def _with(state, path, value):
+    if not path:
+        return value
+    return state._replace(**{path[0]: _with(getattr(state, path[0]), path[1:], value)})
+
+
+def _widths(rule_name: str, rule_state) -> list[int]:
+    return [getattr(rule_state, group[0]).shape[-1] for group in PRIOR_FIELDS[rule_name]]
+
+
+def prior_width(bank, lead: bool = True) -> int:
+    """The length of the arrays of a prior of ``bank`` (its rule's groups of every path of :func:`prior_paths`);
+    0 for a rule without one."""
+    if bank.rule not in PRIOR_FIELDS:
+        return 0
+    from ..core.engine import init_bank_state
+
+    state = init_bank_state(bank, 1)
+    return sum(sum(_widths(bank.rule, _at(state, path))) for path in prior_paths(bank, lead))
+
+
+def prior_parts(bank, state, lead: bool = True) -> tuple:
+    """``(regret, variance, bound)`` of a :class:`~kalmix.core.engine.BankState` as a prior takes them: the groups
+    of each of its rule states (:func:`prior_paths`) side by side, ``(N, width)``."""
+    groups = PRIOR_FIELDS[bank.rule]
+    states = [_at(state, path) for path in prior_paths(bank, lead)]
+    return tuple(np.concatenate([getattr(rule, group[i]) for rule in states for group in groups], axis=-1)
+                 for i in range(3))
 
 
 class Prior(NamedTuple):
@@ -121,19 +152,31 @@ def summarise(parts) -> Prior | None:
                  np.median(np.concatenate(bounds), axis=0), count)
 
 
-def start_rule(rule_state, prior: Prior | None, rule_name: str = "boa"):
+def start_rule(rule_state, prior: Prior | None, rule_name: str = "boa", offset: int = 0):
     """``rule_state`` (a fresh state of rule ``rule_name``, n targets) starting from ``prior`` (unchanged without
-    one)."""
+    one), its part from ``offset`` on."""
     if prior is None:
         return rule_state
     n = rule_state.regret.shape[0]
-    values, start = {}, 0
-    for group in PRIOR_FIELDS[rule_name]:
-        width = getattr(rule_state, group[0]).shape[-1]
+    values, start = {}, offset
+    for group, width in zip(PRIOR_FIELDS[rule_name], _widths(rule_name, rule_state)):
         for name, value in zip(group, (prior.regret, prior.variance, prior.bound)):
             values[name] = np.broadcast_to(value[start:start + width], (n, width)).copy()
         start += width
     return rule_state._replace(**values)
+
+
+def start_state(bank, state, prior: Prior | None, lead: bool = True):
+    """``state`` (a fresh :class:`~kalmix.core.engine.BankState`) with each rule state of :func:`prior_paths`
+    started from its part of ``prior``."""
+    if prior is None:
+        return state
+    offset = 0
+    for path in prior_paths(bank, lead):
+        rule = _at(state, path)
+        state = _with(state, path, start_rule(rule, prior, bank.rule, offset))
+        offset += sum(_widths(bank.rule, rule))
+    return state
 
 
 class PopulationPrior:
@@ -149,8 +192,7 @@ class PopulationPrior:
 
     def with_prior(self, state):
         """``state`` (new tracks' :class:`~kalmix.core.engine.BankState`) with its rule started from :attr:`prior`."""
-        prior = self.prior
-        return state if prior is None else state._replace(rule=start_rule(state.rule, prior, self.params.rule))
+        return start_state(self.params, state, self.prior, self.config.lead_prior)
 
     @property
     def stepped(self) -> int:
@@ -238,8 +280,8 @@ class PopulationPrior:
         def parts():   # a batch of tracks at a time: their rule states only are kept
             for begin in range(0, len(tracks), SUMMARY_BATCH):
                 these = tracks[begin:begin + SUMMARY_BATCH]
-                rule = self.states.gather(these, self._new_states).rule
-                yield (*prior_parts(self.params.rule, rule), [self.track_rows[t] for t in these])
+                yield (*prior_parts(self.params, self.states.gather(these, self._new_states), self.config.lead_prior),
+                       [self.track_rows[t] for t in these])
 
         prior = summarise(parts())
         if prior is not None:

@@ -20,10 +20,10 @@ from .ids import id_from_meta, id_to_meta
 from .population import Prior, prior_width
 
 #: Format version of the state files :meth:`TrackPredictor.save` writes. :meth:`TrackPredictor.load` reads
-#: versions 3 to 16 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
+#: versions 3 to 17 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
 #: versions", says what each version adds).
-STATE_FORMAT_VERSION = 16
-_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16)
+STATE_FORMAT_VERSION = 17
+_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17)
 _MAGIC = "kalmix-track-predictor"
 
 
@@ -80,6 +80,8 @@ class StateFile:
                     config.setdefault("gap_reference", "upper quartile")
                 if meta["format_version"] < 16:   # files before version 16: no gap floor
                     config.setdefault("gap_floor", None)
+                if meta["format_version"] < 17:   # files before version 17: the prior starts the one-step rule only
+                    config.setdefault("lead_prior", False)
                 if meta["format_version"] < 13:   # files before version 13: any step a gap, no population prior
                     config.setdefault("gap_min_steps", 1)
                     config.setdefault("population_prior", False)
@@ -94,7 +96,7 @@ class StateFile:
                            for entry in meta["tracks"]]
                 engine.track_rows = {track: int(entry.get("rows", 0))
                                      for (track, _, _), entry in zip(entries, meta["tracks"]) if entry.get("rows")}
-                k = None if engine.params is None else prior_width(engine.params)
+                k = None if engine.params is None else prior_width(engine.params, engine.config.lead_prior)
                 engine.priors = [Prior(*(archive.array(f"population/{i}/{name}", (k,), np.float64,
                                                        label=f"population/{i}/{name}")
                                          for name in ("regret", "variance", "bound")), int(tracks))
