@@ -500,7 +500,9 @@ RUNS = (("kalmix", ()), ("kalmix --max-gap none", ("--max-gap", "none")),
         ("kalmix --rule boa_blend", ("--rule", "boa_blend")))
 
 
-def run_scenario(s: Scenario, directory: Path, source: Path | None = None, log=print) -> dict:
+def run_scenario(s: Scenario, directory: Path, source: Path | None = None, log=print, predicts=RUNS) -> dict:
+    """One scenario: its tracks, the reference's forecasts and ``kalmix predict``'s with each of ``predicts``
+    (``--quick`` leaves out the opt-in rule's run, a compile of its own), scored on the same rows."""
     start = time.perf_counter()
     transitions = [Transitions(A, Qc) for A, Qc, _ in s.models]
     table, tracks = simulate(s, transitions)
@@ -511,7 +513,7 @@ def run_scenario(s: Scenario, directory: Path, source: Path | None = None, log=p
                   "no prediction": [np.vstack([np.full((1, 2), np.nan), z[:-1]]) for _, z in tracks]}
     stds = {"optimum": [np.sqrt(np.diagonal(S, axis1=1, axis2=2)) for _, S in ref]}
     runs = {}
-    for name, options in RUNS:
+    for name, options in predicts:
         out, seconds, said = kalmix_predict(table, directory, options, source)
         per = kalmix_one_step(out, table, tracks)
         predictors[name] = [p for p, _ in per]
@@ -618,7 +620,8 @@ def main(argv=None) -> dict:
                 sys.exit(f"model_zoo: --at {args.at}: {error}")
             report["kalmix"] = {"commit": None, "note": f"not a git checkout ({error})"}
         return run_all(report, zoo, chosen, args.quick, Path(temporary),
-                       lambda s, directory: run_scenario(s, directory, source), start, args.json)
+                       lambda s, directory: run_scenario(s, directory, source,
+                                                         predicts=RUNS[:3] if args.quick else RUNS), start, args.json)
 
 
 if __name__ == "__main__":

@@ -34,7 +34,7 @@ def test_quick_run_scores_both_scenarios_on_the_same_rows(quick):
         assert scored["rows"] == 5 * (200 - 40)   # every row after the 20 % burn-in, for every predictor
         assert entry["unforecast_rows"]["optimum"] == 0 and entry["unforecast_rows"]["kalmix"] == 0
         assert set(scored["predictors"]) == {"optimum", "no prediction", "kalmix", "kalmix --max-gap none",
-                                             "kalmix --no-population-prior", "kalmix --rule boa_blend"}
+                                             "kalmix --no-population-prior"}   # (--quick: not --rule boa_blend)
 
 
 def test_the_optimum_beats_no_prediction_and_kalmix_ratio_is_recorded(quick):
