@@ -74,6 +74,8 @@ def test_contract_with_a_lead_head_and_gap_restarts(data, rule):
     z = np.where((restart & blank)[..., None], np.nan, z)
     bank = make_bank(2, "mixed", rule=rule, length_unit=0.3, n_akf=8, lead=3.0)
     check_bank(bank, z, t, restart=restart)
+    if rule == "boa_blend":   # (BOA's row functions, twice: the other banks check them with "boa")
+        return
     check_bank(_bank("kinematic", rule), z, t, restart=restart)
     check_bank(make_bank(2, "kinematic+ar", rule=rule, length_unit=0.3, lead=2.0), z, t, restart=restart)
 

@@ -311,7 +311,7 @@ def boa_blend_column(state, n):
 
 
 @nb.njit(inline="always", **_JIT)
-def _blend_eta(params, variance, bound, log_2):
+def _blend_eta(variance, bound, log_2):
     return min(1.0 / (2.0 * bound), math.sqrt(log_2 / variance)) if variance > 0 else -1.0
 
 
@@ -319,8 +319,8 @@ def _blend_eta(params, variance, bound, log_2):
 def _blend_share(params, s):
     """The blend's weight on the linearised rule (BOA over the two rules' mixtures, without a share)."""
     log_2 = math.log(2.0) / params.delay
-    eta0 = _blend_eta(params, s.blend_variance[0], s.blend_bound[0], log_2)
-    eta1 = _blend_eta(params, s.blend_variance[1], s.blend_bound[1], log_2)
+    eta0 = _blend_eta(s.blend_variance[0], s.blend_bound[0], log_2)
+    eta1 = _blend_eta(s.blend_variance[1], s.blend_bound[1], log_2)
     top = max(max(eta0, eta1), 0.0)
     fallback = top if top > 0 else 1.0
     eta0 = eta0 if eta0 >= 0 else fallback
