@@ -19,6 +19,7 @@ KERNEL_SOURCES = (
     "_numba_linalg.py", "_numba_kernels.py", "_numba_akf_gate.py", "_numba_akf_rls.py", "_numba_akf_filter.py",
     "_numba_akf_target.py",
     "compiled/kinematic.py", "compiled/ar.py", "compiled/turn.py", "compiled/ct.py", "compiled/rules.py",
+    "compiled/boa.py", "compiled/rule_rows.py",
     "compiled/screen.py",
     "compiled/_cache.py", "compiled/calibration.py", "compiled/lead.py", "compiled/akf.py", "compiled/reach.py",
     "compiled/masks.py", "compiled/stage.py",

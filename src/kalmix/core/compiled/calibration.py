@@ -42,7 +42,7 @@ def pack_params(params: CalibrationParams) -> Constants:
 
 @nb.njit(inline="always", **_JIT)
 def moments_row(x, w, awake, count, mix, variance, log_scale, max_variance, cov):
-    """``cov (p, p)`` of the mixture ``mix`` (already :func:`.rules._mix`); NaN if no expert is awake."""
+    """``cov (p, p)`` of the mixture ``mix`` (already :func:`.rule_rows.mix_of`); NaN if no expert is awake."""
     p = x.shape[1]
     factor = math.exp(2.0 * log_scale)
     for i in range(p):
