@@ -158,13 +158,18 @@ def boa_restart(s):
 
 
 @nb.njit(inline="always", **_JIT)
+def _as_new(regret, variance, bound):
+    """A BOA's weights' state as new (every array at 0)."""
+    for k in range(regret.shape[0]):
+        regret[k] = 0.0
+        variance[k] = 0.0
+        bound[k] = 0.0
+
+
+@nb.njit(inline="always", **_JIT)
 def boa_cold(s):
-    for k in range(s.regret.shape[0]):
-        s.regret[k] = 0.0
-        s.variance[k] = 0.0
-        s.bound[k] = 0.0
-    s.error_scale[0] = 0.0
-    s.error_count[0] = 0.0
+    _as_new(s.regret, s.variance, s.bound)
+    boa_restart(s)
 
 
 # ---------------------------------------------------------------------------------------------------- BOA-blend
@@ -268,15 +273,7 @@ def boa_blend_restart(s):
 
 @nb.njit(inline="always", **_JIT)
 def boa_blend_cold(s):
-    for k in range(s.regret.shape[0]):
-        s.regret[k] = 0.0
-        s.variance[k] = 0.0
-        s.bound[k] = 0.0
-        s.exact_regret[k] = 0.0
-        s.exact_variance[k] = 0.0
-        s.exact_bound[k] = 0.0
-    for j in range(2):
-        s.blend_regret[j] = 0.0
-        s.blend_variance[j] = 0.0
-        s.blend_bound[j] = 0.0
+    _as_new(s.regret, s.variance, s.bound)
+    _as_new(s.exact_regret, s.exact_variance, s.exact_bound)
+    _as_new(s.blend_regret, s.blend_variance, s.blend_bound)
     boa_blend_restart(s)
