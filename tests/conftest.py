@@ -21,6 +21,14 @@ def smooth_tracks(seed: int, steps: int, targets: int = 1, dim: int = 3, scale: 
     return 300 + scale * np.sin(freq * t + phase) + 0.5 * rng.normal(size=(steps, targets, dim))
 
 
+@pytest.fixture(scope="module")
+def cli():
+    """The kalmix command line, built once per test module."""
+    from kalmix.cli import build
+
+    return build()
+
+
 @pytest.fixture
 def tracks():
     return smooth_tracks

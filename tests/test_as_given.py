@@ -17,16 +17,10 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from kalmix.cli import build
 from kalmix.commands._durable import TEST_HOOK
 
 FAST = ["--experts", "4", "--seed", "1", "--length-unit", "0.01", "--time-unit", "0.04", "--no-progress"]
 PREDICTED = ["segment", "pred_x", "pred_y", "std_x", "std_y"]
-
-
-@pytest.fixture(scope="module")
-def cli():
-    return build()
 
 
 def _run(cli, args, input=None, env=None):

@@ -15,22 +15,12 @@ import warnings
 import numpy as np
 import pandas as pd
 import pytest
-from click.testing import CliRunner
 
-from kalmix.cli import build
 from kalmix.io.tables import BadRowWarning, DroppedRowWarning, iter_track_chunks, read_tracks
 from kalmix.streaming import SkippedRowWarning, StreamConfig, TrackPredictor
+from cli_helpers import invoke as _run
 
 FAST = ["--experts", "2", "--seed", "1", "--no-progress", "--length-unit", "0.5"]
-
-
-@pytest.fixture(scope="module")
-def cli():
-    return build()
-
-
-def _run(cli, args, input=None):
-    return CliRunner().invoke(cli, args, input=input, catch_exceptions=False)
 
 
 def _lines(n=600):

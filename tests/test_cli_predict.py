@@ -9,18 +9,9 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from kalmix.cli import build
+from cli_helpers import invoke as _run
 
 FAST = ["--experts", "4", "--seed", "1", "--length-unit", "0.01", "--no-progress"]
-
-
-@pytest.fixture(scope="module")
-def cli():
-    return build()
-
-
-def _run(cli, args, input=None):
-    return CliRunner().invoke(cli, args, input=input, catch_exceptions=False)
 
 
 def _tracks(n_tracks=3, n=50, seed=0, gap=True):

@@ -19,18 +19,12 @@ from click.testing import CliRunner
 dd = pytest.importorskip("dask.dataframe")
 distributed = pytest.importorskip("distributed")
 
-from kalmix.cli import build  # noqa: E402
 from kalmix.dask_predict import _rank_major_chunks, data_units, predict_dask, predict_table, read_archive  # noqa: E402
 from kalmix.io import TrackColumns  # noqa: E402
 from kalmix.streaming import StreamConfig, TrackPredictor  # noqa: E402
 
 FAST = ["--experts", "4", "--seed", "1", "--no-progress", "-H", "3", "--id", "vessel"]
 TOL = 1e-12
-
-
-@pytest.fixture(scope="module")
-def cli():
-    return build()
 
 
 @pytest.fixture(scope="module")

@@ -12,24 +12,14 @@ import warnings
 import numpy as np
 import pandas as pd
 import pytest
-from click.testing import CliRunner
 
-from kalmix.cli import build
 from kalmix.io import geo, read_tracks
 from kalmix.io.tables import BadRowWarning
 from kalmix.streaming import ColumnNoteWarning, LengthUnitWarning, StreamConfig, TrackPredictor
+from cli_helpers import invoke as _run
 
 FAST = ["--experts", "4", "--seed", "1", "--no-progress"]
 WGS84 = 6378137.0
-
-
-@pytest.fixture(scope="module")
-def cli():
-    return build()
-
-
-def _run(cli, args, input=None):
-    return CliRunner().invoke(cli, args, input=input, catch_exceptions=False)
 
 
 def _walk(lat0, lon0, velocity, times, noise, rng):

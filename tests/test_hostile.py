@@ -12,18 +12,12 @@ import pytest
 from click.testing import CliRunner
 
 from kalmix.bank import make_bank
-from kalmix.cli import build
 from kalmix.core import engine
 from kalmix.core.compiled import engine as ce
 from kalmix.streaming import StreamConfig, TrackPredictor
 
 FAST = ["--experts", "2", "--seed", "1", "--no-progress"]
 ENGINES = {"reference": engine.run, "compiled": ce.run}
-
-
-@pytest.fixture(scope="module")
-def cli():
-    return build()
 
 
 def _run(cli, args):

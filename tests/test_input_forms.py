@@ -8,20 +8,10 @@ import io
 import numpy as np
 import pandas as pd
 import pytest
-from click.testing import CliRunner
 
-from kalmix.cli import build
+from cli_helpers import invoke as _run
 
 FAST = ["--experts", "2", "--seed", "1", "--no-progress", "--length-unit", "0.5"]
-
-
-@pytest.fixture(scope="module")
-def cli():
-    return build()
-
-
-def _run(cli, args, input=None):
-    return CliRunner().invoke(cli, args, input=input, catch_exceptions=False)
 
 
 def _text(n=20):

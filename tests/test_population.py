@@ -186,20 +186,18 @@ def test_the_command_line_has_the_prior_by_default(tmp_path):
     assert dask.exit_code != 0 and "--population-prior: not with --engine dask" in dask.stderr
 
 
-def test_a_file_its_chunks_and_stdin_learn_in_the_order_the_rows_came(tmp_path):
-    """Rows of interleaved tracks (a feed sorted by time): the population is summarised after the same rows of
-    the file, whatever its chunks (each chunk is stepped track by track), and on stdin; the lead forecasts (made
-    alike in files and on stdin) and the learned state are the same bits."""
+def _file_chunks_and_stdin(tmp_path, table):
+    """``kalmix predict`` of ``table`` as a CSV file in one chunk ("one"), in chunks of 45 and 100 rows ("chunks",
+    "more") and on stdin ("stdin"), each with a lead and a state file: ``(outputs, states)`` by name."""
     from click.testing import CliRunner
 
     from kalmix.cli import build
 
-    table = _short_tracks(tracks=40).sort_values("time", kind="stable")
     source = tmp_path / "tracks.csv"
     table.to_csv(source, index=False)
     runner = CliRunner()
     fixed = ["--length-unit", "27", "--time-unit", "1800", "--reach", "1.5", "--lead", "1800"]
-    outputs, states = {}, {}
+    outputs = {}
     for name, flags in (("one", []), ("chunks", ["--chunk-rows", "45"]), ("more", ["--chunk-rows", "100"])):
         result = runner.invoke(build(), ["predict", str(source), "-o", str(tmp_path / f"{name}.csv"), *fixed,
                                          "--state", str(tmp_path / f"{name}.kalmix"), *flags])
@@ -209,8 +207,14 @@ def test_a_file_its_chunks_and_stdin_learn_in_the_order_the_rows_came(tmp_path):
                                      "--state", str(tmp_path / "stdin.kalmix")], input=source.read_text())
     assert result.exit_code == 0, result.output
     outputs["stdin"] = pd.read_csv(tmp_path / "stdin.csv")
-    for name in outputs:
-        states[name] = TrackPredictor.load(tmp_path / f"{name}.kalmix")
+    return outputs, {name: TrackPredictor.load(tmp_path / f"{name}.kalmix") for name in outputs}
+
+
+def test_a_file_its_chunks_and_stdin_learn_in_the_order_the_rows_came(tmp_path):
+    """Rows of interleaved tracks (a feed sorted by time): the population is summarised after the same rows of
+    the file, whatever its chunks (each chunk is stepped track by track), and on stdin; the lead forecasts (made
+    alike in files and on stdin) and the learned state are the same bits."""
+    outputs, states = _file_chunks_and_stdin(tmp_path, _short_tracks(tracks=40).sort_values("time", kind="stable"))
     whole = states["one"]
     # stdin summarises after rows 64, 128 and 256 of 480 (at row 32 no track has learned 3 rows); every track
     # starts in the first 40 rows, so a file makes only the summary a later row could start from, the last
@@ -299,29 +303,9 @@ def test_a_parquet_file_sorted_by_id_learns_as_its_rows_came(tmp_path):
 def test_summaries_a_later_track_starts_from_are_made_in_a_file_as_on_stdin(tmp_path):
     """Tracks that start one after another through the feed: a file makes (and its new tracks start from) the
     summaries a new track comes after, whatever its chunks; the forecasts and states are a stream's bits."""
-    from click.testing import CliRunner
-
-    from kalmix.cli import build
-
     table = _short_tracks(tracks=60)
     table["time"] += 3000.0 * table["track_id"].str[1:].astype(int)   # track k starts k x 50 min in
-    table = table.sort_values("time", kind="stable")
-    source = tmp_path / "tracks.csv"
-    table.to_csv(source, index=False)
-    runner = CliRunner()
-    fixed = ["--length-unit", "27", "--time-unit", "1800", "--reach", "1.5", "--lead", "1800"]
-    outputs, states = {}, {}
-    for name, flags in (("one", []), ("chunks", ["--chunk-rows", "45"]), ("more", ["--chunk-rows", "100"])):
-        result = runner.invoke(build(), ["predict", str(source), "-o", str(tmp_path / f"{name}.csv"), *fixed,
-                                         "--state", str(tmp_path / f"{name}.kalmix"), *flags])
-        assert result.exit_code == 0, result.output
-        outputs[name] = pd.read_csv(tmp_path / f"{name}.csv")
-    result = runner.invoke(build(), ["predict", "-", "-o", str(tmp_path / "stdin.csv"), *fixed,
-                                     "--state", str(tmp_path / "stdin.kalmix")], input=source.read_text())
-    assert result.exit_code == 0, result.output
-    outputs["stdin"] = pd.read_csv(tmp_path / "stdin.csv")
-    for name in outputs:
-        states[name] = TrackPredictor.load(tmp_path / f"{name}.kalmix")
+    outputs, states = _file_chunks_and_stdin(tmp_path, table.sort_values("time", kind="stable"))
     whole = states["one"]
     # after rows 32, 64, ..., 512 of 720: a new track starts after each
     assert len(whole.priors) == len(states["stdin"].priors) == 5

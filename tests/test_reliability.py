@@ -27,7 +27,6 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from kalmix import MixturePredictor, make_params
 from kalmix.archive import write_archive
 from kalmix.bank import LENGTH_UNIT_RANGE, MAX_HORIZON
-from kalmix.cli import build
 from kalmix.commands import _predict_file
 from kalmix.commands._durable import TEST_HOOK
 from kalmix.commands._predict_file import count_rows
@@ -35,11 +34,6 @@ from kalmix.streaming import GapTracker, StreamConfig, TrackPredictor
 
 FAST = ["--experts", "2", "--seed", "1", "--length-unit", "1", "--no-progress"]
 SIGNALS = ["SIGINT", "SIGTERM", "SIGHUP"]
-
-
-@pytest.fixture(scope="module")
-def cli():
-    return build()
 
 
 def _run(cli, args, input=None, env=None):

@@ -62,11 +62,12 @@ ROUNDING = 1e-9
 def spreads(streams: Streams) -> dict:
     """Each track's spread (``{track as text: largest max - min of a coordinate}``), the yardstick of
     :data:`ROUNDING`; ``"overall"``: the largest."""
-    out = {}
-    for i, track in enumerate(streams.track_ids):
-        values = streams.values[:, streams.track_of == i].reshape(-1, streams.values.shape[-1])
-        out[str(track)] = float(max((np.ptp(c[np.isfinite(c)]) for c in values.T if np.isfinite(c).any()),
-                                    default=0.0))
+    n, p = len(streams.track_ids), streams.values.shape[-1]
+    low, high = np.full((n, p), np.inf), np.full((n, p), -np.inf)
+    np.fmin.at(low, streams.track_of, np.fmin.reduce(streams.values, axis=0, initial=np.inf))   # (NaN: left out)
+    np.fmax.at(high, streams.track_of, np.fmax.reduce(streams.values, axis=0, initial=-np.inf))
+    span = high - low   # (-inf for a coordinate with no finite value)
+    out = {str(track): float(np.max(row, initial=0.0)) for track, row in zip(streams.track_ids, span)}
     out["overall"] = max(out.values(), default=0.0)
     return out
 
