@@ -16,7 +16,7 @@ from .times import column_seconds
 from .units import gap_floor_for_steps, reach_for_steps
 
 #: Rows of a table the automatic reach is tried on (:meth:`TrackClocks._pilot_reach`).
-PILOT_ROWS = 20_000
+PILOT_ROWS = 5_000
 
 
 def _by_key(index, rows, count) -> list[np.ndarray]:
