@@ -851,9 +851,10 @@ def speed(results: Results) -> list:
         rows.append([text.format(**sizes)] + [num(data[name].get(section, {}).get(key), 3) for name, _ in present]
                     + [f"{sense} {num(goal, 3)}" if goal is not None else ""])
     notes = [f"{label}: {_machine(data[name])}." for name, label in present]
+    experts = first.get("one_stream", {}).get("experts")
+    bank = f"default bank ({experts} experts, " if experts else "default bank ("
     notes.append("Medians of the timed runs after an untimed warm-up, the peers in the same run. kalmix runs its "
-                 "default bank (119 experts, the glitch screen, calibrated intervals); each peer runs one model "
-                 "without intervals.")
+                 f"{bank}the glitch screen, calibrated intervals); each peer runs one model without intervals.")
     return [Table(header=["figure"] + [label for _, label in present] + ["goal"], rows=rows,
                   sources=tuple(name for name, _ in present),
                   command="python -m benchmarks.engine_speed --cold --json benchmarks/results/engine_speed.json",
