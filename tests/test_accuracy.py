@@ -60,3 +60,4 @@ def test_intervals_cover_95_percent_of_heavy_tailed_errors(tmp_path):
     for c in "xy":
         coverage = np.mean(np.abs(scored[f"pred_{c}"] - scored[c]) <= Z95 * scored[f"std_{c}"])
         assert 0.94 <= coverage <= 0.96, (c, coverage)   # measured 0.9491 (x), 0.9505 (y)
+

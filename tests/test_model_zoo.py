@@ -186,3 +186,15 @@ def test_lead_scoring_puts_every_forecast_on_the_same_rows(tmp_path):
         shifted[h] = np.sqrt(np.nanmean(np.concatenate([(z - p)[30:] for (_, z), (p, _) in zip(tracks, per)]) ** 2))
     assert shifted[5] < min(shifted[4], shifted[6])
     assert shifted[5] == pytest.approx(entry["rms_per_coordinate"][zoo_lead.PREDICT], rel=1e-12)
+
+
+def test_many_short_tracks_start_from_the_tracks_before_them(tmp_path):
+    """400 tracks of 12 rows, 10-60 min apart: the population prior starts each new track's rule and calibration
+    from the tracks before it. Measured: 1.037x the optimum (3.72x without the prior), the 95 % intervals covering
+    96.2 % of the scored rows (the optimum's 95.7 %; 99.9 % when every track's calibration learned its first
+    forecast's miss, the whole displacement, and started from the length unit)."""
+    mz.main(["--scenario", "short_tracks", "--json", str(tmp_path / "zoo.json")])
+    entry = json.loads((tmp_path / "zoo.json").read_text())["scenarios"]["short_tracks"]
+    kalmix = entry["scores"]["scored"]["predictors"]["kalmix"]
+    assert kalmix["ratio_to_optimum"] <= 1.045
+    assert 0.945 <= kalmix["coverage_95"] <= 0.975, kalmix["coverage_95"]

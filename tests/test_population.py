@@ -62,8 +62,43 @@ def test_summarise_takes_tracks_with_enough_rows_per_row_times_the_pseudo_rows()
     np.testing.assert_allclose(prior.regret, per_row * population.POPULATION_ROWS, rtol=1e-15)
     np.testing.assert_allclose(prior.variance, 2 * per_row * population.POPULATION_ROWS, rtol=1e-15)
     np.testing.assert_array_equal(prior.bound, np.full(k, 2.0))   # the median of 1 and 3
-    assert prior.tracks == 2
+    assert prior.tracks == 2 and prior.calibration is None
     assert population.summarise([(regret[2:], variance[2:], bound[2:], rows[2:])]) is None
+
+
+def test_summarise_keeps_the_mean_calibration_of_the_same_tracks():
+    """With the tracks' calibration states, the prior keeps their plain mean over the tracks taken (errors' variances
+    and counts are means already, not sums over rows as the rule's regrets)."""
+    rng = np.random.default_rng(0)
+    n, k, p = 5, 3, 2
+    regret, bound = rng.normal(size=(n, k)), np.ones((n, k))
+    cal = (rng.uniform(1.0, 9.0, (n, k, p)), rng.uniform(1.0, 50.0, (n, k)), rng.normal(size=n))
+    rows = np.array([population.MIN_ROWS, 1, 10, 40, population.MIN_ROWS - 1])
+    use = rows >= population.MIN_ROWS
+    prior = population.summarise([(regret[:2], regret[:2], bound[:2], rows[:2], tuple(a[:2] for a in cal)),
+                                  (regret[2:], regret[2:], bound[2:], rows[2:], tuple(a[2:] for a in cal))])
+    assert prior.tracks == 3
+    for kept, states in zip(prior.calibration, cal):
+        np.testing.assert_allclose(kept, np.atleast_1d(states[use].mean(axis=0)), rtol=1e-15)
+    assert [a.shape for a in prior.calibration] == [(k, p), (k,), (1,)]
+
+
+@pytest.mark.parametrize("calibration_prior", [True, False])
+def test_the_prior_starts_a_new_tracks_calibration(calibration_prior):
+    """A new track's calibration (the experts' error variances and counts, the intervals' scale) starts as the mean of
+    the tracks before it (``calibration_prior``); without it, from the length unit."""
+    table = _short_tracks(tracks=30).sort_values("time", kind="stable")
+    engine = TrackPredictor(StreamConfig(length_unit=27.0, time_unit=1800.0, calibration_prior=calibration_prior))
+    engine.process_table(table)
+    assert engine.priors
+    fresh, prior = engine._new_states(1).calibration, engine.priors[-1]
+    if calibration_prior:
+        for started, kept in zip(fresh, prior.calibration):
+            np.testing.assert_array_equal(started[0], kept if kept.shape != (1,) else kept[0])
+        assert np.all(fresh.count > 0) and np.any(fresh.variance != 27.0 ** 2)
+    else:
+        assert prior.calibration is None
+        assert np.all(fresh.variance == 27.0 ** 2) and not np.any(fresh.count) and not np.any(fresh.log_scale)
 
 
 @pytest.mark.parametrize("prior", [True, False])
@@ -224,18 +259,23 @@ def test_a_file_its_chunks_and_stdin_learn_in_the_order_the_rows_came(tmp_path):
     lead = ["lead_x", "lead_y", "lead_std_x", "lead_std_y"]
     pd.testing.assert_frame_equal(outputs["stdin"][lead], outputs["one"][lead])
     for name in ("chunks", "more", "stdin"):
-        last = states[name].priors[-1]
-        np.testing.assert_array_equal(last.regret, whole.priors[-1].regret)
-        np.testing.assert_array_equal(last.bound, whole.priors[-1].bound)
+        _same_prior(states[name].priors[-1], whole.priors[-1])
         _same_states(whole, states[name])
+
+
+def _same_prior(x, y):
+    """The same bits in two population priors, their calibrations included."""
+    for field in ("regret", "variance", "bound"):
+        np.testing.assert_array_equal(getattr(x, field), getattr(y, field))
+    assert x.tracks == y.tracks and (x.calibration is None) == (y.calibration is None)
+    for a, b in zip(x.calibration or (), y.calibration or ()):
+        np.testing.assert_array_equal(a, b)
 
 
 def _same_priors_and_states(a, b):
     assert len(a.priors) == len(b.priors) > 0
     for x, y in zip(a.priors, b.priors):
-        np.testing.assert_array_equal(x.regret, y.regret)
-        np.testing.assert_array_equal(x.variance, y.variance)
-        np.testing.assert_array_equal(x.bound, y.bound)
+        _same_prior(x, y)
     assert sorted(a.states) == sorted(b.states)
     for track in a.states:
         for (name, x), (_, y) in zip(tree_leaves(a.states[track]), tree_leaves(b.states[track])):
@@ -315,7 +355,7 @@ def test_summaries_a_later_track_starts_from_are_made_in_a_file_as_on_stdin(tmp_
     pd.testing.assert_frame_equal(outputs["stdin"][lead], outputs["one"][lead])
     for name in ("chunks", "more", "stdin"):
         for a, b in zip(whole.priors, states[name].priors):
-            np.testing.assert_array_equal(a.regret, b.regret)
+            _same_prior(a, b)
         _same_states(whole, states[name])
 
 

@@ -148,9 +148,14 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     forecasts after the save: test_version_13_files_resume_with_the_blend_started_again). Before version 15 the
     screen counted a track's learned rows up to 2: the file's counts are capped so. Before version 16 there was no
     ``gap_floor`` setting (none). Before version 17 the population prior started a new track's one-step rule only
-    (``lead_prior`` False)."""
+    (``lead_prior`` False). Before version 18 the calibration learned every error, a track's first forecast's
+    too (``calibration_from_points`` 0), and the prior did not start it (``calibration_prior`` False, and no
+    calibration in the file's priors)."""
     import json
 
+    if version < 18:   # every error calibrated; the prior started the rules only
+        config = {**config, "calibration_prior": False, "calibration_from_points": 0}
+        settings = (*settings, "calibration_prior", "calibration_from_points")
     if version < 17:   # the population prior started the one-step rule only
         config, settings = {**config, "lead_prior": False}, (*settings, "lead_prior")
     if version < 16:   # no gap floor setting (a stream settles it at none)
@@ -176,7 +181,7 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     first.save(tmp_path / "s.npz")
     saved = dict(np.load(tmp_path / "s.npz"))
     meta = json.loads(str(saved["meta"]))
-    assert meta["format_version"] == STATE_FORMAT_VERSION == 17
+    assert meta["format_version"] == STATE_FORMAT_VERSION == 18
     if version < 14:
         whole = part + _rows(_without_blend(tmp_path, saved, dict(meta, format_version=13)), table.iloc[cut:])
     meta["format_version"] = version
@@ -430,6 +435,15 @@ def test_version_16_files_resume_with_the_prior_starting_the_one_step_rule_only(
     whole, resumed, second, _ = _as_older_file(tmp_path, CONFIG, 70, 16)
     assert second.config.lead_prior is False and second.priors
     for field in ("next", "ahead"):
+        assert np.array_equal(np.array([getattr(r, field) for r in resumed]),
+                              np.array([getattr(r, field) for r in whole]), equal_nan=True), field
+
+
+def test_version_17_files_resume_with_every_error_calibrating_and_the_prior_starting_the_rules_only(tmp_path):
+    whole, resumed, second, _ = _as_older_file(tmp_path, CONFIG, 70, 17)
+    assert second.config.calibration_prior is False and second.config.calibration_from_points == 0
+    assert second.priors and all(prior.calibration is None for prior in second.priors)
+    for field in ("next", "next_std", "ahead"):
         assert np.array_equal(np.array([getattr(r, field) for r in resumed]),
                               np.array([getattr(r, field) for r in whole]), equal_nan=True), field
 

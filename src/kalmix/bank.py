@@ -174,6 +174,7 @@ def make_bank(
     lead: float | None = None,
     lead_delay: float | None = None,
     level: float = 0.95,
+    calibration_from_points: int = 2,
     ar_orders=AR_ORDERS,
     ar_forgetting=AR_FORGETTING,
     ar_ridge=AR_RIDGE,
@@ -255,6 +256,10 @@ def make_bank(
     level : float
         The central interval whose coverage the calibration aims at
         (:mod:`kalmix.core.calibration`); intervals are ``±z(level) std``.
+    calibration_from_points : int
+        The calibration learns the errors of forecasts made from at least this many rows of a track's
+        segment (default 2: not the first, made from one row, whose miss is the target's whole
+        displacement); 0 learns every one (state files before format 18 ran so).
     ar_orders : sequence of int
         Orders of the AR families (previous velocities in the regressor), each >= 1.
     ar_forgetting : sequence of float
@@ -326,6 +331,8 @@ def make_bank(
     threshold = validate("outlier_threshold", outlier_threshold, ScreenParams.CONSTRAINTS["threshold"])
     rejects = validate("outlier_rejects", outlier_rejects, ScreenParams.CONSTRAINTS["max_rejects"])
     level = validate("level", level, CalibrationParams.CONSTRAINTS["level"])
+    from_points = validate("calibration_from_points", calibration_from_points,
+                           CalibrationParams.CONSTRAINTS["from_points"])
     if reach is not None and reach != math.inf:   # None or inf: off
         reach = validate("reach", reach, ARGUMENT_CONSTRAINTS["reach"])
     else:
@@ -357,7 +364,8 @@ def make_bank(
                            ar_ridge=[float(v) for v in ar_ridge], ar_options=ar_options)
     return Bank(measurement_dim=p, families=tuple(families), rule=rule, rule_params=module.Params(**options),
                 description=description, screen_params=ScreenParams(threshold=threshold, max_rejects=rejects),
-                calibration_params=CalibrationParams(initial_variance=unit * unit, level=level),
+                calibration_params=CalibrationParams(initial_variance=unit * unit, level=level,
+                                                     from_points=from_points),
                 lead=lead_params, reach=np.inf if reach is None else reach * tunit)
 
 

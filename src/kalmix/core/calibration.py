@@ -10,7 +10,11 @@ For the weights :math:`w_k` and the awake experts' forecasts :math:`y_k` of one 
 where :math:`V_k` is expert :math:`k`'s running mean squared error per coordinate (over
 its last ~``window`` learned rows; ``initial_variance`` before the first, and counted as one more
 error until there are ``window`` of them, so that a coordinate an expert has foreseen exactly once
-does not get an interval of width zero) and :math:`s` a running scale. The variances are the
+does not get an interval of width zero) and :math:`s` a running scale. Neither learns the error of a
+forecast made from fewer than ``from_points`` rows of its segment (2: not the first forecast of a track,
+or of a segment after a restart, made from one row: the experts had no velocity then, and that miss,
+the target's whole displacement, is no measure of later rows' errors; it made a dozen-row track's
+intervals five times too wide). The variances are the
 experts' own errors, measured the same way for every family, so the covariance needs nothing from
 the experts but their forecasts.
 
@@ -35,9 +39,9 @@ from typing import NamedTuple
 import numpy as np
 
 from ._libm import exp, ordered_sum
-from .constraints import Real
+from .constraints import Integer, Real
 
-__all__ = ["CalibrationParams", "CalibrationState", "init", "moments", "update", "z_score"]
+__all__ = ["CalibrationParams", "CalibrationState", "init", "moments", "update", "learns", "z_score"]
 
 
 class CalibrationParams(NamedTuple):
@@ -47,9 +51,11 @@ class CalibrationParams(NamedTuple):
     level: float = 0.95             # the central interval whose coverage is calibrated
     max_variance: float = 1e300
     max_log_scale: float = 30.0
+    from_points: int = 2            # learn from forecasts made from at least this many rows of a segment (0: all)
 
     #: What the fields a caller sets may be (:mod:`kalmix.core.constraints`).
-    CONSTRAINTS = {"level": Real(gt=0, lt=1, noun="a probability")}
+    CONSTRAINTS = {"level": Real(gt=0, lt=1, noun="a probability"),
+                   "from_points": Integer(ge=0)}
 
 
 class CalibrationState(NamedTuple):
@@ -83,6 +89,13 @@ def moments(params: CalibrationParams, state: CalibrationState, weights, experts
                                  neginf=-params.max_variance), -params.max_variance, params.max_variance)
     some = awake.any(axis=-1)
     return np.where(some[:, None], mean, np.nan), np.where(some[:, None, None], cov, np.nan)
+
+
+def learns(params: CalibrationParams, points) -> np.ndarray:
+    """Which rows the calibration may learn, by the learned rows of their segment before them (``points (N,)``,
+    the glitch screen's): those whose forecast was made from at least ``params.from_points`` rows."""
+    points = np.asarray(points)
+    return np.ones(points.shape, dtype=bool) if params.from_points <= 0 else points >= params.from_points
 
 
 def update(params: CalibrationParams, state: CalibrationState, weights, experts, awake, measurement,

@@ -506,7 +506,8 @@ def step(bank: Bank, state: BankState, measurement, time, learn=None, active=Non
     rule_state = bank.rule_module.update(bank.rule_params, state.rule, mixed, z, awake, go)
     if restart.any() and hasattr(bank.rule_module, "restart"):
         rule_state = bank.rule_module.restart(bank.rule_params, rule_state, restart)
-    cal_state = calibration.update(bank.calibration_params, state.calibration, weights, mixed, awake, z, go)
+    cal_state = calibration.update(bank.calibration_params, state.calibration, weights, mixed, awake, z,
+                                   go & calibration.learns(bank.calibration_params, state.screen.points))
     # a target that restarts starts its families again from this row (as after a time gap)
     families = tuple(f.module.update(f.params, s, z, time, learn, active, restart)
                      for f, s in zip(bank.families, state.families))

@@ -110,7 +110,7 @@ class BankRuns:
         return make_bank(measurement_dim, c.bank, rule=c.rule, length_unit=c.length_unit,
                          time_unit=interim if c.time_unit is None else c.time_unit, seed=c.seed, n_akf=c.n_experts,
                          akf_options=c.options, lead=c.lead_time(), rule_options=c.rule_options, reach=c.bank_reach(),
-                         lead_delay=c.lead_delay)
+                         lead_delay=c.lead_delay, calibration_from_points=c.calibration_from_points)
 
     def _without_lead(self) -> Bank:
         """This predictor's bank without its lead head (kept while the bank is the same: the engine checks a

@@ -76,6 +76,14 @@ class StreamConfig:
         track's lead weights and their blend (a lead head learns each error H rows late: on its own it spends a
         short track learning what the tracks before it showed), or only its one-step rule. Files before format
         version 17 resume without it.
+    calibration_prior : bool
+        With the population prior: whether it also starts a new track's calibration (the experts' error
+        variances and the intervals' scale) from the mean of the tracks before it, or from the length unit.
+        Files before format version 18 resume without it.
+    calibration_from_points : int
+        The calibration learns the errors of forecasts made from at least this many rows of a track's segment
+        (2: not a track's first forecast, made from one row; 0: every one, as files before format version 18
+        resume). See :func:`kalmix.bank.make_bank`.
     options : dict
         Other arguments of :func:`kalmix.bank.make_params` (the AKF family).
     bank : str
@@ -128,6 +136,8 @@ class StreamConfig:
     gap_min_steps: int = 4
     population_prior: bool = True
     lead_prior: bool = True
+    calibration_prior: bool = True
+    calibration_from_points: int = 2
     options: dict = field(default_factory=dict)
     bank: str = DEFAULT_BANK["kind"]
     rule: str = DEFAULT_BANK["rule"]
@@ -185,6 +195,10 @@ class StreamConfig:
             raise TypeError(f"lead_prior: expected True or False, got {type(self.lead_prior).__name__} "
                             f"{self.lead_prior!r:.80}")
         self.lead_prior = bool(self.lead_prior)
+        if not isinstance(self.calibration_prior, (bool, np.bool_)):
+            raise TypeError(f"calibration_prior: expected True or False, got {type(self.calibration_prior).__name__} "
+                            f"{self.calibration_prior!r:.80}")
+        self.calibration_prior = bool(self.calibration_prior)
         if self.gap_reference not in GAP_REFERENCES:
             raise ValueError(f"gap_reference: expected one of {', '.join(map(repr, GAP_REFERENCES))}, got "
                              f"{self.gap_reference!r:.80}")
@@ -216,7 +230,8 @@ class StreamConfig:
         unit = self.time_unit if self.time_unit is not None else (self.lead if self.lead is not None else 1.0)
         make_bank(2, self.bank, rule=self.rule, length_unit=length, time_unit=unit,
                   seed=self.seed, n_akf=self.n_experts, akf_options=self.options, lead=self.lead_time(),
-                  rule_options=self.rule_options, reach=self.bank_reach(), lead_delay=self.lead_delay)
+                  rule_options=self.rule_options, reach=self.bank_reach(), lead_delay=self.lead_delay,
+                  calibration_from_points=self.calibration_from_points)
 
     def bank_reach(self) -> float | None:
         """``reach`` as the bank takes it: None while it is ``"auto"`` (not settled yet)."""

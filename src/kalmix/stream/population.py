@@ -4,7 +4,10 @@ A track of a dozen rows spends them learning which experts to trust; the tracks 
 sensor and of the same kind of target, already showed it. So a new track's BOA state is not empty: it is
 the population's mean state per learned row, times :data:`POPULATION_ROWS` — as if the track had already
 learned that many rows like the average of the tracks before it. Its own rows then count as much as those
-pseudo-rows after :data:`POPULATION_ROWS` of them, and more and more after that.
+pseudo-rows after :data:`POPULATION_ROWS` of them, and more and more after that. Its calibration (the experts'
+error variances, their counts and the intervals' scale) starts as the population's mean calibration state
+(``StreamConfig.calibration_prior``): a dozen-row track's intervals are then as wide as the tracks before it
+found they should be, not set by the length unit and learned over the track's few rows.
 
 **Which tracks, when.** The population is summarised at fixed points of the stream: after its first
 :data:`FIRST_SNAPSHOT` rows, then after twice as many, and so on up to every :data:`SNAPSHOT_EVERY` rows
@@ -33,7 +36,8 @@ import numpy as np
 from .ids import factorize_ids, id_to_json
 
 __all__ = ["POPULATION_ROWS", "MIN_ROWS", "FIRST_SNAPSHOT", "SNAPSHOT_EVERY", "PRIOR_FIELDS", "Prior", "prior_paths",
-           "prior_width", "prior_parts", "snapshot_points", "summarise", "start_rule", "start_state", "PopulationPrior"]
+           "prior_width", "prior_parts", "snapshot_points", "summarise", "start_rule", "start_calibration",
+           "start_state", "PopulationPrior"]
 
 #: Pseudo-rows of the population a new track starts with (the weight of the prior, in rows of the track's own).
 POPULATION_ROWS = 100
@@ -99,12 +103,14 @@ def prior_parts(bank, state, lead: bool = True) -> tuple:
 
 
 class Prior(NamedTuple):
-    """What a new track's BOA state starts from: :data:`POPULATION_ROWS` times the population's mean per row."""
+    """What a new track's BOA state starts from: :data:`POPULATION_ROWS` times the population's mean per row; and
+    its calibration: the population's mean calibration state."""
 
     regret: np.ndarray     # (K,)
     variance: np.ndarray   # (K,)
     bound: np.ndarray      # (K,) the population's median range bound
     tracks: int            # tracks summarised
+    calibration: tuple | None = None   # (variance (K, p), count (K,), log_scale (1,)), or None (not kept)
 
 
 def _canonical(track) -> tuple:
@@ -129,12 +135,14 @@ def snapshot_points(done: int, upto: int) -> list[int]:
 
 def summarise(parts) -> Prior | None:
     """The prior from ``parts``, an iterable of ``(regret (n, K), variance (n, K), bound (n, K), rows (n,))``:
-    BOA states of tracks and the rows each learned (the sums' bits depend on the order of the tracks). None when
-    no track has :data:`MIN_ROWS` rows."""
-    regret = variance = None
+    BOA states of tracks and the rows each learned (the sums' bits depend on the order of the tracks), each with a
+    fifth item, the tracks' calibration states ``(variance (n, K, p), count (n, K), log_scale (n,))``, to keep
+    their mean too. None when no track has :data:`MIN_ROWS` rows."""
+    regret = variance = calibration = None
     bounds = []
     count = 0
-    for r, v, b, rows in parts:
+    for part in parts:
+        r, v, b, rows = part[:4]
         rows = np.asarray(rows, dtype=np.float64)
         use = rows >= MIN_ROWS
         if not use.any():
@@ -146,10 +154,27 @@ def summarise(parts) -> Prior | None:
         variance = v_sum if variance is None else variance + v_sum
         bounds.append(np.asarray(b)[use])
         count += int(use.sum())
+        if len(part) > 4:
+            sums = tuple(np.asarray(a)[use].sum(axis=0) for a in part[4])
+            calibration = sums if calibration is None else tuple(a + s for a, s in zip(calibration, sums))
     if not count:
         return None
+    if calibration is not None:
+        calibration = tuple(np.atleast_1d(a / count) for a in calibration)
     return Prior(regret / count * POPULATION_ROWS, variance / count * POPULATION_ROWS,
-                 np.median(np.concatenate(bounds), axis=0), count)
+                 np.median(np.concatenate(bounds), axis=0), count, calibration)
+
+
+def start_calibration(calibration, prior: Prior | None):
+    """``calibration`` (a fresh :class:`~kalmix.core.calibration.CalibrationState`, n targets) as the population's
+    mean calibration state of ``prior`` (unchanged without one): a new track's intervals start as wide as the
+    tracks before it learned they should be, counted as their mean number of errors."""
+    if prior is None or prior.calibration is None:
+        return calibration
+    n = calibration.log_scale.shape[0]
+    variance, count, log_scale = prior.calibration
+    return type(calibration)(np.broadcast_to(variance, (n, *variance.shape)).copy(),
+                             np.broadcast_to(count, (n, *count.shape)).copy(), np.broadcast_to(log_scale, (n,)).copy())
 
 
 def start_rule(rule_state, prior: Prior | None, rule_name: str = "boa", offset: int = 0):
@@ -168,7 +193,7 @@ def start_rule(rule_state, prior: Prior | None, rule_name: str = "boa", offset: 
 
 def start_state(bank, state, prior: Prior | None, lead: bool = True):
     """``state`` (a fresh :class:`~kalmix.core.engine.BankState`) with each rule state of :func:`prior_paths`
-    started from its part of ``prior``."""
+    started from its part of ``prior``, and its one-step calibration from the prior's, if it keeps one."""
     if prior is None:
         return state
     offset = 0
@@ -176,7 +201,7 @@ def start_state(bank, state, prior: Prior | None, lead: bool = True):
         rule = _at(state, path)
         state = _with(state, path, start_rule(rule, prior, bank.rule, offset))
         offset += sum(_widths(bank.rule, rule))
-    return state
+    return state._replace(calibration=start_calibration(state.calibration, prior))
 
 
 class PopulationPrior:
@@ -280,8 +305,9 @@ class PopulationPrior:
         def parts():   # a batch of tracks at a time: their rule states only are kept
             for begin in range(0, len(tracks), SUMMARY_BATCH):
                 these = tracks[begin:begin + SUMMARY_BATCH]
-                yield (*prior_parts(self.params, self.states.gather(these, self._new_states), self.config.lead_prior),
-                       [self.track_rows[t] for t in these])
+                state = self.states.gather(these, self._new_states)
+                yield (*prior_parts(self.params, state, self.config.lead_prior), [self.track_rows[t] for t in these],
+                       *((tuple(state.calibration),) if self.config.calibration_prior else ()))
 
         prior = summarise(parts())
         if prior is not None:

@@ -22,9 +22,22 @@ from .population import Prior, prior_width
 #: Format version of the state files :meth:`TrackPredictor.save` writes. :meth:`TrackPredictor.load` reads
 #: versions 3 to 17 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
 #: versions", says what each version adds).
-STATE_FORMAT_VERSION = 17
-_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17)
+STATE_FORMAT_VERSION = 18
+_READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18)
 _MAGIC = "kalmix-track-predictor"
+#: A population prior's calibration arrays, as the file names them (``population/<i>/calibration_<name>``).
+_CALIBRATION_NAMES = ("variance", "count", "log_scale")
+
+
+def _prior_calibration(archive, engine, i: int) -> tuple | None:
+    """The calibration of the file's ``i``-th population prior (None when the predictor keeps none)."""
+    params = engine.params
+    if not engine.config.calibration_prior or params is None:
+        return None
+    k, p = params.n_experts, params.measurement_dim
+    return tuple(archive.array(f"population/{i}/calibration_{name}", shape, np.float64,
+                               label=f"population/{i}/calibration_{name}")
+                 for name, shape in zip(_CALIBRATION_NAMES, ((k, p), (k,), (1,))))
 
 
 class StateFile:
@@ -50,6 +63,9 @@ class StateFile:
             arrays = dict(tree_leaves(self.states.gather(with_state, self._new_states)))
         for i, prior in enumerate(self.priors):
             arrays.update({f"population/{i}/{name}": getattr(prior, name) for name in ("regret", "variance", "bound")})
+            if prior.calibration is not None:
+                arrays.update({f"population/{i}/calibration_{name}": value
+                               for name, value in zip(_CALIBRATION_NAMES, prior.calibration)})
         write_archive(path, meta, arrays)
 
     @classmethod
@@ -82,6 +98,9 @@ class StateFile:
                     config.setdefault("gap_floor", None)
                 if meta["format_version"] < 17:   # files before version 17: the prior starts the one-step rule only
                     config.setdefault("lead_prior", False)
+                if meta["format_version"] < 18:   # files before version 18: every error calibrates, from the unit
+                    config.setdefault("calibration_prior", False)
+                    config.setdefault("calibration_from_points", 0)
                 if meta["format_version"] < 13:   # files before version 13: any step a gap, no population prior
                     config.setdefault("gap_min_steps", 1)
                     config.setdefault("population_prior", False)
@@ -99,7 +118,8 @@ class StateFile:
                 k = None if engine.params is None else prior_width(engine.params, engine.config.lead_prior)
                 engine.priors = [Prior(*(archive.array(f"population/{i}/{name}", (k,), np.float64,
                                                        label=f"population/{i}/{name}")
-                                         for name in ("regret", "variance", "bound")), int(tracks))
+                                         for name in ("regret", "variance", "bound")), int(tracks),
+                                       _prior_calibration(archive, engine, i))
                                  for i, tracks in enumerate(meta.get("priors", []))]
             except (KeyError, TypeError, ValueError) as error:
                 settings = meta.get("config") if isinstance(meta, dict) else None

@@ -298,7 +298,7 @@ def run_rows(bank: Bank, backend: Backend, z, times, state: BankState, lengths, 
                                                             ahead_b, m.after, lens, mixed_ahead))
             backend.launch("rules", crules.kernel, (
                 rule_params, packed.rule, cal, packed.calibration,
-                crules.Rows(mixed, mixed_ahead, zb, lens, m.go, m.cold, m.restart),
+                crules.Rows(mixed, mixed_ahead, zb, lens, m.go, m.points_before, m.cold, m.restart),
                 crules.Out(forecasts[rows], std[rows], covariance[rows] if record_covariance else empty4,
                            weights[rows] if record_experts else empty3, ahead[rows] if with_ahead else empty3,
                            ahead_std[rows] if with_ahead else empty3)), rule_scratch)

@@ -19,7 +19,7 @@ from ._cache import configure_cache
 
 configure_cache()
 
-__all__ = ["Constants", "pack_params", "moments_row", "calibrate_row", "calibrate_issued_row"]
+__all__ = ["Constants", "pack_params", "learns", "moments_row", "calibrate_row", "calibrate_issued_row"]
 
 
 class Constants(NamedTuple):
@@ -32,12 +32,21 @@ class Constants(NamedTuple):
     max_variance: float
     max_log_scale: float
     initial_variance: float   # of a cold restart
+    from_points: float        # learn from forecasts made from at least this many rows of a segment (0: all)
 
 
 def pack_params(params: CalibrationParams) -> Constants:
     """``params`` as :class:`Constants`."""
     return Constants(float(params.window), float(params.rate), float(params.level), float(z_score(params)),
-                     float(params.max_variance), float(params.max_log_scale), float(params.initial_variance))
+                     float(params.max_variance), float(params.max_log_scale), float(params.initial_variance),
+                     float(params.from_points))
+
+
+@nb.njit(inline="always", **_JIT)
+def learns(from_points, points):
+    """Whether the calibration learns a row whose forecast was made from ``points`` learned rows of its segment
+    (the spec's :func:`kalmix.core.calibration.learns`)."""
+    return from_points <= 0 or points >= from_points
 
 
 @nb.njit(inline="always", **_JIT)

@@ -33,7 +33,7 @@ from . import gpu_staged
 from . import kinematic as ckin
 from . import rules as crules
 from . import screen as cscreen
-from .calibration import calibrate_row
+from .calibration import calibrate_row, learns
 from .calibration import pack_params as pack_calibration
 from .drivers import driver
 from .reach import sleep_beyond, sleep_cold
@@ -72,7 +72,7 @@ def _body(experts, expert_state, rule_params, rule_state, screen_params, screen_
     mean, cov, last_time, initialised = expert_state
     threshold, max_rejects, warmup, window = screen_params
     position, velocity, seen, spread, count, rejects, outliers, points, low, high = screen_state
-    cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale, cal_initial = calibration
+    cal_window, cal_rate, cal_level, z_level, cal_max_variance, max_log_scale, cal_initial, from_points = calibration
     variance, n_errors, log_scale = calibration_state
     z, times, lengths, learn, ahead_times = block
     out, out_std, out_ahead, out_ahead_std = outputs
@@ -126,8 +126,9 @@ def _body(experts, expert_state, rule_params, rule_state, screen_params, screen_
         awake_count = forecast_row(rule_params, rule, x, awake, w, logw, mix, var_n, ls[0], cal_max_variance, sigma)
         write_row(awake_count, mix, sigma, out[t, n], out_std[t, n])
         if code == 1 and awake_count > 0:
-            calibrate_row(x, z[t, n], awake, awake_count, mix, sigma, var_n, errors_n, ls, cal_window, cal_rate,
-                          cal_level, z_level, cal_max_variance, max_log_scale)
+            if learns(from_points, rows):
+                calibrate_row(x, z[t, n], awake, awake_count, mix, sigma, var_n, errors_n, ls, cal_window, cal_rate,
+                              cal_level, z_level, cal_max_variance, max_log_scale)
             learn_rule(rule_params, rule, x, z[t, n], awake, awake_count, w, mix, rr)
         if code == 2:   # a restart: the experts start again, and so does BOA's error scale
             restart_row(rule)

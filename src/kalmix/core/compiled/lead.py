@@ -99,7 +99,7 @@ def kernel(lo, hi, params, state, blend_params, blend_state, cal, cal_state, slo
     ``cal`` / ``cal_state`` the lead head's calibration; ``slots`` (:class:`Slots`), ``rows`` (:class:`Rows`),
     ``out`` (:class:`Out`), ``scratch`` (:func:`scratch`). Targets ``lo .. hi - 1`` (one GPU thread runs it with
     ``lo, hi = j, j + 1``)."""
-    window, rate, level, z_level, max_variance, max_log_scale, initial_variance = cal
+    window, rate, level, z_level, max_variance, max_log_scale, initial_variance, _ = cal
     variance, n_errors, log_scale = cal_state
     due, pending, issued, candidates = slots
     due_times, ahead_experts, ahead_mean, z, times, lengths, learn, keep, restart, cold = rows

@@ -27,7 +27,7 @@ from ._cache import KERNEL_JIT, configure_cache
 from .boa import (BoaBlendState, BoaParams, BoaState, boa_blend_cold, boa_blend_column, boa_blend_learn,
                   boa_blend_restart, boa_blend_target, boa_blend_weights, boa_cold, boa_column, boa_learn, boa_restart,
                   boa_target, boa_weights)
-from .calibration import calibrate_row, moments_row
+from .calibration import calibrate_row, learns, moments_row
 from .rule_rows import awake_of, mix_of, regrets, share_floor, softmax
 
 configure_cache()
@@ -349,6 +349,7 @@ class Rows(NamedTuple):
     z: np.ndarray               # (B, N, p)
     lengths: np.ndarray         # (N,)
     learn: np.ndarray           # (B, N) rows the rule and the calibration learn
+    points: np.ndarray          # (B, N) learned rows of the segment before each (the calibration's from_points)
     cold: np.ndarray            # (B, N) the screen's cold restarts
     restart: np.ndarray         # (B, N) the experts' restarts
 
@@ -367,17 +368,17 @@ class Out(NamedTuple):
 @nb.njit(**KERNEL_JIT)
 def kernel(lo, hi, params, state, cal, cal_state, rows, out, scratch):
     """Mixture forecast of every row (weights before the row) and its covariance, then learn the row
-    where ``rows.learn`` (the rule and the calibration). ``params`` / ``state``: the rule's
-    (:data:`COMPILED_RULES`); ``cal`` / ``cal_state``: the calibration's
+    where ``rows.learn`` (the rule, and the calibration where it :func:`.calibration.learns`). ``params`` /
+    ``state``: the rule's (:data:`COMPILED_RULES`); ``cal`` / ``cal_state``: the calibration's
     (:class:`.calibration.Constants`, :class:`kalmix.core.calibration.CalibrationState`); ``rows``
     (:class:`Rows`), ``out`` (:class:`Out`), ``scratch`` (:func:`scratch`). A ``cold`` row (the
     screen's cold restart) is forecast by the old rule and calibration, which then start again (the
     variances at ``cal.initial_variance``) before its ahead forecast; a ``restart`` row (the experts
     start again) changes what :func:`restart_row` says (BOA's error scale starts again). Targets
     ``lo .. hi - 1`` (one GPU thread runs it with ``lo, hi = j, j + 1``)."""
-    window, rate, level, z_level, max_variance, max_log_scale, initial_variance = cal
+    window, rate, level, z_level, max_variance, max_log_scale, initial_variance, from_points = cal
     variance, n_errors, log_scale = cal_state
-    experts, ahead_experts, z, lengths, learn, cold, restart = rows
+    experts, ahead_experts, z, lengths, learn, points, cold, restart = rows
     out_mean, out_std, out_cov, out_weights, out_ahead, out_ahead_std = out
     awake, w, logw, r, mix, cov = scratch
     k_count = experts.shape[2]
@@ -397,8 +398,9 @@ def kernel(lo, hi, params, state, cal, cal_state, rows, out, scratch):
                 for k in range(k_count):
                     out_weights[t, n, k] = w[k]
             if learn[t, n] and count > 0:
-                calibrate_row(x, z[t, n], awake, count, mix, cov, variance[n], n_errors[n], ls, window, rate,
-                              level, z_level, max_variance, max_log_scale)
+                if learns(from_points, points[t, n]):
+                    calibrate_row(x, z[t, n], awake, count, mix, cov, variance[n], n_errors[n], ls, window, rate,
+                                  level, z_level, max_variance, max_log_scale)
                 learn_row(params, s, x, z[t, n], awake, count, w, mix, r)
             if restart[t, n]:
                 restart_row(s)
