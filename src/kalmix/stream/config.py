@@ -77,7 +77,7 @@ class StreamConfig:
         short track learning what the tracks before it showed), or only its one-step rule. Files before format
         version 17 resume without it.
     calibration_prior : bool
-        With the population prior: whether it also starts a new track's calibration (the experts' error
+        With the population prior: whether it also starts a new track's one-step calibration (the experts' error
         variances and the intervals' scale) from the mean of the tracks before it, or from the length unit.
         Files before format version 18 resume without it.
     calibration_from_points : int
