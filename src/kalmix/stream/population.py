@@ -302,7 +302,7 @@ class PopulationPrior:
         # gap, a resumed state file): a floating-point sum depends on the order of its terms
         tracks = sorted((t for t in self.states if self.track_rows.get(t, 0) >= MIN_ROWS), key=_canonical)
 
-        def parts():   # a batch of tracks at a time: their rule states only are kept
+        def parts():   # a batch of tracks at a time: their rule (and calibration) states only are kept
             for begin in range(0, len(tracks), SUMMARY_BATCH):
                 these = tracks[begin:begin + SUMMARY_BATCH]
                 state = self.states.gather(these, self._new_states)

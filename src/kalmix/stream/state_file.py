@@ -20,7 +20,7 @@ from .ids import id_from_meta, id_to_meta
 from .population import Prior, prior_width
 
 #: Format version of the state files :meth:`TrackPredictor.save` writes. :meth:`TrackPredictor.load` reads
-#: versions 3 to 17 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
+#: versions 3 to 18 and resumes each with the settings it was written with (CHANGELOG.md, "State file format
 #: versions", says what each version adds).
 STATE_FORMAT_VERSION = 18
 _READABLE_VERSIONS = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18)
