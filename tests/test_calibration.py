@@ -46,3 +46,13 @@ def test_calibration_from_points_is_checked():
         make_bank(2, "kinematic", calibration_from_points=-1)
     with pytest.raises(TypeError, match="calibration_from_points"):
         make_bank(2, "kinematic", calibration_from_points=1.5)
+
+
+def test_calibration_from_points_beyond_what_the_screen_counts_is_refused():
+    """The screen counts a segment's rows up to 3 (``MAX_POINTS``): from 4 rows on, the calibration would learn no
+    row at all, and every interval would stay at the length unit's width."""
+    from kalmix.core.screen import MAX_POINTS
+
+    make_bank(2, "kinematic", calibration_from_points=int(MAX_POINTS))
+    with pytest.raises(ValueError, match="calibration_from_points"):
+        make_bank(2, "kinematic", calibration_from_points=int(MAX_POINTS) + 1)

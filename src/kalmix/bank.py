@@ -259,7 +259,8 @@ def make_bank(
     calibration_from_points : int
         The calibration learns the errors of forecasts made from at least this many rows of a track's
         segment (default 2: not the first, made from one row, whose miss is the target's whole
-        displacement); 0 learns every one (state files before format 18 ran so).
+        displacement); 0 learns every one (state files before format 18 ran so); at most 3, the rows the
+        glitch screen counts.
     ar_orders : sequence of int
         Orders of the AR families (previous velocities in the regressor), each >= 1.
     ar_forgetting : sequence of float

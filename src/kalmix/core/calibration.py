@@ -40,6 +40,7 @@ import numpy as np
 
 from ._libm import exp, ordered_sum
 from .constraints import Integer, Real
+from .screen import MAX_POINTS
 
 __all__ = ["CalibrationParams", "CalibrationState", "init", "moments", "update", "learns", "z_score"]
 
@@ -55,7 +56,8 @@ class CalibrationParams(NamedTuple):
 
     #: What the fields a caller sets may be (:mod:`kalmix.core.constraints`).
     CONSTRAINTS = {"level": Real(gt=0, lt=1, noun="a probability"),
-                   "from_points": Integer(ge=0)}
+                   # (the screen counts a segment's rows up to MAX_POINTS: more would learn no row)
+                   "from_points": Integer(ge=0, le=int(MAX_POINTS))}
 
 
 class CalibrationState(NamedTuple):

@@ -83,7 +83,7 @@ class StreamConfig:
     calibration_from_points : int
         The calibration learns the errors of forecasts made from at least this many rows of a track's segment
         (2: not a track's first forecast, made from one row; 0: every one, as files before format version 18
-        resume). See :func:`kalmix.bank.make_bank`.
+        resume; at most 3). See :func:`kalmix.bank.make_bank`.
     options : dict
         Other arguments of :func:`kalmix.bank.make_params` (the AKF family).
     bank : str
