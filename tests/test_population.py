@@ -86,15 +86,20 @@ def test_summarise_keeps_the_mean_calibration_of_the_same_tracks():
 @pytest.mark.parametrize("calibration_prior", [True, False])
 def test_the_prior_starts_a_new_tracks_calibration(calibration_prior):
     """A new track's calibration (the experts' error variances and counts, the intervals' scale) starts as the mean of
-    the tracks before it (``calibration_prior``); without it, from the length unit."""
-    table = _short_tracks(tracks=30).sort_values("time", kind="stable")
+    the tracks before it (``calibration_prior``), its count at most ``CALIBRATION_ERRORS`` (tracks started so carry
+    their count on: 40-row tracks take the population's mean count to the window); without it, from the length
+    unit."""
+    table = _short_tracks(tracks=60, rows=40).sort_values("time", kind="stable")
     engine = TrackPredictor(StreamConfig(length_unit=27.0, time_unit=1800.0, calibration_prior=calibration_prior))
     engine.process_table(table)
     assert engine.priors
     fresh, prior = engine._new_states(1).calibration, engine.priors[-1]
     if calibration_prior:
-        for started, kept in zip(fresh, prior.calibration):
-            np.testing.assert_array_equal(started[0], kept if kept.shape != (1,) else kept[0])
+        variance, count, log_scale = prior.calibration
+        np.testing.assert_array_equal(fresh.variance[0], variance)
+        np.testing.assert_array_equal(fresh.log_scale, log_scale)
+        assert count.max() > population.CALIBRATION_ERRORS
+        np.testing.assert_array_equal(fresh.count[0], np.minimum(count, population.CALIBRATION_ERRORS))
         assert np.all(fresh.count > 0) and np.any(fresh.variance != 27.0 ** 2)
     else:
         assert prior.calibration is None

@@ -49,6 +49,11 @@ FIRST_SNAPSHOT = 32
 SNAPSHOT_EVERY = 65536
 #: Tracks whose states are read at once for a summary.
 SUMMARY_BATCH = 4096
+#: The most errors a new track's calibration counts the population's mean variances as (its own errors weigh as
+#: much after as many of them). A track started from the prior carries its count into the next summary, so the
+#: mean count would climb towards the calibration's window (30 after 400 tracks of 12 rows, 95 after 200 of 40),
+#: and a track noisier than the population's would keep too narrow intervals for most of its rows.
+CALIBRATION_ERRORS = 10
 
 
 #: The rules a population prior starts, and the fields of their states it starts: groups of (regret, variance,
@@ -168,11 +173,13 @@ def summarise(parts) -> Prior | None:
 def start_calibration(calibration, prior: Prior | None):
     """``calibration`` (a fresh :class:`~kalmix.core.calibration.CalibrationState`, n targets) as the population's
     mean calibration state of ``prior`` (unchanged without one): a new track's intervals start as wide as the
-    tracks before it learned they should be, counted as their mean number of errors."""
+    tracks before it learned they should be, counted as their mean number of errors, at most
+    :data:`CALIBRATION_ERRORS`."""
     if prior is None or prior.calibration is None:
         return calibration
     n = calibration.log_scale.shape[0]
     variance, count, log_scale = prior.calibration
+    count = np.minimum(count, float(CALIBRATION_ERRORS))
     return type(calibration)(np.broadcast_to(variance, (n, *variance.shape)).copy(),
                              np.broadcast_to(count, (n, *count.shape)).copy(), np.broadcast_to(log_scale, (n,)).copy())
 
