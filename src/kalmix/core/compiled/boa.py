@@ -141,12 +141,12 @@ def _boa_learn(params, regret, variance, bound, error_scale, error_count, x, y, 
 
 
 @nb.njit(**_JIT)
-def boa_weights(params, s, awake, count, w, logw):
+def boa_weights(params, s, awake, count, w, logw, r):
     _boa_weights(params, s.regret, s.variance, s.bound, awake, count, w, logw)
 
 
 @nb.njit(**_JIT)
-def boa_learn(params, s, x, y, awake, count, w, mix, r):
+def boa_learn(params, s, x, y, awake, count, w, logw, mix, r):
     _boa_learn(params, s.regret, s.variance, s.bound, s.error_scale, s.error_count, x, y, awake, mix, r, False)
 
 
@@ -215,21 +215,23 @@ def _blend_share(params, s):
 
 
 @nb.njit(**_JIT)
-def boa_blend_weights(params, s, awake, count, w, logw):
+def boa_blend_weights(params, s, awake, count, w, logw, r):
+    """The blend's weights into ``w``; the linearised rule's stay in ``r`` and the exact rule's in ``logw``, for
+    :func:`boa_blend_learn` of the same row (the state is the same then: it does not compute them again)."""
     beta = _blend_share(params, s)
-    _boa_weights(params, s.regret, s.variance, s.bound, awake, count, w, logw)
+    _boa_weights(params, s.regret, s.variance, s.bound, awake, count, r, r)
     _boa_weights(params, s.exact_regret, s.exact_variance, s.exact_bound, awake, count, logw, logw)
     for k in range(w.shape[0]):
-        w[k] = beta * w[k] + (1.0 - beta) * logw[k]
+        w[k] = beta * r[k] + (1.0 - beta) * logw[k]
 
 
 @nb.njit(**_JIT)
-def boa_blend_learn(params, s, x, y, awake, count, w, mix, r):
+def boa_blend_learn(params, s, x, y, awake, count, w, logw, mix, r):
     k_count = x.shape[0]
     p = x.shape[1]
     beta = _blend_share(params, s)
-    _boa_weights(params, s.regret, s.variance, s.bound, awake, count, w, r)   # w: the linearised rule's
-    _boa_weights(params, s.exact_regret, s.exact_variance, s.exact_bound, awake, count, r, r)   # r: the exact's
+    for k in range(k_count):   # w: the linearised rule's weights, r free for the regrets; logw: the exact rule's
+        w[k] = r[k]
     g0 = 0.0
     g1 = 0.0
     for ci in range(p):
@@ -238,7 +240,7 @@ def boa_blend_learn(params, s, x, y, awake, count, w, mix, r):
         for k in range(k_count):
             if awake[k]:
                 lin += w[k] * x[k, ci]
-                ex += r[k] * x[k, ci]
+                ex += logw[k] * x[k, ci]
         both = beta * lin + (1.0 - beta) * ex
         g0 += (both - y[ci]) * (both - lin)
         g1 += (both - y[ci]) * (both - ex)

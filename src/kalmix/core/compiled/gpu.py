@@ -123,13 +123,14 @@ def _body(experts, expert_state, rule_params, rule_state, screen_params, screen_
             last_time[n] = times[t, n]
         sleep_cold(warm, x, rows)
         sleep_beyond(far, x, times[t, n] - before, reach)
-        awake_count = forecast_row(rule_params, rule, x, awake, w, logw, mix, var_n, ls[0], cal_max_variance, sigma)
+        awake_count = forecast_row(rule_params, rule, x, awake, w, logw, rr, mix, var_n, ls[0], cal_max_variance,
+                                   sigma)
         write_row(awake_count, mix, sigma, out[t, n], out_std[t, n])
         if code == 1 and awake_count > 0:
             if learns(from_points, rows):
                 calibrate_row(x, z[t, n], awake, awake_count, mix, sigma, var_n, errors_n, ls, cal_window, cal_rate,
                               cal_level, z_level, cal_max_variance, max_log_scale)
-            learn_rule(rule_params, rule, x, z[t, n], awake, awake_count, w, mix, rr)
+            learn_rule(rule_params, rule, x, z[t, n], awake, awake_count, w, logw, mix, rr)
         if code == 2:   # a restart: the experts start again, and so does BOA's error scale
             restart_row(rule)
         if code == 4:   # a cold restart: forecast by the old rule and calibration, which start again
@@ -145,7 +146,7 @@ def _body(experts, expert_state, rule_params, rule_state, screen_params, screen_
                         x[k, ci] = math.nan
             sleep_cold(warm, x, points[n])
             sleep_beyond(far, x, ahead_times[t, n] - last_learned(seen, points, n), reach)
-            awake_count = forecast_row(rule_params, rule, x, awake, w, logw, mix, var_n, ls[0], cal_max_variance,
+            awake_count = forecast_row(rule_params, rule, x, awake, w, logw, rr, mix, var_n, ls[0], cal_max_variance,
                                        sigma)
             write_row(awake_count, mix, sigma, out_ahead[t, n], out_ahead_std[t, n])
 

@@ -27,14 +27,14 @@ def _clear(due, pending, issued, candidates, s):
 
 
 @nb.njit(inline="always", **JIT)
-def _blend(params, s, count, mix, cov, ahead_mean, log_scale, max_variance, awake2, w2, logw2, mix2, two):
+def _blend(params, s, count, mix, cov, ahead_mean, log_scale, max_variance, awake2, w2, logw2, r2, mix2, two):
     """The spec's :func:`kalmix.core.lead.blend` of one target: ``mix2`` the blended mean, ``cov`` moved about it;
     returns the count of the two that are finite."""
     p = mix.shape[0]
     for ci in range(p):
         two[0, ci] = mix[ci] if count > 0 else np.nan
         two[1, ci] = ahead_mean[ci]
-    count2 = weigh_row(params, s, two, awake2, w2, logw2, mix2)
+    count2 = weigh_row(params, s, two, awake2, w2, logw2, r2, mix2)
     if awake2[0]:
         factor = math.exp(2.0 * log_scale)
         for i in range(p):
@@ -123,17 +123,17 @@ def kernel(lo, hi, params, state, blend_params, blend_state, cal, cal_state, slo
                 for s in range(slots):
                     if abs(due[n, s] - now) <= tolerance:
                         x = pending[n, s]
-                        count = forecast_row(params, rule, x, awake, w, logw, mix, variance[n], ls[0], max_variance,
+                        count = forecast_row(params, rule, x, awake, w, logw, r, mix, variance[n], ls[0], max_variance,
                                              cov)
                         if count > 0:
                             calibrate_issued_row(x, y, awake, count, mix, cov, issued[n, s], variance[n],
                                                  n_errors[n], ls, window, rate, level, z_level, max_variance,
                                                  max_log_scale)
-                            learn_row(params, rule, x, y, awake, count, w, mix, r)
+                            learn_row(params, rule, x, y, awake, count, w, logw, mix, r)
                         x2 = candidates[n, s]
-                        count2 = weigh_row(blend_params, mixer, x2, awake2, w2, logw2, mix2)
+                        count2 = weigh_row(blend_params, mixer, x2, awake2, w2, logw2, r2, mix2)
                         if count2 > 0:
-                            learn_row(blend_params, mixer, x2, y, awake2, count2, w2, mix2, r2)
+                            learn_row(blend_params, mixer, x2, y, awake2, count2, w2, logw2, mix2, r2)
                 kept = 0
                 for s in range(slots):
                     if not due[n, s] <= now + tolerance:
@@ -146,9 +146,9 @@ def kernel(lo, hi, params, state, blend_params, blend_state, cal, cal_state, slo
                 for s in range(kept, slots):
                     _clear(due[n], pending[n], issued[n], candidates[n], s)
             xa = ahead_experts[t, n]
-            count = forecast_row(params, rule, xa, awake, w, logw, mix, variance[n], ls[0], max_variance, cov)
+            count = forecast_row(params, rule, xa, awake, w, logw, r, mix, variance[n], ls[0], max_variance, cov)
             count2 = _blend(blend_params, mixer, count, mix, cov, ahead_mean[t, n], ls[0], max_variance, awake2, w2,
-                            logw2, mix2, two)
+                            logw2, r2, mix2, two)
             write_row(count2, mix2, cov, out_mean[t, n], out_std[t, n])
             if want_cov:
                 copy_matrix(cov, out_cov[t, n])

@@ -88,7 +88,7 @@ def mlpoly_column(state, n):
 
 
 @nb.njit(**_JIT)
-def mlpoly_weights(params, s, awake, count, w, logw):
+def mlpoly_weights(params, s, awake, count, w, logw, r):
     k_count = w.shape[0]
     total = 0.0
     for k in range(k_count):
@@ -107,7 +107,7 @@ def mlpoly_weights(params, s, awake, count, w, logw):
 
 
 @nb.njit(**_JIT)
-def mlpoly_learn(params, s, x, y, awake, count, w, mix, r):
+def mlpoly_learn(params, s, x, y, awake, count, w, logw, mix, r):
     biggest = regrets(x, y, mix, awake, r, False)
     if not math.isfinite(biggest):
         return  # an overflowing regret teaches nothing
@@ -144,12 +144,12 @@ def fixed_share_column(state, n):
 
 
 @nb.njit(**_JIT)
-def fixed_share_weights(params, s, awake, count, w, logw):
+def fixed_share_weights(params, s, awake, count, w, logw, r):
     softmax(s.log_weights, awake, w)   # the shared weights are stored
 
 
 @nb.njit(**_JIT)
-def fixed_share_learn(params, s, x, y, awake, count, w, mix, r):
+def fixed_share_learn(params, s, x, y, awake, count, w, logw, mix, r):
     k_count = w.shape[0]
     p = x.shape[1]
     if count == 0:
@@ -202,8 +202,11 @@ class _Rows(NamedTuple):
 
     target: object   # (state, n) -> target n's state (views of the (N, ...) arrays)
     column: object   # the same for a state with the target last ((K, N) arrays: the fused GPU kernel's)
-    weights: object  # (params, s, awake, count, w, logw): the weights of the awake experts into w
-    learn: object    # (params, s, x, y, awake, count, w, mix, r): learn a row's forecasts x and measurement y
+    weights: object  # (params, s, awake, count, w, logw, r): the weights of the awake experts into w (logw, r: the
+    #                  rule's scratch, which it may leave for its learn of the same row)
+    learn: object    # (params, s, x, y, awake, count, w, logw, mix, r): learn a row's forecasts x and measurement y,
+    #                  right after the weights of the same row and state (w, logw, r as they left them, mix their
+    #                  mixture)
     restart: object  # (s): what a restart row (the experts start again) changes
     cold: object     # (s): the state as new (the screen's cold restart)
 
@@ -234,14 +237,15 @@ def column(state, n):
     return _rows(type(state)).column(state, n)
 
 
-def weights_row(params, s, awake, count, w, logw):
-    """The rule's weights of one target's awake experts into ``w (K,)``."""
-    _rows(type(s)).weights(params, s, awake, count, w, logw)
+def weights_row(params, s, awake, count, w, logw, r):
+    """The rule's weights of one target's awake experts into ``w (K,)`` (``logw``, ``r``: scratch (K,))."""
+    _rows(type(s)).weights(params, s, awake, count, w, logw, r)
 
 
-def learn_row(params, s, x, y, awake, count, w, mix, r):
-    """The rule learns one target's row: the experts' forecasts ``x (K, p)``, the measurement ``y (p,)``."""
-    _rows(type(s)).learn(params, s, x, y, awake, count, w, mix, r)
+def learn_row(params, s, x, y, awake, count, w, logw, mix, r):
+    """The rule learns one target's row: the experts' forecasts ``x (K, p)``, the measurement ``y (p,)``; called
+    right after :func:`weights_row` of the same state and row, with ``w``, ``logw``, ``r`` as it left them."""
+    _rows(type(s)).learn(params, s, x, y, awake, count, w, logw, mix, r)
 
 
 def restart_row(s):
@@ -267,15 +271,16 @@ def _column(state, n):
 
 
 @overload(weights_row, jit_options=_JIT)
-def _weights_row(params, s, awake, count, w, logw):
+def _weights_row(params, s, awake, count, w, logw, r):
     function = _rows(s).weights
-    return lambda params, s, awake, count, w, logw: function(params, s, awake, count, w, logw)
+    return lambda params, s, awake, count, w, logw, r: function(params, s, awake, count, w, logw, r)
 
 
 @overload(learn_row, jit_options=_JIT)
-def _learn_row(params, s, x, y, awake, count, w, mix, r):
+def _learn_row(params, s, x, y, awake, count, w, logw, mix, r):
     function = _rows(s).learn
-    return lambda params, s, x, y, awake, count, w, mix, r: function(params, s, x, y, awake, count, w, mix, r)
+    return lambda params, s, x, y, awake, count, w, logw, mix, r: function(params, s, x, y, awake, count, w, logw,
+                                                                           mix, r)
 
 
 @overload(restart_row, jit_options=_JIT)
@@ -291,18 +296,18 @@ def _rule_cold_row(s):
 
 
 @nb.njit(inline="always", **_JIT)
-def weigh_row(params, s, x, awake, w, logw, mix):
+def weigh_row(params, s, x, awake, w, logw, r, mix):
     """Weights and mixture of one target's forecasts ``x (K, p)``; returns the awake count."""
     count = awake_of(x, awake)
-    weights_row(params, s, awake, count, w, logw)
+    weights_row(params, s, awake, count, w, logw, r)
     mix_of(x, w, awake, mix)
     return count
 
 
 @nb.njit(inline="always", **_JIT)
-def forecast_row(params, s, x, awake, w, logw, mix, variance, log_scale, max_variance, cov):
+def forecast_row(params, s, x, awake, w, logw, r, mix, variance, log_scale, max_variance, cov):
     """Weights, mixture and covariance of one target's forecasts ``x (K, p)``; returns the awake count."""
-    count = weigh_row(params, s, x, awake, w, logw, mix)
+    count = weigh_row(params, s, x, awake, w, logw, r, mix)
     moments_row(x, w, awake, count, mix, variance, log_scale, max_variance, cov)
     return count
 
@@ -390,7 +395,7 @@ def kernel(lo, hi, params, state, cal, cal_state, rows, out, scratch):
         ls = log_scale[n:n + 1]
         for t in range(lengths[n]):
             x = experts[t, n]
-            count = forecast_row(params, s, x, awake, w, logw, mix, variance[n], ls[0], max_variance, cov)
+            count = forecast_row(params, s, x, awake, w, logw, r, mix, variance[n], ls[0], max_variance, cov)
             write_row(count, mix, cov, out_mean[t, n], out_std[t, n])
             if want_cov:
                 copy_matrix(cov, out_cov[t, n])
@@ -401,12 +406,12 @@ def kernel(lo, hi, params, state, cal, cal_state, rows, out, scratch):
                 if learns(from_points, points[t, n]):
                     calibrate_row(x, z[t, n], awake, count, mix, cov, variance[n], n_errors[n], ls, window, rate,
                                   level, z_level, max_variance, max_log_scale)
-                learn_row(params, s, x, z[t, n], awake, count, w, mix, r)
+                learn_row(params, s, x, z[t, n], awake, count, w, logw, mix, r)
             if restart[t, n]:
                 restart_row(s)
             if cold[t, n]:
                 cold_row(s, variance[n], n_errors[n], ls, initial_variance)
             if want_ahead:
-                count_ahead = forecast_row(params, s, ahead_experts[t, n], awake, w, logw, mix, variance[n], ls[0],
+                count_ahead = forecast_row(params, s, ahead_experts[t, n], awake, w, logw, r, mix, variance[n], ls[0],
                                            max_variance, cov)
                 write_row(count_ahead, mix, cov, out_ahead[t, n], out_ahead_std[t, n])
