@@ -13,8 +13,8 @@ error until there are ``window`` of them, so that a coordinate an expert has for
 does not get an interval of width zero) and :math:`s` a running scale. Neither learns the error of a
 forecast made from fewer than ``from_points`` rows of its segment (2: not the first forecast of a track,
 or of a segment after a restart, made from one row: the experts had no velocity then, and that miss,
-the target's whole displacement, is no measure of later rows' errors; it made a dozen-row track's
-intervals five times too wide). The variances are the
+the target's whole displacement, is no measure of later rows' errors, and would keep a dozen-row track's
+intervals several times too wide). The variances are the
 experts' own errors, measured the same way for every family, so the covariance needs nothing from
 the experts but their forecasts.
 

@@ -51,8 +51,8 @@ SNAPSHOT_EVERY = 65536
 SUMMARY_BATCH = 4096
 #: The most errors a new track's calibration counts the population's mean variances as (its own errors weigh as
 #: much after as many of them). A track started from the prior carries its count into the next summary, so the
-#: mean count would climb towards the calibration's window (30 after 400 tracks of 12 rows, 95 after 200 of 40),
-#: and a track noisier than the population's would keep too narrow intervals for most of its rows.
+#: mean count would climb towards the calibration's window, and a track noisier than the population's would keep
+#: too narrow intervals for most of its rows.
 CALIBRATION_ERRORS = 10
 
 
