@@ -187,18 +187,11 @@ class StreamConfig:
             raise ValueError(f"gap_min_steps: expected an integer in [1, {REFERENCE_INTERVALS}], got "
                              f"{self.gap_min_steps!r:.80}")
         self.gap_min_steps = int(self.gap_min_steps)
-        if not isinstance(self.population_prior, (bool, np.bool_)):
-            raise TypeError(f"population_prior: expected True or False, got {type(self.population_prior).__name__} "
-                            f"{self.population_prior!r:.80}")
-        self.population_prior = bool(self.population_prior)
-        if not isinstance(self.lead_prior, (bool, np.bool_)):
-            raise TypeError(f"lead_prior: expected True or False, got {type(self.lead_prior).__name__} "
-                            f"{self.lead_prior!r:.80}")
-        self.lead_prior = bool(self.lead_prior)
-        if not isinstance(self.calibration_prior, (bool, np.bool_)):
-            raise TypeError(f"calibration_prior: expected True or False, got {type(self.calibration_prior).__name__} "
-                            f"{self.calibration_prior!r:.80}")
-        self.calibration_prior = bool(self.calibration_prior)
+        for name in ("population_prior", "lead_prior", "calibration_prior"):
+            value = getattr(self, name)
+            if not isinstance(value, (bool, np.bool_)):
+                raise TypeError(f"{name}: expected True or False, got {type(value).__name__} {value!r:.80}")
+            setattr(self, name, bool(value))
         if self.gap_reference not in GAP_REFERENCES:
             raise ValueError(f"gap_reference: expected one of {', '.join(map(repr, GAP_REFERENCES))}, got "
                              f"{self.gap_reference!r:.80}")
