@@ -1,5 +1,9 @@
 """Every family and every rule passes the contract of kalmix.core.testing, on benign and adversarial input."""
 
+import os
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -433,6 +437,37 @@ def test_an_unusable_cache_directory_falls_back_to_a_keyed_temporary_one(tmp_pat
     with pytest.warns(RuntimeWarning, match="cannot use the compiled-kernel cache"):
         other = _cache.configure_cache.__wrapped__()
     assert other.parent == tmp_path / "tmp" and other.name.startswith("kalmix-numba-") and not path.exists()
+
+
+def test_two_copies_of_the_same_sources_share_one_cache(tmp_path):
+    """The same kalmix in two places (an installed package and its checkout, two clones) compiles once: numba keyed
+    a kernel's cache on its file's absolute directory, so the test suite's zoo runs (the checkout's ``src``) compiled
+    every kernel the installed package had compiled again. An edited copy still compiles anew."""
+    import shutil
+    import subprocess
+
+    import kalmix
+
+    package = Path(kalmix.__file__).resolve().parent
+    copies = [tmp_path / "one", tmp_path / "two"]
+    for copy in copies:
+        shutil.copytree(package, copy / "kalmix", ignore=shutil.ignore_patterns("__pycache__"))
+    script = ("import numpy as np; from kalmix.core._numba_linalg import cholesky_lower as f; "
+              "a = np.eye(2)[:, :, None] * np.ones(3); f(a, 2, np.zeros_like(a), np.zeros(3), False); "
+              "print(sum(f.stats.cache_hits.values()), sum(f.stats.cache_misses.values()), f.stats.cache_path)")
+
+    def run(copy):
+        env = dict(os.environ, PYTHONPATH=str(copy), KALMIX_CACHE_DIR=str(tmp_path / "cache"))
+        done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=600)
+        assert done.returncode == 0, done.stderr
+        hits, misses, path = done.stdout.split()
+        return int(hits), int(misses), path
+
+    first, second = run(copies[0]), run(copies[1])
+    assert first[:2] == (0, 1) and second[:2] == (1, 0) and first[2] == second[2]   # compiled once, loaded once
+    linalg = copies[1] / "kalmix/core/_numba_linalg.py"
+    linalg.write_text(linalg.read_text() + "\n# edited\n")
+    assert run(copies[1])[:2] == (0, 1)   # a new cache directory (the sources' hash), compiled again
 
 
 def test_every_module_a_compiled_source_imports_from_is_in_the_cache_key():

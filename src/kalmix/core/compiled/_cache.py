@@ -8,6 +8,7 @@ import os
 from pathlib import Path
 
 _CORE = Path(__file__).resolve().parent.parent
+_PACKAGE = _CORE.parent
 #: numba options of every compiled-engine function.
 JIT = dict(cache=True, nogil=True, error_model="numpy", boundscheck=False)
 #: The drivers over targets (each family's ``kernel``): no reference counting. They allocate nothing (their scratch
@@ -86,7 +87,64 @@ def configure_cache() -> Path:
                       f"{str(fallback)!r}", RuntimeWarning, stacklevel=2)
         path = fallback
     numba.config.CACHE_DIR = str(path)
+    _locate_by_package_path()
     return path
+
+
+@functools.cache
+def _locate_by_package_path() -> None:
+    """Cache kalmix's kernels by their file's place in the package, not by its absolute path (once per process).
+
+    numba names a function's cache subdirectory (under ``numba.config.CACHE_DIR``) after a hash of its file's
+    absolute directory, so the same sources in another place (an installed copy and its checkout, a second
+    virtual environment or clone) compiled everything again into a directory of their own. The directory
+    :func:`configure_cache` sets is keyed on the content of every compiled source already, and this locator
+    stamps a file by its content too (numba before 0.61 stamps it by its modification time), so every copy of
+    the same sources shares one cache. Functions of other files are left to numba's own locators, and so is
+    everything where ``NUMBA_CACHE_LOCATOR_CLASSES`` sets numba's list."""
+    import hashlib
+
+    import numba
+    from numba.core import caching
+
+    base = getattr(caching, "_CacheLocator", None)
+    impl = getattr(caching, "CacheImpl", None)
+    if base is None or not isinstance(getattr(impl, "_locator_classes", None), list):   # other numba internals
+        return
+
+    class PackageLocator(base):
+        def __init__(self, py_func, source: Path, root: str):
+            self._source = source
+            self._lineno = py_func.__code__.co_firstlineno
+            self._cache_path = os.path.join(root, source.parent.relative_to(_PACKAGE).as_posix().replace("/", "_"))
+
+        def get_cache_path(self):
+            return self._cache_path
+
+        def get_source_stamp(self):
+            return hashlib.sha256(self._source.read_bytes()).hexdigest()
+
+        def get_disambiguator(self):
+            return str(self._lineno)
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            root = numba.config.CACHE_DIR
+            try:
+                source = Path(py_file).resolve()
+                source.relative_to(_PACKAGE)
+            except (ValueError, OSError):
+                return None   # not a kalmix file
+            if not root:
+                return None
+            self = cls(py_func, source, root)
+            try:
+                self.ensure_cache_path()
+            except OSError:
+                return None
+            return self
+
+    impl._locator_classes.insert(0, PackageLocator)
 
 
 def _private_fallback(name: str) -> Path | None:
