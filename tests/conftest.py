@@ -55,16 +55,24 @@ def pytest_configure(config):
 
     On an empty kernel cache every worker would otherwise compile the same kernels at the same time (the default
     bank, its lead head, the paper's mixture), each paying the whole compile on a shared core; compiled here,
-    the workers load them from the cache. A warm cache makes this a second's work; a run without xdist compiles
-    as it goes."""
+    the workers load them from the cache. The paper's mixture (one AKF kernel of its own) compiles in a second
+    process meanwhile. A warm cache makes this a second's work; a run without xdist compiles as it goes."""
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
     try:
         import numba  # noqa: F401
     except ImportError:
         return
-    from kalmix import MixturePredictor, StreamConfig, TrackPredictor
+    import subprocess
+    import sys
 
-    for options in ({}, {"lead": 1.0}):
-        TrackPredictor(StreamConfig(length_unit=1.0, **options)).warm_up(2)
-    MixturePredictor(n_experts=4, seed=0, backend="numba").run(smooth_tracks(0, 20, dim=2)[:, 0])   # (one AKF kernel)
+    from kalmix import StreamConfig, TrackPredictor
+
+    mixture = subprocess.Popen([sys.executable, "-c", "import numpy as np; from kalmix import MixturePredictor; "
+                                "MixturePredictor(n_experts=4, seed=0, backend='numba').run(np.cumsum("
+                                "np.random.default_rng(0).normal(size=(20, 2)), axis=0))"])
+    try:
+        for options in ({}, {"lead": 1.0}):
+            TrackPredictor(StreamConfig(length_unit=1.0, **options)).warm_up(2)
+    finally:
+        mixture.wait()
