@@ -55,8 +55,10 @@ def pytest_configure(config):
 
     On an empty kernel cache every worker would otherwise compile the same kernels at the same time (the default
     bank, its lead head, the paper's mixture), each paying the whole compile on a shared core; compiled here,
-    the workers load them from the cache. The paper's mixture (one AKF kernel of its own) compiles in a second
-    process meanwhile. A warm cache makes this a second's work; a run without xdist compiles as it goes."""
+    the workers load them from the cache. The paper's mixture (one AKF kernel of its own) compiles in another
+    process at the lowest priority: on two cores it runs once the bank's AKF kernel, compiled in a second process
+    of its own, is done, beside the bank's other kernels. A warm cache makes this a second's work; a run without
+    xdist compiles as it goes."""
     if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
         return
     try:
@@ -68,7 +70,8 @@ def pytest_configure(config):
 
     from kalmix import StreamConfig, TrackPredictor
 
-    mixture = subprocess.Popen([sys.executable, "-c", "import numpy as np; from kalmix import MixturePredictor; "
+    mixture = subprocess.Popen([sys.executable, "-c", "import os; os.nice(19) if hasattr(os, 'nice') else None; "
+                                "import numpy as np; from kalmix import MixturePredictor; "
                                 "MixturePredictor(n_experts=4, seed=0, backend='numba').run(np.cumsum("
                                 "np.random.default_rng(0).normal(size=(20, 2)), axis=0))"])
     try:
