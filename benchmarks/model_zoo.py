@@ -494,11 +494,11 @@ def score(s: Scenario, tracks, predictors: dict, stds: dict):
 
 
 #: The ``kalmix predict`` runs of every scenario: the defaults, without the gap rule, without the population
-#: prior, with the BOA-blend rule.
+#: prior, with BOA alone (the rule before BOA-blend).
 RUNS = (("kalmix", ()), ("kalmix --max-gap none", ("--max-gap", "none")),
         ("kalmix --no-population-prior", ("--no-population-prior",)),
-        ("kalmix --rule boa_blend", ("--rule", "boa_blend")))
-#: ``--quick``'s runs (the test suite's): not the opt-in rule's, a cold compile of its own in a subprocess.
+        ("kalmix --rule boa", ("--rule", "boa")))
+#: ``--quick``'s runs (the test suite's): not the other rule's, a cold compile of its own in a subprocess.
 QUICK_RUNS = tuple(run for run in RUNS if "--rule" not in run[1])
 
 

@@ -721,8 +721,7 @@ def model_zoo(results: Results) -> list:
                          _times(p["kalmix --max-gap none"]["ratio_to_optimum"]),
                          _times(p["kalmix --no-population-prior"]["ratio_to_optimum"])
                          if "kalmix --no-population-prior" in p else "",
-                         _times(p["kalmix --rule boa_blend"]["ratio_to_optimum"]) if "kalmix --rule boa_blend" in p
-                         else "",
+                         _times(p["kalmix --rule boa"]["ratio_to_optimum"]) if "kalmix --rule boa" in p else "",
                          _times(p["no prediction"]["ratio_to_optimum"]), percent(p["kalmix"]["coverage_95"])])
         segments = entry["kalmix_runs"]["kalmix"]["segments"]
         notes += _zoo_notes(entry)
@@ -733,7 +732,7 @@ def model_zoo(results: Results) -> list:
         "working_tree_changes") else ""
     first = Table(
         header=["scenario", "reference", "scored rows", "reference RMS", "kalmix RMS", "kalmix / reference",
-                "--max-gap none / reference", "--no-population-prior / reference", "--rule boa_blend / reference",
+                "--max-gap none / reference", "--no-population-prior / reference", "--rule boa / reference",
                 "no prediction / reference", "kalmix coverage"],
         rows=rows, sources=("model_zoo.json",), command=command,
         title="One-step RMS against the optimal predictor",
@@ -744,8 +743,8 @@ def model_zoo(results: Results) -> list:
                 "switching matrix, near-optimal, not optimal. kalmix: `kalmix predict` with its defaults on a CSV "
                 "of the tracks (automatic units, the default gap rule, the population prior: a new track starts "
                 "from what the tracks before it learned), with `--max-gap none`, with `--no-population-prior` "
-                "(every track starts empty), and with `--rule boa_blend` (BOA on the linearised and on the exact "
-                "regrets, blended). No prediction: "
+                "(every track starts empty), and with `--rule boa` (BOA alone: the default, BOA-blend, runs it on "
+                "the linearised and on the exact regrets and blends the two). No prediction: "
                 "the last measurement. Coverage: share of the measurements inside kalmix's forecast ± 1.96 std, "
                 "per coordinate (95 % is right). With a 3-day silence the first row after it is "
                 "scored on its own, not in the scenario's main row." + at)] + notes)

@@ -370,7 +370,8 @@ def test_with_a_lead_head_the_prior_starts_the_lead_weights_and_their_blend():
     table = _short_tracks(tracks=30)
     table = table.sort_values("time", kind="stable")
     for lead_prior in (True, False):
-        engine = TrackPredictor(StreamConfig(length_unit=27.0, time_unit=1800.0, horizon=3, lead_prior=lead_prior))
+        engine = TrackPredictor(StreamConfig(length_unit=27.0, time_unit=1800.0, horizon=3, lead_prior=lead_prior,
+                                             rule="boa"))   # (the layout below is BOA's)
         engine.process_table(table)
         assert engine.priors
         fresh = engine._new_states(1)

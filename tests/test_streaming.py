@@ -83,7 +83,7 @@ def test_rows_equal_batched_table():
 def test_track_equals_the_reference_engine_on_that_track(bank):
     """A track's predictions equal the numpy reference engine run on that track alone: pred_ of a row is the
     engine's forecast of the next row; the last row's is the forecast one reference interval on."""
-    from kalmix.bank import make_bank
+    from kalmix.bank import DEFAULT_BANK, make_bank
     from kalmix.core import engine
 
     table = _table()
@@ -91,7 +91,7 @@ def test_track_equals_the_reference_engine_on_that_track(bank):
     rows = table.track_id == "a"
     z, t = table.loc[rows, ["x", "y"]].to_numpy(), table.loc[rows, "time"].to_numpy()
     unit = float(np.diff(t)[0])
-    reference = make_bank(2, bank, length_unit=0.01, time_unit=unit, seed=3, n_akf=6)
+    reference = make_bank(2, bank, rule=DEFAULT_BANK["rule"], length_unit=0.01, time_unit=unit, seed=3, n_akf=6)
     result = engine.run(reference, z[:, None], t[:, None])
     mean, cov = engine.forecast(reference, result.state, [t[-1] + float(np.median(np.diff(t)[:16]))])
     expected = np.concatenate([result.forecasts[1:, 0], mean])
@@ -153,6 +153,7 @@ def _as_older_file(tmp_path, config, cut, version, members=(), settings=()):
     calibration in the file's priors)."""
     import json
 
+    config = {"rule": "boa", **config}   # the default rule when files of these versions were written
     if version < 18:   # every error calibrated; the prior started the rules only
         config = {**config, "calibration_prior": False, "calibration_from_points": 0}
         settings = (*settings, "calibration_prior", "calibration_from_points")
@@ -230,7 +231,7 @@ def test_version_4_files_resume_as_they_ran(tmp_path):
     assert second.config.rule_options == {"bound_forgetting": 1.0, "clip": float("inf")}
     assert np.array_equal(_next(resumed), _next(whole), equal_nan=True)
     # the default now forgets the bound, and that changes the forecasts
-    default = _rows(TrackPredictor(StreamConfig(**CONFIG)), _table())
+    default = _rows(TrackPredictor(StreamConfig(**CONFIG, rule="boa")), _table())
     assert not np.array_equal(_next(default), _next(whole), equal_nan=True)
 
 
@@ -278,7 +279,7 @@ def test_version_8_files_resume_with_the_lead_learning_at_the_one_step_rate(tmp_
     for field in ("next", "ahead"):
         assert np.array_equal(np.array([getattr(r, field) for r in resumed]),
                               np.array([getattr(r, field) for r in whole]), equal_nan=True), field
-    today = TrackPredictor(StreamConfig(**CONFIG, rule_options={"clip": float("inf")}, gap_min_steps=1,
+    today = TrackPredictor(StreamConfig(**CONFIG, rule="boa", rule_options={"clip": float("inf")}, gap_min_steps=1,
                                         population_prior=False))   # as version 9 ran
     rows = _rows(today, _table())
     assert today.params.lead.frames == 3 and today.params.lead_rule_params.delay == 3.0
@@ -300,7 +301,7 @@ def test_version_9_files_resume_without_the_clip(tmp_path):
     for field in ("next", "ahead"):
         assert np.array_equal(np.array([getattr(r, field) for r in resumed]),
                               np.array([getattr(r, field) for r in whole]), equal_nan=True), field
-    today = TrackPredictor(StreamConfig(**CONFIG))
+    today = TrackPredictor(StreamConfig(**CONFIG, rule="boa"))
     _rows(today, _table())
     today.save(tmp_path / "today.npz")
     saved = np.load(tmp_path / "today.npz")

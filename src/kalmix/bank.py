@@ -372,8 +372,9 @@ def make_bank(
 
 #: The default bank and rule of ``kalmix predict`` / ``evaluate`` / :class:`kalmix.streaming.TrackPredictor`,
 #: chosen by the ablation on the shipped recordings and the paper scenario (benchmarks/results/ablation_*.json);
-#: the coordinated-turn Kalman filters by the model zoo and the recordings (CHANGELOG).
-DEFAULT_BANK = {"kind": "mixed+ar+turn+ct", "rule": "boa"}
+#: the coordinated-turn Kalman filters and BOA-blend (over BOA: the same on the recordings, far better where one
+#: expert is right and the others far off at some rows) by the model zoo and the recordings (CHANGELOG).
+DEFAULT_BANK = {"kind": "mixed+ar+turn+ct", "rule": "boa_blend"}
 
 #: :func:`make_params` arguments of the paper's gate and its eq. 11/12 noise feedback: the AKF
 #: family of a bank has neither (its rule combines the experts), so ``akf_options`` refuses them.

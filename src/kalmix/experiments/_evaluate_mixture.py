@@ -204,7 +204,7 @@ def _settled_reach(streams, tuning, learning, rule, time_unit, n_experts, seed, 
                           **{name: streams.values[t, s, j] for j, name in enumerate(names)}})
     config = StreamConfig(length_unit=rule, time_unit=time_unit, n_experts=n_experts, seed=seed, max_gap_factor=np.inf,
                           population_prior=False, bank=bank_options.get("kind", DEFAULT_BANK["kind"]),
-                          rule=bank_options.get("rule", "boa"), geographic=False)
+                          rule=bank_options.get("rule", DEFAULT_BANK["rule"]), geographic=False)
     pilot = TrackPredictor(config)
     pilot.learn_time_unit(table, names)
     return pilot.config.reach

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..bank import DEFAULT_BANK
 from ._evaluate_scores import KALMIX, NOT_AHEAD, EvaluationResult, ranking, spreads, verdict
 
 
@@ -53,11 +54,12 @@ def format_result(result: EvaluationResult, per_track: bool = True) -> str:
               if result.tuning_fraction > 0 else
               "no tuning part (--tuning-fraction 0): the peers are tuned on the scored rows, in hindsight")
     bank = result.tuned.get("mixture", {}).get("bank", {})
+    rule = bank.get("rule", DEFAULT_BANK["rule"])
     if "length_unit" in bank and "time_unit" in bank:
         units = (f"the mixture's length unit {bank['length_unit']:.4g} and time unit {bank['time_unit']:.4g}, "
                  f"the AKF rows' length unit {result.length_unit:.4g}\n(kalmix predict --length-unit "
                  f"{bank['length_unit']!r} --time-unit {bank['time_unit']!r} --no-population-prior"
-                 + (f" --rule {bank['rule']}" if bank.get("rule", "boa") != "boa" else "") + ", with this "
+                 + (f" --rule {rule}" if rule != DEFAULT_BANK["rule"] else "") + ", with this "
                  "command's --experts, --seed, gap flags, --reach and --option but the gate's, runs the same "
                  "mixture)")
     else:

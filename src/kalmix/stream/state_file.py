@@ -77,6 +77,7 @@ class StateFile:
             meta = archive.meta
             try:
                 config = dict(meta["config"])
+                config.setdefault("rule", "boa")   # the default rule before BOA-blend (files name their rule)
                 if config.get("options"):   # older files may hold gate arguments (without effect): drop them
                     from ..bank import GATE_OPTIONS
                     config["options"] = {k: v for k, v in config["options"].items() if k not in GATE_OPTIONS}
