@@ -15,8 +15,8 @@ Z95 = 1.959963984540054
 
 
 def test_cycling_one_step_beats_the_best_tuned_peer(tmp_path):
-    """``kalmix evaluate --dataset cycling`` with its defaults: kalmix's one-step RMS is 0.951x the best tuned peer's
-    (RLS AR, tuned on the first 20 %), its 95 % intervals cover 95.2 % of the rows."""
+    """``kalmix evaluate --dataset cycling`` with its defaults: kalmix's one-step RMS is 0.933x the best tuned peer's
+    (RLS AR, tuned on the first 20 %), its 95 % intervals cover 95.1 % of the rows."""
     pytest.importorskip("bokeh_sampledata")
     out = tmp_path / "cycling.json"
     result = CliRunner().invoke(build(), ["evaluate", "--dataset", "cycling", "--no-per-track", "--json", str(out)])
@@ -24,9 +24,9 @@ def test_cycling_one_step_beats_the_best_tuned_peer(tmp_path):
     report = json.loads(out.read_text())
     verdict = report["verdict"]["one_step"]
     ratio = verdict["kalmix_rms"] / verdict["best_peer_rms"]
-    assert ratio <= 0.96, (ratio, verdict["best_peer"])   # measured 0.9512
+    assert ratio <= 0.945, (ratio, verdict["best_peer"])   # measured 0.9325
     coverage = report["tuned"]["mixture"]["calibration"]["one_step"]["coverage_95"]
-    assert 0.94 <= coverage <= 0.96, coverage   # measured 0.9516
+    assert 0.94 <= coverage <= 0.96, coverage   # measured 0.9509
 
 
 def _heavy_tailed_tracks(seed=11, tracks=20, rows=400, dt=0.1):
@@ -44,7 +44,7 @@ def _heavy_tailed_tracks(seed=11, tracks=20, rows=400, dt=0.1):
 
 def test_intervals_cover_95_percent_of_heavy_tailed_errors(tmp_path):
     """The calibrated std learns the errors' own spread, not a Gaussian one: on Student-t noise the 95 % intervals
-    of ``kalmix predict`` cover 94.9 % (x) and 95.0 % (y) of the rows after each track's first 20 %."""
+    of ``kalmix predict`` cover 94.3 % (x) and 94.7 % (y) of the rows after each track's first 20 %."""
     table = _heavy_tailed_tracks()
     source, target = tmp_path / "heavy.csv", tmp_path / "out.csv"
     table.to_csv(source, index=False)
@@ -59,5 +59,5 @@ def test_intervals_cover_95_percent_of_heavy_tailed_errors(tmp_path):
     assert len(scored) == 20 * (400 - 81)
     for c in "xy":
         coverage = np.mean(np.abs(scored[f"pred_{c}"] - scored[c]) <= Z95 * scored[f"std_{c}"])
-        assert 0.94 <= coverage <= 0.96, (c, coverage)   # measured 0.9491 (x), 0.9505 (y)
+        assert 0.94 <= coverage <= 0.96, (c, coverage)   # measured 0.9433 (x), 0.9466 (y)
 
