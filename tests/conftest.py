@@ -77,5 +77,8 @@ def pytest_configure(config):
     try:
         for options in ({}, {"lead": 1.0}):
             TrackPredictor(StreamConfig(length_unit=1.0, **options)).warm_up(2)
+    except BaseException:   # Ctrl-C: do not wait for the mixture's compile
+        mixture.kill()
+        raise
     finally:
         mixture.wait()
