@@ -238,41 +238,46 @@ def cold_cache(monkeypatch):
 
 
 def test_compile_ahead_runs_the_akf_kernel_in_a_child_and_changes_no_number(cold_cache):
-    """On a fresh cache the engine's first run starts a child process for the AKF kernel, compiles the bank's
-    other kernels meanwhile and waits. Here the kernels are cached already (the child only loads them) and
+    """On a fresh cache the engine's first run starts a child process for the AKF and turn kernels, compiles the
+    bank's other kernels meanwhile and waits. Here the kernels are cached already (the child only loads them) and
     the cache is declared empty: the child must exit 0, only once per process, and the numbers stay."""
     from kalmix.bank import make_bank
-    from kalmix.core import _numba_kernels
-    from kalmix.core.compiled import engine
+    from kalmix.core.compiled import akf, engine, turn
     from kalmix.core.testing import benign_tracks
 
-    bank = make_bank(2, "mixed", n_akf=8, length_unit=0.3)
+    bank = make_bank(2, "mixed+ar+turn", n_akf=8, length_unit=0.3)
     z, t = benign_tracks(seed=1)
     before = engine.run(bank, z, t)
-    assert _REAL_KERNEL_CACHED(_numba_kernels.run_targets)   # the run above left it in the cache
+    assert _REAL_KERNEL_CACHED(akf.kernel) and _REAL_KERNEL_CACHED(turn.kernel)   # the run above cached them
+    compiled = {kernel: len(kernel._cache._cache_file._load_index()) for kernel in (akf.kernel, turn.kernel)}
     cold_cache._reset()   # that run (under the fixture) took this process's turn
     assert cold_cache.compile_ahead(bank, engine.run) == 0
     assert cold_cache.compile_ahead(bank, engine.run) is None   # once per process
     after = engine.run(bank, z, t)
     for name in ("forecasts", "std"):
         assert np.array_equal(getattr(before, name), getattr(after, name), equal_nan=True), name
+    # the child called each kernel with the engine's argument types: it loaded them, and compiled nothing new
+    assert {kernel: len(kernel._cache._cache_file._load_index()) for kernel in compiled} == compiled
 
 
 def test_compile_ahead_only_when_it_helps(monkeypatch, cold_cache):
-    """No child without an AKF family, for an AKF-only bank (nothing to overlap), on one core, or when
-    switched off."""
-    from kalmix.bank import make_bank
+    """A child for the AKF and coordinated-turn kernels (one per kind); none without such a family, for a bank of
+    them alone (nothing to overlap), on one core, or when switched off."""
+    from kalmix.bank import DEFAULT_BANK, make_bank
 
     _warm = cold_cache
     mixed = make_bank(2, "mixed", n_akf=8)
-    assert _warm._eligible(mixed) is next(f for f in mixed.families if f.kind == "akf")
-    assert _warm._eligible(make_bank(2, "kinematic")) is None
-    assert _warm._eligible(make_bank(2, "akf", n_akf=8)) is None
+    assert _warm._eligible(mixed) == (next(f for f in mixed.families if f.kind == "akf"),)
+    default = make_bank(2, **DEFAULT_BANK)
+    assert [f.kind for f in _warm._eligible(default)] == ["turn", "akf"]
+    assert _warm._eligible(make_bank(2, "kinematic")) == ()
+    assert _warm._eligible(make_bank(2, "akf", n_akf=8)) == ()
+    assert _warm._eligible(make_bank(2, "turn")) == ()
     monkeypatch.setenv("KALMIX_BACKGROUND_COMPILE", "0")
-    assert _warm._eligible(mixed) is None
+    assert _warm._eligible(mixed) == ()
     monkeypatch.delenv("KALMIX_BACKGROUND_COMPILE")
     monkeypatch.setattr(_warm, "_cores", lambda: 1)
-    assert _warm._eligible(mixed) is None
+    assert _warm._eligible(mixed) == ()
 
 
 def test_read_only_inputs_compile_no_second_kernel():

@@ -28,8 +28,9 @@ configure_cache()
 COST = 1.0
 #: The GPU staged engine's name for this family's stage.
 NAME = "turn"
-#: Whether a fresh install compiles the kernel in a second process (:mod:`._warm`): not this one.
-COMPILE_APART = False
+#: Whether a fresh install compiles the kernel in a second process (:mod:`._warm`): yes, after the AKF's, which
+#: leaves the two processes' shares balanced.
+COMPILE_APART = True
 
 
 @nb.njit(inline="always", **_JIT)
