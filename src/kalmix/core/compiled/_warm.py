@@ -94,11 +94,12 @@ def _eligible(bank) -> tuple:
     apart = [f for f in bank.families if _apart(f)]
     if not apart or len(apart) == len(bank.families) or _cores() < 2:
         return ()
-    kinds = {}
-    for f in apart:   # one kernel per kind: its argument types do not depend on the family's sizes
-        if f.kind not in kinds and not kernel_cached(_kernel(f)):
-            kinds[f.kind] = f
-    return tuple(kinds.values())
+    kernels = {}
+    for f in apart:   # a kernel once: its argument types do not depend on the family's sizes
+        kernel = _kernel(f)
+        if kernel not in kernels and not kernel_cached(kernel):
+            kernels[kernel] = f
+    return tuple(kernels.values())
 
 
 def compile_ahead(bank, run) -> int | None:
