@@ -16,11 +16,11 @@ the families that compile apart); then this process waits for the child and load
 cache. Every kernel is compiled once. If the child fails, this process compiles the kernels itself.
 ``KALMIX_BACKGROUND_COMPILE=0`` switches it off.
 
-The child compiles at LLVM's ``-O2`` (``NUMBA_OPT=2``, unless ``NUMBA_OPT`` is set): the AKF kernel takes 12 %
-less time to compile (25.1 s against 28.7 s on the 2-core machine) and ran as fast, to the same bits, as at
-numba's default ``-O3``. numba compiles the other kernels mostly in its own passes, not LLVM's (this process's
-share took 28.1 s at ``-O2``, 28.7 s at ``-O3``), so they keep the default. The two shares are balanced by
-what compiles apart: the AKF kernel alone left this process the longer share.
+The child compiles at LLVM's ``-O2`` (``NUMBA_OPT=2``, unless ``NUMBA_OPT`` is set): the AKF kernel, most of
+LLVM's work, compiles markedly faster there and runs as fast, to the same bits, as at numba's default ``-O3``
+(the changelog has the figures). The other kernels are mostly numba's own passes, where ``-O2`` saves little,
+so they keep the default. What compiles apart is chosen to balance the two processes' shares: with the AKF
+kernel alone, this process had the longer one.
 """
 
 from __future__ import annotations
