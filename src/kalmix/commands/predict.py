@@ -200,7 +200,7 @@ def _local_only(given, output):
 @click.option("--rule", default=None, type=click.Choice(list(RULES)),
               help="Aggregation rule: boa_blend, BOA on the linearised and on the exact regrets, blended (follows "
                    "the right expert where the others are far off at some rows: constant acceleration at irregular "
-                   "steps); BOA alone (about 5 % faster, 3 kB less per track); ML-Poly; fixed share "
+                   "steps); BOA alone (up to 12 % faster, 4-5 kB less per track); ML-Poly; fixed share "
                    f"[default: {DEFAULT_BANK['rule']}].")
 @click.option("--time-unit", default=None, type=click.FloatRange(min=0, min_open=True),
               help="Typical sampling interval (the time unit, in the time column's units) that scales the CV/CA "
