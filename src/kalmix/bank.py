@@ -174,7 +174,7 @@ def make_bank(
     lead: float | None = None,
     lead_delay: float | None = None,
     level: float = 0.95,
-    calibration_from_points: int = 2,
+    calibration_from_points: int = CalibrationParams._field_defaults["from_points"],
     ar_orders=AR_ORDERS,
     ar_forgetting=AR_FORGETTING,
     ar_ridge=AR_RIDGE,

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..bank import ARGUMENT_CONSTRAINTS as BANK_ARGUMENTS
 from ..bank import DEFAULT_BANK, check_horizon, check_length_unit, make_bank, make_params, short_lead
+from ..core.calibration import CalibrationParams
 from ..core.constraints import validate
 from ..core.lead import LeadParams
 
@@ -137,7 +138,7 @@ class StreamConfig:
     population_prior: bool = True
     lead_prior: bool = True
     calibration_prior: bool = True
-    calibration_from_points: int = 2
+    calibration_from_points: int = CalibrationParams._field_defaults["from_points"]
     options: dict = field(default_factory=dict)
     bank: str = DEFAULT_BANK["kind"]
     rule: str = DEFAULT_BANK["rule"]
